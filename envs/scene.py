@@ -1,0 +1,209 @@
+"""The Scene type: a labelled triangle mesh, the simulator's single source of truth.
+
+Conventions (used everywhere in calnav):
+- World frame is z-up, metres; procedural houses have their floor at z = 0.
+- Every triangle carries a class id (``envs.semantics``; ``VOID`` = -1 for unlabelled), an
+  instance id (-1 = none), an albedo (RGB uint8) and a procedural texture id (``Texture``).
+- Scenes save to a single compressed ``.npz`` (arrays + a JSON metadata string) and load back
+  bit-identically.
+"""
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+from enum import IntEnum
+from pathlib import Path
+
+import numpy as np
+
+from envs.semantics import CLASS_NAMES, VOID
+
+FORMAT_VERSION = 1
+
+
+class Texture(IntEnum):
+    """Procedural surface patterns the renderer modulates albedo with."""
+
+    PLAIN = 0
+    STRIPES = 1   # e.g. wallpaper, upholstery
+    CHECKER = 2   # e.g. tiles
+    GRAIN = 3     # e.g. wood
+    SPECKLE = 4   # e.g. carpet, stone
+    FABRIC = 5    # fine cross-hatch, e.g. bedding
+
+
+@dataclass(frozen=True)
+class Room:
+    """An axis-aligned room of a procedural house: kind and floor bounds in metres."""
+
+    kind: str
+    xmin: float
+    ymin: float
+    xmax: float
+    ymax: float
+
+    @property
+    def area(self) -> float:
+        return (self.xmax - self.xmin) * (self.ymax - self.ymin)
+
+    def contains(self, x: float, y: float) -> bool:
+        return self.xmin <= x <= self.xmax and self.ymin <= y <= self.ymax
+
+
+class SceneError(ValueError):
+    """A scene file or mesh is unusable (corrupt, unlabelled, no floor, ...)."""
+
+
+@dataclass
+class Scene:
+    """A labelled triangle mesh.
+
+    vertices: (V, 3) float32 metres, world z-up.
+    triangles: (F, 3) int32 vertex indices.
+    tri_class: (F,) int16 class id into ``class_names`` (-1 = void).
+    tri_instance: (F,) int32 instance id (-1 = none); an instance has one class.
+    tri_albedo: (F, 3) uint8 base colour.
+    tri_texture: (F,) uint8 ``Texture`` id.
+    """
+
+    name: str
+    vertices: np.ndarray
+    triangles: np.ndarray
+    tri_class: np.ndarray
+    tri_instance: np.ndarray
+    tri_albedo: np.ndarray
+    tri_texture: np.ndarray
+    class_names: tuple[str, ...] = CLASS_NAMES
+    rooms: list[Room] = field(default_factory=list)
+    floor_z: float = 0.0
+    meta: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.vertices = np.ascontiguousarray(self.vertices, dtype=np.float32)
+        self.triangles = np.ascontiguousarray(self.triangles, dtype=np.int32)
+        self.tri_class = np.ascontiguousarray(self.tri_class, dtype=np.int16)
+        self.tri_instance = np.ascontiguousarray(self.tri_instance, dtype=np.int32)
+        self.tri_albedo = np.ascontiguousarray(self.tri_albedo, dtype=np.uint8)
+        self.tri_texture = np.ascontiguousarray(self.tri_texture, dtype=np.uint8)
+        self.class_names = tuple(self.class_names)
+        self.validate()
+
+    # ------------------------------------------------------------------ checks
+    def validate(self) -> None:
+        f = len(self.triangles)
+        if self.vertices.ndim != 2 or self.vertices.shape[1] != 3 or len(self.vertices) == 0:
+            raise SceneError(f"scene {self.name!r}: vertices must be (V, 3), got {self.vertices.shape}")
+        if self.triangles.ndim != 2 or self.triangles.shape[1] != 3 or f == 0:
+            raise SceneError(f"scene {self.name!r}: triangles must be (F, 3), got {self.triangles.shape}")
+        if self.triangles.min() < 0 or self.triangles.max() >= len(self.vertices):
+            raise SceneError(f"scene {self.name!r}: triangle indices out of range [0, {len(self.vertices)})")
+        for name, arr, shape in (
+            ("tri_class", self.tri_class, (f,)),
+            ("tri_instance", self.tri_instance, (f,)),
+            ("tri_albedo", self.tri_albedo, (f, 3)),
+            ("tri_texture", self.tri_texture, (f,)),
+        ):
+            if arr.shape != shape:
+                raise SceneError(f"scene {self.name!r}: {name} must have shape {shape}, got {arr.shape}")
+        if not np.isfinite(self.vertices).all():
+            raise SceneError(f"scene {self.name!r}: vertices contain NaN or inf")
+        k = len(self.class_names)
+        bad = (self.tri_class < VOID) | (self.tri_class >= k)
+        if bad.any():
+            raise SceneError(f"scene {self.name!r}: class ids must be in [-1, {k}), got {self.tri_class[bad][:5]}")
+        if (self.tri_class == VOID).all():
+            raise SceneError(f"scene {self.name!r}: the mesh carries no semantic labels (every face is void)")
+
+    # ------------------------------------------------------------- accessors
+    @property
+    def num_classes(self) -> int:
+        return len(self.class_names)
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """(min xyz, max xyz) of the mesh, metres."""
+        return self.vertices.min(axis=0), self.vertices.max(axis=0)
+
+    def instance_ids(self, class_id: int | None = None) -> np.ndarray:
+        """Sorted instance ids, optionally only those of class ``class_id``."""
+        mask = self.tri_instance >= 0
+        if class_id is not None:
+            mask &= self.tri_class == class_id
+        return np.unique(self.tri_instance[mask])
+
+    def instance_class(self, instance_id: int) -> int:
+        classes = np.unique(self.tri_class[self.tri_instance == instance_id])
+        if len(classes) != 1:
+            raise SceneError(f"instance {instance_id} has classes {classes.tolist()}, expected exactly one")
+        return int(classes[0])
+
+    def instance_triangles(self, instance_id: int) -> np.ndarray:
+        """(n, 3, 3) float32 vertex positions of the instance's triangles."""
+        tris = self.triangles[self.tri_instance == instance_id]
+        return self.vertices[tris]
+
+    def classes_present(self) -> set[int]:
+        return set(int(c) for c in np.unique(self.tri_class) if c != VOID)
+
+    def to_legacy_mesh(self):
+        """An ``open3d.geometry.TriangleMesh`` with per-vertex colours (for viewing)."""
+        import open3d as o3d
+
+        mesh = o3d.geometry.TriangleMesh(
+            o3d.utility.Vector3dVector(self.vertices.astype(np.float64)),
+            o3d.utility.Vector3iVector(self.triangles),
+        )
+        colors = np.zeros((len(self.vertices), 3))
+        colors[self.triangles.ravel()] = np.repeat(self.tri_albedo / 255.0, 3, axis=0)
+        mesh.vertex_colors = o3d.utility.Vector3dVector(colors)
+        return mesh
+
+    # -------------------------------------------------------------- file io
+    def save(self, path: str | os.PathLike) -> Path:
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        meta = {
+            "format_version": FORMAT_VERSION,
+            "name": self.name,
+            "class_names": list(self.class_names),
+            "rooms": [r.__dict__ for r in self.rooms],
+            "floor_z": self.floor_z,
+            "meta": self.meta,
+        }
+        tmp = path.with_name(path.name + ".tmp.npz")
+        np.savez_compressed(
+            tmp,
+            vertices=self.vertices, triangles=self.triangles, tri_class=self.tri_class,
+            tri_instance=self.tri_instance, tri_albedo=self.tri_albedo,
+            tri_texture=self.tri_texture, meta=np.array(json.dumps(meta)),
+        )
+        os.replace(tmp, path)  # atomic: a crash never leaves a half-written cache entry
+        return path
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> "Scene":
+        path = Path(path)
+        if not path.exists():
+            raise SceneError(f"scene file not found: {path}")
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                arrays = {k: data[k] for k in data.files}
+            meta = json.loads(str(arrays.pop("meta")))
+        except Exception as exc:  # zip/npz/json errors all mean the same thing to the user
+            raise SceneError(f"corrupt scene file {path}: {exc}") from exc
+        if meta.get("format_version") != FORMAT_VERSION:
+            raise SceneError(f"scene file {path} has format {meta.get('format_version')}, expected {FORMAT_VERSION}")
+        missing = {"vertices", "triangles", "tri_class", "tri_instance", "tri_albedo", "tri_texture"} - set(arrays)
+        if missing:
+            raise SceneError(f"corrupt scene file {path}: missing arrays {sorted(missing)}")
+        return cls(
+            name=meta["name"], class_names=tuple(meta["class_names"]),
+            rooms=[Room(**r) for r in meta["rooms"]], floor_z=float(meta["floor_z"]),
+            meta=meta.get("meta", {}), **arrays,
+        )
+
+
+def cache_dir() -> Path:
+    """Root of calnav's on-disk cache: ``$CALNAV_CACHE`` or ``~/.cache/calnav``."""
+    root = os.environ.get("CALNAV_CACHE")
+    return Path(root) if root else Path.home() / ".cache" / "calnav"

@@ -1,0 +1,73 @@
+"""The ``calnav`` command line. Each subcommand lives in its own module; this file only parses
+arguments and dispatches, so ``calnav --help`` stays fast (heavy imports happen on use)."""
+from __future__ import annotations
+
+import argparse
+import sys
+
+from eval.config import ConfigError
+
+
+def _add_config_args(p: argparse.ArgumentParser, default_config: str) -> None:
+    p.add_argument("--config", default=default_config, help=f"YAML config (default: {default_config})")
+    p.add_argument("overrides", nargs="*", metavar="KEY=VALUE",
+                   help="dotted config overrides, e.g. env.resolution=160x120 mapping.fusion=glfs")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="calnav", description=__doc__.split("\n")[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("objectnav", help="run ObjectNav episodes and report Success/SPL/SoftSPL/DTG")
+    _add_config_args(p, "configs/objectnav.yaml")
+    p.add_argument("--agent", default="oracle", help="agent to run (oracle)")
+    p.add_argument("--episodes", default="10", help="N (first N) or A:B (a range) of the split's episodes")
+    p.add_argument("--output", default=None, help="results directory (default: run.output_dir)")
+    p.add_argument("--video", type=int, default=0, help="write videos of the first N episodes")
+
+    p = sub.add_parser("view-episode", help="top-down map PNG and a frame strip of one episode")
+    _add_config_args(p, "configs/objectnav.yaml")
+    p.add_argument("--episode", type=int, default=0, help="episode index within the split")
+    p.add_argument("--agent", default="oracle", help="agent whose path is drawn (oracle)")
+    p.add_argument("--output", default="runs/view", help="output directory")
+
+    p = sub.add_parser("bench", help="speed/memory figures as a flat JSON of name -> number")
+    p.add_argument("--output", default="bench.json", help="JSON output path")
+    p.add_argument("--only", default="", help="comma-separated sections (default: all)")
+    p.add_argument("--quick", action="store_true", help="short run (indicative numbers only)")
+    p.add_argument("--scene-seed", type=int, default=7, help="procedural house seed to measure on")
+
+    p = sub.add_parser("demo", help="set-up check + a real ObjectNav evaluation on procedural houses")
+    p.add_argument("--episodes", type=int, default=5, help="number of val episodes")
+    p.add_argument("--output", default="runs/demo", help="results directory")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        if args.command == "bench":
+            from eval.bench import SECTIONS, run_bench
+
+            only = tuple(s for s in args.only.split(",") if s) or SECTIONS
+            run_bench(args.output, only, quick=args.quick, scene_seed=args.scene_seed)
+        elif args.command == "objectnav":
+            from eval.objectnav import main_objectnav
+
+            main_objectnav(args)
+        elif args.command == "view-episode":
+            from eval.view_episode import main_view_episode
+
+            main_view_episode(args)
+        elif args.command == "demo":
+            from eval.demo import main_demo
+
+            main_demo(args)
+    except (ConfigError, ValueError, FileNotFoundError) as exc:
+        print(f"calnav {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
