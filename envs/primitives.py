@@ -156,3 +156,47 @@ def box_room_scene(size_x: float = 6.0, size_y: float = 4.0, wall_height: float 
         b.add_box((x, y, sz / 2), (sx, sy, sz), cls, b.new_instance(), rng.integers(40, 220, 3), Texture.FABRIC)
     b.rooms.append(Room("living_room", -size_x / 2, -size_y / 2, size_x / 2, size_y / 2))
     return b.build()
+
+
+# ---------------------------------------------------------------------------------------------
+# Extra shapes for procedural furniture (appended; the functions above keep their signatures).
+def sphere_mesh(center, radii, segments: int = 10, rings: int = 6) -> tuple[np.ndarray, np.ndarray]:
+    """Closed UV ellipsoid: ``center`` (3,) metres, ``radii`` a scalar or (3,) semi-axes in metres.
+
+    ``segments`` points per latitude ring, ``rings`` latitude bands (>= 2); the mesh has
+    ``segments * (rings - 1) + 2`` vertices and ``2 * segments * (rings - 1)`` triangles.
+    """
+    if segments < 3 or rings < 2:
+        raise ValueError(f"a sphere needs >= 3 segments and >= 2 rings, got {segments}, {rings}")
+    radii = np.broadcast_to(np.asarray(radii, dtype=np.float64), (3,))
+    theta = np.linspace(0.0, np.pi, rings + 1)[1:-1]           # polar angle of each inner ring
+    phi = np.linspace(0.0, 2 * np.pi, segments, endpoint=False)
+    st, ct = np.sin(theta)[:, None], np.cos(theta)[:, None]
+    ring_pts = np.stack([st * np.cos(phi), st * np.sin(phi), np.repeat(ct, segments, axis=1)], axis=-1).reshape(-1, 3)
+    unit = np.vstack([ring_pts, [[0, 0, 1]], [[0, 0, -1]]])
+    verts = unit * radii + np.asarray(center, dtype=np.float64)
+    top, bottom = len(unit) - 2, len(unit) - 1
+    i = np.arange(segments)
+    j = (i + 1) % segments
+    tris = [np.stack([np.full(segments, top), i, j], 1)]
+    for r in range(rings - 2):
+        a, b = r * segments, (r + 1) * segments
+        tris += [np.stack([a + i, b + i, b + j], 1), np.stack([a + i, b + j, a + j], 1)]
+    last = (rings - 2) * segments
+    tris.append(np.stack([np.full(segments, bottom), last + j, last + i], 1))
+    return verts, np.concatenate(tris).astype(np.int32)
+
+
+def cone_mesh(center, radius: float, height: float, segments: int = 12) -> tuple[np.ndarray, np.ndarray]:
+    """Closed cone along +z; ``center`` is the centre of its base disc, apex ``height`` above."""
+    if segments < 3:
+        raise ValueError(f"a cone needs >= 3 segments, got {segments}")
+    ang = np.linspace(0.0, 2 * np.pi, segments, endpoint=False)
+    cx, cy, cz = (float(v) for v in center)
+    ring = np.column_stack([cx + radius * np.cos(ang), cy + radius * np.sin(ang), np.full(segments, cz)])
+    verts = np.vstack([ring, [[cx, cy, cz + height]], [[cx, cy, cz]]])
+    i = np.arange(segments)
+    j = (i + 1) % segments
+    apex, base = segments, segments + 1
+    tris = np.concatenate([np.stack([i, j, np.full(segments, apex)], 1), np.stack([np.full(segments, base), j, i], 1)])
+    return verts, tris.astype(np.int32)

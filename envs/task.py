@@ -44,7 +44,7 @@ class Observations:
 
     rgb: (H, W, 3) uint8. depth: (H, W) float32 metres, 0 where invalid (no hit, out of range).
     semantic: (H, W) int16 ground-truth class ids (-1 void) or None when the sensor is off.
-    gps: (2,) float32 metres, (forward, left) of the agent relative to its start pose.
+    gps: (2,) float32 metres, (forward, right) of the agent relative to its start pose.
     compass: float radians, heading relative to the start heading, counter-clockwise positive.
     goal: goal category id (0-5). camera_pose: (4, 4) float64 world-from-camera (OpenCV
     camera axes: x right, y down, z forward). intrinsics: (3, 3) float64 pinhole matrix.

@@ -23,7 +23,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--agent", default="oracle", help="agent to run (oracle)")
     p.add_argument("--episodes", default="10", help="N (first N) or A:B (a range) of the split's episodes")
     p.add_argument("--output", default=None, help="results directory (default: run.output_dir)")
-    p.add_argument("--video", type=int, default=0, help="write videos of the first N episodes")
+    p.add_argument("--force", action="store_true", help="discard results of a different config in --output")
 
     p = sub.add_parser("view-episode", help="top-down map PNG and a frame strip of one episode")
     _add_config_args(p, "configs/objectnav.yaml")

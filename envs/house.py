@@ -1,0 +1,407 @@
+"""Procedural houses: room layout, walls with doorways, floors, ceilings and furniture.
+
+``generate_house(seed)`` is a pure function of ``(seed, HouseSpec)``: all randomness comes from
+one ``np.random.default_rng(seed)``. Layout:
+
+1. A rectangular footprint (total area ~ rooms x per-room area) is cut by a recursive BSP
+   into axis-aligned room *cells*; bigger houses may first get a corridor strip (a hallway)
+   along their long axis. Walls are centred on cell boundaries, so a room's walkable
+   interior (``Scene.rooms``) is its cell shrunk by half a wall thickness on every side.
+2. Room kinds go by size: living room = largest cell, bathrooms = smallest, bedrooms (which
+   must fit a bed) the cells with the longest short side, other kinds shuffled.
+3. Doorways join rooms sharing a long enough wall: a random spanning tree (corridor edges
+   first, bathroom edges last, so bathrooms tend to be leaves) plus a few extra doors. Some
+   doorways carry an open door leaf (class ``door``) swung ~90 degrees into one room.
+4. Each room builds its own half-thickness wall slabs (so its walls have its own paint),
+   holes where doorways are, a lintel above each; a floor (+z face) and a ceiling (-z face)
+   cover the cell, so doorway thresholds have floor and every view ray hits something.
+5. Furniture from ``envs.furnish.ROOM_RECIPES`` is placed against walls or free,
+   with rectangle checks that keep rooms traversable (see ``fits``).
+
+Scene.meta holds the seed, the spec, the doorways and one record per object instance.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from envs.furniture import METAL, WOOD, colour
+from envs.furnish import ROOM_RECIPES, emit_group, find_pose
+from envs.primitives import MeshBuilder, box_mesh
+from envs.scene import Room, Scene, Texture
+
+GENERATOR_VERSION = 1  # bump when generated houses change for a given (seed, spec): invalidates caches
+ROOM_KINDS = ("bedroom", "bathroom", "living_room", "kitchen", "office", "hallway")
+
+# Surface styles per room kind: (palette, texture) choices for floors and walls.
+_FLOORS = {
+    "bathroom": (((225, 225, 220), (180, 190, 200), (120, 120, 125)), (Texture.CHECKER, Texture.SPECKLE)),
+    "kitchen": (((200, 195, 185), (150, 110, 75), (90, 90, 95)), (Texture.CHECKER, Texture.GRAIN)),
+    "bedroom": (((160, 120, 85), (150, 140, 130), (110, 100, 120)), (Texture.SPECKLE, Texture.GRAIN)),
+    "living_room": (((170, 125, 80), (120, 85, 55), (160, 150, 140)), (Texture.GRAIN, Texture.SPECKLE)),
+    "office": (((110, 110, 115), (160, 120, 85), (90, 100, 110)), (Texture.SPECKLE, Texture.GRAIN)),
+    "hallway": (((170, 125, 80), (190, 185, 175)), (Texture.GRAIN, Texture.CHECKER)),
+}
+_WALL_PAINT = ((236, 232, 222), (222, 210, 190), (200, 215, 225), (205, 220, 200), (210, 210, 210), (235, 220, 215))
+_CEILING = ((240, 240, 236), (232, 232, 228))
+LEAF_GAP_M = 0.01        # clearance around a door leaf in its frame, metres
+HANDLE_INSET_M = 0.08    # door handle distance from the leaf's free edge, metres
+HANDLE_Z_M = 1.0         # door handle height, metres
+HANDLE_SIZE_M = (0.03, 0.1, 0.03)   # door handle box (along the leaf, through it, height), metres
+
+
+@dataclass(frozen=True)
+class HouseSpec:
+    """Every constant of the generator. Ranges are (low, high) sampled uniformly."""
+
+    min_rooms: int = 3                                 # rooms per house (hallway included), inclusive
+    max_rooms: int = 10
+    room_area_m2: tuple[float, float] = (15.0, 26.0)    # mean footprint area per room, m^2 (HM3D-like episode lengths)
+    min_floor_area_m2: float = 40.0                     # bounds on total walkable floor (room interiors), m^2
+    max_floor_area_m2: float = 250.0
+    area_margin: float = 0.08                           # keep the sampled footprint this fraction inside the bounds
+    footprint_aspect: tuple[float, float] = (1.0, 1.7)  # long side / short side of the footprint
+    min_room_side_m: float = 2.4                        # shortest side of a room cell, metres
+    split_fraction: tuple[float, float] = (0.35, 0.65)  # BSP cut position as a fraction of the cut side
+    hallway_prob: float = 0.5                           # chance of a corridor in a house with >= hallway_min_rooms
+    hallway_min_rooms: int = 5
+    hallway_width_m: tuple[float, float] = (1.3, 1.8)   # corridor width, metres
+    wall_height_m: tuple[float, float] = (2.5, 3.0)     # floor-to-ceiling height per house, metres
+    wall_thickness_m: float = 0.1                       # interior and exterior walls, metres
+    door_width_m: tuple[float, float] = (0.9, 1.0)      # doorway opening width, metres
+    door_height_m: tuple[float, float] = (2.0, 2.1)     # doorway opening height (lintel bottom), metres
+    door_jamb_m: float = 0.15                           # least wall between a doorway and a room corner, metres
+    door_corner_prob: float = 0.6                       # chance a doorway sits at the end of the shared wall
+    extra_door_prob: float = 0.3                        # chance of a door on each adjacency off the spanning tree
+    door_leaf_prob: float = 0.5                         # chance that a doorway has an open door leaf (>= 1 per house)
+    door_leaf_thickness_m: float = 0.04                 # metres
+    door_open_deg: tuple[float, float] = (90.0, 105.0)  # leaf opening angle from closed, degrees
+    door_clearance_m: float = 1.0                       # free depth in front of a doorway, both sides, metres
+    door_zone_side_m: float = 0.3                       # free width beside a doorway (covers the leaf), metres
+    walk_gap_m: float = 0.6                             # least gap between furniture, and between furniture and
+                                                        # a wall it does not touch, metres
+    corner_prob: float = 0.35                           # chance a wall placement snaps into a corner
+    patterned_wall_prob: float = 0.35                   # chance a room's walls are tiled / papered, else paint
+    any_free_prob: float = 0.4                          # chance an "any"-mode item stands free of the walls
+    placement_tries: int = 30                           # random poses tried per sampled group
+    group_samples: int = 3                              # groups sampled per item before giving up
+    required_samples: int = 8                           # extra samples (exhaustive scan) for required items
+    scan_step_m: float = 0.1                            # step of the exhaustive wall scan for required items
+    max_layout_tries: int = 50                          # layouts drawn before giving up
+    kind_sequence: tuple[str, ...] = ("living_room", "bathroom", "bedroom", "kitchen", "bedroom", "office",
+                                      "bathroom", "bedroom", "living_room", "office")  # kinds by room count
+
+    def digest(self) -> str:
+        """Short hash of the spec and ``GENERATOR_VERSION`` (cache keys)."""
+        blob = json.dumps({"spec": asdict(self), "version": GENERATOR_VERSION}, sort_keys=True)
+        return hashlib.sha1(blob.encode()).hexdigest()[:10]
+
+
+@dataclass
+class _Cell:
+    x0: float
+    y0: float
+    x1: float
+    y1: float
+    hallway: bool = False
+    kind: str = ""
+
+    @property
+    def area(self) -> float:
+        return (self.x1 - self.x0) * (self.y1 - self.y0)
+
+
+@dataclass
+class Doorway:
+    """An opening between cells ``a`` and ``b`` in the wall plane ``axis`` = ``coord`` (metres);
+    it spans ``[lo, hi]`` along the wall and ``[0, height]`` in z. ``leaf_room`` is the cell a
+    door leaf swings into (None: no leaf), hinged at ``lo`` if ``hinge_lo`` else at ``hi``."""
+
+    a: int
+    b: int
+    axis: str
+    coord: float
+    lo: float
+    hi: float
+    height: float
+    leaf_room: int | None = None
+    hinge_lo: bool = True
+    open_deg: float = 90.0
+
+
+# ------------------------------------------------------------------------------ layout
+def _split_footprint(rng: np.random.Generator, spec: HouseSpec) -> list[_Cell]:
+    """Cells tiling a rectangular footprint with its corner at the origin (see module docstring)."""
+    n_target = int(rng.integers(spec.min_rooms, spec.max_rooms + 1))
+    lo, hi = spec.min_floor_area_m2 * (1 + spec.area_margin), spec.max_floor_area_m2 * (1 - spec.area_margin)
+    area = float(np.clip(n_target * rng.uniform(*spec.room_area_m2), lo, hi))
+    aspect = rng.uniform(*spec.footprint_aspect)
+    long, short = float(np.sqrt(area * aspect)), float(np.sqrt(area / aspect))
+    along_x = rng.random() < 0.5   # which world axis the footprint's long side follows
+    w, h = (long, short) if along_x else (short, long)
+    cells = [_Cell(0.0, 0.0, w, h)]
+    hall_w = rng.uniform(*spec.hallway_width_m)
+    if (n_target >= spec.hallway_min_rooms and rng.random() < spec.hallway_prob
+            and short >= 2 * spec.min_room_side_m + hall_w):
+        c0 = rng.uniform(spec.min_room_side_m, short - spec.min_room_side_m - hall_w)  # corridor along the long axis
+        c1 = c0 + hall_w
+        cells = ([_Cell(0, 0, w, c0), _Cell(0, c0, w, c1, hallway=True), _Cell(0, c1, w, h)] if along_x else
+                 [_Cell(0, 0, c0, h), _Cell(c0, 0, c1, h, hallway=True), _Cell(c1, 0, w, h)])
+    while len(cells) < n_target:
+        cands = [i for i, c in enumerate(cells)
+                 if not c.hallway and max(c.x1 - c.x0, c.y1 - c.y0) >= 2 * spec.min_room_side_m]
+        if not cands:
+            break
+        areas = np.array([cells[i].area for i in cands])
+        c = cells.pop(cands[int(rng.choice(len(cands), p=areas / areas.sum()))])
+        cut_x = (c.x1 - c.x0) >= (c.y1 - c.y0)
+        a, b = (c.x0, c.x1) if cut_x else (c.y0, c.y1)
+        t = float(np.clip(a + rng.uniform(*spec.split_fraction) * (b - a), a + spec.min_room_side_m, b - spec.min_room_side_m))
+        cells += ([_Cell(c.x0, c.y0, t, c.y1), _Cell(t, c.y0, c.x1, c.y1)] if cut_x else
+                  [_Cell(c.x0, c.y0, c.x1, t), _Cell(c.x0, t, c.x1, c.y1)])
+    return cells
+
+
+def _interior(c: _Cell, t: float) -> Room:
+    """The walkable floor of a cell: inside its walls (half a wall thickness on every side)."""
+    return Room(c.kind, float(c.x0 + t / 2), float(c.y0 + t / 2), float(c.x1 - t / 2), float(c.y1 - t / 2))
+
+
+def _assign_kinds(cells: list[_Cell], rng: np.random.Generator, spec: HouseSpec) -> None:
+    """Living room to the largest cell, bathrooms to the smallest; of the others, bedrooms
+    (which must fit a bed) get the cells with the longest short side, the rest is shuffled."""
+    for c in cells:
+        c.kind = "hallway" if c.hallway else ""
+    rooms = sorted((i for i, c in enumerate(cells) if not c.hallway), key=lambda i: -cells[i].area)
+    kinds = list(spec.kind_sequence[:len(rooms)])
+    kinds += ["bedroom"] * (len(rooms) - len(kinds))
+    n_bath = kinds.count("bathroom")
+    first = [kinds.pop(kinds.index("living_room"))]
+    middle = [k for k in kinds if k not in ("bathroom", "bedroom")]
+    rng.shuffle(middle)
+    middle = ["bedroom"] * kinds.count("bedroom") + middle
+    n_mid = len(middle)
+    mid_cells = sorted(rooms[1:1 + n_mid], key=lambda i: -min(cells[i].x1 - cells[i].x0, cells[i].y1 - cells[i].y0))
+    for i, kind in zip([rooms[0]] + mid_cells + rooms[1 + n_mid:], first + middle + ["bathroom"] * n_bath):
+        cells[i].kind = kind
+
+
+def _connect(cells: list[_Cell], rng: np.random.Generator, spec: HouseSpec) -> list[Doorway] | None:
+    """Doorways forming a connected room graph, or None if some room cannot get a door."""
+    t, need = spec.wall_thickness_m, spec.door_width_m[1] + 2 * (spec.wall_thickness_m / 2 + spec.door_jamb_m)
+    edges = []
+    for i, ci in enumerate(cells):
+        for j in range(i + 1, len(cells)):
+            cj = cells[j]
+            for axis, (a0, a1, b0, b1), (ilo, ihi, jlo, jhi) in (
+                    ("x", (ci.x0, ci.x1, cj.x0, cj.x1), (ci.y0, ci.y1, cj.y0, cj.y1)),
+                    ("y", (ci.y0, ci.y1, cj.y0, cj.y1), (ci.x0, ci.x1, cj.x0, cj.x1))):
+                coord = a1 if np.isclose(a1, b0) else a0 if np.isclose(a0, b1) else None
+                lo, hi = max(ilo, jlo), min(ihi, jhi)
+                if coord is not None and hi - lo >= need:
+                    edges.append((i, j, axis, coord, lo, hi))
+    # Randomised Prim: corridor edges first, bathroom edges last (bathrooms end up as leaves).
+    keys = [rng.random() - any(cells[k].hallway for k in e[:2]) + any(cells[k].kind == "bathroom" for k in e[:2])
+            for e in edges]
+    start = next((i for i, c in enumerate(cells) if c.hallway), int(np.argmax([c.area for c in cells])))
+    tree, chosen = {start}, []
+    while len(tree) < len(cells):
+        frontier = [k for k, e in enumerate(edges) if (e[0] in tree) != (e[1] in tree)]
+        if not frontier:
+            return None
+        k = min(frontier, key=lambda k: keys[k])
+        chosen.append(k)
+        tree.update(edges[k][:2])
+    chosen += [k for k, e in enumerate(edges) if k not in chosen and rng.random() < spec.extra_door_prob
+               and all(cells[i].kind != "bathroom" for i in e[:2])]
+    doors = []
+    for k in chosen:
+        i, j, axis, coord, lo, hi = edges[k]
+        width, margin = rng.uniform(*spec.door_width_m), t / 2 + spec.door_jamb_m
+        lo_mid, hi_mid = lo + margin + width / 2, hi - margin - width / 2
+        mid = ((lo_mid, hi_mid)[rng.integers(2)] if rng.random() < spec.door_corner_prob  # near a corner frees wall space
+               else rng.uniform(lo_mid, hi_mid))
+        doors.append(Doorway(i, j, axis, float(coord), mid - width / 2, mid + width / 2,
+                             rng.uniform(*spec.door_height_m), open_deg=rng.uniform(*spec.door_open_deg)))
+    _choose_leaves(doors, cells, rng, spec)
+    return doors
+
+
+def _choose_leaves(doors: list[Doorway], cells: list[_Cell], rng: np.random.Generator, spec: HouseSpec) -> None:
+    """Hang open leaves in some doorways (at least one per house), each swung into a room where it
+    stays inside the room, off the other doorways' clear zones and off other leaves."""
+    taken: list[np.ndarray] = []
+
+    def try_leaf(d: Doorway) -> bool:
+        for k in rng.permutation(4):   # (room, hinge side) options in random order
+            d.leaf_room, d.hinge_lo = (d.a, d.b)[k // 2], bool(k % 2)
+            rect, room = _leaf_pose(d, cells, spec)[-1], _interior(cells[d.leaf_room], spec.wall_thickness_m)
+            inside = room.xmin <= rect[0] and rect[2] <= room.xmax and room.ymin <= rect[1] and rect[3] <= room.ymax
+            # across the room from the leaf, a walkable gap must remain (narrow hallways)
+            across = (room.xmax - rect[2], rect[0] - room.xmin) if d.axis == "x" else (room.ymax - rect[3], rect[1] - room.ymin)
+            inside = inside and max(across) >= spec.walk_gap_m
+            zones = _door_zones([o for o in doors if o is not d], cells, d.leaf_room, spec)
+            grown = rect + spec.walk_gap_m * np.array([-1, -1, 1, 1])   # two leaves could seal a corner
+            if inside and not any(_overlap(rect, z) for z in zones) and not any(_overlap(grown, o) for o in taken):
+                taken.append(rect)
+                return True
+        d.leaf_room = None
+        return False
+
+    wanted = [rng.random() < spec.door_leaf_prob for _ in doors]
+    placed = [try_leaf(d) for d, w in zip(doors, wanted) if w]
+    if not any(placed):   # the house must show the door class
+        any(try_leaf(d) for d in doors)
+
+
+def _overlap(a: np.ndarray, b: np.ndarray) -> bool:
+    """Whether two (x0, y0, x1, y1) rectangles share interior area."""
+    return a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]
+
+
+# --------------------------------------------------------------------------- structure
+def _build_room_shell(b: MeshBuilder, ci: int, cells: list[_Cell], doors: list[Doorway], footprint, wall_h: float,
+                      rng: np.random.Generator, spec: HouseSpec) -> None:
+    """Floor, ceiling and this room's own wall slabs (with doorway holes and lintels)."""
+    c, t = cells[ci], spec.wall_thickness_m
+    floor_pal, floor_tex = _FLOORS[c.kind]
+    cx, cy, sx, sy = (c.x0 + c.x1) / 2, (c.y0 + c.y1) / 2, c.x1 - c.x0, c.y1 - c.y0
+    b.add_box((cx, cy, -t / 2), (sx, sy, t), "floor", b.new_instance(), colour(rng, floor_pal),
+              floor_tex[rng.integers(len(floor_tex))], faces="+z")
+    b.add_box((cx, cy, wall_h + t / 2), (sx, sy, t), "ceiling", b.new_instance(), colour(rng, _CEILING), faces="-z")
+    wall_inst, paint = b.new_instance(), colour(rng, _WALL_PAINT)
+    patterned = rng.random() < spec.patterned_wall_prob   # tiles in wet rooms, wallpaper elsewhere
+    wall_tex = (Texture.CHECKER if c.kind in ("bathroom", "kitchen") else Texture.STRIPES) if patterned else Texture.PLAIN
+    fx0, fy0, fx1, fy1 = footprint
+    ext = {"-x": np.isclose(c.x0, fx0), "+x": np.isclose(c.x1, fx1), "-y": np.isclose(c.y0, fy0), "+y": np.isclose(c.y1, fy1)}
+    out = {k: t / 2 if v else 0.0 for k, v in ext.items()}   # exterior slabs also extend outward
+    sides = {  # side -> (wall axis, plane coord, normal extent (n0, n1), along extent (u0, u1))
+        "-x": ("x", c.x0, (c.x0 - out["-x"], c.x0 + t / 2), (c.y0 + t / 2, c.y1 - t / 2)),
+        "+x": ("x", c.x1, (c.x1 - t / 2, c.x1 + out["+x"]), (c.y0 + t / 2, c.y1 - t / 2)),
+        "-y": ("y", c.y0, (c.y0 - out["-y"], c.y0 + t / 2), (c.x0 - out["-x"], c.x1 + out["+x"])),
+        "+y": ("y", c.y1, (c.y1 - t / 2, c.y1 + out["+y"]), (c.x0 - out["-x"], c.x1 + out["+x"])),
+    }
+    for axis, coord, (n0, n1), (u0, u1) in sides.values():
+        holes = sorted((d.lo, d.hi, d.height) for d in doors
+                       if ci in (d.a, d.b) and d.axis == axis and np.isclose(d.coord, coord))
+        pieces, u = [], u0
+        for lo, hi, dh in holes:
+            pieces += [(u, lo, 0.0, wall_h), (lo, hi, dh, wall_h)]   # wall up to the hole, lintel over it
+            u = hi
+        pieces.append((u, u1, 0.0, wall_h))
+        for ua, ub, za, zb in pieces:
+            if ub - ua < 1e-6:   # a doorway flush with the slab's end leaves an empty piece
+                continue
+            centre_n, centre_u = (n0 + n1) / 2, (ua + ub) / 2
+            center = (centre_n, centre_u, (za + zb) / 2) if axis == "x" else (centre_u, centre_n, (za + zb) / 2)
+            size = (n1 - n0, ub - ua, zb - za) if axis == "x" else (ub - ua, n1 - n0, zb - za)
+            b.add_box(center, size, "wall", wall_inst, paint, wall_tex, faces="-z -y +y +x -x" if za > 0 else "-y +y +x -x")
+
+
+def _door_frame(d: Doorway, cells: list[_Cell], room: int, t: float):
+    """(to_world, sign): maps (n, u) = (depth into ``room`` from its wall face, along-wall) to world xy."""
+    c = cells[room]
+    sign = 1.0 if np.isclose(c.x0 if d.axis == "x" else c.y0, d.coord) else -1.0
+    def to_world(n, u):
+        w = d.coord + sign * (t / 2 + np.asarray(n))
+        return (w, np.asarray(u)) if d.axis == "x" else (np.asarray(u), w)
+    return to_world, sign
+
+
+def _leaf_pose(d: Doorway, cells: list[_Cell], spec: HouseSpec):
+    """Open leaf of doorway ``d``: centre (x, y), yaw, length, handle (x, y) and footprint rect, metres."""
+    to_world, sign = _door_frame(d, cells, d.leaf_room, spec.wall_thickness_m)
+    th, length = spec.door_leaf_thickness_m, d.hi - d.lo - LEAF_GAP_M
+    ang, s = np.deg2rad(d.open_deg), (1.0 if d.hinge_lo else -1.0)
+    dir_n, dir_u = np.sin(ang), s * np.cos(ang)   # leaf direction from its hinge in the (n, u) frame;
+    hinge_n, hinge_u = th / 2, (d.lo if d.hinge_lo else d.hi) - s * th / 2   # past 90 deg it turns off the passage
+    centre = to_world(hinge_n + dir_n * length / 2, hinge_u + dir_u * length / 2)
+    handle = to_world(hinge_n + dir_n * (length - HANDLE_INSET_M), hinge_u + dir_u * (length - HANDLE_INSET_M))
+    dx, dy = (sign * dir_n, dir_u) if d.axis == "x" else (dir_u, sign * dir_n)
+    yaw = float(np.arctan2(dy, dx))
+    corners = box_mesh((*centre, 0.0), (length, th, 0.0), yaw)[0][:4, :2]
+    return centre, yaw, length, handle, np.concatenate([corners.min(0), corners.max(0)])
+
+
+def _add_door_leaf(b: MeshBuilder, d: Doorway, cells: list[_Cell], rng: np.random.Generator, spec: HouseSpec) -> None:
+    (x, y), yaw, length, (hx, hy), _ = _leaf_pose(d, cells, spec)
+    th, height, inst = spec.door_leaf_thickness_m, d.height - 2 * LEAF_GAP_M, b.new_instance()
+    b.add_box((x, y, LEAF_GAP_M + height / 2), (length, th, height), "door", inst, colour(rng, WOOD), Texture.GRAIN, yaw=yaw)
+    b.add_box((hx, hy, HANDLE_Z_M), HANDLE_SIZE_M, "door", inst, colour(rng, METAL), yaw=yaw)
+
+
+def _door_zones(doors: list[Doorway], cells: list[_Cell], room: int, spec: HouseSpec) -> list[np.ndarray]:
+    """Rectangles (x0, y0, x1, y1) in front of the room's doorways that furniture must leave free."""
+    zones = []
+    for d in (d for d in doors if room in (d.a, d.b)):
+        to_world, _ = _door_frame(d, cells, room, spec.wall_thickness_m)
+        xs, ys = to_world(np.array([0.0, spec.door_clearance_m]),
+                          np.array([d.lo - spec.door_zone_side_m, d.hi + spec.door_zone_side_m]))
+        zones.append(np.array([min(xs), min(ys), max(xs), max(ys)]))
+    return zones
+
+
+def _furnish(b: MeshBuilder, rooms: list[Room], cells: list[_Cell], doors: list[Doorway], rng: np.random.Generator,
+             spec: HouseSpec) -> list[dict]:
+    """Place each room's recipe items in order; returns one meta record per object instance."""
+    objects = []
+    for ri, room in enumerate(rooms):
+        # Door leaves are obstacles (kept >= walk gap away); the rest of a doorway's zone stays free.
+        obstacles = [_leaf_pose(d, cells, spec)[-1] for d in doors if d.leaf_room == ri]
+        zones = _door_zones(doors, cells, ri, spec)
+        for item in ROOM_RECIPES[room.kind]:
+            if rng.random() >= item.prob:
+                continue
+            samples = spec.group_samples + (spec.required_samples if item.required else 0)
+            for _ in range(int(rng.integers(item.count[0], item.count[1] + 1))):
+                for sample in range(samples):
+                    harder = sample >= spec.group_samples   # required items only
+                    group = (item.fallback or item.make)(rng) if harder else item.make(rng)
+                    pose = find_pose(group, room, obstacles, zones, item.mode, rng, spec, exhaustive=harder)
+                    if pose is not None:
+                        obstacles.append(pose[0])
+                        objects += emit_group(b, group, pose[0], pose[1], ri)
+                        break
+    return objects
+
+
+# ---------------------------------------------------------------------------------- api
+def generate_house(seed: int, spec: HouseSpec | None = None) -> Scene:
+    """A furnished procedural house, a pure function of ``(seed, spec)``; see the module docstring."""
+    spec = spec or HouseSpec()
+    rng = np.random.default_rng(seed)
+    t = spec.wall_thickness_m
+    for _ in range(spec.max_layout_tries):
+        cells = _split_footprint(rng, spec)
+        area = sum((c.x1 - c.x0 - t) * (c.y1 - c.y0 - t) for c in cells)
+        if not (spec.min_rooms <= len(cells) <= spec.max_rooms
+                and spec.min_floor_area_m2 <= area <= spec.max_floor_area_m2):
+            continue
+        _assign_kinds(cells, rng, spec)
+        doors = _connect(cells, rng, spec)
+        if doors is not None:
+            break
+    else:
+        raise RuntimeError(f"seed {seed}: no valid layout in {spec.max_layout_tries} tries; loosen the HouseSpec")
+    wall_h = float(rng.uniform(*spec.wall_height_m))
+    footprint = (min(c.x0 for c in cells), min(c.y0 for c in cells), max(c.x1 for c in cells), max(c.y1 for c in cells))
+    b = MeshBuilder(f"house_{seed}")
+    for ci in range(len(cells)):
+        _build_room_shell(b, ci, cells, doors, footprint, wall_h, rng, spec)
+    for d in doors:
+        if d.leaf_room is not None:
+            _add_door_leaf(b, d, cells, rng, spec)
+    rooms = [_interior(c, t) for c in cells]
+    b.rooms = rooms
+    objects = _furnish(b, rooms, cells, doors, rng, spec)
+    b.meta = {
+        "generator": "envs.house", "generator_version": GENERATOR_VERSION, "seed": int(seed),
+        "spec_digest": spec.digest(), "spec": asdict(spec), "wall_height_m": wall_h, "floor_area_m2": float(area),
+        "doors": [{"rooms": [d.a, d.b], "axis": d.axis, "coord": float(d.coord), "span": [float(d.lo), float(d.hi)],
+                   "height": float(d.height), "leaf_room": d.leaf_room} for d in doors],
+        "objects": objects,
+    }
+    return b.build()

@@ -1,0 +1,187 @@
+"""Privileged agents that use the simulator's ground truth: habitat-lab's ShortestPathFollower
+equivalent (for validating episodes, geodesics and metrics) and scanning trajectories.
+
+The follower plans over the agent's real action lattice -- states (x, y, heading) reached by
+0.25 m forward steps and 30 degree turns, blocked moves excluded -- with A*: cost = path length
+(plus a tiny cost per turn so it prefers fewer turns), heuristic = the geodesic DistanceToGoal
+field, goal = DistanceToGoal below the success radius. A greedy "best next step" follower gets
+trapped where quantised headings cannot thread a doorway; planning over the lattice cannot.
+"""
+from __future__ import annotations
+
+import heapq
+import math
+
+import numpy as np
+
+from envs.config import EnvConfig
+from envs.task import Action
+
+STOP_RADIUS_FRACTION = 0.99   # STOP once DistanceToGoal < this fraction of the success distance
+TURN_COST_M = 1e-3            # tie-breaker: a turn costs as much as 1 mm of path
+STATE_BIN_M = 0.08            # positions in one bin (per heading) are one A* state, metres
+HEURISTIC_WEIGHT = 1.2        # weighted A*: path at most this factor above the lattice optimum
+MAX_EXPANSIONS = 40_000       # A* gives up beyond this many states (then a greedy step is used)
+
+
+class ShortestPathFollower:
+    """next_action(xy (2,) metres, yaw radians, field: GeodesicField) -> Action."""
+
+    def __init__(self, navgrid, env_cfg: EnvConfig, stop_distance_m: float | None = None):
+        self.navgrid = navgrid
+        self.step_m = env_cfg.forward_step_m
+        self.turn_rad = math.radians(env_cfg.turn_angle_deg)
+        self.n_headings = max(1, round(2 * math.pi / self.turn_rad))
+        # The follower reads the same distance function as the Success measure, so stopping
+        # just inside the success radius is safe and saves an overshooting last step.
+        self.stop_distance = (stop_distance_m if stop_distance_m is not None
+                              else env_cfg.success_distance_m * STOP_RADIUS_FRACTION)
+        self._plan: list[tuple[Action, tuple]] = []
+        self._field = None
+
+    # ---------------------------------------------------------------- planning
+    def _key(self, xy, k: int) -> tuple:
+        return (round(xy[0] / STATE_BIN_M), round(xy[1] / STATE_BIN_M), k % self.n_headings)
+
+    def plan(self, xy: np.ndarray, yaw: float, field) -> list[Action] | None:
+        """Actions from (xy, yaw) to STOP inside the goal region, or None if A* gives up."""
+        start = (float(field.distance(xy)), 0.0, 0, (float(xy[0]), float(xy[1])), 0)
+        frontier = [start]
+        parents: dict[tuple, tuple | None] = {self._key(xy, 0): None}
+        best_g = {self._key(xy, 0): 0.0}
+        tie = 0
+        while frontier and len(best_g) < MAX_EXPANSIONS:
+            _, g, _, pos, k = heapq.heappop(frontier)
+            key = self._key(pos, k)
+            if g > best_g.get(key, math.inf) + 1e-12:
+                continue
+            if field.distance(np.array(pos)) < self.stop_distance:
+                return self._unwind(parents, key)
+            heading = yaw + k * self.turn_rad
+            new_xy, moved = self.navgrid.move_forward(np.array(pos), heading, self.step_m)
+            successors = [(Action.TURN_LEFT, pos, k + 1, TURN_COST_M),
+                          (Action.TURN_RIGHT, pos, k - 1, TURN_COST_M)]
+            if moved:
+                successors.append((Action.MOVE_FORWARD, (float(new_xy[0]), float(new_xy[1])), k, self.step_m))
+            for action, p2, k2, cost in successors:
+                key2 = self._key(p2, k2)
+                g2 = g + cost
+                if g2 < best_g.get(key2, math.inf) - 1e-12:
+                    h = float(field.distance(np.array(p2)))
+                    if not math.isfinite(h):
+                        continue
+                    best_g[key2] = g2
+                    parents[key2] = (key, action)
+                    tie += 1
+                    heapq.heappush(frontier, (g2 + HEURISTIC_WEIGHT * max(0.0, h - self.stop_distance), g2, tie, p2, k2))
+        return None
+
+    def _unwind(self, parents: dict, key: tuple) -> list[Action]:
+        actions = [Action.STOP]
+        while parents[key] is not None:
+            key, action = parents[key]
+            actions.append(action)
+        return actions[::-1]
+
+    def _greedy(self, xy: np.ndarray, yaw: float, field) -> Action:
+        """Best single step (fallback when planning fails)."""
+        d = field.distance(xy)
+        best = (d, None)
+        for k in range(self.n_headings):
+            new_xy, moved = self.navgrid.move_forward(xy, yaw + k * self.turn_rad, self.step_m)
+            if moved and field.distance(new_xy) < best[0]:
+                best = (field.distance(new_xy), k)
+        if best[1] is None:
+            return Action.STOP
+        if best[1] == 0:
+            return Action.MOVE_FORWARD
+        return Action.TURN_LEFT if best[1] <= self.n_headings // 2 else Action.TURN_RIGHT
+
+    def next_action(self, xy: np.ndarray, yaw: float, field) -> Action:
+        if field.distance(xy) < self.stop_distance:
+            return Action.STOP
+        state = (float(xy[0]), float(xy[1]), float(yaw))
+        if field is not self._field or not self._plan or self._plan[0][1] != state:
+            actions = self.plan(xy, yaw, field)
+            self._field = field
+            if actions is None:
+                self._plan = []
+                return self._greedy(xy, yaw, field)
+            self._plan = self._states(xy, yaw, actions)
+        return self._plan.pop(0)[0]
+
+    def _states(self, xy, yaw: float, actions: list[Action]) -> list[tuple[Action, tuple]]:
+        """Pair each planned action with the exact (x, y, yaw) it is taken from, so any
+        deviation (a different pose than planned) triggers a replan."""
+        out = []
+        pos, heading = np.array(xy, dtype=np.float64), float(yaw)
+        for a in actions:
+            out.append((a, (float(pos[0]), float(pos[1]), heading)))
+            if a == Action.MOVE_FORWARD:
+                pos, _ = self.navgrid.move_forward(pos, heading, self.step_m)
+            elif a == Action.TURN_LEFT:
+                heading = (heading + self.turn_rad) % (2 * math.pi)
+            elif a == Action.TURN_RIGHT:
+                heading = (heading - self.turn_rad) % (2 * math.pi)
+        return out
+
+
+def scan_trajectory(navgrid, env_cfg: EnvConfig, n_poses: int, seed: int = 0,
+                    look_around_every: int = 8) -> list[np.ndarray]:
+    """(4, 4) world-from-camera poses of an agent walking shortest paths between far-apart
+    points of the house and looking around (a full turn) every ``look_around_every`` steps."""
+    from envs.render import camera_pose
+
+    rng = np.random.default_rng(seed)
+    follower = ShortestPathFollower(navgrid, env_cfg)
+    height = env_cfg.camera_height_m
+    free = np.argwhere(navgrid.navigable)
+    xy = navgrid.to_world(free[rng.integers(len(free))][None])[0]
+    yaw = float(rng.uniform(0, 2 * math.pi))
+    poses: list[np.ndarray] = []
+    forward_steps = 0
+    while len(poses) < n_poses:
+        start_mask = np.zeros(navgrid.navigable.shape, dtype=bool)
+        start_mask[tuple(navgrid.to_cell(xy[None])[0])] = True
+        dist = navgrid.geodesic_field(start_mask).values
+        far = np.argwhere(np.isfinite(dist) & (dist >= 0.5 * np.nanmax(np.where(np.isfinite(dist), dist, 0))))
+        target = np.zeros_like(start_mask)
+        target[tuple(far[rng.integers(len(far))])] = True
+        field = navgrid.geodesic_field(target)
+        for _ in range(4 * n_poses):
+            action = follower.next_action(xy, yaw, field)
+            if action == Action.STOP or len(poses) >= n_poses:
+                break
+            if action == Action.MOVE_FORWARD:
+                xy, _ = navgrid.move_forward(xy, yaw, env_cfg.forward_step_m)
+                forward_steps += 1
+            else:
+                yaw += follower.turn_rad if action == Action.TURN_LEFT else -follower.turn_rad
+            poses.append(camera_pose(xy, yaw, height))
+            if forward_steps and forward_steps % look_around_every == 0:
+                forward_steps += 1  # look around once per block of steps
+                for _ in range(follower.n_headings):
+                    if len(poses) >= n_poses:
+                        break
+                    yaw += follower.turn_rad
+                    poses.append(camera_pose(xy, yaw, height))
+    return poses
+
+
+class OracleAgent:
+    """Runs the ShortestPathFollower inside an ObjectNavEnv (privileged: reads the env's pose
+    and goal field). Interface shared with calnav's agents: reset(obs), act(obs) -> int."""
+
+    name = "oracle"
+
+    def __init__(self, env):
+        self.env = env.unwrapped
+
+    def reset(self, obs: dict) -> None:
+        self.follower = ShortestPathFollower(self.env.navgrid, self.env.config)
+
+    def act(self, obs: dict) -> int:
+        e = self.env
+        if e.steps >= e.config.max_episode_steps - 1:
+            return int(Action.STOP)  # forced STOP on the last step, as PEANUT does
+        return int(self.follower.next_action(e.position, e.yaw, e.goal_field))

@@ -1,0 +1,229 @@
+"""The scene library: which scenes make up each split, their seeds, and loading them (cached).
+
+Procedural scenes (``DatasetConfig.scene_dir == ""``)
+    Ids are ``house_<split>_<index:04d>`` (e.g. ``house_val_0003``), ``index`` in
+    ``[0, <split>_scenes)``. A house's seed is
+
+        scene_seed = BASE_SEED_STRIDE * base_seed + SPLIT_BLOCK * rank(split) + index
+
+    with rank train = 1, val = 2, test = 3, ``SPLIT_BLOCK`` = 1,000,000 and
+    ``BASE_SEED_STRIDE`` = 4,000,000: the splits draw from disjoint seed ranges, and so do
+    different ``DatasetConfig.seed`` values (base seeds >= 0). Generated houses are cached at
+    ``cache_dir()/scenes/<id>_<key>.npz``, ``key`` a hash of the seed, the ``HouseSpec`` and
+    the generator version, so a changed spec or base seed gets a fresh file.
+
+User scenes (``DatasetConfig.scene_dir`` set)
+    Ids are the file stems of the ``*.npz`` (``Scene.save`` files) and ``*.ply`` (labelled
+    meshes, see ``envs.scan``) in that directory; a stem present in both loads the ``.npz``.
+    Without ``train/``, ``val/``, ``test/`` subfolders every split lists the same (sorted)
+    scenes; with them, each split lists its own subfolder. A PLY's labels come from a sibling
+    ``<stem>.labels.json`` or else ``labels.json``: either a plain ``{raw id: class name}``
+    mapping or ``{"label_map": {...}, "up_axis": "y", "label_property": "label"}``; with
+    neither, raw labels must already be calnav class ids. Converted PLYs are cached too.
+
+Loaded scenes are kept in a small in-process LRU (``LRU_SIZE``); treat them as read-only.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import re
+import uuid
+import warnings
+from collections import OrderedDict
+from pathlib import Path
+
+from envs.config import DatasetConfig
+from envs.house import HouseSpec, generate_house
+from envs.scan import load_labelled_ply
+from envs.scene import Scene, SceneError, cache_dir
+
+SPLITS = ("train", "val", "test")
+SPLIT_BLOCK = 1_000_000                     # seeds per split block (max scenes per split)
+BASE_SEED_STRIDE = 4 * SPLIT_BLOCK          # seed distance between consecutive base seeds
+LRU_SIZE = 4                                # scenes kept in memory
+_ID_RE = re.compile(r"^house_(train|val|test)_(\d+)$")
+_lru: OrderedDict[tuple, Scene] = OrderedDict()
+
+
+def _check_split(split: str) -> None:
+    if split not in SPLITS:
+        raise ValueError(f"unknown split {split!r}; valid splits: {', '.join(SPLITS)}")
+
+
+def procedural_scene_id(split: str, index: int) -> str:
+    """``house_<split>_<index:04d>``."""
+    _check_split(split)
+    if not 0 <= int(index) < SPLIT_BLOCK:
+        raise ValueError(f"scene index must be in [0, {SPLIT_BLOCK}), got {index}")
+    return f"house_{split}_{int(index):04d}"
+
+
+def parse_scene_id(scene_id: str) -> tuple[str, int]:
+    """(split, index) of a procedural id; ValueError naming the id format otherwise."""
+    m = _ID_RE.match(str(scene_id))
+    if not m or int(m.group(2)) >= SPLIT_BLOCK:
+        raise ValueError(f"unknown scene id {scene_id!r}; procedural ids look like 'house_<split>_<NNNN>' "
+                         f"with split one of {', '.join(SPLITS)} (e.g. 'house_val_0003')")
+    return m.group(1), int(m.group(2))
+
+
+def scene_seed(scene_id: str, base_seed: int = 0) -> int:
+    """The ``generate_house`` seed of a procedural id (see the module docstring)."""
+    split, index = parse_scene_id(scene_id)
+    if base_seed < 0:
+        raise ValueError(f"base seed must be >= 0, got {base_seed}")
+    return BASE_SEED_STRIDE * int(base_seed) + SPLIT_BLOCK * (SPLITS.index(split) + 1) + index
+
+
+# ------------------------------------------------------------------------- user scenes
+def _split_dirs(root: Path) -> dict[str, Path] | None:
+    """{split: folder} when ``root`` has split subfolders, else None (one shared list)."""
+    found = {s: root / s for s in SPLITS if (root / s).is_dir()}
+    return found or None
+
+
+def _scene_files(folder: Path) -> dict[str, Path]:
+    """{stem: path} of the scene files in ``folder``; ``.npz`` wins over ``.ply``."""
+    files: dict[str, Path] = {}
+    for p in sorted(folder.glob("*.ply")) + sorted(folder.glob("*.npz")):
+        if not p.name.endswith(".tmp.npz"):
+            files[p.stem] = p
+    return files
+
+
+def _user_files(scene_dir: str, split: str | None) -> dict[str, Path]:
+    root = Path(scene_dir).expanduser()
+    if not root.is_dir():
+        raise ValueError(f"dataset.scene_dir {str(root)!r} is not a directory")
+    dirs = _split_dirs(root)
+    if dirs is None:
+        return _scene_files(root)
+    if split is not None:
+        if split not in dirs:
+            raise ValueError(f"{root} has split folders {sorted(dirs)} but no {split!r} folder")
+        return _scene_files(dirs[split])
+    merged: dict[str, Path] = {}
+    for folder in (dirs[s] for s in SPLITS if s in dirs):   # any split's scene loads by id; first split wins
+        for stem, p in _scene_files(folder).items():
+            merged.setdefault(stem, p)
+    return merged
+
+
+def _ply_settings(ply: Path) -> dict:
+    """load_labelled_ply keyword arguments from the PLY's sibling label file, if any."""
+    for cand in (ply.with_name(ply.stem + ".labels.json"), ply.with_name("labels.json")):
+        if cand.exists():
+            try:
+                data = json.loads(cand.read_text())
+            except ValueError as exc:
+                raise SceneError(f"unreadable label file {cand}: {exc}") from exc
+            if isinstance(data, dict) and "label_map" in data:
+                unknown = set(data) - {"label_map", "up_axis", "label_property"}
+                if unknown:
+                    raise SceneError(f"{cand}: unknown keys {sorted(unknown)}; valid: label_map, up_axis, label_property")
+                return dict(data)
+            return {"label_map": data}
+    return {}
+
+
+def _load_user_scene(path: Path) -> Scene:
+    if path.suffix == ".npz":
+        return Scene.load(path)
+    settings = _ply_settings(path)
+    st = path.stat()
+    key = hashlib.sha1(json.dumps([str(path.resolve()), st.st_mtime_ns, st.st_size, settings],
+                                  sort_keys=True, default=str).encode()).hexdigest()[:12]
+    cached = cache_dir() / "scenes" / f"user_{path.stem}_{key}.npz"
+    if cached.exists():
+        try:
+            return Scene.load(cached)
+        except SceneError:
+            pass   # a corrupt cache entry: convert again
+    scene = load_labelled_ply(path, name=path.stem, **settings)
+    _save_atomic(scene, cached)
+    return scene
+
+
+# --------------------------------------------------------------------------------- api
+def split_scene_ids(split: str, dataset_cfg: DatasetConfig | None = None) -> list[str]:
+    """The scene ids of ``split`` ("train" | "val" | "test") under ``dataset_cfg``."""
+    _check_split(split)
+    cfg = dataset_cfg or DatasetConfig()
+    if cfg.scene_dir:
+        return sorted(_user_files(cfg.scene_dir, split))
+    count = int(getattr(cfg, f"{split}_scenes"))
+    if not 0 <= count <= SPLIT_BLOCK:
+        raise ValueError(f"dataset.{split}_scenes must be in [0, {SPLIT_BLOCK}], got {count}")
+    return [procedural_scene_id(split, i) for i in range(count)]
+
+
+def scene_cache_path(scene_id: str, dataset_cfg: DatasetConfig | None = None, spec: HouseSpec | None = None) -> Path:
+    """Where the procedural scene ``scene_id`` is (or will be) cached."""
+    cfg, spec = dataset_cfg or DatasetConfig(), spec or HouseSpec()
+    seed = scene_seed(scene_id, cfg.seed)
+    key = hashlib.sha1(f"{spec.digest()}:{seed}".encode()).hexdigest()[:12]
+    return cache_dir() / "scenes" / f"{scene_id}_{key}.npz"
+
+
+def _save_atomic(scene: Scene, path: Path) -> None:
+    """Save under a unique temporary name, then rename: concurrent workers never see half a file."""
+    tmp = path.with_name(f".{path.stem}.{os.getpid()}.{uuid.uuid4().hex[:8]}.npz")
+    try:
+        scene.save(tmp)
+        os.replace(tmp, path)
+    except OSError as exc:   # a read-only cache only costs speed
+        warnings.warn(f"could not cache scene at {path}: {exc}")
+        tmp.unlink(missing_ok=True)
+
+
+def load_scene(scene_id: str, dataset_cfg: DatasetConfig | None = None, spec: HouseSpec | None = None) -> Scene:
+    """The scene ``scene_id``: a procedural house (generated once, then read from the cache) or,
+    when ``dataset_cfg.scene_dir`` is set, a user scene file. ValueError names the valid ids."""
+    cfg, spec = dataset_cfg or DatasetConfig(), spec or HouseSpec()
+    if cfg.scene_dir:
+        files = _user_files(cfg.scene_dir, None)
+        if scene_id not in files:
+            shown = sorted(files)[:20]
+            raise ValueError(f"unknown scene id {scene_id!r} in {cfg.scene_dir}; valid ids: "
+                             f"{', '.join(shown) or '(none: no *.npz / *.ply files)'}{' ...' if len(files) > 20 else ''}")
+        key = ("user", str(files[scene_id].resolve()), files[scene_id].stat().st_mtime_ns)
+        loader = lambda: _load_user_scene(files[scene_id])  # noqa: E731
+    else:
+        split, index = parse_scene_id(scene_id)
+        count = int(getattr(cfg, f"{split}_scenes"))
+        if index >= count:
+            raise ValueError(f"scene id {scene_id!r} is outside the {split} split; valid ids: "
+                             f"{procedural_scene_id(split, 0)} .. {procedural_scene_id(split, max(count - 1, 0))} "
+                             f"(dataset.{split}_scenes = {count})")
+        path = scene_cache_path(scene_id, cfg, spec)
+        key = ("house", str(path))
+        loader = lambda: _load_procedural(scene_id, path, scene_seed(scene_id, cfg.seed), spec)  # noqa: E731
+    if key in _lru:
+        _lru.move_to_end(key)
+        return _lru[key]
+    scene = loader()
+    _lru[key] = scene
+    while len(_lru) > LRU_SIZE:
+        _lru.popitem(last=False)
+    return scene
+
+
+def _load_procedural(scene_id: str, path: Path, seed: int, spec: HouseSpec) -> Scene:
+    if path.exists():
+        try:
+            return Scene.load(path)
+        except SceneError:
+            pass   # corrupt cache entry: generate again
+    scene = generate_house(seed, spec)
+    scene.name = scene_id
+    scene.meta["scene_id"] = scene_id
+    path.parent.mkdir(parents=True, exist_ok=True)
+    _save_atomic(scene, path)
+    return scene
+
+
+def clear_scene_lru() -> None:
+    """Forget the in-process scene LRU (the on-disk cache stays)."""
+    _lru.clear()

@@ -1,0 +1,22 @@
+"""Agents that ``calnav objectnav`` can run, chosen by name (one registry)."""
+from __future__ import annotations
+
+from typing import Callable
+
+AgentFactory = Callable[..., object]
+
+
+def _oracle(env, cfg):
+    from envs.oracle import OracleAgent
+
+    return OracleAgent(env)
+
+
+AGENTS: dict[str, AgentFactory] = {"oracle": _oracle}
+
+
+def make_agent(name: str, env, cfg):
+    """Agent ``name`` for ``env`` (a gymnasium env) configured by ``cfg`` (a Config)."""
+    if name not in AGENTS:
+        raise ValueError(f"unknown agent {name!r}; valid agents: {', '.join(AGENTS)}")
+    return AGENTS[name](env, cfg)

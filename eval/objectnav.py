@@ -1,0 +1,154 @@
+"""`calnav objectnav`: run an agent on a split's episodes, in parallel workers, resumably.
+
+Output directory: ``config.yaml`` (the resolved config), ``episodes.jsonl`` (one line per
+finished episode, appended and flushed as each finishes, so a killed run loses at most the
+episodes in flight), ``summary.json`` (mean and SEM of Success, SPL, SoftSPL, DistanceToGoal,
+per-category breakdown). Rerunning into the same directory skips finished episodes; a
+directory holding a different config is refused unless ``--force``.
+"""
+from __future__ import annotations
+
+import json
+import multiprocessing as mp
+import os
+import time
+import traceback
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from pathlib import Path
+
+from eval.config import Config, ConfigError, build_dataclass, dump_yaml, load_config, to_dict
+from eval.stats import format_metrics_table, summarize
+
+# Keys that do not change results: a rerun with other values may resume the same directory.
+_RESULT_NEUTRAL = {("run", "workers"), ("run", "output_dir")}
+
+_worker_state: dict = {}
+
+
+def _neutral(cfg_dict: dict) -> dict:
+    out = json.loads(json.dumps(cfg_dict))
+    for section, key in _RESULT_NEUTRAL:
+        out.get(section, {}).pop(key, None)
+    return out
+
+
+def run_one_episode(env, agent, index: int) -> dict:
+    """Run episode ``index`` to the end; returns its result record."""
+    t0 = time.perf_counter()
+    obs, info = env.reset(options={"episode_index": index})
+    agent.reset(obs)
+    terminated = truncated = False
+    while not (terminated or truncated):
+        obs, _, terminated, truncated, info = env.step(agent.act(obs))
+    ep = env.unwrapped.episode
+    return {
+        "index": index, "episode_id": ep.episode_id, "scene": ep.scene_id, "category": ep.object_category,
+        "success": info["success"], "spl": info["spl"], "softspl": info["softspl"],
+        "distance_to_goal": info["distance_to_goal"], "geodesic_distance": ep.geodesic_distance,
+        "steps": info["steps"], "path_length": info["path_length"], "collisions": info["collisions"],
+        "stop_reason": "stop" if terminated else "max_steps",
+        "wall_time_s": round(time.perf_counter() - t0, 3), "status": "ok",
+    }
+
+
+def _worker_init(cfg_dict: dict, agent_name: str) -> None:
+    import gymnasium as gym
+
+    import envs  # noqa: F401  (registers the env)
+    from eval.agents import make_agent
+
+    cfg = build_dataclass(Config, cfg_dict)
+    env = gym.make("calnav/ObjectNav-v0", split=cfg.env.split, config=cfg.env)
+    _worker_state.update(env=env, agent=make_agent(agent_name, env, cfg))
+
+
+def _worker_run(index: int) -> dict:
+    try:
+        return run_one_episode(_worker_state["env"], _worker_state["agent"], index)
+    except Exception as exc:  # report the episode, keep the run going
+        return {"index": index, "status": "error", "error": f"{type(exc).__name__}: {exc}",
+                "traceback": traceback.format_exc(limit=5)}
+
+
+def load_records(path: Path) -> list[dict]:
+    """Finished episode records; a torn last line (killed mid-write) is ignored."""
+    if not path.exists():
+        return []
+    records = []
+    for line in path.read_text().splitlines():
+        try:
+            records.append(json.loads(line))
+        except json.JSONDecodeError:
+            continue
+    return records
+
+
+def prepare_output(out: Path, cfg: Config, force: bool) -> None:
+    out.mkdir(parents=True, exist_ok=True)
+    cfg_path = out / "config.yaml"
+    import yaml
+
+    if cfg_path.exists():
+        old = yaml.safe_load(cfg_path.read_text()) or {}
+        if _neutral(old) != _neutral(to_dict(cfg)):
+            if not force:
+                raise ConfigError(f"{out} holds results of a different config ({cfg_path}); "
+                                  "use another --output, or --force to discard them")
+            (out / "episodes.jsonl").unlink(missing_ok=True)
+    cfg_path.write_text(dump_yaml(cfg))
+
+
+def run_objectnav(cfg: Config, agent_name: str, indices: list[int], out: Path, force: bool = False,
+                  progress: bool = True) -> dict:
+    """Run (or resume) ``indices`` of ``cfg.env.split``; returns the summary dict."""
+    from tqdm import tqdm
+
+    prepare_output(out, cfg, force)
+    results_path = out / "episodes.jsonl"
+    done = {r["index"] for r in load_records(results_path) if "index" in r}
+    todo = [i for i in indices if i not in done]
+    workers = cfg.run.workers or os.cpu_count() or 1
+    workers = max(1, min(workers, len(todo)))
+    cfg_dict = to_dict(cfg)
+    bar = tqdm(total=len(indices), initial=len(indices) - len(todo), disable=not progress,
+               desc=f"objectnav[{agent_name}]", unit="ep")
+    records = [r for r in load_records(results_path) if r.get("index") in set(indices)]
+
+    def finish(rec: dict, f) -> None:
+        f.write(json.dumps(rec) + "\n")
+        f.flush()
+        records.append(rec)
+        s = summarize(records)
+        bar.set_postfix(Success=f"{s['success']:.3f}", SPL=f"{s['spl']:.3f}")
+        bar.update(1)
+        if rec.get("status") != "ok":
+            tqdm.write(f"episode {rec['index']} failed: {rec.get('error')}")
+
+    with open(results_path, "a") as f:
+        if workers == 1 and todo:
+            _worker_init(cfg_dict, agent_name)
+            for i in todo:
+                finish(_worker_run(i), f)
+        elif todo:
+            ctx = mp.get_context("spawn")  # Open3D's thread pools do not survive fork()
+            with ProcessPoolExecutor(workers, mp_context=ctx, initializer=_worker_init,
+                                     initargs=(cfg_dict, agent_name)) as pool:
+                for fut in as_completed([pool.submit(_worker_run, i) for i in todo]):
+                    finish(fut.result(), f)
+    bar.close()
+    summary = summarize(records)
+    summary["agent"] = agent_name
+    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    return summary
+
+
+def main_objectnav(args) -> None:
+    from envs.episodes import load_split, parse_episode_range
+
+    cfg = load_config(args.config, args.overrides)
+    episodes = load_split(cfg.env.split, cfg.env)
+    indices = list(parse_episode_range(str(args.episodes), len(episodes)))
+    out = Path(args.output or cfg.run.output_dir)
+    summary = run_objectnav(cfg, args.agent, indices, out, force=args.force)
+    print(format_metrics_table([(args.agent, summary)], first_header="Agent"))
+    print(f"results: {out}/episodes.jsonl, {out}/summary.json")

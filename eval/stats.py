@@ -1,0 +1,53 @@
+"""Summary statistics of episode results: mean and standard error of the mean (SEM)."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+METRICS: tuple[str, ...] = ("success", "spl", "softspl", "distance_to_goal")
+METRIC_LABELS: dict[str, str] = {"success": "Success", "spl": "SPL", "softspl": "SoftSPL",
+                                 "distance_to_goal": "DTG"}
+
+
+def mean_sem(values) -> tuple[float, float]:
+    """Mean and SEM = sample std (ddof=1) / sqrt(n); SEM is 0 for n = 1, NaN for n = 0."""
+    x = np.asarray(list(values), dtype=np.float64)
+    if len(x) == 0:
+        return math.nan, math.nan
+    if len(x) == 1:
+        return float(x[0]), 0.0
+    return float(x.mean()), float(x.std(ddof=1) / math.sqrt(len(x)))
+
+
+def summarize(records: list[dict]) -> dict:
+    """Episode records -> {metric: mean, metric_sem: SEM, count, failed, per_category: {...}}.
+    Records with ``status != "ok"`` (crashed episodes) count as failures with Success/SPL 0
+    and are reported in ``failed``."""
+    ok = [r for r in records if r.get("status", "ok") == "ok"]
+    out: dict = {"count": len(records), "failed": len(records) - len(ok)}
+    scored = [r if r.get("status", "ok") == "ok" else {**r, "success": 0.0, "spl": 0.0, "softspl": 0.0}
+              for r in records]
+    for m in METRICS:
+        vals = [r[m] for r in scored if r.get(m) is not None and math.isfinite(r[m])]
+        out[m], out[f"{m}_sem"] = mean_sem(vals)
+    per_cat: dict[str, dict] = {}
+    for cat in sorted({r["category"] for r in records if "category" in r}):
+        sub = [r for r in scored if r.get("category") == cat]
+        per_cat[cat] = {"count": len(sub)}
+        for m in METRICS:
+            vals = [r[m] for r in sub if r.get(m) is not None and math.isfinite(r[m])]
+            per_cat[cat][m], per_cat[cat][f"{m}_sem"] = mean_sem(vals)
+    out["per_category"] = per_cat
+    return out
+
+
+def format_metrics_table(rows: list[tuple[str, dict]], first_header: str = "Run") -> str:
+    """Markdown table: one row per (name, summary), each metric as 'mean (SEM)'."""
+    header = f"| {first_header} | " + " | ".join(METRIC_LABELS[m] for m in METRICS) + " | N |"
+    sep = "|" + "---|" * (len(METRICS) + 2)
+    lines = [header, sep]
+    for name, s in rows:
+        cells = [f"{s[m]:.3f} ({s[m + '_sem']:.3f})" for m in METRICS]
+        lines.append(f"| {name} | " + " | ".join(cells) + f" | {s['count']} |")
+    return "\n".join(lines)

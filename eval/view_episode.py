@@ -1,0 +1,117 @@
+"""`calnav view-episode`: a top-down map of an episode (navigable area, objects by class,
+start, goal instances, view points, the path an agent took) and an RGB / depth / semantic
+strip of frames along that path."""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+N_STRIP_FRAMES = 4
+
+
+def top_down_class_map(scene, navgrid) -> np.ndarray:
+    """(H, W) int class id of the highest non-ceiling surface above each nav cell (-1 none)."""
+    import open3d as o3d
+
+    from envs.semantics import CLASS_ID
+
+    h, w = navgrid.navigable.shape
+    rc = np.stack(np.meshgrid(np.arange(h), np.arange(w), indexing="ij"), -1).reshape(-1, 2)
+    xy = navgrid.to_world(rc)
+    ceiling_free_z = scene.floor_z + 2.0  # below every procedural ceiling, above furniture
+    rays = np.column_stack([xy, np.full(len(xy), ceiling_free_z), np.zeros((len(xy), 2)), -np.ones(len(xy))])
+    rs = o3d.t.geometry.RaycastingScene()
+    rs.add_triangles(o3d.core.Tensor(scene.vertices), o3d.core.Tensor(scene.triangles.astype(np.uint32)))
+    prim = rs.cast_rays(o3d.core.Tensor(rays.astype(np.float32)))["primitive_ids"].numpy().astype(np.int64)
+    cls = np.full(len(prim), -1, dtype=np.int64)
+    hit = prim != o3d.t.geometry.RaycastingScene.INVALID_ID
+    cls[hit] = scene.tri_class[prim[hit]]
+    cls[cls == CLASS_ID["ceiling"]] = -1
+    return cls.reshape(h, w)
+
+
+def draw_episode(env, path_xy: np.ndarray, frames: list[dict], out_dir: Path) -> tuple[Path, Path]:
+    """Write ``topdown.png`` and ``frames.png`` into ``out_dir``; returns both paths."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from envs.semantics import CLASS_NAMES, colorize
+
+    e = env.unwrapped
+    nav, ep = e.navgrid, e.episode
+    out_dir.mkdir(parents=True, exist_ok=True)
+    cls = top_down_class_map(e.scene, nav)
+    img = colorize(cls).astype(np.float32) / 255
+    img[nav.navigable] = 0.55 * img[nav.navigable] + 0.45 * np.array([1.0, 1.0, 1.0])
+    h, w = nav.navigable.shape
+    x0, y0 = nav.origin_xy
+    extent = (x0, x0 + w * nav.cell_m, y0, y0 + h * nav.cell_m)
+    fig, ax = plt.subplots(figsize=(9, 9 * h / max(w, 1) + 0.8))
+    ax.imshow(img, origin="lower", extent=extent, interpolation="nearest")
+    for g in ep.goals:
+        ax.scatter(g.view_points[:, 0], g.view_points[:, 1], s=2, c="gold", alpha=0.5, linewidths=0)
+        ax.scatter([g.position[0]], [g.position[1]], marker="*", s=220, c="red", edgecolors="k")
+    ax.plot(path_xy[:, 0], path_xy[:, 1], "-", c="royalblue", lw=2, label="path")
+    sx, sy = ep.start_position
+    ax.scatter([sx], [sy], s=90, c="lime", edgecolors="k", zorder=5, label="start")
+    ax.arrow(sx, sy, 0.5 * math.cos(ep.start_yaw), 0.5 * math.sin(ep.start_yaw), width=0.05, color="k")
+    present = sorted({int(c) for c in np.unique(cls) if c >= 0})
+    handles = [plt.Line2D([], [], ls="", marker="s", color=np.array(colorize(np.array([[c]]))[0, 0]) / 255,
+                          label=CLASS_NAMES[c]) for c in present]
+    handles += [plt.Line2D([], [], ls="", marker="*", color="red", label=f"goal: {ep.object_category}"),
+                plt.Line2D([], [], ls="", marker=".", color="gold", label="view points")]
+    ax.legend(handles=handles + ax.get_legend_handles_labels()[0], loc="upper left",
+              bbox_to_anchor=(1.01, 1), fontsize=8)
+    ax.set_title(f"{ep.episode_id}: find {ep.object_category} (geodesic {ep.geodesic_distance:.1f} m)")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    top = out_dir / "topdown.png"
+    fig.savefig(top, dpi=110, bbox_inches="tight")
+    plt.close(fig)
+
+    picks = np.linspace(0, len(frames) - 1, min(N_STRIP_FRAMES, len(frames))).astype(int)
+    fig, axes = plt.subplots(3, len(picks), figsize=(3.2 * len(picks), 7.5), squeeze=False)
+    for j, k in enumerate(picks):
+        o = frames[k]
+        axes[0, j].imshow(o["rgb"])
+        axes[0, j].set_title(f"step {k}")
+        axes[1, j].imshow(o["depth"][..., 0], cmap="viridis", vmin=0, vmax=e.config.max_depth_m)
+        axes[2, j].imshow(colorize(o["semantic"]) if "semantic" in o else np.zeros_like(o["rgb"]))
+        for a in axes[:, j]:
+            a.axis("off")
+    strip = out_dir / "frames.png"
+    fig.savefig(strip, dpi=90, bbox_inches="tight")
+    plt.close(fig)
+    return top, strip
+
+
+def main_view_episode(args) -> None:
+    import gymnasium as gym
+
+    import envs  # noqa: F401
+    from eval.agents import make_agent
+    from eval.config import load_config
+
+    cfg = load_config(args.config, args.overrides)
+    env = gym.make("calnav/ObjectNav-v0", split=cfg.env.split, config=cfg.env)
+    n = len(env.unwrapped.episodes)
+    if not 0 <= args.episode < n:
+        raise ValueError(f"--episode {args.episode} is outside the split, which has episodes 0:{n}")
+    obs, info = env.reset(options={"episode_index": args.episode})
+    agent = make_agent(args.agent, env, cfg)
+    agent.reset(obs)
+    path, frames = [env.unwrapped.position.copy()], [obs]
+    done = False
+    while not done:
+        obs, _, terminated, truncated, info = env.step(agent.act(obs))
+        done = terminated or truncated
+        path.append(env.unwrapped.position.copy())
+        frames.append(obs)
+    top, strip = draw_episode(env, np.array(path), frames, Path(args.output))
+    print(f"episode {info['episode_id']}: success {info['success']:.0f}, spl {info['spl']:.3f}, "
+          f"steps {info['steps']}")
+    print(f"wrote {top} and {strip}")

@@ -1,0 +1,169 @@
+"""Per-frame camera geometry for the voxel map: input validation, rigid-pose inversion,
+candidate-pixel grids and depth-image surface normals / incidence angles.
+
+Conventions: pinhole intrinsics (3, 3) in pixels; poses (4, 4) world-from-camera with OpenCV
+camera axes (x right, y down, z forward); depth (H, W) float32 z-depth in metres, 0 = invalid.
+"""
+from __future__ import annotations
+
+
+import numpy as np
+
+ROTATION_TOL = 1e-4   # |R^T R - I| and |det R - 1| tolerance of a rigid pose
+LAST_ROW_TOL = 1e-6   # |pose[3] - (0, 0, 0, 1)| tolerance
+# Depth-normal differences: both one-sided differences are "smooth" (use the central difference)
+# when they differ by at most this fraction of the larger one; else the smaller jump wins.
+SMOOTH_JUMP_RATIO = 0.5
+
+
+def _describe(a) -> str:
+    return f"{a.shape} {a.dtype}" if isinstance(a, np.ndarray) else type(a).__name__
+
+
+def check_intrinsics(intrinsics) -> np.ndarray:
+    """(3, 3) float64 pinhole matrix with fx, fy > 0 and last row (0, 0, 1)."""
+    k = np.asarray(intrinsics, dtype=np.float64)
+    if k.shape != (3, 3) or not np.isfinite(k).all():
+        raise ValueError(f"intrinsics must be a finite (3, 3) matrix, got {_describe(np.asarray(intrinsics))}")
+    if k[0, 0] <= 0 or k[1, 1] <= 0 or not np.allclose(k[2], (0, 0, 1)) or k[1, 0] != 0:
+        raise ValueError(f"intrinsics must be [[fx, s, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0, got {k.tolist()}")
+    return k
+
+
+def o3d_ray_intrinsics(k: np.ndarray) -> np.ndarray:
+    """K for ``RaycastingScene.create_rays_pinhole``, which puts pixel centres at (u + 0.5,
+    v + 0.5): shifting the principal point by half a pixel gives the OpenCV-convention rays."""
+    out = np.array(k, dtype=np.float64)
+    out[0, 2] += 0.5
+    out[1, 2] += 0.5
+    return out
+
+
+def check_pose(pose) -> np.ndarray:
+    """(4, 4) float64 rigid transform (R^T R = I, det R = 1, last row 0 0 0 1) or ValueError."""
+    p = np.asarray(pose, dtype=np.float64)
+    if p.shape != (4, 4) or not np.isfinite(p).all():
+        raise ValueError(f"pose must be a finite (4, 4) world-from-camera matrix, got {_describe(np.asarray(pose))}")
+    if np.abs(p[3] - (0, 0, 0, 1)).max() > LAST_ROW_TOL:
+        raise ValueError(f"pose is not a rigid transform: last row must be (0, 0, 0, 1), got {p[3].tolist()}")
+    r = p[:3, :3]
+    if np.abs(r.T @ r - np.eye(3)).max() > ROTATION_TOL:
+        raise ValueError("pose is not a rigid transform: its rotation is not orthonormal (R^T R != I)")
+    if abs(np.linalg.det(r) - 1.0) > ROTATION_TOL:
+        raise ValueError(f"pose is not a rigid transform: det(R) = {np.linalg.det(r):.4f}, expected 1 (a reflection?)")
+    return p
+
+
+def invert_rigid(pose: np.ndarray) -> np.ndarray:
+    """camera-from-world (4, 4) of a rigid world-from-camera pose."""
+    out = np.eye(4)
+    out[:3, :3] = pose[:3, :3].T
+    out[:3, 3] = -pose[:3, :3].T @ pose[:3, 3]
+    return out
+
+
+def check_frame(depth, logits, rgb, weights, num_classes: int) -> tuple:
+    """Validate one frame's images; returns (depth, logits, rgb, weights) as C-contiguous numpy.
+
+    depth (H, W) float32 metres; logits (H, W, K) float32 (numpy or CPU torch) or None;
+    rgb (H, W, 3) uint8 or None; weights (H, W) float32 >= 0 or None.
+    """
+    if not isinstance(depth, np.ndarray) or depth.ndim != 2 or depth.dtype != np.float32:
+        raise ValueError(f"depth must be a (H, W) float32 array of metres, got {_describe(depth)}")
+    h, w = depth.shape
+    if logits is not None:
+        if hasattr(logits, "detach"):  # a torch tensor
+            logits = logits.detach().cpu().numpy()
+        if not isinstance(logits, np.ndarray) or logits.dtype != np.float32 or logits.ndim != 3:
+            raise ValueError(f"logits must be a (H, W, K) float32 array, got {_describe(logits)}")
+        if logits.shape[:2] != (h, w):
+            raise ValueError(f"logits are {logits.shape[1]}x{logits.shape[0]} pixels but depth is {w}x{h}")
+        if logits.shape[2] != num_classes:
+            raise ValueError(f"logits have K = {logits.shape[2]} classes, the map has {num_classes}")
+        logits = np.ascontiguousarray(logits)
+    if rgb is not None:
+        if not isinstance(rgb, np.ndarray) or rgb.dtype != np.uint8 or rgb.shape != (h, w, 3):
+            raise ValueError(f"rgb must be a ({h}, {w}, 3) uint8 array, got {_describe(rgb)}")
+        rgb = np.ascontiguousarray(rgb)
+    if weights is not None:
+        if not isinstance(weights, np.ndarray) or weights.dtype != np.float32 or weights.shape != (h, w):
+            raise ValueError(f"weights must be a ({h}, {w}) float32 array, got {_describe(weights)}")
+        if not np.isfinite(weights).all() or (weights < 0).any():
+            raise ValueError("weights must be finite and >= 0")
+    return np.ascontiguousarray(depth), logits, rgb, weights
+
+
+def clean_depth(depth: np.ndarray, depth_min: float, depth_max: float) -> np.ndarray:
+    """Depth with invalid entries (NaN, inf, 0, outside [depth_min, depth_max]) set to 0."""
+    bad = ~((depth >= depth_min) & (depth <= depth_max))  # NaN compares False -> bad
+    return np.where(bad, np.float32(0), depth) if bad.any() else depth
+
+
+class PixelGrid:
+    """Candidate pixels of one (intrinsics, image size, stride) with preallocated scratch.
+
+    pix: (n,) int64 flat pixel index; rays: (3, n) float32 camera-frame rays with z = 1 (a
+    point at depth d is d * ray). The scratch arrays are reused by every frame (fresh large
+    numpy arrays page-fault on every allocation, which costs more than the arithmetic).
+    """
+
+    def __init__(self, k: np.ndarray, height: int, width: int, stride: int):
+        off = stride // 2
+        v, u = np.mgrid[off:height:stride, off:width:stride]
+        u, v = u.ravel(), v.ravel()
+        y = (v - k[1, 2]) / k[1, 1]
+        self.stride = stride
+        self.pix = (v * width + u).astype(np.int64)
+        self.rays = np.ascontiguousarray(np.stack([(u - k[0, 2] - k[0, 1] * y) / k[0, 0], y, np.ones(len(u))]),
+                                         dtype=np.float32)
+        n = len(u)
+        self.depth = np.empty(n, np.float32)
+        self.pts = np.empty((3, n), np.float32)
+        self.g = np.empty((3, n), np.int32)
+        self.b = np.empty((3, n), np.int32)
+        self.loc = np.empty((3, n), np.int32)
+        self.i32 = np.empty((2, n), np.int32)
+        self.i64 = np.empty((2, n), np.int64)
+
+
+def auto_stride(k: np.ndarray, voxel_size_m: float, depth_max_m: float, spacing_voxels: float) -> int:
+    """Largest pixel stride whose candidate spacing at depth_max is <= spacing_voxels voxels."""
+    f = min(k[0, 0], k[1, 1])
+    return max(1, int(spacing_voxels * voxel_size_m * f / depth_max_m))
+
+
+def incidence_angles(depth: np.ndarray, k: np.ndarray, pix: np.ndarray, offset: int) -> np.ndarray:
+    """(n,) float32 incidence angle in degrees [0, 90] between the viewing ray of flat pixel
+    ``pix`` (n,) and the depth-image surface normal there.
+
+    With z(u, v) the depth image and z_u, z_v its derivatives (pixels), the back-projected
+    surface has normal n ~ (-fx z_u, -fy z_v, (u - cx) z_u + (v - cy) z_v + z) and n . r = z
+    for the ray r = ((u - cx) / fx, (v - cy) / fy, 1), so cos = z / (|n| |r|) (skew ignored).
+    Each derivative is the central difference over +-``offset`` pixels where the surface is
+    smooth there, else the one-sided difference on the side with the smaller depth jump (so a
+    depth discontinuity does not bend the normal); an axis with no valid neighbour counts as
+    flat.
+    """
+    h, w = depth.shape
+    flat = np.append(depth.ravel(), np.float32(0))  # a zero-depth sentinel for off-image neighbours
+    off_image = h * w
+    u, v = pix % w, pix // w
+    z = flat[pix]
+    grads = []
+    for coord, size, step in ((u, w, offset), (v, h, offset * w)):
+        zp = flat[np.where(coord + offset < size, pix + step, off_image)]
+        zm = flat[np.where(coord >= offset, pix - step, off_image)]
+        ok_p, ok_m = zp > 0, zm > 0
+        dp, dm = zp - z, z - zm
+        adp, adm = np.abs(dp), np.abs(dm)
+        one_sided = np.where(ok_p & (~ok_m | (adp <= adm)), dp, np.where(ok_m, dm, np.float32(0)))
+        smooth = ok_p & ok_m & (np.abs(dp - dm) <= SMOOTH_JUMP_RATIO * np.maximum(adp, adm))
+        grads.append(np.where(smooth, np.float32(0.5) * (dp + dm), one_sided) * np.float32(1.0 / offset))
+    zu, zv = grads
+    du, dv = (u - k[0, 2]).astype(np.float32), (v - k[1, 2]).astype(np.float32)
+    nz = du * zu + dv * zv + z
+    fx, fy = np.float32(k[0, 0]), np.float32(k[1, 1])
+    n2 = (fx * zu) ** 2 + (fy * zv) ** 2 + nz * nz
+    r2 = (du / fx) ** 2 + (dv / fy) ** 2 + np.float32(1)
+    cos = z / np.maximum(np.sqrt(n2 * r2), np.finfo(np.float32).tiny)
+    return np.degrees(np.arccos(np.minimum(cos, np.float32(1)))).astype(np.float32)

@@ -1,0 +1,305 @@
+"""Semantic TSDF voxel map: Open3D's ``VoxelBlockGrid`` (tsdf, weight, colour by the stock
+``integrate``) plus the fusion strategy's semantic accumulators in one extra float32
+attribute ``semantic``: the channels of ``A`` (K), ``B`` (K), ``W`` (1) --
+whichever the strategy needs, in that order -- then the observation count (1). One attribute
+means one scattered write per voxel and frame.
+
+Semantic update of one frame (all vectorised, CPU, zero-copy numpy / torch views of the grid):
+1. candidate voxels: every ``stride``-th pixel is back-projected; the voxel *containing* the
+   surface point is a candidate (so its centre lies within half a voxel diagonal of the
+   observed surface). Duplicates are removed with a per-voxel "stamp" array (O(n), no sort):
+   one observation per voxel per frame.
+2. association: the voxel centre is projected into the image; its pixel provides the logits,
+   kept when |voxel z - measured depth| <= ``association_band_voxels`` (rejects occlusion
+   edges; grazing surfaces keep a generous band).
+3. only the gathered rows (n, K) are scaled and softmax-ed; sample weights come from the
+   voxel's camera distance and the depth-image incidence angle (both rounded to float16, the
+   observation cache's precision, so a map and a ``fuse`` over its cache agree); the
+   strategy's increments are ``index_add_``-ed into the accumulators.
+The hashmap may reallocate when it grows: attribute views are re-fetched on every call.
+"""
+from __future__ import annotations
+
+from contextlib import contextmanager
+
+import numpy as np
+import open3d as o3d
+import open3d.core as o3c
+import torch
+
+from mapping import frame_geometry as fg
+from mapping.config import MappingConfig
+from mapping.fusion import ObservationTerms, get_strategy
+from mapping.glfs import GLFSParams
+from mapping.map_readout import MapReadouts, PointCloud  # noqa: F401  (PointCloud re-exported)
+from mapping.obs_cache import ObsCache
+from mapping.scaling import as_temperature, scale_logits
+from mapping.weighting import WeightingParams, needs_geometry, resolve, sample_weights
+
+BASE_ATTRS = (("tsdf", 1), ("weight", 1), ("color", 3))
+SEM = "semantic"
+MIB = float(1 << 20)
+MIN_BLOCKS = 16
+NORMAL_BASE_WIDTH_PX = 160  # auto depth-normal baseline: 1 pixel per 160 pixels of image width
+# Open3D keeps voxels with weight strictly above its threshold; stock TSDF weights count whole
+# observations, so "at least w observations" is threshold w - 1/2.
+WEIGHT_STRICT_OFFSET = 0.5
+
+
+@contextmanager
+def single_threaded_torch():
+    """Run torch ops on one thread. The per-frame tensors are small (~10^5 elements) and
+    torch's OpenMP workers, spinning after each parallel op, starve Open3D's TBB workers:
+    on 2 cores that turned a 20 ms frame into 200 ms."""
+    old = torch.get_num_threads()
+    if old != 1:
+        torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        if old != 1:
+            torch.set_num_threads(old)
+
+
+class SemanticVoxelMap(MapReadouts):
+    """A TSDF + semantic voxel map. ``num_classes`` K; ``cfg`` the mapping config.
+
+    glfs_params: GLFS tau/G/eps/M (for ``glfs``, and M for ``lut`` weighting); default from
+    ``cfg.glfs_params`` or identity. temperature: scalar or (K,) logit temperature for the
+    other strategies (default ``cfg.temperature``). obs_cache: records every observation.
+    """
+
+    def __init__(self, num_classes: int, cfg: MappingConfig | None = None, device: str = "CPU:0", *,
+                 class_names: tuple[str, ...] = (), glfs_params: GLFSParams | None = None,
+                 temperature=None, obs_cache: ObsCache | None = None):
+        self.cfg = cfg = cfg or MappingConfig()
+        if o3c.Device(device).get_type() != o3c.Device.DeviceType.CPU:
+            raise ValueError(f"SemanticVoxelMap runs on CPU (zero-copy numpy views), got device {device!r}")
+        self.num_classes = k = int(num_classes)
+        if k < 2 or (class_names and len(class_names) != k):
+            raise ValueError(f"need K >= 2 classes and one name per class, got K = {k}, {len(class_names)} names")
+        self.class_names = tuple(class_names)
+        self.strategy = get_strategy(cfg.fusion)
+        self.weighting = resolve(cfg.weighting, cfg.fusion)
+        self._set_fusion_params(glfs_params, temperature)
+        self.obs_cache = obs_cache
+        if obs_cache is not None and (obs_cache.num_classes != k or abs(obs_cache.voxel_size_m - cfg.voxel_size_m) > 1e-9):
+            raise ValueError("obs_cache has another K or voxel size than the map")
+        self._slices, start = {}, 0
+        for a, c in self.strategy.channels(k).items():
+            self._slices[a] = slice(start, start + c)
+            start += c
+        self._count_ch = start  # last channel: observations per voxel
+        attrs = dict(BASE_ATTRS) | {SEM: start + 1}
+        self.channels = sum(attrs.values())
+        res = cfg.block_resolution
+        self.bytes_per_block = res ** 3 * self.channels * 4
+        blocks = cfg.block_count or max(MIN_BLOCKS, int(cfg.initial_alloc_mb * MIB / self.bytes_per_block))
+        self.vbg = o3d.t.geometry.VoxelBlockGrid(
+            list(attrs), [o3c.float32] * len(attrs), [o3c.SizeVector([c]) for c in attrs.values()],
+            cfg.voxel_size_m, res, blocks, o3c.Device(device))
+        self._res3 = res ** 3
+        self._shift = res.bit_length() - 1
+        self._stamp = np.empty(0, np.int32)
+        self._grids: dict = {}
+        self.frames_integrated = 0
+        self._scene_cache = None
+
+    def _set_fusion_params(self, params: GLFSParams | None, temperature) -> None:
+        """Temperature, GLFS gates and weighting parameters (the LUT from the GLFS params)."""
+        cfg, k = self.cfg, self.num_classes
+        if params is None and (cfg.fusion == "glfs" or self.weighting == "lut"):
+            params = GLFSParams.load(cfg.glfs_params) if cfg.glfs_params else GLFSParams.identity(k, self.class_names)
+        if params is not None:
+            if self.class_names:
+                params.check_classes(self.class_names)
+            elif params.num_classes != k:
+                raise ValueError(f"GLFS params are for {params.num_classes} classes, the map has {k}")
+        self.glfs_params = params
+        self._g = self._eps = None
+        if self.strategy.gated:
+            if temperature is not None:
+                raise ValueError("glfs takes its temperatures from glfs_params.tau, not from temperature=")
+            t = params.torch_tensors()
+            tau, self._g, self._eps = t["tau"], t["g"], t["eps"]
+        else:
+            tau = cfg.temperature if temperature is None else temperature
+        self._tau = as_temperature(tau, k)
+        edges = {"distance_edges": params.distance_edges, "angle_edges_deg": params.angle_edges_deg} if params else {}
+        self._wparams = WeightingParams.from_config(cfg, lut=torch.as_tensor(params.M) if params else None, **edges)
+
+    # ----------------------------------------------------------------- buffers
+    def _view(self, name: str) -> np.ndarray:
+        """(capacity * res^3, C) float32 numpy view of an attribute (shares the grid's memory)."""
+        a = self.vbg.attribute(name).numpy()
+        return a.reshape(-1, a.shape[-1])
+
+    def _counts(self, flat: np.ndarray) -> np.ndarray:
+        """(n,) float32 semantic observation count of voxels at flat buffer indices."""
+        return self._view(SEM)[flat, self._count_ch]
+
+    def _readout(self, flat: np.ndarray) -> np.ndarray:
+        """(n, K) float32 fused probabilities of voxels at flat buffer indices ``flat``."""
+        idx = torch.from_numpy(np.asarray(flat, dtype=np.int64))
+        rows = torch.from_numpy(self._view(SEM)).index_select(0, idx)
+        acc = {a: rows[:, sl] for a, sl in self._slices.items()}
+        with torch.no_grad():
+            return self.strategy.readout(acc, g=self._g, eps=self._eps).numpy()
+
+    def _lookup(self, keys: np.ndarray) -> np.ndarray:
+        """(n,) int64 flat buffer index of integer voxel keys (n, 3), -1 where not allocated."""
+        keys = np.asarray(keys, dtype=np.int32).reshape(-1, 3)
+        if len(keys) == 0:
+            return np.zeros(0, np.int64)
+        res = self.cfg.block_resolution
+        blocks, local = keys >> self._shift, keys & (res - 1)
+        buf, found = self.vbg.hashmap().find(o3c.Tensor(np.ascontiguousarray(blocks)))
+        flat = buf.numpy().astype(np.int64) * self._res3 + local[:, 0] + res * (local[:, 1] + res * local[:, 2])
+        return np.where(found.numpy(), flat, -1)
+
+    # ----------------------------------------------------------------- integrate
+    def integrate(self, depth: np.ndarray, intrinsics: np.ndarray, pose: np.ndarray, logits=None,
+                  rgb: np.ndarray | None = None, weights: np.ndarray | None = None) -> None:
+        """Fuse one frame. depth (H, W) float32 m; intrinsics (3, 3); pose (4, 4) world-from-
+        camera (OpenCV axes); logits (H, W, K) float32 or None (geometry only); rgb (H, W, 3)
+        uint8 or None; weights (H, W) float32 >= 0 per-pixel sample weights (multiply the
+        configured weighting) or None."""
+        cfg = self.cfg
+        depth, logits, rgb, weights = fg.check_frame(depth, logits, rgb, weights, self.num_classes)
+        k = fg.check_intrinsics(intrinsics)
+        pose = fg.check_pose(pose)
+        depth = fg.clean_depth(depth, cfg.depth_min_m, cfg.depth_max_m)
+        if not depth.any():  # nothing valid to integrate (Open3D would raise)
+            self.frames_integrated += 1
+            return
+        intr, extr = o3c.Tensor(k), o3c.Tensor(fg.invert_rigid(pose))
+        dimg = o3d.t.geometry.Image(o3c.Tensor.from_numpy(depth))
+        blocks = self.vbg.compute_unique_block_coordinates(dimg, intr, extr, 1.0, cfg.depth_max_m, cfg.trunc_voxels)
+        if rgb is None:
+            self.vbg.integrate(blocks, dimg, intr, extr, 1.0, cfg.depth_max_m, cfg.trunc_voxels)
+        else:
+            cimg = o3d.t.geometry.Image(o3c.Tensor.from_numpy(np.multiply(rgb, np.float32(1 / 255), dtype=np.float32)))
+            self.vbg.integrate(blocks, dimg, cimg, intr, extr, 1.0, cfg.depth_max_m, cfg.trunc_voxels)
+        if logits is not None and blocks.shape[0] > 0:
+            with single_threaded_torch():
+                self._integrate_semantics(depth, k, pose, logits, weights, blocks)
+        self.frames_integrated += 1
+
+    def _grid(self, k: np.ndarray, h: int, w: int) -> tuple[fg.PixelGrid, int]:
+        """Candidate-pixel grid and depth-normal baseline (pixels) of an intrinsics / size."""
+        key = (h, w, k.tobytes())
+        if key not in self._grids:
+            cfg = self.cfg
+            stride = cfg.pixel_stride or fg.auto_stride(k, cfg.voxel_size_m, cfg.depth_max_m, cfg.sample_spacing_voxels)
+            self._grids[key] = (fg.PixelGrid(k, h, w, stride), cfg.normal_offset_px or max(1, w // NORMAL_BASE_WIDTH_PX))
+        return self._grids[key]
+
+    def _candidates(self, depth, k, pose, blocks) -> tuple[np.ndarray, np.ndarray]:
+        """Unique candidate voxels of a frame: flat buffer index (n,) int64, key (n, 3) int32
+        (the voxels containing the back-projected points of the candidate pixels)."""
+        res, vox = self.cfg.block_resolution, self.cfg.voxel_size_m
+        gr, _ = self._grid(k, *depth.shape)
+        bc = blocks.numpy()
+        buf, found = self.vbg.hashmap().find(blocks)
+        # dense block -> buffer table over the frame's blocks, padded by one block on every side
+        low = bc.min(0) - 1
+        dims = bc.max(0) - low + 2
+        lut = np.full(int(np.prod(dims)), -1, np.int64)
+        rel = bc - low
+        lut[rel[:, 0] + dims[0] * (rel[:, 1] + dims[1] * rel[:, 2])] = np.where(found.numpy(), buf.numpy(), -1)
+        # voxel coordinates relative to the padded corner (float -> int truncation is a floor for
+        # points >= 0; anything outside is clipped into the padding, whose table entry is -1);
+        # invalid depth is sent far away, into the padding too
+        origin = low * res
+        np.take(depth.ravel(), gr.pix, out=gr.depth)
+        np.copyto(gr.depth, np.float32(2 * self.cfg.depth_max_m + dims.max() * res * vox), where=gr.depth <= 0)
+        np.matmul((pose[:3, :3] / vox).astype(np.float32), gr.rays, out=gr.pts)
+        gr.pts *= gr.depth
+        gr.pts += (pose[:3, 3] / vox - origin + 0.5).astype(np.float32)[:, None]
+        np.maximum(gr.pts, 0, out=gr.pts)
+        np.copyto(gr.g, gr.pts, casting="unsafe")
+        np.right_shift(gr.g, self._shift, out=gr.b)
+        np.bitwise_and(gr.g, res - 1, out=gr.loc)
+        np.minimum(gr.b, (dims - 1).astype(np.int32)[:, None], out=gr.b)
+        lin, local = gr.i32
+        np.multiply(gr.b[2], dims[1], out=lin)
+        lin += gr.b[1]
+        lin *= dims[0]
+        lin += gr.b[0]
+        np.multiply(gr.loc[2], res, out=local)
+        local += gr.loc[1]
+        local *= res
+        local += gr.loc[0]
+        bi, flat = gr.i64
+        np.take(lut, lin, out=bi)
+        np.multiply(bi, self._res3, out=flat)
+        flat += local  # < 0 exactly where the block is unknown (bi = -1)
+        ok = np.flatnonzero(flat >= 0)
+        flat = flat[ok]
+        cap = self.vbg.hashmap().capacity() * self._res3
+        if len(self._stamp) < cap:
+            self._stamp = np.empty(cap, np.int32)
+        ids = np.arange(len(flat), dtype=np.int32)
+        self._stamp[flat] = ids  # one winner per voxel: O(n) de-duplication, no sort
+        win = np.flatnonzero(self._stamp[flat] == ids)
+        keys = gr.g[:, ok[win]].T + origin.astype(np.int32)
+        return flat[win], np.ascontiguousarray(keys)
+
+    def _integrate_semantics(self, depth, k, pose, logits, weights, blocks) -> None:
+        cfg = self.cfg
+        h, w = depth.shape
+        flat, keys = self._candidates(depth, k, pose, blocks)
+        # associate: project voxel centres, keep those whose pixel sees the same surface
+        rot, t = pose[:3, :3].astype(np.float32), pose[:3, 3].astype(np.float32)
+        pc = (keys.astype(np.float32) * np.float32(cfg.voxel_size_m) - t) @ rot
+        x, y, z = pc.T
+        inv_z = 1.0 / np.where(z > 0, z, np.float32(1))
+        u = np.rint((k[0, 0] * x + k[0, 1] * y) * inv_z + k[0, 2]).astype(np.int64)
+        v = np.rint(k[1, 1] * y * inv_z + k[1, 2]).astype(np.int64)
+        ok = (z > 0) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+        pix = np.where(ok, v * w + u, 0)
+        dm = depth.ravel()[pix]
+        ok &= (dm > 0) & (np.abs(z - dm) <= cfg.association_band_voxels * cfg.voxel_size_m)
+        sel = np.flatnonzero(ok)
+        if len(sel) == 0:
+            return
+        flat, keys, pix, pc = flat[sel], keys[sel], pix[sel], pc[sel]
+        rows = torch.from_numpy(logits.reshape(h * w, self.num_classes)).index_select(0, torch.from_numpy(pix))
+        if not np.isfinite(float(rows.sum())):  # one reduction; NaN / inf anywhere poisons the sum
+            raise ValueError("logits contain NaN or inf (or values near the float32 limit) at observed pixels")
+        geometry = needs_geometry(self.weighting) or self.obs_cache is not None
+        if geometry:
+            offset = self._grid(k, h, w)[1]
+            dist = np.sqrt(np.einsum("ij,ij->i", pc, pc)).astype(np.float16).astype(np.float32)
+            angle = fg.incidence_angles(depth, k, pix, offset).astype(np.float16).astype(np.float32)
+        with torch.no_grad():
+            z_scaled = scale_logits(rows, self._tau)
+            if self.weighting == "none":
+                wt = torch.ones(len(pix), dtype=torch.float32)
+            else:
+                pred = z_scaled.max(dim=1).indices if self.weighting == "lut" else None  # (argmax: ~0.4 ms)
+                wt = sample_weights(self.weighting, pred, torch.from_numpy(dist), torch.from_numpy(angle), self._wparams)
+            ext = None
+            if weights is not None:
+                ext = weights.ravel()[pix]
+                wt = wt * torch.from_numpy(ext)
+            inc = self.strategy.increments(ObservationTerms(z_scaled, cfg.laplace_mu), wt)
+            idx = torch.from_numpy(flat)
+            val = torch.cat([inc[a] for a in self._slices] + [torch.ones(len(flat), 1)], dim=1)
+            torch.from_numpy(self._view(SEM)).index_add_(0, idx, val)
+        if self.obs_cache is not None:
+            self.obs_cache.record(keys, rows.numpy(), dist, angle, ext)
+
+    @property
+    def _o3d_weight_threshold(self) -> float:
+        return max(0.0, self.cfg.min_tsdf_weight - WEIGHT_STRICT_OFFSET)
+
+    # ----------------------------------------------------------------- stats
+    @property
+    def num_blocks(self) -> int:
+        return int(self.vbg.hashmap().size())
+
+    def memory_bytes(self, allocated: bool = False) -> int:
+        """Bytes of the voxel blocks in use (or allocated, ``allocated=True``)."""
+        hm = self.vbg.hashmap()
+        return int((hm.capacity() if allocated else hm.size()) * self.bytes_per_block)

@@ -1,0 +1,119 @@
+"""Sample weighting (paper Sec. V-B, V-D): a weight w_t >= 0 per observation from the predicted
+class, the voxel's distance to the camera and the incidence angle of the viewing ray on the
+surface. One registry, chosen by name; every function is pure torch (the LUT is differentiable
+w.r.t. M, for GLFS training).
+
+- ``none``: w = 1.
+- ``lut``: the GLFS table, w = max(M, 0)[predicted class, distance bin, angle bin]. Authors'
+  bins: distance edges 0, 1, ..., 5 m (beyond the last edge -> last bin), incidence-angle edges
+  0, 30, 60, 90 deg. M starts at 1.
+- ``distance``: inverse-square falloff, w = min(1, (d_ref / d)^2): full weight up to d_ref,
+  then the fraction of a fixed-size patch's pixels that still land on it (depth noise of
+  stereo / ToF sensors also grows ~ d^2).
+- ``incidence``: Curless & Levoy (1996): w = cos(incidence angle), the foreshortening of the
+  surface patch seen by the pixel.
+- ``sweet_spot``: quadratic around the segmentation model's best distance (Zheng et al.,
+  paper ref. [9981300]): w = 1 - ((d - d_best) / halfwidth)^2.
+The analytic weights are floored at ``min_weight`` so that no observation counts for nothing.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import torch
+
+from mapping.config import MappingConfig
+
+DISTANCE_EDGES_M: tuple[float, ...] = (0.0, 1.0, 2.0, 3.0, 4.0, 5.0)  # authors' LUT bins
+ANGLE_EDGES_DEG: tuple[float, ...] = (0.0, 30.0, 60.0, 90.0)
+
+
+@dataclass
+class WeightingParams:
+    """Parameters of every weighting (unused ones are ignored).
+
+    lut: (K, n_dist, n_angle) tensor M (``lut`` only); distance_edges / angle_edges_deg: the
+    LUT's bin edges (n_dist + 1 and n_angle + 1 increasing values, first 0).
+    """
+
+    lut: torch.Tensor | None = None
+    distance_edges: tuple[float, ...] = DISTANCE_EDGES_M
+    angle_edges_deg: tuple[float, ...] = ANGLE_EDGES_DEG
+    distance_ref_m: float = MappingConfig.distance_ref_m
+    sweet_spot_m: float = MappingConfig.sweet_spot_m
+    sweet_spot_halfwidth_m: float = MappingConfig.sweet_spot_halfwidth_m
+    min_weight: float = MappingConfig.min_sample_weight
+
+    @classmethod
+    def from_config(cls, cfg, lut: torch.Tensor | None = None,
+                    distance_edges: tuple[float, ...] = DISTANCE_EDGES_M,
+                    angle_edges_deg: tuple[float, ...] = ANGLE_EDGES_DEG) -> "WeightingParams":
+        """From a ``MappingConfig`` (analytic parameters) plus an optional LUT."""
+        return cls(lut=lut, distance_edges=tuple(distance_edges), angle_edges_deg=tuple(angle_edges_deg),
+                   distance_ref_m=cfg.distance_ref_m, sweet_spot_m=cfg.sweet_spot_m,
+                   sweet_spot_halfwidth_m=cfg.sweet_spot_halfwidth_m, min_weight=cfg.min_sample_weight)
+
+
+def bin_index(values: torch.Tensor, edges: tuple[float, ...]) -> torch.Tensor:
+    """(n,) int64 bin of each value for bins [e0, e1), [e1, e2), ...; values beyond the last
+    edge go to the last bin, below the first to the first."""
+    inner = torch.tensor(edges[1:-1], dtype=values.dtype, device=values.device)
+    return torch.bucketize(values, inner, right=True)
+
+
+def _none(pred, distance_m, angle_deg, params: WeightingParams) -> torch.Tensor:
+    return torch.ones(distance_m.shape, dtype=distance_m.dtype, device=distance_m.device)
+
+
+def _lut(pred, distance_m, angle_deg, params: WeightingParams) -> torch.Tensor:
+    if params.lut is None:
+        raise ValueError("weighting 'lut' needs a look-up table M (K, n_dist, n_angle); see mapping.glfs.GLFSParams")
+    m = params.lut.clamp_min(0.0)
+    n_dist, n_angle = m.shape[1], m.shape[2]
+    cell = (pred * n_dist + bin_index(distance_m, params.distance_edges)) * n_angle \
+        + bin_index(angle_deg, params.angle_edges_deg)
+    return m.reshape(-1)[cell]  # one flat gather (cheaper than 3-D advanced indexing)
+
+
+def _distance(pred, distance_m, angle_deg, params: WeightingParams) -> torch.Tensor:
+    d = distance_m.clamp_min(params.distance_ref_m)
+    return ((params.distance_ref_m / d) ** 2).clamp_min(params.min_weight)
+
+
+def _incidence(pred, distance_m, angle_deg, params: WeightingParams) -> torch.Tensor:
+    return torch.cos(torch.deg2rad(angle_deg)).clamp_min(params.min_weight)
+
+
+def _sweet_spot(pred, distance_m, angle_deg, params: WeightingParams) -> torch.Tensor:
+    x = (distance_m - params.sweet_spot_m) / params.sweet_spot_halfwidth_m
+    return (1.0 - x * x).clamp_min(params.min_weight)
+
+
+WEIGHTINGS: dict[str, Callable[..., torch.Tensor]] = {
+    "none": _none, "lut": _lut, "distance": _distance, "incidence": _incidence, "sweet_spot": _sweet_spot,
+}
+
+
+def resolve(name: str, fusion: str) -> str:
+    """A weighting name with ``auto`` resolved: ``lut`` for glfs, ``none`` otherwise."""
+    if name == "auto":
+        return "lut" if fusion == "glfs" else "none"
+    if name not in WEIGHTINGS:
+        raise ValueError(f"unknown weighting {name!r}; valid names: auto, {', '.join(WEIGHTINGS)}")
+    return name
+
+
+def needs_geometry(name: str) -> bool:
+    """Whether weighting ``name`` uses the camera distance / incidence angle."""
+    return resolve(name, "") != "none"
+
+
+def sample_weights(name: str, pred: torch.Tensor, distance_m: torch.Tensor, angle_deg: torch.Tensor,
+                   params: WeightingParams | None = None) -> torch.Tensor:
+    """Weights (...) of observations with predicted class ``pred`` (..., int64, argmax of the
+    *scaled* logits; only ``lut`` uses it, others accept None), camera distance
+    ``distance_m`` (...) metres and incidence angle ``angle_deg`` (...) degrees in [0, 90]."""
+    if name not in WEIGHTINGS:
+        raise ValueError(f"unknown weighting {name!r}; valid names: {', '.join(WEIGHTINGS)}")
+    return WEIGHTINGS[name](pred, distance_m, angle_deg, params or WeightingParams())

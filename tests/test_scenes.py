@@ -1,0 +1,152 @@
+"""Scene library: ids, split seeds, procedural cache, user scene directories, errors."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from envs import scenes
+from envs.config import DatasetConfig
+from envs.house import HouseSpec
+from envs.primitives import box_room_scene
+from envs.scenes import (SPLITS, load_scene, parse_scene_id, procedural_scene_id, scene_cache_path, scene_seed,
+                         split_scene_ids)
+from envs.semantics import CLASS_ID
+
+ARRAYS = ("vertices", "triangles", "tri_class", "tri_instance", "tri_albedo", "tri_texture")
+LABEL_MAP = {"1": "floor", "5": "chair"}
+
+
+def _write_scan(path, up_axis: str = "z") -> None:
+    """A labelled PLY: a 4 x 4 m floor (raw label 1) and a 0.5 m box chair (raw label 5)."""
+    from plyfile import PlyData, PlyElement
+
+    from envs.primitives import box_mesh
+
+    bv, bt = box_mesh((0.5, 0.5, 0.25), (0.5, 0.5, 0.5))
+    v = np.vstack([[[-2, -2, 0], [2, -2, 0], [2, 2, 0], [-2, 2, 0]], bv])
+    t = np.vstack([[[0, 1, 2], [0, 2, 3]], bt + 4])
+    if up_axis == "y":
+        v = np.stack([v[:, 0], v[:, 2], -v[:, 1]], axis=1)
+    vert = np.empty(len(v), [("x", "f4"), ("y", "f4"), ("z", "f4"), ("label", "i4")])
+    vert["x"], vert["y"], vert["z"] = v.T
+    vert["label"] = [1] * 4 + [5] * 8
+    face = np.empty(len(t), [("vertex_indices", "O")])
+    face["vertex_indices"] = [np.asarray(f, np.int32) for f in t]
+    PlyData([PlyElement.describe(vert, "vertex"), PlyElement.describe(face, "face")]).write(str(path))
+
+
+@pytest.fixture(autouse=True)
+def isolated_cache(tmp_path, monkeypatch):
+    monkeypatch.setenv("CALNAV_CACHE", str(tmp_path / "cache"))
+    scenes.clear_scene_lru()
+    yield tmp_path / "cache"
+    scenes.clear_scene_lru()
+
+
+def test_ids_round_trip_and_split_lists():
+    assert procedural_scene_id("val", 3) == "house_val_0003"
+    assert parse_scene_id("house_test_0042") == ("test", 42)
+    cfg = DatasetConfig(train_scenes=5, val_scenes=3, test_scenes=2)
+    assert split_scene_ids("train", cfg) == [f"house_train_{i:04d}" for i in range(5)]
+    assert [len(split_scene_ids(s, cfg)) for s in SPLITS] == [5, 3, 2]
+    assert len(split_scene_ids("val")) == DatasetConfig().val_scenes
+
+
+def test_seeds_are_disjoint_across_splits_and_base_seeds():
+    n = 2000
+    seen: dict[int, tuple] = {}
+    for base in (0, 1, 7):
+        for split in SPLITS:
+            for i in range(n):
+                seed = scene_seed(procedural_scene_id(split, i), base)
+                assert seed not in seen, f"{(base, split, i)} collides with {seen[seed]}"
+                seen[seed] = (base, split, i)
+    assert scene_seed("house_train_0000") == 1_000_000 and scene_seed("house_val_0005", 1) == 4_000_000 + 2_000_005
+
+
+@pytest.mark.parametrize("bad", ["house_dev_0001", "house_val_x", "val_0001", "", "house_val_0003.npz"])
+def test_bad_ids_name_the_format(bad):
+    with pytest.raises(ValueError, match="house_<split>_<NNNN>"):
+        load_scene(bad)
+
+
+def test_bad_split_and_out_of_range_index():
+    with pytest.raises(ValueError, match="valid splits: train, val, test"):
+        split_scene_ids("dev", DatasetConfig())
+    with pytest.raises(ValueError, match="house_val_0000 .. house_val_0002"):
+        load_scene("house_val_0003", DatasetConfig(val_scenes=3))
+    with pytest.raises(ValueError, match="base seed"):
+        scene_seed("house_val_0000", -1)
+
+
+def test_procedural_cache_round_trip(isolated_cache):
+    cfg = DatasetConfig(val_scenes=2)
+    a = load_scene("house_val_0001", cfg)
+    path = scene_cache_path("house_val_0001", cfg)
+    assert path.exists() and path.parent == isolated_cache / "scenes" and a.name == "house_val_0001"
+    assert load_scene("house_val_0001", cfg) is a                 # in-process LRU
+    scenes.clear_scene_lru()
+    b = load_scene("house_val_0001", cfg)                           # from disk
+    assert b is not a
+    for name in ARRAYS:
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+    assert a.rooms == b.rooms and b.meta["seed"] == scene_seed("house_val_0001", cfg.seed)
+    # a different spec or base seed is a different cache file
+    assert scene_cache_path("house_val_0001", cfg, HouseSpec(walk_gap_m=0.7)) != path
+    assert scene_cache_path("house_val_0001", DatasetConfig(val_scenes=2, seed=1)) != path
+    c = load_scene("house_val_0001", DatasetConfig(val_scenes=2, seed=1))
+    assert c.vertices.shape != a.vertices.shape or not np.array_equal(c.vertices, a.vertices)
+
+
+def test_corrupt_cache_entry_is_regenerated(isolated_cache):
+    cfg = DatasetConfig(train_scenes=1)
+    a = load_scene("house_train_0000", cfg)
+    path = scene_cache_path("house_train_0000", cfg)
+    path.write_bytes(b"not a zip")
+    scenes.clear_scene_lru()
+    b = load_scene("house_train_0000", cfg)
+    np.testing.assert_array_equal(a.vertices, b.vertices)
+
+
+def test_lru_is_bounded():
+    cfg = DatasetConfig(train_scenes=scenes.LRU_SIZE + 2)
+    first = load_scene("house_train_0000", cfg)
+    for i in range(1, scenes.LRU_SIZE + 2):
+        load_scene(procedural_scene_id("train", i), cfg)
+    assert len(scenes._lru) == scenes.LRU_SIZE
+    assert load_scene("house_train_0000", cfg) is not first          # evicted, re-read from disk
+
+
+def test_user_scene_dir_flat(tmp_path):
+    d = tmp_path / "scans"
+    d.mkdir()
+    box_room_scene(name="boxy").save(d / "boxy.npz")
+    _write_scan(d / "scan_a.ply")
+    (d / "labels.json").write_text(json.dumps(LABEL_MAP))
+    _write_scan(d / "scan_b.ply", up_axis="y")
+    (d / "scan_b.labels.json").write_text(json.dumps({"label_map": LABEL_MAP, "up_axis": "y"}))
+    cfg = DatasetConfig(scene_dir=str(d))
+    for split in SPLITS:
+        assert split_scene_ids(split, cfg) == ["boxy", "scan_a", "scan_b"]
+    assert load_scene("boxy", cfg).name == "boxy"
+    a, b = load_scene("scan_a", cfg), load_scene("scan_b", cfg)
+    assert CLASS_ID["chair"] in a.classes_present()
+    np.testing.assert_allclose(a.vertices, b.vertices, atol=1e-5)
+    with pytest.raises(ValueError, match="valid ids: boxy, scan_a, scan_b"):
+        load_scene("house_val_0000", cfg)
+
+
+def test_user_scene_dir_with_split_folders(tmp_path):
+    for split, names in (("train", ["t1", "t2"]), ("val", ["v1"])):
+        (tmp_path / split).mkdir()
+        for n in names:
+            box_room_scene(name=n).save(tmp_path / split / f"{n}.npz")
+    cfg = DatasetConfig(scene_dir=str(tmp_path))
+    assert split_scene_ids("train", cfg) == ["t1", "t2"] and split_scene_ids("val", cfg) == ["v1"]
+    with pytest.raises(ValueError, match="no 'test' folder"):
+        split_scene_ids("test", cfg)
+    assert load_scene("v1", cfg).name == "v1"
+    with pytest.raises(ValueError, match="not a directory"):
+        split_scene_ids("val", DatasetConfig(scene_dir=str(tmp_path / "nowhere")))

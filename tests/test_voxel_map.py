@@ -1,0 +1,258 @@
+"""The semantic voxel map (mapping.voxel_map) on a ray-cast box room: accuracy against ground
+truth, agreement with the batched ``fuse`` through the observation cache, hashmap growth,
+read-outs, memory and bad input."""
+import numpy as np
+import pytest
+import torch
+
+from envs.primitives import box_room_scene
+from mapping.config import MappingConfig
+from mapping.fusion import STRATEGIES, fuse
+from mapping.glfs import GLFSParams
+from mapping.ground_truth import LabelledMesh
+from mapping.obs_cache import ObsCache
+from mapping.voxel_map import SemanticVoxelMap
+from mapping.weighting import WeightingParams, sample_weights
+
+W, H, HFOV_DEG = 160, 120, 79.0
+# Shift the room by a fraction of a voxel so that no voxel centre lies exactly on two surfaces
+# (on a grid-aligned room the nearest-triangle ground truth of edge voxels is an arbitrary tie).
+SUBVOXEL_SHIFT = np.float32([0.013, 0.021, 0.017])
+VIEWS = [((-2, 1, 0.88), (2, -1, 0.5)), ((2, 1.5, 1.2), (-2, -1, 0.3)), ((0, 0, 1.5), (2.5, 1.5, 0.5)),
+         ((-2.5, -1.5, 1.0), (0, 1.5, 1.0)), ((2.5, -1.5, 0.9), (-1, 1.5, 0.2)), ((0, 1.5, 1.3), (0, -2, 0.4)),
+         ((-1, -1.5, 1.6), (-2.5, 1.5, 0.0)), ((1, 0, 0.6), (-2, -1.2, 0.4))]
+
+
+def intrinsics(w=W, h=H):
+    f = w / 2 / np.tan(np.deg2rad(HFOV_DEG / 2))
+    return np.array([[f, 0, (w - 1) / 2], [0, f, (h - 1) / 2], [0, 0, 1]])
+
+
+def look_at(eye, target):
+    """(4, 4) world-from-camera pose (OpenCV axes) at ``eye`` looking at ``target``, z up."""
+    eye = np.asarray(eye, float)
+    fwd = np.asarray(target, float) - eye
+    fwd /= np.linalg.norm(fwd)
+    right = np.cross(fwd, (0, 0, 1.0))
+    right /= np.linalg.norm(right)
+    pose = np.eye(4)
+    pose[:3, 0], pose[:3, 1], pose[:3, 2], pose[:3, 3] = right, np.cross(fwd, right), fwd, eye
+    return pose
+
+
+@pytest.fixture(scope="module")
+def room():
+    scene = box_room_scene()
+    mesh = LabelledMesh(scene.vertices + SUBVOXEL_SHIFT, scene.triangles, scene.tri_class)
+    k = intrinsics()
+    frames = []
+    for eye, target in VIEWS:
+        pose = look_at(eye, target)
+        depth, labels = mesh.render(k, pose, W, H)
+        frames.append((depth, pose, labels))
+    return scene, mesh, k, frames
+
+
+def noisy_logits(labels, k_classes, rng, margin=2.0, fp16=True):
+    """(H, W, K) logits: N(0, 1) plus ``margin`` on the true class; fp16-exact (the cache's
+    precision) so that the map and a fuse over its cache see identical numbers."""
+    z = rng.normal(size=labels.shape + (k_classes,)).astype(np.float32)
+    hit = labels >= 0
+    z[hit, labels[hit]] += margin
+    return z.astype(np.float16).astype(np.float32) if fp16 else z
+
+
+def onehot_logits(labels, k_classes, scale=10.0):
+    z = np.zeros(labels.shape + (k_classes,), np.float32)
+    hit = labels >= 0
+    z[hit, labels[hit]] = scale
+    return z
+
+
+MIN_TEST_BLOCKS = 64
+SMALL_ALLOC_MB = 48.0  # the room needs ~1200 blocks; tests need not allocate the 192 MB default
+
+
+def build(scene, frames, logits_fn, **cfg):
+    cfg = {"initial_alloc_mb": SMALL_ALLOC_MB} | cfg
+    m = SemanticVoxelMap(scene.num_classes, MappingConfig(**cfg), class_names=scene.class_names)
+    for depth, pose, labels in frames:
+        m.integrate(depth, intrinsics(), pose, logits_fn(labels))
+    return m
+
+
+@pytest.mark.parametrize("fusion", list(STRATEGIES))
+def test_perfect_logits_label_the_box_room(room, fusion):
+    scene, mesh, _, frames = room
+    m = build(scene, frames, lambda lab: onehot_logits(lab, scene.num_classes), fusion=fusion)
+    coords, probs = m.voxels()
+    assert probs.shape == (len(coords), scene.num_classes) and np.allclose(probs.sum(1), 1, atol=1e-5)
+    gt = mesh.voxel_labels(coords, max_dist_m=np.sqrt(3) * 0.05)
+    assert (gt >= 0).mean() > 0.999  # semantic voxels lie on the surface
+    acc = (probs.argmax(1) == gt)[gt >= 0].mean()
+    assert acc >= 0.99, f"{fusion}: {acc:.4f}"
+    assert len(coords) > 20000  # most of the ~100 m^2 of visible surface (400 voxels / m^2)
+
+
+FUSE_CASES = [("rbu", "none"), ("averaging", "incidence"), ("histogram", "distance"),
+              ("geometric_mean", "sweet_spot"), ("glfs", "auto"), ("averaging", "lut")]
+
+
+@pytest.mark.parametrize("fusion,weighting", FUSE_CASES)
+def test_incremental_map_matches_batched_fuse(room, fusion, weighting):
+    """Same observations, two paths: index_add_ into voxel attributes vs fuse over the cache.
+    A tiny initial block_count makes the hashmap grow (and reallocate) along the way."""
+    scene, _, k, frames = room
+    kk = scene.num_classes
+    rng = np.random.default_rng(7)
+    params = GLFSParams(tau=rng.uniform(0.5, 2.0, kk), g=0.35, eps=0.25, M=rng.uniform(0.0, 2.0, (kk, 5, 3)),
+                        class_names=scene.class_names)
+    cache = ObsCache(kk, 0.05, cap=None)
+    cfg = MappingConfig(fusion=fusion, weighting=weighting, block_count=16)
+    temperature = None if fusion == "glfs" else 1.7
+    m = SemanticVoxelMap(kk, cfg, class_names=scene.class_names, glfs_params=params, temperature=temperature,
+                         obs_cache=cache)
+    for depth, pose, labels in frames:
+        pixel_w = rng.choice(np.float32([0.5, 1.0, 2.0]), size=depth.shape)
+        m.integrate(depth, k, pose, noisy_logits(labels, kk, rng), weights=pixel_w)
+    assert m.vbg.hashmap().capacity() > 16  # it grew
+    obs = cache.to_padded()
+    tau = torch.from_numpy(params.tau) if fusion == "glfs" else torch.tensor(temperature)
+    name = {"auto": "lut"}.get(weighting, weighting)
+    w = sample_weights(name, (obs.logits / tau).argmax(-1), obs.distance_m, obs.angle_deg,
+                       WeightingParams.from_config(cfg, lut=torch.from_numpy(params.M))) * obs.weight
+    gates = {"g": params.g, "eps": params.eps} if fusion == "glfs" else {}
+    batched = fuse(obs.logits, fusion, mask=obs.mask, weights=w, temperature=tau, **gates).numpy()
+    incremental, observed = m.query(cache.coords)
+    assert observed.all() and obs.mask.sum(1).max() >= 4
+    np.testing.assert_allclose(incremental, batched, atol=1e-5, rtol=0)
+
+
+def test_growth_keeps_results(room):
+    scene, _, _, frames = room
+    rng = np.random.default_rng(3)
+    logits = [noisy_logits(lab, scene.num_classes, rng) for _, _, lab in frames]
+    it = iter(logits * 2)
+    big = build(scene, frames, lambda lab: next(it), fusion="rbu", block_count=4000)
+    tiny = build(scene, frames, lambda lab: next(it), fusion="rbu", block_count=8)
+    assert tiny.vbg.hashmap().capacity() > 8 and big.vbg.hashmap().capacity() == 4000
+    (cb, pb), (ct, pt) = big.voxels(), tiny.voxels()
+    ob, ot = np.lexsort(cb.T), np.lexsort(ct.T)
+    np.testing.assert_array_equal(cb[ob], ct[ot])
+    np.testing.assert_allclose(pb[ob], pt[ot], atol=1e-6)
+
+
+def test_readouts(room):
+    scene, mesh, k, frames = room
+    rng = np.random.default_rng(5)
+    m = build(scene, frames, lambda lab: noisy_logits(lab, scene.num_classes, rng, margin=4.0), fusion="averaging")
+    depth, pose, labels = frames[0]
+    probs, valid = m.render_semantics(k, pose, W, H)
+    assert probs.shape == (H, W, scene.num_classes) and valid.mean() > 0.8
+    assert np.allclose(probs[valid].sum(-1), 1, atol=1e-5) and (probs[~valid] == 0).all()
+    seen = valid & (labels >= 0)
+    assert (probs.argmax(-1)[seen] == labels[seen]).mean() > 0.95
+    pc = m.point_cloud()
+    assert len(pc.points) > 10000 and pc.colors.dtype == np.uint8 and pc.probs.shape == (len(pc.points), scene.num_classes)
+    pc_gt = mesh.voxel_labels(pc.points, max_dist_m=0.05)
+    assert (pc.probs.argmax(1) == pc_gt)[pc_gt >= 0].mean() > 0.95
+    coords, _ = m.voxels()
+    normals = m.voxel_normals(coords)
+    floor = mesh.voxel_labels(coords, max_dist_m=0.087) == scene.class_names.index("floor")
+    assert np.median(normals[floor, 2]) > 0.95  # outward normal of the floor is +z
+    p, observed = m.query(np.array([[0.0, 0.0, 1.3], coords[0]]))
+    assert not observed[0] and observed[1] and np.allclose(p[0], 1 / scene.num_classes)
+
+
+def test_incidence_angles_of_a_tilted_plane():
+    from mapping.frame_geometry import incidence_angles
+
+    k = intrinsics(64, 48)
+    v, u = np.mgrid[0:48, 0:64]
+    ray = np.stack([(u - k[0, 2]) / k[0, 0], (v - k[1, 2]) / k[1, 1], np.ones_like(u, float)], -1)
+    normal = np.array([0.0, -np.sin(0.6), -np.cos(0.6)])  # plane n . x = -2, tilted 0.6 rad
+    depth = (-2.0 / (ray @ normal)).astype(np.float32)
+    pix = np.arange(48 * 64)
+    angle = incidence_angles(depth, k, pix, offset=1)
+    cos = np.abs(ray.reshape(-1, 3) @ normal) / np.linalg.norm(ray.reshape(-1, 3), axis=1)
+    expected = np.degrees(np.arccos(cos)).reshape(48, 64)
+    angle = angle.reshape(48, 64)
+    np.testing.assert_allclose(angle[1:-1, 1:-1], expected[1:-1, 1:-1], atol=0.02)  # central differences
+    np.testing.assert_allclose(angle, expected, atol=0.6)  # one-sided at the image border
+    depth[:, 30:] = 0  # invalid neighbours: one-sided differences at the border of the hole
+    holed = incidence_angles(depth, k, pix, 2).reshape(48, 64)
+    assert np.isfinite(holed).all()
+    np.testing.assert_allclose(holed[2:-2, 2:28], expected[2:-2, 2:28], atol=0.1)
+
+
+def test_rgb_and_invalid_depth(room):
+    scene, _, k, frames = room
+    depth, pose, labels = frames[0]
+    m = SemanticVoxelMap(scene.num_classes, MappingConfig(fusion="histogram", initial_alloc_mb=SMALL_ALLOC_MB))
+    bad = depth.copy()
+    bad[:, : W // 2] = np.nan
+    bad[:10] = np.inf
+    bad[-10:] = 100.0
+    rgb = np.full((H, W, 3), (200, 100, 50), np.uint8)
+    m.integrate(bad, k, pose, onehot_logits(labels, scene.num_classes), rgb=rgb)
+    coords, _ = m.voxels()
+    assert len(coords) > 500
+    cam = (coords - pose[:3, 3]) @ pose[:3, :3]  # camera frame: everything in the valid right half
+    u = k[0, 0] * cam[:, 0] / cam[:, 2] + k[0, 2]
+    assert (u > W // 2 - 2).all()
+    assert np.abs(m.point_cloud().colors.astype(int) - (200, 100, 50)).max() <= 1
+    empty = SemanticVoxelMap(scene.num_classes, MappingConfig(block_count=MIN_TEST_BLOCKS))
+    empty.integrate(np.zeros_like(depth), k, pose, onehot_logits(labels, scene.num_classes))
+    assert len(empty.voxels()[0]) == 0 and empty.render_semantics(k, pose, W, H)[1].sum() == 0
+
+
+def test_memory_starts_small_and_grows_with_the_observed_area(room):
+    scene, _, k, frames = room
+    m = SemanticVoxelMap(scene.num_classes, MappingConfig(fusion="glfs"))
+    assert m.memory_bytes(allocated=True) < 300 * 2 ** 20
+    assert m.memory_bytes() == 0
+    sizes = []
+    for depth, pose, labels in frames[:3]:
+        m.integrate(depth, k, pose, onehot_logits(labels, scene.num_classes))
+        sizes.append(m.memory_bytes())
+    assert 0 < sizes[0] <= sizes[1] <= sizes[2] <= m.memory_bytes(allocated=True)
+
+
+def test_bad_input(room):
+    scene, _, k, frames = room
+    depth, pose, labels = frames[0]
+    kk = scene.num_classes
+    m = SemanticVoxelMap(kk, MappingConfig(block_count=MIN_TEST_BLOCKS))
+    good = onehot_logits(labels, kk)
+    cases = [
+        (dict(logits=good[..., :-1]), "K = 17 classes, the map has 18"),
+        (dict(logits=good[:-1]), "logits are 160x119 pixels but depth is 160x120"),
+        (dict(logits=good.astype(np.float64)), "float32"),
+        (dict(depth=depth.astype(np.float64)), "depth must be a \\(H, W\\) float32"),
+        (dict(depth=depth[None]), "depth must be"),
+        (dict(rgb=np.zeros((H, W, 3), np.float32)), "uint8"),
+        (dict(weights=np.ones((H, W), np.float64)), "weights"),
+        (dict(weights=-np.ones((H, W), np.float32)), ">= 0"),
+        (dict(pose=pose * 1.1), "not a rigid transform"),
+        (dict(pose=pose @ np.diag([1.0, 1.0, -1.0, 1.0])), "det"),
+        (dict(pose=np.vstack([pose[:3], [0, 0, 1, 1]])), "last row"),
+        (dict(pose=pose[:3]), "\\(4, 4\\)"),
+        (dict(intrinsics=k[:2]), "intrinsics"),
+        (dict(intrinsics=-k), "fx, fy > 0"),
+        (dict(logits=np.full_like(good, np.nan)), "NaN"),
+    ]
+    for change, msg in cases:
+        args = dict(depth=depth, intrinsics=k, pose=pose, logits=good) | change
+        with pytest.raises(ValueError, match=msg):
+            m.integrate(**args)
+    with pytest.raises(ValueError, match="valid names"):
+        SemanticVoxelMap(kk, MappingConfig(fusion="bayes"))
+    with pytest.raises(ValueError, match="valid names"):
+        SemanticVoxelMap(kk, MappingConfig(weighting="gauss"))
+    with pytest.raises(ValueError, match="other classes"):
+        SemanticVoxelMap(kk, MappingConfig(fusion="glfs"), class_names=scene.class_names,
+                         glfs_params=GLFSParams.identity(kk, tuple(reversed(scene.class_names))))
+    with pytest.raises(ValueError, match="glfs_params.tau"):
+        SemanticVoxelMap(kk, MappingConfig(fusion="glfs"), temperature=2.0)
+    with pytest.raises(ValueError, match="CPU"):
+        SemanticVoxelMap(kk, device="CUDA:0")
