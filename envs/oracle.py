@@ -19,8 +19,8 @@ from envs.task import Action
 
 STOP_RADIUS_FRACTION = 0.99   # STOP once DistanceToGoal < this fraction of the success distance
 TURN_COST_M = 1e-3            # tie-breaker: a turn costs as much as 1 mm of path
-STATE_BIN_M = 0.08            # positions in one bin (per heading) are one A* state, metres
-HEURISTIC_WEIGHT = 1.2        # weighted A*: path at most this factor above the lattice optimum
+STATE_BIN_M = 0.06            # positions in one bin (per heading) are one A* state, metres
+HEURISTIC_WEIGHT = 1.05       # weighted A*: path at most this factor above the lattice optimum
 MAX_EXPANSIONS = 40_000       # A* gives up beyond this many states (then a greedy step is used)
 
 
@@ -43,27 +43,34 @@ class ShortestPathFollower:
     def _key(self, xy, k: int) -> tuple:
         return (round(xy[0] / STATE_BIN_M), round(xy[1] / STATE_BIN_M), k % self.n_headings)
 
+    def _turned(self, heading: float, direction: int) -> float:
+        """The env's exact turn arithmetic (so planned and executed poses agree bit for bit)."""
+        return (heading + direction * self.turn_rad) % (2 * math.pi)
+
     def plan(self, xy: np.ndarray, yaw: float, field) -> list[Action] | None:
         """Actions from (xy, yaw) to STOP inside the goal region, or None if A* gives up."""
-        start = (float(field.distance(xy)), 0.0, 0, (float(xy[0]), float(xy[1])), 0)
-        frontier = [start]
-        parents: dict[tuple, tuple | None] = {self._key(xy, 0): None}
-        best_g = {self._key(xy, 0): 0.0}
+        start_key = self._key(xy, 0)
+        # heap entries: (f, -g, tie, position, heading, turn index); ties on f go to the deeper
+        # node (larger g), which keeps A* from flooding the plateaus of near-equal paths
+        frontier = [(float(field.distance(xy)), 0.0, 0, (float(xy[0]), float(xy[1])), float(yaw), 0)]
+        parents: dict[tuple, tuple | None] = {start_key: None}
+        best_g = {start_key: 0.0}
         tie = 0
         while frontier and len(best_g) < MAX_EXPANSIONS:
-            _, g, _, pos, k = heapq.heappop(frontier)
+            _, neg_g, _, pos, heading, k = heapq.heappop(frontier)
+            g = -neg_g
             key = self._key(pos, k)
             if g > best_g.get(key, math.inf) + 1e-12:
                 continue
             if field.distance(np.array(pos)) < self.stop_distance:
                 return self._unwind(parents, key)
-            heading = yaw + k * self.turn_rad
+            successors = [(Action.TURN_LEFT, pos, self._turned(heading, 1), k + 1, TURN_COST_M),
+                          (Action.TURN_RIGHT, pos, self._turned(heading, -1), k - 1, TURN_COST_M)]
             new_xy, moved = self.navgrid.move_forward(np.array(pos), heading, self.step_m)
-            successors = [(Action.TURN_LEFT, pos, k + 1, TURN_COST_M),
-                          (Action.TURN_RIGHT, pos, k - 1, TURN_COST_M)]
             if moved:
-                successors.append((Action.MOVE_FORWARD, (float(new_xy[0]), float(new_xy[1])), k, self.step_m))
-            for action, p2, k2, cost in successors:
+                successors.append((Action.MOVE_FORWARD, (float(new_xy[0]), float(new_xy[1])), heading, k,
+                                   self.step_m))
+            for action, p2, h2, k2, cost in successors:
                 key2 = self._key(p2, k2)
                 g2 = g + cost
                 if g2 < best_g.get(key2, math.inf) - 1e-12:
@@ -73,7 +80,8 @@ class ShortestPathFollower:
                     best_g[key2] = g2
                     parents[key2] = (key, action)
                     tie += 1
-                    heapq.heappush(frontier, (g2 + HEURISTIC_WEIGHT * max(0.0, h - self.stop_distance), g2, tie, p2, k2))
+                    f = g2 + HEURISTIC_WEIGHT * max(0.0, h - self.stop_distance)
+                    heapq.heappush(frontier, (f, -g2, tie, p2, h2, k2))
         return None
 
     def _unwind(self, parents: dict, key: tuple) -> list[Action]:
@@ -84,45 +92,43 @@ class ShortestPathFollower:
         return actions[::-1]
 
     def _greedy(self, xy: np.ndarray, yaw: float, field) -> Action:
-        """Best single step (fallback when planning fails)."""
-        d = field.distance(xy)
-        best = (d, None)
+        """Best single step (fallback when planning fails); never STOPs outside the goal."""
+        best = (field.distance(xy), None)
         for k in range(self.n_headings):
             new_xy, moved = self.navgrid.move_forward(xy, yaw + k * self.turn_rad, self.step_m)
             if moved and field.distance(new_xy) < best[0]:
                 best = (field.distance(new_xy), k)
-        if best[1] is None:
-            return Action.STOP
         if best[1] == 0:
             return Action.MOVE_FORWARD
-        return Action.TURN_LEFT if best[1] <= self.n_headings // 2 else Action.TURN_RIGHT
+        if best[1] is not None and best[1] > self.n_headings // 2:
+            return Action.TURN_RIGHT
+        return Action.TURN_LEFT
 
     def next_action(self, xy: np.ndarray, yaw: float, field) -> Action:
         if field.distance(xy) < self.stop_distance:
             return Action.STOP
         state = (float(xy[0]), float(xy[1]), float(yaw))
         if field is not self._field or not self._plan or self._plan[0][1] != state:
-            actions = self.plan(xy, yaw, field)
             self._field = field
-            if actions is None:
-                self._plan = []
+            actions = self.plan(xy, yaw, field)
+            self._plan = [] if actions is None else self._states(xy, yaw, actions)
+            if not self._plan:
                 return self._greedy(xy, yaw, field)
-            self._plan = self._states(xy, yaw, actions)
         return self._plan.pop(0)[0]
 
     def _states(self, xy, yaw: float, actions: list[Action]) -> list[tuple[Action, tuple]]:
         """Pair each planned action with the exact (x, y, yaw) it is taken from, so any
-        deviation (a different pose than planned) triggers a replan."""
+        deviation from the plan triggers a replan; [] if a planned step would be blocked."""
         out = []
         pos, heading = np.array(xy, dtype=np.float64), float(yaw)
         for a in actions:
             out.append((a, (float(pos[0]), float(pos[1]), heading)))
             if a == Action.MOVE_FORWARD:
-                pos, _ = self.navgrid.move_forward(pos, heading, self.step_m)
-            elif a == Action.TURN_LEFT:
-                heading = (heading + self.turn_rad) % (2 * math.pi)
-            elif a == Action.TURN_RIGHT:
-                heading = (heading - self.turn_rad) % (2 * math.pi)
+                pos, moved = self.navgrid.move_forward(pos, heading, self.step_m)
+                if not moved:
+                    return []
+            elif a in (Action.TURN_LEFT, Action.TURN_RIGHT):
+                heading = self._turned(heading, 1 if a == Action.TURN_LEFT else -1)
         return out
 
 

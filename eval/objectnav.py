@@ -83,6 +83,18 @@ def load_records(path: Path) -> list[dict]:
     return records
 
 
+def repair_records(path: Path) -> None:
+    """Drop a torn last line (a run killed mid-write) so appends start on a fresh line."""
+    if not path.exists():
+        return
+    text = path.read_text()
+    if text and not text.endswith("\n"):
+        keep = text[: text.rfind("\n") + 1]
+        tmp = path.with_name(path.name + ".tmp")
+        tmp.write_text(keep)
+        tmp.replace(path)
+
+
 def prepare_output(out: Path, cfg: Config, force: bool) -> None:
     out.mkdir(parents=True, exist_ok=True)
     cfg_path = out / "config.yaml"
@@ -105,6 +117,7 @@ def run_objectnav(cfg: Config, agent_name: str, indices: list[int], out: Path, f
 
     prepare_output(out, cfg, force)
     results_path = out / "episodes.jsonl"
+    repair_records(results_path)
     done = {r["index"] for r in load_records(results_path) if "index" in r}
     todo = [i for i in indices if i not in done]
     workers = cfg.run.workers or os.cpu_count() or 1
@@ -145,6 +158,10 @@ def run_objectnav(cfg: Config, agent_name: str, indices: list[int], out: Path, f
 def main_objectnav(args) -> None:
     from envs.episodes import load_split, parse_episode_range
 
+    from eval.agents import AGENTS
+
+    if args.agent not in AGENTS:
+        raise ValueError(f"unknown agent {args.agent!r}; valid agents: {', '.join(AGENTS)}")
     cfg = load_config(args.config, args.overrides)
     episodes = load_split(cfg.env.split, cfg.env)
     indices = list(parse_episode_range(str(args.episodes), len(episodes)))

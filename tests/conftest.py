@@ -1,0 +1,27 @@
+"""Shared test set-up: an isolated calnav cache per test session (scenes and episodes are
+generated fresh, so generation itself is under test), and the small/full switch."""
+import os
+import tempfile
+
+import pytest
+
+# Set before any calnav module reads it (cache_dir() reads the variable at call time).
+os.environ["CALNAV_CACHE"] = tempfile.mkdtemp(prefix="calnav-test-cache-")
+
+FULL = os.environ.get("CALNAV_FULL_TESTS") == "1"
+
+
+def small_or_full(small, full):
+    """`make test` runs end-to-end checks in a small form; `make test-full` at full size."""
+    return full if FULL else small
+
+
+@pytest.fixture(scope="session")
+def small_env_config():
+    """An EnvConfig with a small val/test split and low resolution, for fast env tests."""
+    from eval.config import load_config
+
+    return load_config(None, [
+        "env.resolution=64x48", "env.dataset.val_scenes=2", "env.dataset.test_scenes=2",
+        "env.dataset.episodes_per_scene=4",
+    ]).env

@@ -1,0 +1,134 @@
+"""Episode generation: determinism, distances, view points, Habitat JSON schema, bad input."""
+import gzip
+import json
+import math
+
+import numpy as np
+import open3d as o3d
+import pytest
+
+from conftest import small_or_full
+from envs.config import EnvConfig
+from envs.episodes import (episodes_from_habitat, episodes_to_habitat, generate_scene_episodes,
+                           goal_mask, habitat_quaternion_to_yaw, load_split, parse_episode_range,
+                           split_dir, yaw_to_habitat_quaternion)
+from envs.navigation import NavGrid
+from envs.primitives import box_room_scene
+from envs.render import Camera, Renderer
+from envs.scenes import load_scene
+from eval.config import load_config
+
+
+def _scene_tools(scene, cfg):
+    r = Renderer(scene, Camera.from_config(cfg))
+    return r.raycasting_scene, NavGrid.build(scene, cfg, r.raycasting_scene)
+
+
+def test_generation_is_deterministic(small_env_config):
+    cfg = small_env_config
+    scene = load_scene("house_val_0000", cfg.dataset)
+    rs, nav = _scene_tools(scene, cfg)
+    a = generate_scene_episodes("house_val_0000", scene, nav, rs, cfg, 6, seed=5)
+    b = generate_scene_episodes("house_val_0000", scene, nav, rs, cfg, 6, seed=5)
+    c = generate_scene_episodes("house_val_0000", scene, nav, rs, cfg, 6, seed=6)
+    assert episodes_to_habitat(a) == episodes_to_habitat(b)
+    assert episodes_to_habitat(a) != episodes_to_habitat(c)
+
+
+def test_split_distances_and_median():
+    # The default val split (what README reports) in full; a smaller one in `make test`.
+    cfg = load_config(None, [f"env.dataset.val_scenes={small_or_full(12, 30)}", "env.resolution=64x48"]).env
+    eps = load_split("val", cfg, progress=False)
+    d = np.array([e.geodesic_distance for e in eps])
+    assert len(eps) == cfg.dataset.val_scenes * cfg.dataset.episodes_per_scene
+    assert d.min() >= cfg.dataset.min_geodesic_m and d.max() <= cfg.dataset.max_geodesic_m
+    assert np.median(d) >= small_or_full(4.5, 5.0)
+    assert {e.object_category for e in eps} == {"chair", "bed", "plant", "toilet", "tv_monitor", "sofa"}
+    for e in eps[:40]:
+        assert e.geodesic_distance >= e.euclidean_distance - 0.1  # a path is never shorter than a line
+
+
+def test_view_points_are_navigable_near_and_see_the_object(small_env_config):
+    cfg = small_env_config
+    eps = load_split("val", cfg, progress=False)
+    ep = eps[0]
+    scene = load_scene(ep.scene_id, cfg.dataset)
+    rs, nav = _scene_tools(scene, cfg)
+    for goal in ep.goals:
+        assert scene.instance_class(goal.object_id) == scene.class_names.index(ep.object_category)
+        rc = nav.to_cell(goal.view_points)
+        assert nav.navigable[rc[:, 0], rc[:, 1]].all()
+        obj = scene.instance_triangles(goal.object_id).reshape(-1, 3)
+        # horizontal distance from each view point to the object's vertices' hull, loosely
+        nearest = np.min(np.linalg.norm(goal.view_points[:, None, :] - obj[None, :, :2], axis=2), axis=1)
+        extent = np.linalg.norm(obj[:, :2].max(0) - obj[:, :2].min(0))
+        assert (nearest <= cfg.view_point_radius_m + extent).all()
+        # line of sight from a few view points to the object centroid region hits the object
+        eye = np.column_stack([goal.view_points[:20], np.full(min(20, len(goal.view_points)), cfg.camera_height_m)])
+        seen = 0
+        for e in eye:
+            dirs = obj - e
+            dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+            rays = np.column_stack([np.repeat(e[None], len(dirs), 0), dirs]).astype(np.float32)
+            prim = rs.cast_rays(o3d.core.Tensor(rays))["primitive_ids"].numpy().astype(np.int64)
+            hit = prim[prim != o3d.t.geometry.RaycastingScene.INVALID_ID]
+            seen += int((scene.tri_instance[hit] == goal.object_id).any())
+        assert seen == len(eye)
+
+
+def test_episode_start_distance_matches_geodesic(small_env_config):
+    cfg = small_env_config
+    ep = load_split("val", cfg, progress=False)[1]
+    scene = load_scene(ep.scene_id, cfg.dataset)
+    _, nav = _scene_tools(scene, cfg)
+    field = nav.geodesic_field(goal_mask(nav, ep.goals))
+    assert field.distance(ep.start_position) == pytest.approx(ep.geodesic_distance, abs=1e-6)
+    assert nav.is_navigable(ep.start_position)
+
+
+def test_habitat_schema_round_trip(small_env_config):
+    cfg = small_env_config
+    load_split("val", cfg, progress=False)
+    path = split_dir("val", cfg) / "content" / "house_val_0000.json.gz"
+    data = json.loads(gzip.open(path, "rt").read())
+    e0 = data["episodes"][0]
+    assert set(e0) >= {"episode_id", "scene_id", "start_position", "start_rotation", "object_category",
+                       "info", "goals"}
+    assert "geodesic_distance" in e0["info"]
+    key = f"{e0['scene_id']}_{e0['object_category']}"
+    goal = data["goals_by_category"][key][0]
+    assert set(goal) >= {"object_id", "object_category", "position", "view_points"}
+    assert e0["start_position"][1] == 0.0  # Habitat is y-up: height is the second coordinate
+    back = episodes_from_habitat(data)
+    assert episodes_to_habitat(back) == data
+
+
+@pytest.mark.parametrize("yaw", [0.0, 0.3, math.pi / 2, 3.0, 5.9])
+def test_yaw_quaternion_round_trip(yaw):
+    q = yaw_to_habitat_quaternion(yaw)
+    assert np.linalg.norm(q) == pytest.approx(1.0)
+    assert habitat_quaternion_to_yaw(q) == pytest.approx(yaw, abs=1e-9)
+
+
+def test_habitat_forward_convention():
+    # calnav yaw = pi/2 faces +y (north); in Habitat (x, z, -y) that is -z_h, Habitat's default forward
+    q = yaw_to_habitat_quaternion(math.pi / 2)
+    assert q == pytest.approx([0.0, 0.0, 0.0, 1.0])
+
+
+def test_bad_split_and_range(small_env_config):
+    with pytest.raises(ValueError, match="valid splits: train, val, test"):
+        load_split("validation", small_env_config)
+    with pytest.raises(ValueError, match="outside the split, which has episodes 0:8"):
+        parse_episode_range("5:20", 8)
+    with pytest.raises(ValueError, match="use N or A:B"):
+        parse_episode_range("five", 8)
+    assert list(parse_episode_range("2:4", 8)) == [2, 3]
+
+
+def test_scene_without_goal_instance_is_an_error():
+    cfg = EnvConfig(resolution=(64, 48))
+    scene = box_room_scene(objects=(("table", (0.5, -0.5), (1.0, 0.6, 0.75)),))
+    rs, nav = _scene_tools(scene, cfg)
+    with pytest.raises(ValueError, match="no reachable, visible instance of any goal category"):
+        generate_scene_episodes("box", scene, nav, rs, cfg, 3, seed=0)
