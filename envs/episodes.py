@@ -28,11 +28,11 @@ from pathlib import Path
 import numpy as np
 from scipy import ndimage
 
-from envs.config import DatasetConfig, EnvConfig
-from envs.scene import Scene, cache_dir
+from envs.config import EnvConfig
+from envs.scene import Scene, cache_dir, sample_surface
 from envs.semantics import GOAL_CATEGORIES
 
-GENERATOR_VERSION = 1
+GENERATOR_VERSION = 2  # 2: nav grid rasterises obstacles in the height band (walls block)
 TRIVIAL_REJECT_PROB = 0.98        # habitat-lab's rejection rate for near-straight episodes
 SURFACE_SAMPLE_SPACING_M = 0.03   # spacing of object surface samples for footprints, metres
 VISIBILITY_TARGETS = 48           # object surface points tested for visibility per view point
@@ -70,18 +70,6 @@ class ObjectNavEpisode:
 
 
 # ---------------------------------------------------------------- geometry helpers
-def sample_surface(tri_verts: np.ndarray, spacing: float, rng: np.random.Generator) -> np.ndarray:
-    """Points on triangles (n, 3, 3) at roughly one per spacing^2 of area -> (m, 3)."""
-    a, b, c = tri_verts[:, 0], tri_verts[:, 1], tri_verts[:, 2]
-    area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
-    counts = np.maximum(1, np.ceil(area / spacing**2)).astype(np.int64)
-    idx = np.repeat(np.arange(len(tri_verts)), counts)
-    u, v = rng.random((2, len(idx)))
-    flip = u + v > 1
-    u[flip], v[flip] = 1 - u[flip], 1 - v[flip]
-    return a[idx] + u[:, None] * (b - a)[idx] + v[:, None] * (c - a)[idx]
-
-
 def _vertical_half_fov(env_cfg: EnvConfig) -> float:
     w, h = env_cfg.resolution
     return math.atan(math.tan(math.radians(env_cfg.hfov_deg) / 2) * h / w)

@@ -24,7 +24,7 @@ import numpy as np
 from scipy import ndimage, sparse
 from scipy.sparse.csgraph import dijkstra
 
-from envs.scene import Scene
+from envs.scene import Scene, sample_surface
 
 FLOOR_TOL_M = 0.03          # a ray's first hit counts as floor within this of floor_z, metres
 RAYS_PER_CELL_SIDE = 3      # sub-sampled ray points per cell side (1.7 cm apart: thin legs show)
@@ -32,6 +32,8 @@ RAY_START_BELOW_TOP_M = 0.005   # rays start this far below the agent's top, met
 CAST_CHUNK_RAYS = 1 << 20   # rays cast per call (bounds memory on big scenes)
 FIELD_CACHE_SIZE = 8        # geodesic fields kept per NavGrid (LRU)
 MOVE_SAMPLE_FRACTION = 0.5  # move_forward checks the segment every this many cells
+OBSTACLE_SAMPLE_FRACTION = 0.5  # obstacle surfaces are sampled every this many cells
+OBSTACLE_SEED = 0           # surface sampling is random but fixed: the grid is deterministic
 # Grid graph moves (d_row, d_col): 8 neighbours and 8 knight moves.
 GRAPH_OFFSETS: tuple[tuple[int, int], ...] = tuple(
     (dr, dc) for dr in range(-2, 3) for dc in range(-2, 3)
@@ -117,6 +119,32 @@ def _free_floor(scene: Scene, rc, origin: np.ndarray, shape: tuple[int, int], ce
     return ok.reshape(h, s, w, s).all(axis=(1, 3))
 
 
+def _band_obstacles(scene: Scene, origin: np.ndarray, shape: tuple[int, int], cell: float,
+                    z_lo: float, z_hi: float, passable_ids: tuple[int, ...]) -> np.ndarray:
+    """(H, W) bool: cells that some obstacle surface crosses inside the agent's height band.
+
+    Every triangle that is not floor or ceiling (``passable_ids``; void clutter counts as an
+    obstacle) is sampled at OBSTACLE_SAMPLE_FRACTION cells spacing and its points with z in
+    [z_lo, z_hi] mark their cells. This does not depend on where rays start or on face
+    orientation, so it holds where ray tests are ambiguous: inside closed solids whose faces
+    coincide with the floor or the ceiling (every wall).
+    """
+    keep = ~np.isin(scene.tri_class, passable_ids)
+    tris = scene.vertices[scene.triangles[keep]].astype(np.float64)
+    z = tris[..., 2]
+    tris = tris[(z.max(axis=1) >= z_lo) & (z.min(axis=1) <= z_hi)]
+    blocked = np.zeros(shape, dtype=bool)
+    if len(tris) == 0:
+        return blocked
+    pts = sample_surface(tris, OBSTACLE_SAMPLE_FRACTION * cell, np.random.default_rng(OBSTACLE_SEED))
+    pts = pts[(pts[:, 2] >= z_lo) & (pts[:, 2] <= z_hi)]
+    col_row = np.floor((pts[:, :2] - origin) / cell).astype(np.int64)
+    h, w = shape
+    inside = (col_row[:, 0] >= 0) & (col_row[:, 0] < w) & (col_row[:, 1] >= 0) & (col_row[:, 1] < h)
+    blocked[col_row[inside, 1], col_row[inside, 0]] = True
+    return blocked
+
+
 @dataclass(eq=False)
 class NavGrid:
     """Where the agent (a cylinder) can stand.
@@ -160,7 +188,9 @@ class NavGrid:
         agent's top (see ``_free_floor``). Anything hit first above the floor (an obstacle in
         the agent's height band from obstacle_min_height_m up to agent_height_m, but also
         unlabelled low clutter) blocks the cell; things above the agent's top (shelves,
-        ceilings) do not. Free floor is eroded by a disk of radius
+        ceilings) do not. Ray tests are ambiguous inside closed solids whose faces coincide
+        with the floor or ceiling (walls), so obstacle surfaces crossing the height band are
+        also rasterised directly (``_band_obstacles``). Free floor is eroded by a disk of radius
         agent_radius_m + cell_m / 2 (the half cell accounts for where the obstacle edge lies
         inside its cells: true clearance >= radius - cell / 6). Only the largest 8-connected
         component is kept: unreachable islands (inside closets with too-narrow doors, behind
@@ -180,6 +210,9 @@ class NavGrid:
         rc = raycasting_scene if raycasting_scene is not None else build_raycasting_scene(scene)
 
         free = _free_floor(scene, rc, origin, (h, w), cell, env_cfg.agent_height_m, floor_id)
+        passable = tuple(scene.class_names.index(n) for n in ("floor", "ceiling") if n in scene.class_names)
+        free &= ~_band_obstacles(scene, origin, (h, w), cell, scene.floor_z + env_cfg.obstacle_min_height_m,
+                                 scene.floor_z + env_cfg.agent_height_m, passable)
         # erosion: keep cells farther than radius + cell/2 from every blocked cell centre
         # (pad so the grid border counts as blocked)
         clearance = ndimage.distance_transform_edt(np.pad(free, 1))[1:-1, 1:-1] * cell

@@ -203,6 +203,23 @@ class Scene:
         )
 
 
+def sample_surface(tri_verts: np.ndarray, spacing: float, rng: np.random.Generator,
+                   return_index: bool = False):
+    """Uniform random points on triangles (n, 3, 3) at about one per ``spacing``^2 of area
+    (at least one per triangle) -> (m, 3) float64, and with ``return_index`` also the (m,)
+    index of each point's triangle."""
+    tri_verts = np.asarray(tri_verts, dtype=np.float64)
+    a, b, c = tri_verts[:, 0], tri_verts[:, 1], tri_verts[:, 2]
+    area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    counts = np.maximum(1, np.ceil(area / spacing**2)).astype(np.int64)
+    idx = np.repeat(np.arange(len(tri_verts)), counts)
+    u, v = rng.random((2, len(idx)))
+    flip = u + v > 1
+    u[flip], v[flip] = 1 - u[flip], 1 - v[flip]
+    points = a[idx] + u[:, None] * (b - a)[idx] + v[:, None] * (c - a)[idx]
+    return (points, idx) if return_index else points
+
+
 def cache_dir() -> Path:
     """Root of calnav's on-disk cache: ``$CALNAV_CACHE`` or ``~/.cache/calnav``."""
     root = os.environ.get("CALNAV_CACHE")

@@ -9,27 +9,33 @@ from pathlib import Path
 import numpy as np
 
 N_STRIP_FRAMES = 4
+TOP_VIEW_CUT_M = 2.0  # the floor plan shows surfaces below this height (no ceilings), metres
 
 
 def top_down_class_map(scene, navgrid) -> np.ndarray:
-    """(H, W) int class id of the highest non-ceiling surface above each nav cell (-1 none)."""
-    import open3d as o3d
+    """(H, W) int class id of the highest surface below ``TOP_VIEW_CUT_M`` in each nav cell
+    (-1 where there is none): a floor plan with walls, furniture and floors, no ceiling."""
+    from envs.scene import sample_surface
 
-    from envs.semantics import CLASS_ID
-
+    keep = scene.tri_class >= 0
+    if "ceiling" in scene.class_names:
+        keep &= scene.tri_class != scene.class_names.index("ceiling")
+    tris = scene.vertices[scene.triangles[keep]]
+    # ~16 samples per cell, so no cell of a large floor triangle is left without one
+    pts, tri_index = sample_surface(tris, navgrid.cell_m / 4, np.random.default_rng(0), return_index=True)
+    cls = scene.tri_class[keep][tri_index]
+    below = pts[:, 2] < scene.floor_z + TOP_VIEW_CUT_M
+    pts, cls = pts[below], cls[below]
+    rc = navgrid.to_cell(pts[:, :2])
     h, w = navgrid.navigable.shape
-    rc = np.stack(np.meshgrid(np.arange(h), np.arange(w), indexing="ij"), -1).reshape(-1, 2)
-    xy = navgrid.to_world(rc)
-    ceiling_free_z = scene.floor_z + 2.0  # below every procedural ceiling, above furniture
-    rays = np.column_stack([xy, np.full(len(xy), ceiling_free_z), np.zeros((len(xy), 2)), -np.ones(len(xy))])
-    rs = o3d.t.geometry.RaycastingScene()
-    rs.add_triangles(o3d.core.Tensor(scene.vertices), o3d.core.Tensor(scene.triangles.astype(np.uint32)))
-    prim = rs.cast_rays(o3d.core.Tensor(rays.astype(np.float32)))["primitive_ids"].numpy().astype(np.int64)
-    cls = np.full(len(prim), -1, dtype=np.int64)
-    hit = prim != o3d.t.geometry.RaycastingScene.INVALID_ID
-    cls[hit] = scene.tri_class[prim[hit]]
-    cls[cls == CLASS_ID["ceiling"]] = -1
-    return cls.reshape(h, w)
+    inside = navgrid.in_grid(rc)
+    rc, z, cls = rc[inside], pts[inside, 2], cls[inside]
+    order = np.argsort(-z, kind="stable")  # highest first; np.unique keeps each cell's first
+    flat = rc[order, 0] * w + rc[order, 1]
+    _, first = np.unique(flat, return_index=True)
+    out = np.full(h * w, -1, dtype=np.int64)
+    out[flat[first]] = cls[order][first]
+    return out.reshape(h, w)
 
 
 def draw_episode(env, path_xy: np.ndarray, frames: list[dict], out_dir: Path) -> tuple[Path, Path]:

@@ -268,3 +268,18 @@ def test_field_cache(l_grid):
     assert l_grid.geodesic_field(m) is not f1
     with pytest.raises(ValueError, match="shape"):
         l_grid.geodesic_field(np.zeros((3, 3), dtype=bool))
+
+
+def test_house_walls_block():
+    """Regression: ray tests alone let the agent through walls whose top face coincides with
+    the ceiling. Every wall surface point in the agent's height band must be off the grid."""
+    from envs.scene import sample_surface
+    from envs.scenes import load_scene
+
+    scene = load_scene("house_val_0000")
+    cfg = EnvConfig()
+    nav = NavGrid.build(scene, cfg)
+    wall = scene.tri_class == scene.class_names.index("wall")
+    pts = sample_surface(scene.vertices[scene.triangles[wall]], 0.02, np.random.default_rng(1))
+    pts = pts[(pts[:, 2] > cfg.obstacle_min_height_m) & (pts[:, 2] < cfg.agent_height_m)]
+    assert not nav.is_navigable(pts[:, :2]).any()
