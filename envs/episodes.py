@@ -6,9 +6,9 @@ camera height within the vertical field of view (a ray from the camera to a surf
 the object hits that object first). An instance with no view point cannot be a goal.
 
 Start poses: a navigable cell whose geodesic distance to the nearest view point lies in
-[min_geodesic_m, max_geodesic_m], drawn with probability proportional to that distance cubed
-(most of a house lies near some goal; the cube keeps a split's median above 5 m, like HM3D's),
-with uniform heading. Like habitat-lab's generators, a start whose geodesic / Euclidean distance ratio is below ``min_euclid_ratio``
+[min_geodesic_m, max_geodesic_m], drawn with probability proportional to that distance (most
+of a house lies near some goal; the weighting keeps a split's median above 5 m: 7.1 m on the
+default val split), with uniform heading. Like habitat-lab's generators, a start whose geodesic / Euclidean distance ratio is below ``min_euclid_ratio``
 (a straight shot) is rejected with probability ``TRIVIAL_REJECT_PROB``.
 
 On disk (habitat-lab's ObjectNav layout, gzip JSON): ``<split>/<split>.json.gz`` holds the
@@ -32,12 +32,12 @@ from envs.config import EnvConfig
 from envs.scene import Scene, cache_dir, sample_surface
 from envs.semantics import GOAL_CATEGORIES
 
-GENERATOR_VERSION = 2  # 2: nav grid rasterises obstacles in the height band (walls block)
+GENERATOR_VERSION = 3  # 2: walls block in the nav grid; 3: starts weighted by distance^1
 TRIVIAL_REJECT_PROB = 0.98        # habitat-lab's rejection rate for near-straight episodes
 SURFACE_SAMPLE_SPACING_M = 0.03   # spacing of object surface samples for footprints, metres
 VISIBILITY_TARGETS = 48           # object surface points tested for visibility per view point
 MAX_START_TRIES = 200             # start-pose draws per episode before giving up
-START_DISTANCE_POWER = 3.0        # start cells are drawn with probability ∝ geodesic^power
+START_DISTANCE_POWER = 1.0        # start cells are drawn with probability ∝ geodesic^power
 
 
 @dataclass
@@ -161,7 +161,7 @@ def generate_scene_episodes(scene_id: str, scene: Scene, navgrid, raycasting_sce
         ok = np.isfinite(dist) & (dist >= ds.min_geodesic_m) & (dist <= ds.max_geodesic_m)
         if not ok.any():
             continue
-        weights = np.where(ok, dist, 0.0) ** START_DISTANCE_POWER
+        weights = np.where(ok, np.where(ok, dist, 1.0) ** START_DISTANCE_POWER, 0.0)
         all_vps = np.concatenate([g.view_points for g in goals_by_category[category]])
         for _ in range(MAX_START_TRIES):
             i = rng.choice(len(free), p=weights / weights.sum())
