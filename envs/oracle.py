@@ -19,9 +19,11 @@ from envs.task import Action
 
 STOP_RADIUS_FRACTION = 0.99   # STOP once DistanceToGoal < this fraction of the success distance
 TURN_COST_M = 1e-3            # tie-breaker: a turn costs as much as 1 mm of path
-STATE_BIN_M = 0.06            # positions in one bin (per heading) are one A* state, metres
-HEURISTIC_WEIGHT = 1.05       # weighted A*: path at most this factor above the lattice optimum
-MAX_EXPANSIONS = 40_000       # A* gives up beyond this many states (then a greedy step is used)
+# A* search tiers, tried in order: (state bin in metres -- positions in one bin per heading are
+# one state --, heuristic weight -- the path is at most this factor above the lattice optimum
+# --, state budget). If every tier gives up, a greedy step is taken. Measured on 200 val
+# episodes: an exact first tier (2 cm bins, weight 1.0) gave the same SPL at 3x the time.
+SEARCH_TIERS: tuple[tuple[float, float, int], ...] = ((0.06, 1.05, 40_000),)
 
 
 class ShortestPathFollower:
@@ -40,26 +42,35 @@ class ShortestPathFollower:
         self._field = None
 
     # ---------------------------------------------------------------- planning
-    def _key(self, xy, k: int) -> tuple:
-        return (round(xy[0] / STATE_BIN_M), round(xy[1] / STATE_BIN_M), k % self.n_headings)
+    def _key(self, xy, k: int, bin_m: float) -> tuple:
+        return (round(xy[0] / bin_m), round(xy[1] / bin_m), k % self.n_headings)
 
     def _turned(self, heading: float, direction: int) -> float:
         """The env's exact turn arithmetic (so planned and executed poses agree bit for bit)."""
         return (heading + direction * self.turn_rad) % (2 * math.pi)
 
     def plan(self, xy: np.ndarray, yaw: float, field) -> list[Action] | None:
-        """Actions from (xy, yaw) to STOP inside the goal region, or None if A* gives up."""
-        start_key = self._key(xy, 0)
+        """Actions from (xy, yaw) to STOP inside the goal region (the first ``SEARCH_TIERS``
+        search that succeeds), or None if every tier gives up."""
+        for bin_m, weight, budget in SEARCH_TIERS:
+            actions = self._search(xy, yaw, field, bin_m, weight, budget)
+            if actions is not None:
+                return actions
+        return None
+
+    def _search(self, xy: np.ndarray, yaw: float, field, bin_m: float, weight: float,
+                budget: int) -> list[Action] | None:
+        start_key = self._key(xy, 0, bin_m)
         # heap entries: (f, -g, tie, position, heading, turn index); ties on f go to the deeper
         # node (larger g), which keeps A* from flooding the plateaus of near-equal paths
         frontier = [(float(field.distance(xy)), 0.0, 0, (float(xy[0]), float(xy[1])), float(yaw), 0)]
         parents: dict[tuple, tuple | None] = {start_key: None}
         best_g = {start_key: 0.0}
         tie = 0
-        while frontier and len(best_g) < MAX_EXPANSIONS:
+        while frontier and len(best_g) < budget:
             _, neg_g, _, pos, heading, k = heapq.heappop(frontier)
             g = -neg_g
-            key = self._key(pos, k)
+            key = self._key(pos, k, bin_m)
             if g > best_g.get(key, math.inf) + 1e-12:
                 continue
             if field.distance(np.array(pos)) < self.stop_distance:
@@ -71,7 +82,7 @@ class ShortestPathFollower:
                 successors.append((Action.MOVE_FORWARD, (float(new_xy[0]), float(new_xy[1])), heading, k,
                                    self.step_m))
             for action, p2, h2, k2, cost in successors:
-                key2 = self._key(p2, k2)
+                key2 = self._key(p2, k2, bin_m)
                 g2 = g + cost
                 if g2 < best_g.get(key2, math.inf) - 1e-12:
                     h = float(field.distance(np.array(p2)))
@@ -80,7 +91,7 @@ class ShortestPathFollower:
                     best_g[key2] = g2
                     parents[key2] = (key, action)
                     tie += 1
-                    f = g2 + HEURISTIC_WEIGHT * max(0.0, h - self.stop_distance)
+                    f = g2 + weight * max(0.0, h - self.stop_distance)
                     heapq.heappush(frontier, (f, -g2, tie, p2, h2, k2))
         return None
 
