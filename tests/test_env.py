@@ -8,7 +8,7 @@ from gymnasium.utils.env_checker import check_env
 
 import envs
 from conftest import small_or_full
-from envs.oracle import OracleAgent
+from envs.oracle import OracleAgent, ShortestPathFollower
 from envs.semantics import NUM_CLASSES
 from envs.task import Action
 from eval.config import load_config
@@ -123,20 +123,32 @@ def test_look_actions_when_enabled(small_env_config):
 
 
 def test_oracle_succeeds_on_every_test_episode():
-    """Proves episodes, geodesics and metrics agree: Success 1.0, SPL >= 0.9 everywhere."""
+    """Proves episodes, geodesics and metrics agree: Success 1.0 everywhere and SPL >= 0.9,
+    except on episodes where no sequence of Habitat actions can do better: there an exact
+    search over the action lattice (1 mm states, unweighted A*) must find no shorter path.
+    (With 0.25 m steps and 30 degree turns one extra step costs > 10 % SPL below ~2.5 m.)"""
     cfg = load_config(None, ["env.resolution=32x24", f"env.dataset.test_scenes={small_or_full(3, 30)}",
                              f"env.dataset.episodes_per_scene={small_or_full(5, 20)}"]).env
     e = gym.make(envs.ENV_ID, split="test", config=cfg)
+    u = e.unwrapped
     agent = OracleAgent(e)
-    for i in range(len(e.unwrapped.episodes)):
+    spls = []
+    for i in range(len(u.episodes)):
         obs, info = e.reset(options={"episode_index": i})
+        start, yaw = u.position.copy(), u.yaw
         agent.reset(obs)
         done = False
         while not done:
             obs, _, terminated, truncated, info = e.step(agent.act(obs))
             done = terminated or truncated
         assert info["success"] == 1.0, info
-        assert info["spl"] >= 0.9, info
+        spls.append(info["spl"])
+        if info["spl"] < 0.9:
+            exact = ShortestPathFollower(u.navgrid, u.config)._search(start, yaw, u.goal_field, 0.001, 1.0, 400_000)
+            assert exact is not None
+            optimum_m = sum(a == Action.MOVE_FORWARD for a in exact) * cfg.forward_step_m
+            assert info["path_length"] == pytest.approx(optimum_m), (i, info)
+    assert np.mean(spls) >= 0.95
 
 
 def test_same_seed_same_observations(small_env_config):
