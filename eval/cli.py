@@ -3,7 +3,13 @@ arguments and dispatches, so ``calnav --help`` stays fast (heavy imports happen 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
+
+# torch's OpenMP workers spin after each op and starve Open3D's threads on small machines
+# (measured: 400-900 ms instead of 2 ms per segmenter frame on 2 busy cores). Must be set
+# before torch is imported.
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 from eval.config import ConfigError
 
@@ -37,6 +43,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quick", action="store_true", help="short run (indicative numbers only)")
     p.add_argument("--scene-seed", type=int, default=7, help="procedural house seed to measure on")
 
+    p = sub.add_parser("train-segmenter", help="train a learned segmenter on frames of the train split")
+    _add_config_args(p, "configs/segmenter.yaml")
+    p.add_argument("--model", required=True, choices=("learned_rgb", "learned_rgbd"), help="network to train")
+    p.add_argument("--output", default=None, help="weight file (default: agent/weights/<model>.pt)")
+    p.add_argument("--resume", action="store_true", help="continue from this config's last epoch checkpoint")
+
+    p = sub.add_parser("eval-segmenter", help="accuracy / mIoU / ECE / mECE of a segmenter on held-out frames")
+    _add_config_args(p, "configs/segmenter.yaml")
+    p.add_argument("--model", required=True, choices=("gt", "noisy", "learned_rgb", "learned_rgbd"),
+                   help="segmenter to score")
+    p.add_argument("--split", default="test", choices=("train", "val", "test"), help="split whose houses are rendered")
+    p.add_argument("--frames", type=int, default=500, help="number of frames scored")
+    p.add_argument("--output", default=None, help="metrics JSON path (default: print only)")
+
     p = sub.add_parser("demo", help="set-up check + a real ObjectNav evaluation on procedural houses")
     p.add_argument("--episodes", type=int, default=5, help="number of val episodes")
     p.add_argument("--output", default="runs/demo", help="results directory")
@@ -59,6 +79,14 @@ def main(argv: list[str] | None = None) -> int:
             from eval.view_episode import main_view_episode
 
             main_view_episode(args)
+        elif args.command == "train-segmenter":
+            from eval.train_segmenter import main_train_segmenter
+
+            main_train_segmenter(args)
+        elif args.command == "eval-segmenter":
+            from eval.eval_segmenter import main_eval_segmenter
+
+            main_eval_segmenter(args)
         elif args.command == "demo":
             from eval.demo import main_demo
 

@@ -7,6 +7,7 @@ import pytest
 
 # Set before any calnav module reads it (cache_dir() reads the variable at call time).
 os.environ["CALNAV_CACHE"] = tempfile.mkdtemp(prefix="calnav-test-cache-")
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # as eval/cli.py: no spinning OpenMP workers
 
 FULL = os.environ.get("CALNAV_FULL_TESTS") == "1"
 

@@ -1,0 +1,196 @@
+"""The segmenter interface and its configuration.
+
+A segmenter turns one RGB-D frame into per-pixel class scores:
+
+    logits = segmenter(rgb, depth)                 # (H, W, 3) uint8, (H, W) float32 m -> (H, W, K) float32
+    batch = segmenter.segment_batch(rgbs, depths)  # (B, H, W, 3), (B, H, W) -> (B, H, W, K)
+
+``softmax(logits, axis=-1)`` are the class probabilities the semantic map fuses. K and the
+class names (``segmenter.class_names``) are data: the learned networks carry them in their
+weights file, the ground-truth based segmenters take them from ``agent/weights/classes.json``
+(the simulator's ``envs.semantics.CLASS_NAMES``), so agent code never imports ``envs``.
+
+Segmenters built from ground truth (``gt``, ``noisy``) additionally need the environment's
+``semantic`` observation ((H, W) int class ids, -1 = void); ``noisy`` also uses the
+``instance`` observation ((H, W) int instance ids, -1 = none) and the camera ``pose``
+((4, 4) world-from-camera, OpenCV axes) when given. They are passed as keywords:
+``segmenter(rgb, depth, semantic=obs["semantic"], instance=..., pose=...)``.
+"""
+from __future__ import annotations
+
+import json
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+WEIGHTS_DIR = Path(__file__).resolve().parents[1] / "weights"
+CLASSES_FILE = WEIGHTS_DIR / "classes.json"
+
+
+def default_confusions() -> dict[str, list[str]]:
+    """The noisy segmenter's confusion table: class -> classes it can be mistaken for."""
+    return {
+        "chair": ["stool"], "stool": ["chair"],
+        "sofa": ["bed"], "bed": ["sofa"],
+        "table": ["desk", "counter"], "desk": ["table", "counter"], "counter": ["table", "desk"],
+        "cabinet": ["shelf", "tv_monitor"], "shelf": ["cabinet"], "tv_monitor": ["cabinet"],
+        "toilet": ["sink", "bathtub"], "sink": ["toilet", "bathtub"], "bathtub": ["toilet", "sink"],
+        "plant": ["shelf"],
+        "door": ["wall"],
+    }
+
+
+def default_cell_confusions() -> dict[str, list[str]]:
+    """Extra wrong classes for the noisy segmenter's world-cell errors only (surfaces too big
+    to be mistaken as a whole instance): class -> classes a patch of it can be mistaken for."""
+    return {"wall": ["door", "cabinet"], "floor": ["wall"], "ceiling": ["wall"]}
+
+
+@dataclass
+class SegmenterConfig:
+    """Settings of every segmenter (YAML section ``segmenter``; unused keys are ignored by the
+    segmenters that do not need them)."""
+
+    # --- all -------------------------------------------------------------------------------
+    device: str = ""                 # torch device ("cpu", "cuda", "cuda:1"); "" = run.device (else cpu)
+    # --- gt ----------------------------------------------------------------------------------
+    gt_confidence: float = 0.9       # probability given to the true class (rest spread evenly); (0, 1]
+    # --- learned_rgb / learned_rgbd --------------------------------------------------------
+    weights: str = ""                # weight file; "" = agent/weights/<name>.pt
+    resolution: tuple[int, int] = (0, 0)  # network input WxH, pixels; (0, 0) = the training resolution in the weights file
+    threads: int = 1                 # torch CPU threads (torch.set_num_threads, process-wide); 0 = leave as is.
+                                     # 1: episodes run one worker per core, and on a busy 2-core machine two
+                                     # OpenMP threads stall at barriers (measured 2-10 ms -> 400-900 ms per
+                                     # frame) unless OMP_WAIT_POLICY=PASSIVE is set before torch loads
+    # --- noisy (ground truth + a controlled error model, see agent.segmenters.noisy) --------
+    seed: int = 0                    # seeds every per-instance / per-cell random choice
+    confusions: dict[str, list[str]] = field(default_factory=default_confusions)  # class -> confusable classes (instances and cells)
+    cell_confusions: dict[str, list[str]] = field(default_factory=default_cell_confusions)  # class -> wrong classes of cell errors only
+    instance_confusion_prob: float = 0.3  # fraction of instances (of confusable classes) that get mistaken
+    confusion_arc_deg: float = 120.0  # viewing-azimuth arc (degrees) over which a mistaken instance is mistaken
+    base_error: float = 0.02         # per-cell error probability up close and head-on
+    near_m: float = 1.0              # errors grow beyond this distance, metres
+    error_per_m: float = 0.04        # added error probability per metre beyond near_m
+    grazing_error: float = 0.15      # added error probability at 90 deg incidence (scaled by 1 - cos(angle))
+    max_error: float = 0.6           # cap on the per-cell error probability
+    error_cell_m: float = 0.25       # size of the world-anchored cells that are right or wrong together, metres
+    invalid_depth_m: float = 3.0     # distance assumed where depth is invalid (0: nearer than min or beyond max range), metres
+    runner_up_share: float = 0.7     # share of the non-top probability given to the runner-up class
+    temperature: float = 0.5         # logits = log(calibrated probs) / temperature; < 1 = overconfident
+    hfov_deg: float = 79.0           # camera horizontal field of view (back-projection), degrees
+
+    def __post_init__(self) -> None:
+        if not 0 < self.gt_confidence <= 1:
+            raise ValueError(f"segmenter.gt_confidence must be in (0, 1], got {self.gt_confidence}")
+        for key in ("instance_confusion_prob", "base_error", "max_error", "runner_up_share"):
+            if not 0 <= getattr(self, key) <= 1:
+                raise ValueError(f"segmenter.{key} must be in [0, 1], got {getattr(self, key)}")
+        for key in ("temperature", "error_cell_m", "hfov_deg"):
+            if getattr(self, key) <= 0:
+                raise ValueError(f"segmenter.{key} must be > 0, got {getattr(self, key)}")
+        if not 0 <= self.confusion_arc_deg <= 360:
+            raise ValueError(f"segmenter.confusion_arc_deg must be in [0, 360], got {self.confusion_arc_deg}")
+        if self.threads < 0:
+            raise ValueError(f"segmenter.threads must be >= 0, got {self.threads}")
+        w, h = self.resolution
+        if (w, h) != (0, 0) and (w < 16 or h < 16):
+            raise ValueError(f"segmenter.resolution must be (0, 0) or at least 16x16, got {w}x{h}")
+
+
+def default_class_names() -> tuple[str, ...]:
+    """The class list shipped with the weights (``agent/weights/classes.json``)."""
+    try:
+        return tuple(json.loads(CLASSES_FILE.read_text())["class_names"])
+    except FileNotFoundError:
+        raise FileNotFoundError(f"class list {CLASSES_FILE} is missing; pass class_names explicitly") from None
+
+
+def resolve_device(device: str | None):
+    """torch.device for ``device`` ("" / None = cpu); a clear error when CUDA is asked for
+    but unavailable."""
+    import torch
+
+    name = (device or "cpu").strip()
+    try:
+        dev = torch.device(name)
+    except RuntimeError as exc:
+        raise ValueError(f"bad torch device {name!r}: {exc}; use 'cpu', 'cuda' or 'cuda:N'") from None
+    if dev.type == "cuda":
+        if not torch.cuda.is_available():
+            raise ValueError(f"device {name!r} requested but CUDA is not available in this torch build / "
+                             f"machine (torch {torch.__version__}); use device=cpu")
+        if dev.index is not None and dev.index >= torch.cuda.device_count():
+            raise ValueError(f"device {name!r} requested but only {torch.cuda.device_count()} CUDA device(s) exist")
+    elif dev.type != "cpu":
+        raise ValueError(f"unsupported device {name!r}; use 'cpu', 'cuda' or 'cuda:N'")
+    return dev
+
+
+def check_frame(rgb: np.ndarray, depth: np.ndarray | None, need_depth: bool) -> tuple[np.ndarray, np.ndarray | None]:
+    """Validate one frame: rgb (H, W, 3) uint8, depth (H, W) float metres (None allowed unless
+    ``need_depth``). Returns (rgb, depth as float32 or None)."""
+    rgb = np.asarray(rgb)
+    if rgb.ndim != 3 or rgb.shape[2] != 3:
+        raise ValueError(f"rgb must be (H, W, 3), got shape {rgb.shape}")
+    if rgb.dtype != np.uint8:
+        raise ValueError(f"rgb must be uint8 (0-255), got {rgb.dtype}")
+    if depth is None:
+        if need_depth:
+            raise ValueError("this segmenter needs depth: pass the (H, W) float32 depth image in metres")
+        return rgb, None
+    depth = np.asarray(depth)
+    if depth.shape != rgb.shape[:2]:
+        raise ValueError(f"depth must be (H, W) = {rgb.shape[:2]} like rgb, got shape {depth.shape}")
+    if not np.issubdtype(depth.dtype, np.floating):
+        raise ValueError(f"depth must be float metres, got {depth.dtype} (convert e.g. uint16 millimetres first)")
+    return rgb, depth.astype(np.float32, copy=False)
+
+
+def check_label_image(name: str, image: np.ndarray | None, shape: tuple[int, int]) -> np.ndarray:
+    """Validate an (H, W) integer image (``semantic`` / ``instance``) of the frame's size."""
+    if image is None:
+        raise ValueError(f"this segmenter needs the ground-truth {name!r} image: pass {name}=obs['{name}'] "
+                         f"(the env's {name} observation, (H, W) int ids)")
+    image = np.asarray(image)
+    if image.shape != shape:
+        raise ValueError(f"{name} must be (H, W) = {shape}, got shape {image.shape}")
+    if not np.issubdtype(image.dtype, np.integer):
+        raise ValueError(f"{name} must hold integer ids, got {image.dtype}")
+    return image
+
+
+class Segmenter(ABC):
+    """Base class. Subclasses set ``name``, ``class_names`` and implement ``segment``."""
+
+    name: str = ""
+    class_names: tuple[str, ...] = ()
+    needs_depth: bool = False       # segment() raises without depth
+    needs_semantic: bool = False    # segment() needs the ground-truth semantic image
+
+    @property
+    def num_classes(self) -> int:
+        return len(self.class_names)
+
+    def __call__(self, rgb: np.ndarray, depth: np.ndarray | None = None, **kwargs) -> np.ndarray:
+        return self.segment(rgb, depth, **kwargs)
+
+    @abstractmethod
+    def segment(self, rgb: np.ndarray, depth: np.ndarray | None = None, **kwargs) -> np.ndarray:
+        """rgb (H, W, 3) uint8, depth (H, W) float32 metres -> logits (H, W, K) float32."""
+
+    def segment_batch(self, rgb: np.ndarray, depth: np.ndarray | None = None, **kwargs) -> np.ndarray:
+        """rgb (B, H, W, 3), depth (B, H, W) -> logits (B, H, W, K). Keyword images (semantic,
+        instance) are (B, H, W) and ``poses`` is (B, 4, 4); the default loops over frames."""
+        rgb = np.asarray(rgb)
+        if rgb.ndim != 4:
+            raise ValueError(f"segment_batch needs rgb of shape (B, H, W, 3), got {rgb.shape}")
+        poses = kwargs.pop("poses", None)
+        out = []
+        for i in range(len(rgb)):
+            kw = {k: (None if v is None else v[i]) for k, v in kwargs.items()}
+            if poses is not None:
+                kw["pose"] = poses[i]
+            out.append(self.segment(rgb[i], None if depth is None else depth[i], **kw))
+        return np.stack(out) if out else np.zeros((0, *rgb.shape[1:3], self.num_classes), np.float32)

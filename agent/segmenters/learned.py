@@ -1,0 +1,150 @@
+"""``learned_rgb`` / ``learned_rgbd``: the networks of ``agent.segmenters.network`` trained on
+simulator frames (``calnav train-segmenter``), wrapped for inference.
+
+Weight file (``torch.save`` of a plain dict, loaded with ``weights_only=True``):
+
+    format: WEIGHTS_FORMAT        model: "learned_rgb" | "learned_rgbd"
+    spec: NetSpec.to_dict()       state_dict: {name: fp16 tensor}
+    class_names: [K names]        resolution: [W, H] training resolution, pixels
+    meta: {command, seed, frames, epochs, wall_s, val metrics, ...}
+
+Inference: the frame is resized to the network resolution (``SegmenterConfig.resolution``,
+default: the training resolution; area averaging for rgb, nearest for depth so invalid zeros
+never blend into valid depth), run through the network in eval mode with BatchNorm folded and
+channels-last memory, and the logits are bilinearly upsampled back to the frame size.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from agent.segmenters.base import WEIGHTS_DIR, Segmenter, SegmenterConfig, check_frame, resolve_device
+from agent.segmenters.network import NetSpec, SegNet, fuse_batchnorm
+
+WEIGHTS_FORMAT = 1
+LEARNED_MODELS: tuple[str, ...] = ("learned_rgb", "learned_rgbd")
+
+
+def default_weights_path(model: str) -> Path:
+    """agent/weights/<model>.pt (located relative to this package, so editable and regular
+    installs both find it)."""
+    return WEIGHTS_DIR / f"{model}.pt"
+
+
+def train_command(model: str, path: Path | str) -> str:
+    """The exact command that creates the weight file ``path`` for ``model``."""
+    out = Path(path)
+    default = default_weights_path(model)
+    suffix = "" if out.resolve() == default.resolve() else f" --output {out}"
+    return f"calnav train-segmenter --model {model}{suffix}"
+
+
+def load_weights(path: Path | str, model: str | None = None) -> dict:
+    """The weight dict of ``path``; FileNotFoundError names the path and the command that
+    creates it; ValueError when the file is not a calnav segmenter (or is for another model)."""
+    path = Path(path)
+    if not path.exists():
+        name = model or "learned_rgb"
+        raise FileNotFoundError(f"segmenter weights not found: {path}; create them with: {train_command(name, path)}")
+    try:
+        data = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # noqa: BLE001 -- torch raises many types for a corrupt file
+        raise ValueError(f"cannot read segmenter weights {path}: {exc}") from exc
+    if not isinstance(data, dict) or data.get("format") != WEIGHTS_FORMAT:
+        raise ValueError(f"{path} is not a calnav segmenter weight file (format {WEIGHTS_FORMAT})")
+    if model is not None and data["model"] != model:
+        raise ValueError(f"{path} holds weights for {data['model']!r}, not {model!r}")
+    return data
+
+
+def save_weights(net: SegNet, path: Path | str, model: str, class_names, resolution: tuple[int, int],
+                 meta: dict | None = None) -> Path:
+    """Write ``net`` as a weight file (floating tensors as fp16; see the module docstring),
+    atomically (a temporary file renamed into place). Returns the path."""
+    import os
+    import uuid
+
+    if model not in LEARNED_MODELS:
+        raise ValueError(f"unknown learned model {model!r}; valid: {', '.join(LEARNED_MODELS)}")
+    if len(class_names) != net.spec.num_classes:
+        raise ValueError(f"{len(class_names)} class names for a {net.spec.num_classes}-class network")
+    state = {k: (v.detach().cpu().half() if v.is_floating_point() else v.detach().cpu()) for k, v in net.state_dict().items()}
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp")
+    torch.save({"format": WEIGHTS_FORMAT, "model": model, "spec": net.spec.to_dict(), "state_dict": state,
+                "class_names": list(class_names), "resolution": [int(v) for v in resolution],
+                "meta": dict(meta or {})}, tmp)
+    os.replace(tmp, path)
+    return path
+
+
+def build_network(data: dict, device: torch.device) -> SegNet:
+    """Eval-mode network (BatchNorm folded, channels-last, float32) from a weight dict."""
+    net = SegNet(NetSpec.from_dict(data["spec"]))
+    net.load_state_dict({k: v.float() for k, v in data["state_dict"].items()})
+    net.eval()
+    fuse_batchnorm(net)
+    return net.to(device=device, memory_format=torch.channels_last)
+
+
+class LearnedSegmenter(Segmenter):
+    """A trained ``SegNet``. ``segment(rgb, depth)`` -> (H, W, K) float32 logits; depth is
+    required by ``learned_rgbd`` and ignored (may be None) by ``learned_rgb``."""
+
+    def __init__(self, name: str, cfg: SegmenterConfig, device: str | None = None):
+        if name not in LEARNED_MODELS:
+            raise ValueError(f"unknown learned model {name!r}; valid: {', '.join(LEARNED_MODELS)}")
+        self.name, self.cfg = name, cfg
+        self.device = resolve_device(device or cfg.device or "cpu")
+        if cfg.threads > 0:
+            torch.set_num_threads(cfg.threads)
+        self.weights_path = Path(cfg.weights) if cfg.weights else default_weights_path(name)
+        data = load_weights(self.weights_path, name)
+        self.meta = dict(data.get("meta", {}))
+        self.class_names = tuple(data["class_names"])
+        self.train_resolution = tuple(int(v) for v in data["resolution"])
+        w, h = cfg.resolution
+        self.resolution = (int(w), int(h)) if (w, h) != (0, 0) else self.train_resolution
+        self.net = build_network(data, self.device)
+        self.needs_depth = bool(self.net.spec.in_depth)
+
+    def segment(self, rgb: np.ndarray, depth: np.ndarray | None = None, **_unused) -> np.ndarray:
+        """rgb (H, W, 3) uint8, depth (H, W) float32 metres (0 = invalid) -> logits (H, W, K)
+        float32. Extra keywords (semantic, instance, pose) are ignored."""
+        rgb, depth = check_frame(rgb, depth, need_depth=self.needs_depth)
+        return self.segment_batch(rgb[None], None if depth is None else depth[None])[0]
+
+    @torch.inference_mode()
+    def segment_batch(self, rgb: np.ndarray, depth: np.ndarray | None = None, **_unused) -> np.ndarray:
+        """rgb (B, H, W, 3) uint8, depth (B, H, W) float metres -> logits (B, H, W, K) float32."""
+        rgb = np.asarray(rgb)
+        if rgb.ndim != 4 or rgb.shape[-1] != 3 or rgb.dtype != np.uint8:
+            raise ValueError(f"rgb must be (B, H, W, 3) uint8, got shape {rgb.shape} dtype {rgb.dtype}")
+        b, h, w = rgb.shape[:3]
+        if self.needs_depth and depth is None:
+            raise ValueError(f"{self.name} needs depth: pass the (B, H, W) float32 depth images in metres")
+        if depth is not None:
+            depth = np.asarray(depth)
+            if depth.shape != (b, h, w) or not np.issubdtype(depth.dtype, np.floating):
+                raise ValueError(f"depth must be (B, H, W) = {(b, h, w)} float metres, got shape {depth.shape} "
+                                 f"dtype {depth.dtype}")
+        x = torch.from_numpy(rgb).to(self.device).permute(0, 3, 1, 2).float().mul_(1.0 / 255.0)
+        d = None
+        if self.needs_depth:
+            d = torch.from_numpy(np.ascontiguousarray(depth, dtype=np.float32)).to(self.device)[:, None]
+            d = torch.nan_to_num(d, nan=0.0, posinf=0.0, neginf=0.0)
+        nw, nh = self.resolution
+        if (w, h) != (nw, nh):
+            x = F.interpolate(x, size=(nh, nw), mode="area" if (nw <= w and nh <= h) else "bilinear")
+            if d is not None:
+                d = F.interpolate(d, size=(nh, nw), mode="nearest")
+        x = x.contiguous(memory_format=torch.channels_last)
+        logits = self.net(x, d)
+        if logits.shape[-2:] != (h, w):
+            logits = F.interpolate(logits, size=(h, w), mode="bilinear", align_corners=False)
+        # channels-last logits are already (B, H, W, K) in memory: the permute is free
+        return logits.permute(0, 2, 3, 1).float().contiguous().cpu().numpy()

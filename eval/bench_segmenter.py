@@ -1,0 +1,52 @@
+"""Bench section "segmenter": inference time of the learned segmenters (CPU).
+
+- ``segmenter.<model>.ms_160x120``: one ``segment(rgb, depth)`` call on a 160x120 frame (the
+  training resolution: no resizing), median over the BenchContext trajectory's frames after
+  WARMUP calls, inside ``torch.inference_mode`` (the wrapper's own), with the default
+  config's thread count.
+- ``segmenter.<model>.ms_640x480``: the same call on the 640x480 sensor frame with the
+  default config, i.e. area-downsampling to 160x120, the network, and bilinear upsampling of
+  the K logits back to 640x480 (what an agent pays per full-resolution frame).
+- ``segmenter.<model>.ms_640x480_native``: the network run at 640x480 itself
+  (``segmenter.resolution = 640x480``), for reference.
+- ``segmenter.threads``: torch threads during the measurement (``SegmenterConfig.threads``,
+  default 1).
+
+Models whose weight file is missing are skipped with a message (the figures are then absent).
+"""
+from __future__ import annotations
+
+from eval.bench import timeit_ms
+
+MODELS = ("learned_rgb", "learned_rgbd")
+WARMUP = 3                   # calls before timing (allocator and oneDNN kernel caches warm up)
+REPEATS_PER_FRAME = 1        # timed calls per frame
+
+
+def run(ctx) -> dict[str, float]:
+    import dataclasses
+
+    import numpy as np
+    import torch
+
+    from agent.segmenters import SegmenterConfig, make_segmenter
+
+    out: dict[str, float] = {}
+    n_frames = 4 if ctx.quick else 20
+    for model in MODELS:
+        variants = {"ms_160x120": ((160, 120), SegmenterConfig()),
+                    "ms_640x480": ((640, 480), SegmenterConfig()),
+                    "ms_640x480_native": ((640, 480), dataclasses.replace(SegmenterConfig(), resolution=(640, 480)))}
+        for figure, (res, cfg) in variants.items():
+            try:
+                seg = make_segmenter(model, cfg, "cpu")
+            except FileNotFoundError as exc:
+                print(f"[bench] segmenter: skipping {model}: {exc}", flush=True)
+                break
+            frames = ctx.frames(*res)[:n_frames]
+            for f in frames[:WARMUP]:
+                seg(f.rgb, f.depth)
+            times = [timeit_ms(lambda f=f: seg(f.rgb, f.depth), repeats=REPEATS_PER_FRAME, warmup=0) for f in frames]
+            out[f"segmenter.{model}.{figure}"] = float(np.median(times))
+    out["segmenter.threads"] = float(torch.get_num_threads())  # after the segmenters set it (config threads)
+    return out

@@ -1,0 +1,249 @@
+"""Frames for training and evaluating segmenters, rendered from a split's procedural houses,
+plus the configuration of ``calnav train-segmenter`` / ``eval-segmenter``.
+
+Poses: short random walks, as an exploring ObjectNav agent moves. Each walk starts at a
+uniformly drawn navigable cell with a uniform heading; every step records one frame and then
+turns 30 degrees left or right (probability ``turn_prob``) or moves forward 0.25 m (a blocked
+move turns instead). The camera sits at ``env.camera_height_m`` (0.88 m) with a small pitch
+jitter (Gaussian, ``pitch_jitter_deg``, clipped at 2 sigma). Frames are split evenly over the
+split's first ``scenes`` houses (0 = all of them).
+
+Training frames are rebalanced: walls fill ~70 % of random-walk pixels, so a frame whose
+object (non-structure) pixels are fewer than ``min_object_fraction`` is kept only with
+probability ``keep_sparse_prob`` (the walk goes on either way). Evaluation frames are not
+rebalanced: they follow the agent-like walk distribution.
+
+Frames are rendered clean (sensor noise and photometric changes are training-time
+augmentation, drawn afresh every epoch) and cached at
+``cache_dir()/segdata/<split>_<frames>_<key>.npz``, ``key`` a hash of everything that affects
+them: rgb (N, H, W, 3) uint8, depth (N, H, W) float16 metres (0 invalid), labels (N, H, W)
+int8 class ids (-1 void), poses (N, 4, 4) float32 world-from-camera, scene (N,) int16 index
+into the split, and (evaluation sets only) instance (N, H, W) int32.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import uuid
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Iterator, Literal
+
+import numpy as np
+
+from agent.segmenters.base import SegmenterConfig
+from envs.config import EnvConfig
+from envs.semantics import STRUCTURE_CLASSES as STRUCTURE_NAMES
+from eval.config import RunConfig
+
+DATA_VERSION = 1                # bump when rendering changes, so stale caches are not reused
+EVAL_SEED_OFFSET = 1000         # eval poses use data.seed + this (never the training poses)
+VAL_SEED_OFFSET = 500           # per-epoch validation poses likewise
+PITCH_CLIP_SIGMA = 2.0          # pitch jitter is clipped at this many standard deviations
+MAX_BLOCKED_RETRIES = 12        # a walk whose moves keep failing just records turning frames
+
+
+@dataclass
+class SegDataConfig:
+    """Which frames are rendered (``data`` section)."""
+
+    frames: int = 10000              # training frames rendered (eval: --frames)
+    scenes: int = 0                  # houses of the split used; 0 = all (env.dataset.<split>_scenes)
+    resolution: tuple[int, int] = (160, 120)  # rendered frame WxH, pixels (the training resolution)
+    walk_steps: int = 10             # frames per random walk
+    turn_prob: float = 0.4           # probability a walk step turns (else moves forward)
+    pitch_jitter_deg: float = 2.0    # camera pitch std, degrees
+    seed: int = 0                    # pose sampling seed (eval adds EVAL_SEED_OFFSET)
+    min_object_fraction: float = 0.03  # training frames with fewer non-structure (object) pixels than this ...
+    keep_sparse_prob: float = 0.3    # ... are kept with this probability (1 = no rebalancing; eval never rebalances)
+
+    def __post_init__(self) -> None:
+        if self.frames < 1 or self.walk_steps < 1:
+            raise ValueError("data.frames and data.walk_steps must be >= 1")
+        if not 0 <= self.turn_prob <= 1:
+            raise ValueError(f"data.turn_prob must be in [0, 1], got {self.turn_prob}")
+        w, h = self.resolution
+        if w < 16 or h < 16:
+            raise ValueError(f"data.resolution must be at least 16x16, got {w}x{h}")
+
+
+@dataclass
+class TrainConfig:
+    """Optimisation and augmentation (``train`` section)."""
+
+    net_stem: int = 16               # network: stride-2 stem channels
+    net_stages: tuple[tuple[int, int], ...] = ((32, 2), (64, 3), (128, 4), (160, 2))  # network: (channels, blocks) at strides 4, 8, 16, 32
+    net_decoder_width: int = 64      # network: FPN decoder channels
+    epochs: int = 8                  # passes over the training frames
+    batch_size: int = 16             # frames per step
+    lr: float = 5e-3                 # peak learning rate (one-cycle schedule), AdamW
+    weight_decay: float = 1e-4       # AdamW decoupled weight decay
+    warmup_frac: float = 0.1         # fraction of steps spent warming up to the peak lr
+    class_weighting: Literal["none", "inv_log"] = "inv_log"  # CE class weights: (1 / ln(1.02 + frequency)) ** power (ENet)
+    class_weight_power: float = 0.5  # softens the ENet weights (1 = ENet: rare classes ~27x wall; 0.5: ~5x)
+    val_frames: int = 200            # val-split frames scored after every epoch (0 = none)
+    threads: int = 1                 # torch CPU threads; 0 = torch's default. 1: on a shared 2-core machine two
+                                     # OpenMP threads stall at barriers whenever the other core is busy (measured
+                                     # 10-100x slower steps); one thread is as fast as two with OMP_WAIT_POLICY=PASSIVE
+    brightness: float = 0.3          # brightness gain drawn from 1 +- this
+    contrast: float = 0.3            # contrast gain drawn from 1 +- this
+    colour: float = 0.1              # per-channel gain drawn from 1 +- this
+    rgb_noise_std: float = 4.0       # per-image Gaussian rgb noise std drawn from [0, this], uint8 levels
+    depth_noise_std: float = 0.02    # per-image depth noise std drawn from [0, this], metres per metre
+    hflip: bool = True               # mirror half of the batches' images left-right
+
+    def __post_init__(self) -> None:
+        if self.epochs < 1 or self.batch_size < 1:
+            raise ValueError("train.epochs and train.batch_size must be >= 1")
+        if self.lr <= 0:
+            raise ValueError(f"train.lr must be > 0, got {self.lr}")
+
+
+@dataclass
+class SegmenterExperimentConfig:
+    """``configs/segmenter.yaml``: the sections of a segmenter training / evaluation run."""
+
+    env: EnvConfig = field(default_factory=EnvConfig)
+    run: RunConfig = field(default_factory=RunConfig)
+    segmenter: SegmenterConfig = field(default_factory=SegmenterConfig)
+    data: SegDataConfig = field(default_factory=SegDataConfig)
+    train: TrainConfig = field(default_factory=TrainConfig)
+
+
+@dataclass
+class SegData:
+    """Rendered frames (see the module docstring for shapes and dtypes)."""
+
+    rgb: np.ndarray
+    depth: np.ndarray
+    labels: np.ndarray
+    poses: np.ndarray
+    scene: np.ndarray
+    instance: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return len(self.rgb)
+
+    @property
+    def resolution(self) -> tuple[int, int]:
+        return int(self.rgb.shape[2]), int(self.rgb.shape[1])
+
+
+# --------------------------------------------------------------------------- rendering
+def walk_poses(navgrid, env_cfg: EnvConfig, data_cfg: SegDataConfig, rng: np.random.Generator) -> Iterator[np.ndarray]:
+    """Endless (4, 4) world-from-camera poses of consecutive random walks on ``navgrid``."""
+    from envs.render import camera_pose
+
+    turn = np.deg2rad(env_cfg.turn_angle_deg)
+    sigma = np.deg2rad(data_cfg.pitch_jitter_deg)
+    while True:
+        xy = navgrid.sample_navigable(rng, 1)[0]
+        yaw = float(rng.uniform(0, 2 * np.pi))
+        for _ in range(data_cfg.walk_steps):
+            pitch = float(np.clip(rng.normal(0.0, sigma), -PITCH_CLIP_SIGMA * sigma, PITCH_CLIP_SIGMA * sigma)) if sigma > 0 else 0.0
+            yield camera_pose(xy, yaw, env_cfg.camera_height_m, pitch)
+            if rng.random() < data_cfg.turn_prob:
+                yaw += turn if rng.random() < 0.5 else -turn
+            else:
+                xy, moved = navgrid.move_forward(xy, yaw, env_cfg.forward_step_m)
+                if not moved:
+                    yaw += turn if rng.random() < 0.5 else -turn
+
+
+def render_frames(env_cfg: EnvConfig, data_cfg: SegDataConfig, split: str, frames: int, seed: int,
+                  with_instance: bool = False, progress: bool = True, rebalance: bool = False) -> SegData:
+    """Render ``frames`` frames from ``split``'s houses (see the module docstring);
+    ``rebalance``: drop most object-sparse frames (training sets)."""
+    from tqdm import tqdm
+
+    from envs.navigation import NavGrid
+    from envs.render import Camera, Renderer
+    from envs.scenes import load_scene, split_scene_ids
+
+    ids = split_scene_ids(split, env_cfg.dataset)
+    if data_cfg.scenes:
+        ids = ids[:data_cfg.scenes]
+    if not ids:
+        raise ValueError(f"split {split!r} has no scenes (env.dataset.{split}_scenes = 0?)")
+    ids = ids[:frames]  # fewer frames than scenes: one frame from each of the first ones
+    counts = [frames // len(ids) + (i < frames % len(ids)) for i in range(len(ids))]
+    w, h = data_cfg.resolution
+    camera = Camera(width=w, height=h, hfov_deg=env_cfg.hfov_deg)
+    out = {"rgb": np.empty((frames, h, w, 3), np.uint8), "depth": np.empty((frames, h, w), np.float16),
+           "labels": np.empty((frames, h, w), np.int8), "poses": np.empty((frames, 4, 4), np.float32),
+           "scene": np.empty(frames, np.int16)}
+    if with_instance:
+        out["instance"] = np.empty((frames, h, w), np.int32)
+    i = 0
+    for s, (scene_id, count) in enumerate(tqdm(list(zip(ids, counts)), desc=f"render {split} frames",
+                                               unit="scene", disable=not progress)):
+        rng = np.random.default_rng([seed, s])  # per scene: frames do not shift when counts change elsewhere
+        scene = load_scene(scene_id, env_cfg.dataset)
+        renderer = Renderer(scene, camera, min_depth_m=env_cfg.min_depth_m, max_depth_m=env_cfg.max_depth_m)
+        grid = NavGrid.build(scene, env_cfg, raycasting_scene=renderer.raycasting_scene)
+        structure = np.array([n in STRUCTURE_NAMES for n in scene.class_names] + [True])  # last: void
+        done = 0
+        for pose in walk_poses(grid, env_cfg, data_cfg, rng):
+            if done == count:
+                break
+            fr = renderer.render(pose)
+            if rebalance and data_cfg.keep_sparse_prob < 1:
+                objects = float((~structure[fr.semantic]).mean())  # void (-1) indexes the last entry
+                if objects < data_cfg.min_object_fraction and rng.random() >= data_cfg.keep_sparse_prob:
+                    continue
+            done += 1
+            out["rgb"][i], out["depth"][i], out["poses"][i], out["scene"][i] = fr.rgb, fr.depth, pose, s
+            sem = fr.semantic
+            out["labels"][i] = np.where((sem >= 0) & (sem < len(scene.class_names)), sem, -1)
+            if with_instance:
+                out["instance"][i] = fr.instance
+            i += 1
+    return SegData(**out)
+
+
+def cache_path(env_cfg: EnvConfig, data_cfg: SegDataConfig, split: str, frames: int, seed: int,
+               with_instance: bool, rebalance: bool = False) -> Path:
+    from envs.scene import cache_dir
+
+    env_part = {k: getattr(env_cfg, k) for k in ("hfov_deg", "camera_height_m", "min_depth_m", "max_depth_m",
+                                                 "turn_angle_deg", "forward_step_m", "agent_radius_m",
+                                                 "agent_height_m", "nav_cell_m")}
+    data_part = asdict(data_cfg) | {"frames": None, "seed": None}
+    if not rebalance:   # the rebalancing knobs do not change an un-rebalanced set
+        data_part |= {"min_object_fraction": None, "keep_sparse_prob": None}
+    blob = json.dumps({"v": DATA_VERSION, "split": split, "frames": frames, "seed": seed, "inst": with_instance,
+                       "rebalance": rebalance, "data": data_part,
+                       "env": env_part, "dataset": asdict(env_cfg.dataset)}, sort_keys=True, default=list)
+    key = hashlib.sha1(blob.encode()).hexdigest()[:12]
+    return cache_dir() / "segdata" / f"{split}_{frames}_{key}.npz"
+
+
+def load_or_render(env_cfg: EnvConfig, data_cfg: SegDataConfig, split: str, frames: int | None = None,
+                   seed: int | None = None, with_instance: bool = False, progress: bool = True,
+                   rebalance: bool = False) -> SegData:
+    """Cached frames of ``split`` (rendered and saved on first use). frames / seed default to
+    ``data_cfg``'s; ``rebalance`` for training sets (see the module docstring)."""
+    frames = int(data_cfg.frames if frames is None else frames)
+    seed = int(data_cfg.seed if seed is None else seed)
+    path = cache_path(env_cfg, data_cfg, split, frames, seed, with_instance, rebalance)
+    if path.exists():
+        try:
+            with np.load(path) as z:
+                return SegData(**{k: z[k] for k in z.files})
+        except (OSError, ValueError, KeyError, EOFError):
+            pass  # a corrupt cache entry: render again
+    data = render_frames(env_cfg, data_cfg, split, frames, seed, with_instance, progress, rebalance)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.stem}.{os.getpid()}.{uuid.uuid4().hex[:8]}.npz")
+    arrays = {k: v for k, v in asdict_shallow(data).items() if v is not None}
+    try:
+        np.savez_compressed(tmp, **arrays)
+        os.replace(tmp, path)
+    except OSError:   # a read-only cache only costs speed
+        tmp.unlink(missing_ok=True)
+    return data
+
+
+def asdict_shallow(data: SegData) -> dict[str, np.ndarray | None]:
+    return {k: getattr(data, k) for k in ("rgb", "depth", "labels", "poses", "scene", "instance")}

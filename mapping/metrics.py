@@ -1,0 +1,250 @@
+"""Accuracy and calibration metrics of probabilistic classifications (paper Sec. III-C,
+REFERENCE.md Sec. 4): ``accuracy``, ``miou`` / ``per_class_iou``, ``ece``, ``tl_ece``,
+``mece``, ``brier``.
+
+Every function takes ``probs`` (N, K) float (rows are probability vectors) and ``labels`` (N,)
+int class ids, plus ``n_bins`` (calibration bins; accepted and ignored by the non-binned
+metrics so all share one call signature) and ``ignore_index`` (a label value whose samples are
+left out, e.g. ``-1`` for void). They return a Python float (``per_class_iou``: a (K,) array).
+
+Binning: ``n_bins`` equal-width bins on the top-label confidence h = max_k probs[k]. Bin b
+covers [b / n_bins, (b + 1) / n_bins): the *left* edge is closed, so h = 0.1 falls in bin 1
+(of 10); the last bin is closed on both sides, so h = 1.0 falls in bin n_bins - 1. The bin is
+computed as floor(h * n_bins) in float64, clipped to n_bins - 1 (a float32 confidence is
+binned by its exact value: float32(0.7) = 0.69999999 lies in bin 6).
+
+Definitions (|B| = samples in a bin, acc = fraction of them whose argmax is the label,
+conf = their mean top-label confidence, N = samples after ``ignore_index``):
+
+- ECE    = sum_b |B_b| / N |acc(B_b) - conf(B_b)|
+- TL-ECE = sum_{b,k} |B_bk| / N |acc(B_bk) - conf(B_bk)|, B_bk = samples of bin b
+  *predicted* as k
+- mECE   = mean over classes c present in ``labels`` of
+  sum_b |B_bc| / N_c |acc(B_bc) - conf(B_bc)|, B_bc = samples of bin b whose *label* is c
+  (N_c of them); classes absent from the labels are skipped
+- Brier  = mean over samples of sum_k (probs[k] - onehot(label)[k])^2  (0 .. 2)
+- IoU_c  = TP / (TP + FP + FN) on the argmax; mIoU = mean over classes present in the
+  *labels* (the paper's convention; ``present="either"`` also counts classes that are only
+  predicted, each with IoU 0). Ties in the argmax go to the lowest class id.
+
+Memory: the metrics accumulate a (n_bins, K, K) table of counts and confidence sums (and a
+Brier sum) with ``np.bincount`` in chunks of ``CHUNK_ROWS`` rows, so 10^7 pixels need no
+(N, K) temporaries beyond a chunk. ``CalibrationStats`` exposes the accumulator itself for
+streaming evaluation (update frame by frame, read every metric at the end).
+"""
+from __future__ import annotations
+
+from typing import Iterable
+
+import numpy as np
+
+DEFAULT_BINS = 10          # the paper's bin count
+CHUNK_ROWS = 1 << 16       # rows processed per pass (temporaries ~CHUNK_ROWS * K * 8 B = 9 MiB at K = 18)
+SUM_TOLERANCE = 1e-2       # |row sum - 1| allowed (fp16 softmax outputs sum to 1 within ~1e-3)
+PRESENT_CHOICES = ("labels", "either")
+
+
+class CalibrationStats:
+    """Streaming accumulator of everything the metrics need.
+
+    num_classes: K. n_bins: confidence bins. ``update`` adds samples; the metric methods read
+    the totals (NaN when no sample has been added). Tables: ``count`` (n_bins, K_pred, K_true)
+    int64 and ``conf_sum`` (same shape) float64 sums of top-label confidence; ``brier_sum``.
+    """
+
+    def __init__(self, num_classes: int, n_bins: int = DEFAULT_BINS):
+        if int(num_classes) < 1:
+            raise ValueError(f"num_classes must be >= 1, got {num_classes}")
+        if int(n_bins) < 1:
+            raise ValueError(f"n_bins must be >= 1, got {n_bins}")
+        self.num_classes, self.n_bins = int(num_classes), int(n_bins)
+        shape = (self.n_bins, self.num_classes, self.num_classes)
+        self.count = np.zeros(shape, dtype=np.int64)
+        self.conf_sum = np.zeros(shape, dtype=np.float64)
+        self.brier_sum = 0.0
+
+    @property
+    def n(self) -> int:
+        """Samples accumulated so far."""
+        return int(self.count.sum())
+
+    # ------------------------------------------------------------------ accumulate
+    def update(self, probs: np.ndarray, labels: np.ndarray, ignore_index: int | None = None) -> "CalibrationStats":
+        """Add samples: probs (N, K) float, labels (N,) int; rows whose label equals
+        ``ignore_index`` are skipped. Raises ValueError on bad shapes, NaN / out-of-range
+        probabilities or labels outside [0, K). Returns self."""
+        probs, labels = _check_inputs(probs, labels, self.num_classes)
+        k, nb = self.num_classes, self.n_bins
+        size = nb * k * k
+        for start in range(0, len(labels), CHUNK_ROWS):
+            p = probs[start:start + CHUNK_ROWS]
+            y = labels[start:start + CHUNK_ROWS].astype(np.int64)
+            if ignore_index is not None:
+                keep = y != ignore_index
+                if not keep.all():
+                    p, y = p[keep], y[keep]
+            if len(y) == 0:
+                continue
+            _check_chunk(p, y, k)
+            p64 = p.astype(np.float64, copy=False)
+            pred = p64.argmax(axis=1)
+            conf = p64[np.arange(len(y)), pred]
+            bins = np.minimum(np.floor(conf * nb).astype(np.int64), nb - 1)
+            index = (bins * k + pred) * k + y
+            self.count += np.bincount(index, minlength=size).reshape(nb, k, k)
+            self.conf_sum += np.bincount(index, weights=conf, minlength=size).reshape(nb, k, k)
+            # sum_k (p_k - onehot_k)^2 = sum_k p_k^2 - 2 p_y + 1, without a one-hot array
+            p_true = p64[np.arange(len(y)), y]
+            self.brier_sum += float(np.einsum("ij,ij->", p64, p64) - 2.0 * p_true.sum() + len(y))
+        return self
+
+    # ---------------------------------------------------------------------- read
+    def confusion(self) -> np.ndarray:
+        """(K_pred, K_true) int64 confusion counts."""
+        return self.count.sum(axis=0)
+
+    def _correct(self) -> np.ndarray:
+        """(n_bins, K) correct predictions per bin and class (pred == label == k)."""
+        k = np.arange(self.num_classes)
+        return self.count[:, k, k]
+
+    def accuracy(self) -> float:
+        n = self.n
+        return float(self._correct().sum() / n) if n else float("nan")
+
+    def ece(self) -> float:
+        n = self.n
+        if not n:
+            return float("nan")
+        gap = self._correct().sum(axis=1) - self.conf_sum.sum(axis=(1, 2))  # (n_bins,) = |B| (acc - conf)
+        return float(np.abs(gap).sum() / n)
+
+    def tl_ece(self) -> float:
+        n = self.n
+        if not n:
+            return float("nan")
+        gap = self._correct() - self.conf_sum.sum(axis=2)                   # (n_bins, K_pred)
+        return float(np.abs(gap).sum() / n)
+
+    def per_class_ece(self) -> np.ndarray:
+        """(K,) ECE within each ground-truth class (NaN for classes absent from the labels)."""
+        n_c = self.count.sum(axis=(0, 1)).astype(np.float64)                 # (K_true,)
+        gap = np.abs(self._correct() - self.conf_sum.sum(axis=1)).sum(axis=0)  # (K_true,)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(n_c > 0, gap / np.maximum(n_c, 1.0), np.nan)
+
+    def mece(self) -> float:
+        per = self.per_class_ece()
+        return float(np.nanmean(per)) if np.isfinite(per).any() else float("nan")
+
+    def brier(self) -> float:
+        n = self.n
+        return float(self.brier_sum / n) if n else float("nan")
+
+    def per_class_iou(self, present: str = "labels") -> np.ndarray:
+        """(K,) float64 IoU per class; NaN for classes not present (see the module docstring)."""
+        if present not in PRESENT_CHOICES:
+            raise ValueError(f"present must be one of {', '.join(PRESENT_CHOICES)}, got {present!r}")
+        conf = self.confusion().astype(np.float64)
+        tp = np.diag(conf)
+        predicted, actual = conf.sum(axis=1), conf.sum(axis=0)
+        union = predicted + actual - tp
+        keep = actual > 0 if present == "labels" else union > 0
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(keep, tp / np.maximum(union, 1.0), np.nan)
+
+    def miou(self, classes: Iterable[int] | None = None, present: str = "labels") -> float:
+        """Mean IoU over present classes, optionally only those in ``classes`` (ids)."""
+        iou = self.per_class_iou(present)
+        if classes is not None:
+            ids = np.asarray(list(classes), dtype=np.int64)
+            if ids.size and (ids.min() < 0 or ids.max() >= self.num_classes):
+                raise ValueError(f"classes must be ids in [0, {self.num_classes}), got {ids.tolist()}")
+            iou = iou[ids]
+        return float(np.nanmean(iou)) if np.isfinite(iou).any() else float("nan")
+
+    def summary(self) -> dict[str, float]:
+        """All scalar metrics in one dict."""
+        return {"accuracy": self.accuracy(), "miou": self.miou(), "ece": self.ece(), "tl_ece": self.tl_ece(),
+                "mece": self.mece(), "brier": self.brier(), "n": float(self.n)}
+
+
+# ------------------------------------------------------------------------- validation
+def _check_inputs(probs: np.ndarray, labels: np.ndarray, num_classes: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    probs, labels = np.asarray(probs), np.asarray(labels)
+    if probs.ndim != 2:
+        raise ValueError(f"probs must be (N, K), got shape {probs.shape}")
+    if labels.ndim != 1:
+        raise ValueError(f"labels must be (N,), got shape {labels.shape}")
+    if len(probs) != len(labels):
+        raise ValueError(f"probs and labels disagree on N: probs {probs.shape}, labels {labels.shape}")
+    if num_classes is not None and probs.shape[1] != num_classes:
+        raise ValueError(f"probs has K = {probs.shape[1]} columns, expected {num_classes}")
+    if not np.issubdtype(probs.dtype, np.floating):
+        raise ValueError(f"probs must be floating point, got {probs.dtype}")
+    if not (np.issubdtype(labels.dtype, np.integer) or labels.dtype == bool):
+        raise ValueError(f"labels must be integer class ids, got {labels.dtype}")
+    return probs, labels
+
+
+def _check_chunk(p: np.ndarray, y: np.ndarray, k: int) -> None:
+    """Value checks on one chunk (after ignore_index): finite probabilities in [0, 1] whose rows
+    sum to 1, labels in [0, K)."""
+    if not np.isfinite(p).all():
+        raise ValueError("probs contain NaN or inf")
+    if p.min() < -SUM_TOLERANCE or p.max() > 1 + SUM_TOLERANCE:
+        raise ValueError(f"probs must lie in [0, 1], got values in [{p.min():.4g}, {p.max():.4g}]")
+    sums = p.sum(axis=1, dtype=np.float64)
+    worst = float(np.abs(sums - 1.0).max())
+    if worst > SUM_TOLERANCE:
+        raise ValueError(f"probs rows must sum to 1 (within {SUM_TOLERANCE}); worst row sums to "
+                         f"{sums[np.argmax(np.abs(sums - 1.0))]:.4g} -- pass softmax(logits), not logits")
+    if y.min() < 0 or y.max() >= k:
+        bad = np.unique(y[(y < 0) | (y >= k)])[:10]
+        raise ValueError(f"labels must be class ids in [0, {k}) (or ignore_index), found {bad.tolist()}")
+
+
+def _stats(probs, labels, n_bins: int, ignore_index: int | None) -> CalibrationStats:
+    probs, labels = _check_inputs(probs, labels)
+    stats = CalibrationStats(probs.shape[1], n_bins).update(probs, labels, ignore_index)
+    if stats.n == 0:
+        raise ValueError("no samples left to score (empty input, or every label is ignore_index)")
+    return stats
+
+
+# ---------------------------------------------------------------------- functional api
+def accuracy(probs, labels, n_bins: int = DEFAULT_BINS, ignore_index: int | None = None) -> float:
+    """Fraction of samples whose argmax equals the label (n_bins unused)."""
+    return _stats(probs, labels, n_bins, ignore_index).accuracy()
+
+
+def ece(probs, labels, n_bins: int = DEFAULT_BINS, ignore_index: int | None = None) -> float:
+    """Expected calibration error over top-label confidence bins."""
+    return _stats(probs, labels, n_bins, ignore_index).ece()
+
+
+def tl_ece(probs, labels, n_bins: int = DEFAULT_BINS, ignore_index: int | None = None) -> float:
+    """Top-label ECE: bins conditioned on the predicted class."""
+    return _stats(probs, labels, n_bins, ignore_index).tl_ece()
+
+
+def mece(probs, labels, n_bins: int = DEFAULT_BINS, ignore_index: int | None = None) -> float:
+    """Mean over ground-truth classes of the within-class ECE."""
+    return _stats(probs, labels, n_bins, ignore_index).mece()
+
+
+def brier(probs, labels, n_bins: int = DEFAULT_BINS, ignore_index: int | None = None) -> float:
+    """Mean over samples of the squared distance to the one-hot label (n_bins unused)."""
+    return _stats(probs, labels, n_bins, ignore_index).brier()
+
+
+def per_class_iou(probs, labels, n_bins: int = DEFAULT_BINS, ignore_index: int | None = None,
+                  present: str = "labels") -> np.ndarray:
+    """(K,) IoU per class, NaN where the class is not present (n_bins unused)."""
+    return _stats(probs, labels, n_bins, ignore_index).per_class_iou(present)
+
+
+def miou(probs, labels, n_bins: int = DEFAULT_BINS, ignore_index: int | None = None,
+         classes: Iterable[int] | None = None, present: str = "labels") -> float:
+    """Mean IoU over present classes (optionally restricted to ``classes``; n_bins unused)."""
+    return _stats(probs, labels, n_bins, ignore_index).miou(classes, present)
