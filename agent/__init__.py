@@ -1,0 +1,15 @@
+"""The ObjectNav agent: segmenters (``agent.segmenters``) and the PEANUT-like semantic-map
+agent (``agent.policy.PeanutAgent``, ``calnav objectnav --agent peanut``), one file per stage:
+
+| stage | file | what it does |
+|---|---|---|
+| config | ``config.py`` | ``AgentConfig`` (YAML section ``agent``), every default with its unit |
+| perception | ``perception.py`` | subsample to 160x120, segment, fuse into the 3D voxel map (``fused``) |
+| 2D map | ``semantic_map.py`` | ``MapChannels``, ``MapState`` and ``SemanticMapModule``: incremental ground projection (``mapping.projection``) |
+| goal detection | ``goal_detection.py`` | threshold + largest connected component with a minimum area |
+| exploration | ``exploration.py`` | frontiers, scored by geodesic distance and size (+ optional co-occurrence prior) |
+| local planning | ``planner.py`` | ``Planner``: geodesic field to the goal region, short-term goal on a ring, TURN / FORWARD |
+| collisions | ``collision.py`` | blocked-move detection, obstacle marks ahead, untrap routine |
+| policy | ``policy.py`` | ``PeanutAgent``: reset / act, the decision logic, forced STOP at the step limit |
+| visualisation | ``visualize.py`` | per-step panel (RGB, segmentation, top-down map) and episode video |
+"""

@@ -12,7 +12,14 @@ def _oracle(env, cfg):
     return OracleAgent(env)
 
 
-AGENTS: dict[str, AgentFactory] = {"oracle": _oracle}
+def _peanut(env, cfg):
+    """The semantic-map agent; it gets only the config (observations come through act)."""
+    from agent.policy import PeanutAgent
+
+    return PeanutAgent(cfg, cfg.run.device)
+
+
+AGENTS: dict[str, AgentFactory] = {"oracle": _oracle, "peanut": _peanut}
 
 
 def make_agent(name: str, env, cfg):

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-SECTIONS: tuple[str, ...] = ("env", "fusion")
+SECTIONS: tuple[str, ...] = ("env", "fusion", "segmenter", "agent")
 
 
 @dataclass

@@ -17,6 +17,7 @@ from typing import Any, Literal, Union
 
 import yaml
 
+from agent.config import AgentConfig
 from envs.config import EnvConfig
 from mapping.config import MappingConfig
 
@@ -42,6 +43,7 @@ class Config:
     env: EnvConfig = field(default_factory=EnvConfig)
     mapping: MappingConfig = field(default_factory=MappingConfig)
     run: RunConfig = field(default_factory=RunConfig)
+    agent: AgentConfig = field(default_factory=AgentConfig)
 
 
 # ---------------------------------------------------------------- coercion

@@ -44,6 +44,7 @@ NORMAL_BASE_WIDTH_PX = 160  # auto depth-normal baseline: 1 pixel per 160 pixels
 # Open3D keeps voxels with weight strictly above its threshold; stock TSDF weights count whole
 # observations, so "at least w observations" is threshold w - 1/2.
 WEIGHT_STRICT_OFFSET = 0.5
+NO_BLOCK_TOUCHED = "No block is touched"  # Open3D's error for a frame that touches no voxel block
 
 
 @contextmanager
@@ -174,7 +175,16 @@ class SemanticVoxelMap(MapReadouts):
             return
         intr, extr = o3c.Tensor(k), o3c.Tensor(fg.invert_rigid(pose))
         dimg = o3d.t.geometry.Image(o3c.Tensor.from_numpy(depth))
-        blocks = self.vbg.compute_unique_block_coordinates(dimg, intr, extr, 1.0, cfg.depth_max_m, cfg.trunc_voxels)
+        try:
+            blocks = self.vbg.compute_unique_block_coordinates(dimg, intr, extr, 1.0, cfg.depth_max_m,
+                                                               cfg.trunc_voxels)
+        except RuntimeError as exc:
+            # Open3D aborts a frame whose few valid depth pixels touch no voxel block (e.g.
+            # facing a wall just beyond min depth): such a frame has nothing to fuse.
+            if NO_BLOCK_TOUCHED not in str(exc):
+                raise
+            self.frames_integrated += 1
+            return
         if rgb is None:
             self.vbg.integrate(blocks, dimg, intr, extr, 1.0, cfg.depth_max_m, cfg.trunc_voxels)
         else:

@@ -1,0 +1,89 @@
+"""Typed configuration of the PEANUT-like ObjectNav agent (YAML section ``agent``).
+
+Every default carries its unit. Cell = one 2D map cell of ``cell_m`` (5 cm, as PEANUT/SemExp).
+Map type (one key, ``agent.map_type``):
+
+- ``fused``: the 3D voxel map (``mapping.fusion`` strategy, calibrated fusion) projected to the
+  ground plane: confidence of class l at a cell = mean fused confidence of the surface voxels in
+  that cell whose arg-max class is l.
+- ``ndf``: the SemExp/PEANUT baseline (no 3D fusion): each frame's per-pixel detections above
+  ``ndf_pixel_threshold`` are projected to the ground plane and the 2D map keeps the max over
+  time of the per-cell mean pixel confidence.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+from agent.segmenters.base import SegmenterConfig
+
+MapType = Literal["fused", "ndf"]
+MAP_TYPES: tuple[str, ...] = MapType.__args__  # type: ignore[attr-defined]
+SemanticPrior = Literal["none", "cooccurrence"]
+
+
+@dataclass
+class AgentConfig:
+    # --- perception ---------------------------------------------------------------------------
+    segmenter: str = "gt"               # segmenter name (agent.segmenters.SEGMENTER_NAMES)
+    segmenter_config: SegmenterConfig = field(default_factory=SegmenterConfig)  # its settings
+    map_type: MapType = "fused"         # fused (3D calibrated fusion) | ndf (per-frame 2D max baseline)
+    map_resolution: tuple[int, int] = (160, 120)  # mapping resolution WxH (depth/logits subsampled), pixels
+    ndf_pixel_threshold: float = 0.5    # ndf: per-pixel confidence needed to project a detection
+    # --- 2D map ---------------------------------------------------------------------------------
+    cell_m: float = 0.05                # ground cell edge, metres
+    map_size_m: float = 40.0            # square map side centred on the start position, metres
+    obstacle_min_height_m: float = 0.25  # points above the floor by at least this are obstacles, metres
+    obstacle_above_camera_m: float = 0.01  # ... and below camera height + this, metres
+    agent_radius_m: float = 0.18        # obstacle dilation for traversability, metres
+    free_ray_samples: int = 64          # samples per image column when tracing free space
+    # --- goal detection -----------------------------------------------------------------------
+    goal_threshold: float = 0.8         # goal-class confidence needed in a cell (PEANUT: 0.985 on
+                                        # calibrated segmenter scores; gt at 0.9 fuses to ~0.9)
+    goal_min_area_cells: int = 4        # smallest accepted goal component, cells (4 = 0.01 m^2)
+    # --- exploration ----------------------------------------------------------------------------
+    frontier_min_cells: int = 5         # frontier components smaller than this are ignored, cells
+    frontier_size_weight_m: float = 0.02  # utility: -distance + this * frontier cells, metres per cell
+    semantic_prior: SemanticPrior = "none"  # none | cooccurrence (frontiers near co-occurring classes)
+    prior_bonus_m: float = 2.0          # cooccurrence: distance bonus of a frontier near a related class, metres
+    prior_radius_m: float = 1.5         # cooccurrence: "near" means within this, metres
+    replan_steps: int = 10              # long-term goal re-chosen every this many steps
+    # --- local planning -----------------------------------------------------------------------
+    goal_dilation_m: float = 0.4        # the long-term goal region is dilated by this, metres
+    ring_cells: int = 5                 # short-term goal ring radius around the agent, cells
+    clearance_m: float = 0.1            # cells this close to a (dilated) obstacle cost extra, metres
+    clearance_cost: float = 4.0         # their traversal cost per cell (free cells cost 1)
+    turn_threshold_deg: float = 15.0    # turn when |relative angle| exceeds this, degrees
+    stop_distance_m: float = 0.75       # STOP within this of the goal component, metres
+    # --- collisions -----------------------------------------------------------------------------
+    collision_min_move_m: float = 0.2   # a forward step travelling less than this is a collision, metres
+    collision_mark_length_m: float = 0.3  # obstacle strip marked ahead of a collision, metres
+    collision_mark_width_m: float = 0.3   # its width, metres
+    untrap_after: int = 4               # consecutive collisions before the untrap routine
+    untrap_steps: int = 6               # actions of one untrap routine (turns + forwards)
+    # --- uncertainty-aware variant (off by default) ---------------------------------------------
+    uncertainty_aware: bool = False     # verify uncertain detections before STOP
+    uncertain_low: float = 0.3          # goal confidence band [uncertain_low, goal_threshold) counts as a candidate
+    verify_distance_m: float = 1.0      # approach candidates to this range and re-observe, metres
+
+    def __post_init__(self) -> None:
+        if self.map_type not in MAP_TYPES:
+            raise ValueError(f"unknown agent.map_type {self.map_type!r}; valid: {', '.join(MAP_TYPES)}")
+        for key in ("cell_m", "map_size_m", "agent_radius_m", "goal_dilation_m", "stop_distance_m",
+                    "collision_min_move_m", "turn_threshold_deg"):
+            if not getattr(self, key) > 0:
+                raise ValueError(f"agent.{key} must be > 0, got {getattr(self, key)}")
+        for key in ("goal_threshold", "uncertain_low", "ndf_pixel_threshold"):
+            if not 0 <= getattr(self, key) <= 1:
+                raise ValueError(f"agent.{key} must be in [0, 1], got {getattr(self, key)}")
+        for key in ("ring_cells", "replan_steps", "untrap_after", "untrap_steps", "free_ray_samples"):
+            if getattr(self, key) < 1:
+                raise ValueError(f"agent.{key} must be >= 1, got {getattr(self, key)}")
+        w, h = self.map_resolution
+        if w < 8 or h < 8:
+            raise ValueError(f"agent.map_resolution must be at least 8x8, got {w}x{h}")
+
+    @property
+    def map_cells(self) -> int:
+        """Map side in cells."""
+        return int(round(self.map_size_m / self.cell_m))

@@ -1,0 +1,144 @@
+"""Local planning (standalone): a geodesic distance field to the goal region on the planning
+map, a short-term goal on a ring around the agent, and the discrete action toward it.
+
+Distances are Dijkstra/FMM-like geometric costs (scikit-image ``MCP_Geometric``, 8-connected,
+diagonal steps cost sqrt(2)) in cells, computed on the bounding box of the free cells plus a
+margin so the cost follows the explored area, not the map size.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from skimage.graph import MCP_Geometric
+
+from agent.config import AgentConfig
+from agent.semantic_map import dilate
+from envs.task import Action
+from mapping.projection import disc_offsets
+
+CROP_MARGIN_CELLS = 4  # extra cells around the free area's bounding box
+
+
+def free_crop(free: np.ndarray, extra: list[tuple[int, int]]) -> tuple[slice, slice]:
+    """Bounding box (row slice, col slice) of the free cells and ``extra`` (row, col) cells,
+    plus CROP_MARGIN_CELLS."""
+    rows, cols = np.nonzero(free)
+    er = [p[0] for p in extra]
+    ec = [p[1] for p in extra]
+    r = np.concatenate([rows, er]) if len(er) else rows
+    c = np.concatenate([cols, ec]) if len(ec) else cols
+    n0, n1 = free.shape
+    return (slice(max(0, int(r.min()) - CROP_MARGIN_CELLS), min(n0, int(r.max()) + CROP_MARGIN_CELLS + 1)),
+            slice(max(0, int(c.min()) - CROP_MARGIN_CELLS), min(n1, int(c.max()) + CROP_MARGIN_CELLS + 1)))
+
+
+def geodesic_distance(free: np.ndarray, sources: np.ndarray, cost: np.ndarray | None = None) -> np.ndarray:
+    """Geodesic distance (n0, n1) float64 in cells from the bool ``sources`` mask through the
+    bool ``free`` mask (inf where unreachable or not free; sources count as free). cost
+    (n0, n1) float >= 1: optional per-cell traversal cost (default 1 per cell)."""
+    passable = free | sources
+    out = np.full(free.shape, np.inf)
+    if not sources.any():
+        return out
+    src = np.argwhere(sources)
+    rs, cs = free_crop(passable, [])
+    base = 1.0 if cost is None else cost[rs, cs]
+    costs = np.where(passable[rs, cs], base, np.inf)
+    mcp = MCP_Geometric(costs, fully_connected=True)
+    dist, _ = mcp.find_costs(src - (rs.start, cs.start))
+    out[rs, cs] = dist
+    out[~passable] = np.inf
+    return out
+
+
+def heading_to(agent_rc: tuple[int, int], target_rc, yaw: float) -> float:
+    """Signed angle (rad, counter-clockwise positive, in (-pi, pi]) from heading ``yaw`` (rad,
+    from world +x = +col) to the direction agent -> target ((row, col) cells; +row = +y)."""
+    dy, dx = target_rc[0] - agent_rc[0], target_rc[1] - agent_rc[1]
+    return (math.atan2(dy, dx) - yaw + math.pi) % (2 * math.pi) - math.pi
+
+
+@dataclass
+class Plan:
+    """action: the Action id; short_term_goal (row, col) or None; distance (n, n) the field
+    (cells) or None; reachable: the agent has a finite distance to the goal."""
+
+    action: int
+    short_term_goal: tuple[int, int] | None
+    distance: np.ndarray | None
+    reachable: bool
+
+
+class Planner:
+    """plan(free, goal, agent_rc, yaw) -> Plan toward the goal region."""
+
+    def __init__(self, cfg: AgentConfig):
+        self.cfg = cfg
+        self.turn_rad = math.radians(cfg.turn_threshold_deg)
+        self._goal_kernel = disc_offsets(cfg.goal_dilation_m / cfg.cell_m)
+        self._ring = self._ring_offsets(cfg.ring_cells)
+        self._start_disc = disc_offsets(cfg.agent_radius_m / cfg.cell_m)
+
+    @staticmethod
+    def _ring_offsets(radius: int) -> np.ndarray:
+        """(M, 2) offsets of the cells at distance in (radius - 1, radius] (a one-cell ring)."""
+        d = disc_offsets(radius)
+        rr = np.hypot(d[:, 0], d[:, 1])
+        return d[rr > radius - 1]
+
+    def goal_region(self, goal: np.ndarray) -> np.ndarray:
+        """The goal mask dilated by goal_dilation_m (bool (n, n))."""
+        out = goal.copy()
+        pts = np.argwhere(goal)
+        if len(pts) == 0:
+            return out
+        cells = (pts[:, None, :] + self._goal_kernel[None]).reshape(-1, 2)
+        cells = cells[((cells >= 0) & (cells < goal.shape[0])).all(axis=1)]
+        out[cells[:, 0], cells[:, 1]] = True
+        return out
+
+    def plan(self, free: np.ndarray, goal: np.ndarray, agent_rc: tuple[int, int], yaw: float) -> Plan:
+        """free (n, n) bool planning map; goal (n, n) bool goal cells; agent cell; yaw rad."""
+        n = free.shape[0]
+        free = free.copy()
+        disc = self._start_disc + agent_rc   # the agent's own footprint is never blocked
+        disc = disc[((disc >= 0) & (disc < n)).all(axis=1)]
+        free[disc[:, 0], disc[:, 1]] = True
+        region = self.goal_region(goal)
+        near_obstacle = dilate(~free, self.cfg.clearance_m / self.cfg.cell_m)
+        cost = np.where(near_obstacle, self.cfg.clearance_cost, 1.0)
+        dist = geodesic_distance(free, region & free | goal, cost)
+        here = dist[agent_rc]
+        if not np.isfinite(here):
+            return Plan(int(Action.TURN_LEFT), None, dist, False)
+        ring = self._ring + agent_rc
+        ring = ring[((ring >= 0) & (ring < n)).all(axis=1)]
+        d = dist[ring[:, 0], ring[:, 1]]
+        d = np.where(self._line_of_sight(free, agent_rc, ring), d, np.inf)
+        if here <= self.cfg.ring_cells or not np.isfinite(d).any():
+            # inside the ring of the goal: head straight for the nearest goal-region cell
+            stg = tuple(int(v) for v in np.argwhere(region)[np.argmin(np.hypot(*(np.argwhere(region) - agent_rc).T))])
+        else:
+            stg = tuple(int(v) for v in ring[int(np.argmin(d))])
+        return Plan(self.action_toward(agent_rc, stg, yaw), stg, dist, True)
+
+    def _line_of_sight(self, free: np.ndarray, agent_rc, targets: np.ndarray) -> np.ndarray:
+        """(M,) bool: the straight segment from the agent to each target cell stays on free
+        cells (sampled at half-cell spacing)."""
+        t = np.linspace(0.0, 1.0, 2 * self.cfg.ring_cells + 1)
+        pts = np.asarray(agent_rc, float) + (targets - agent_rc)[:, None, :] * t[None, :, None]
+        cells = np.rint(pts).astype(int)
+        return free[cells[..., 0], cells[..., 1]].all(axis=1)
+
+    def action_toward(self, agent_rc: tuple[int, int], target_rc, yaw: float) -> int:
+        """TURN toward the target if it is more than turn_threshold_deg off, else FORWARD."""
+        if tuple(target_rc) == tuple(agent_rc):
+            return int(Action.MOVE_FORWARD)
+        ang = heading_to(agent_rc, target_rc, yaw)
+        if ang > self.turn_rad:
+            return int(Action.TURN_LEFT)
+        if ang < -self.turn_rad:
+            return int(Action.TURN_RIGHT)
+        return int(Action.MOVE_FORWARD)

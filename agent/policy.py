@@ -1,0 +1,220 @@
+"""``PeanutAgent``: a PEANUT-like ObjectNav agent on a (calibrated, fused) semantic map.
+
+Per step: segment (``agent.perception``) -> fuse + project to the 2D map
+(``agent.semantic_map``) -> collision check (``agent.collision``) -> goal detection
+(``agent.goal_detection``) -> frontier exploration when no goal (``agent.exploration``) ->
+local planning (``agent.planner``). The agent reads only its observations: rgb, depth,
+objectgoal, camera_pose, camera_intrinsics (and ``semantic`` for the ``gt`` / ``noisy``
+segmenters, which are built from it). It never touches the simulator.
+
+Each episode starts with a full turn in place (360 / turn angle TURN_LEFTs: free for SPL,
+which counts path length only) so the first frontier choice sees all around.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from agent.collision import CollisionTracker, collision_points, is_collision
+from agent.config import AgentConfig
+from agent.exploration import choose_frontier, prior_mask
+from agent.goal_detection import GoalDetection, detect_goal
+from agent.perception import Perception
+from agent.planner import Plan, Planner, heading_to
+from agent.semantic_map import MapChannels, MapState, SemanticMapModule, dilate
+from envs.semantics import CLASS_NAMES
+from envs.task import Action
+from mapping import projection as pj
+
+PLAN_MARGIN_M = 1.0  # the planning window: explored bounding box + this margin (unknown = optimistic), metres
+
+
+@dataclass
+class StepInfo:
+    """What the agent decided and why (for visualisation): mode is one of 'spin', 'untrap',
+    'goal', 'verify', 'explore', 'stop'. detection / plan / long_term_goal are in window
+    coordinates (``window`` = (row slice, col slice) of the map), frontiers in map coordinates."""
+
+    mode: str
+    detection: GoalDetection | None
+    plan: Plan | None
+    long_term_goal: tuple[int, int] | None
+    frontiers: np.ndarray | None
+    window: tuple[slice, slice] | None = None
+
+
+class PeanutAgent:
+    """``PeanutAgent(cfg, device)``: cfg provides ``.agent`` (AgentConfig), ``.mapping``
+    (MappingConfig) and ``.env.max_episode_steps`` / ``.env.turn_angle_deg`` (the task's step
+    limit and turn angle: task facts, not simulator state). ``reset(obs)``, ``act(obs) -> int``."""
+
+    def __init__(self, cfg, device: str = "cpu"):
+        self.cfg: AgentConfig = cfg.agent
+        self.max_steps = int(cfg.env.max_episode_steps)
+        self.spin_turns = int(round(360.0 / cfg.env.turn_angle_deg))
+        self.perception = Perception(self.cfg, cfg.mapping, device)
+        self.num_classes = self.perception.num_classes
+        self.map_module = SemanticMapModule(self.cfg, self.num_classes, cfg.mapping.voxel_size_m)
+        self.planner = Planner(self.cfg)
+        self.collisions = CollisionTracker(self.cfg)
+        self.state: MapState | None = None
+        self.info: StepInfo | None = None
+
+    # ------------------------------------------------------------------ episode
+    def reset(self, obs: dict) -> None:
+        pose = np.asarray(obs["camera_pose"], np.float64)
+        self.goal_id = int(np.asarray(obs["objectgoal"]).reshape(-1)[0])
+        self.goal_name = CLASS_NAMES[self.goal_id]
+        self.state = MapState.empty(pose[:2, 3], self.cfg, self.num_classes)
+        self.perception.reset()
+        self.collisions.reset()
+        self.steps = 0
+        self.last_action: int | None = None
+        self.prev_xy = pose[:2, 3].copy()
+        self.ltg: tuple[int, int] | None = None
+        self.ltg_age = 0
+        self.frontiers: np.ndarray | None = None
+        self.excluded = np.zeros((self.state.size,) * 2, bool)  # unreachable frontier cells
+        self.rejected = np.zeros_like(self.excluded)             # goal candidates verified as wrong
+        self.info = None
+        self.frame = None
+        self.path: list[tuple[int, int]] = []
+        self.window: tuple[slice, slice] | None = None
+
+    @staticmethod
+    def pose_xy_yaw(pose: np.ndarray) -> tuple[np.ndarray, float]:
+        """Agent position (2,) m and heading (rad, from world +x, counter-clockwise) from the
+        camera pose (the camera's optical axis is its third column)."""
+        return pose[:2, 3].copy(), math.atan2(pose[1, 2], pose[0, 2])
+
+    def act(self, obs: dict) -> int:
+        pose = np.asarray(obs["camera_pose"], np.float64)
+        xy, yaw = self.pose_xy_yaw(pose)
+        if self.last_action is not None:
+            collided = is_collision(self.prev_xy, xy, self.last_action, self.cfg.collision_min_move_m)
+            if collided:
+                self._mark_collision(xy, yaw)
+            routines = self.collisions.routines
+            self.collisions.observe(collided)
+            if self.collisions.routines > routines and self.ltg is not None:
+                self._exclude_around(self.ltg)  # stuck on the way to this frontier: give it up
+        frame = self.frame = self.perception.observe(obs)
+        self.map_module.update(self.state, frame.depth, frame.probs, frame.intrinsics, pose, frame.vmap)
+        self.steps += 1
+        self.path.append(self.state.to_cell(xy, self.cfg.cell_m))
+        if self.steps >= self.max_steps:
+            action, self.info = int(Action.STOP), StepInfo("stop", None, None, None, None)
+        else:
+            action = self._decide(xy, yaw)
+        self.last_action, self.prev_xy = action, xy
+        return action
+
+    # ------------------------------------------------------------------ decisions
+    def _mark_collision(self, xy: np.ndarray, yaw: float) -> None:
+        cells, inside = pj.cell_of(collision_points(xy, yaw, self.cfg), self.state.origin, self.cfg.cell_m,
+                                   self.state.size)
+        self.state.channels[MapChannels.COLLISION].reshape(-1)[cells[inside]] = True
+
+    def _decide(self, xy: np.ndarray, yaw: float) -> int:
+        """Everything below works on the window of the explored area (+ PLAN_MARGIN_M), so the
+        cost follows the explored area, not the map size."""
+        cfg, st = self.cfg, self.state
+        if self.steps <= self.spin_turns:
+            self.info = StepInfo("spin", None, None, None, None)
+            return int(Action.TURN_LEFT)
+        untrap = self.collisions.next_action()
+        if untrap is not None:
+            self.info = StepInfo("untrap", None, None, self.ltg, self.frontiers)
+            return untrap
+        win = self.window = st.window(int(PLAN_MARGIN_M / cfg.cell_m))
+        r, c = st.to_cell(xy, cfg.cell_m)
+        agent_rc = (r - win[0].start, c - win[1].start)
+        conf = st.semantic[self.goal_id][win]
+        rejected = self.rejected[win]
+        det = detect_goal(conf, cfg.goal_threshold, cfg.goal_min_area_cells, exclude=rejected)
+        free = ~dilate(st.obstacles(win), cfg.agent_radius_m / cfg.cell_m)  # unknown cells are optimistic
+        if det.found:
+            action = self._approach(det, agent_rc, yaw, free, "goal")
+            if action is not None:
+                return action
+        elif cfg.uncertainty_aware:
+            cand = detect_goal(conf, cfg.uncertain_low, cfg.goal_min_area_cells, exclude=rejected)
+            if cand.found:
+                action = self._approach(cand, agent_rc, yaw, free, "verify")
+                if action is not None:
+                    return action
+        return self._explore(agent_rc, yaw, free, det)
+
+    def _approach(self, det: GoalDetection, agent_rc, yaw: float, free: np.ndarray, mode: str) -> int | None:
+        """Go to a detected component; STOP (mode 'goal') or reject it (mode 'verify': still
+        uncertain once within verify_distance_m) when close and facing. None if unreachable.
+        All cells are in window coordinates."""
+        cfg = self.cfg
+        cells = np.argwhere(det.mask)
+        d = np.hypot(*(cells - agent_rc).T) * cfg.cell_m
+        nearest = tuple(int(v) for v in cells[int(np.argmin(d))])
+        close = cfg.stop_distance_m if mode == "goal" else cfg.verify_distance_m
+        if d.min() <= close:
+            ang = heading_to(agent_rc, nearest, yaw)
+            if abs(ang) > self.planner.turn_rad:
+                self.info = StepInfo(mode, det, None, nearest, self.frontiers, self.window)
+                return int(Action.TURN_LEFT if ang > 0 else Action.TURN_RIGHT)
+            if mode == "goal":
+                self.info = StepInfo("stop", det, None, nearest, self.frontiers, self.window)
+                return int(Action.STOP)
+            self.rejected[self.window] |= det.mask  # re-observed up close and still below the threshold
+            return None
+        plan = self.planner.plan(free, det.mask, agent_rc, yaw)
+        self.info = StepInfo(mode, det, plan, nearest, self.frontiers, self.window)
+        return plan.action if plan.reachable else None
+
+    def _explore(self, agent_rc, yaw: float, free: np.ndarray, det: GoalDetection) -> int:
+        """Plan to the long-term frontier goal (kept in map coordinates in ``self.ltg``)."""
+        cfg, win = self.cfg, self.window
+        self.ltg_age += 1
+        local = None if self.ltg is None else (self.ltg[0] - win[0].start, self.ltg[1] - win[1].start)
+        reached = local is not None and math.dist(local, agent_rc) <= cfg.ring_cells
+        if reached:  # a frontier still open once reached cannot be seen past (e.g. too close for depth)
+            self._exclude_around(self.ltg)
+        if local is None or reached or self.ltg_age >= cfg.replan_steps:
+            local = self._choose_ltg(agent_rc)
+        for _ in range(2):  # one retry with a new frontier if the current one is unreachable
+            if local is None:
+                break
+            goal = np.zeros_like(free)
+            goal[local] = True
+            plan = self.planner.plan(free, goal, agent_rc, yaw)
+            if plan.reachable:
+                self.info = StepInfo("explore", det, plan, local, self.frontiers, win)
+                return plan.action
+            self._exclude_around(self.ltg)
+            local = self._choose_ltg(agent_rc)
+        # Nothing reachable to explore: collision marks (or frontiers judged unreachable) may be
+        # blocking a doorway, so forget them and look around; the next step re-plans.
+        self.state.channels[MapChannels.COLLISION] = False
+        self.excluded[:] = False
+        self.ltg = None
+        self.info = StepInfo("explore", det, None, None, self.frontiers, win)
+        return int(Action.TURN_LEFT)
+
+    def _exclude_around(self, rc: tuple[int, int]) -> None:
+        """Never choose frontier cells within goal_dilation_m of map cell ``rc`` again."""
+        rad = int(self.cfg.goal_dilation_m / self.cfg.cell_m)
+        self.excluded[max(0, rc[0] - rad):rc[0] + rad + 1, max(0, rc[1] - rad):rc[1] + rad + 1] = True
+
+    def _choose_ltg(self, agent_rc) -> tuple[int, int] | None:
+        """Choose a frontier (window coordinates in and out); remembers it in map coordinates."""
+        st, cfg, win = self.state, self.cfg, self.window
+        prior = prior_mask(st.semantic[:, win[0], win[1]], self.goal_name, cfg)
+        choice = choose_frontier(st.channels[MapChannels.EXPLORED][win], st.traversable(cfg, win), agent_rc, cfg,
+                                 prior=prior, exclude=self.excluded[win])
+        self.ltg_age = 0
+        if choice is None:
+            self.ltg = self.frontiers = None
+            return None
+        self.frontiers = np.zeros_like(self.excluded)
+        self.frontiers[win] = choice.frontiers
+        self.ltg = (choice.goal[0] + win[0].start, choice.goal[1] + win[1].start)
+        return choice.goal

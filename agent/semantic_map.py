@@ -1,0 +1,227 @@
+"""The agent's 2D semantic map: state (``MapState``) and the module that updates it
+(``SemanticMapModule``), home-robot style.
+
+The map is ``n`` x ``n`` cells of ``cfg.cell_m`` centred on the start position, in world
+coordinates (the agent knows its camera pose). Channels (``MapChannels``) are bool (n, n)
+layers; ``MapState.semantic`` (K, n, n) float32 is the confidence that class l is at a cell.
+
+Per frame (``update``), with the frame at the mapping resolution (depth (h, w) m, probs
+(h, w, K)):
+
+- ``fused``: the frame is fused into the 3D voxel map; the voxels hit by this frame's depth
+  (the only ones whose fused value changed) are re-read and re-projected: each voxel keeps its
+  latest (cell, arg-max class, confidence) in ``VoxelVotes`` and the per-(class, cell) sums and
+  counts are updated by difference, so the semantic layer is exactly the mean over all observed
+  surface voxels in the cell and the cost per frame does not grow with the house.
+- ``ndf``: pixels with confidence >= ``ndf_pixel_threshold`` are projected; semantic = max over
+  time of the per-frame per-cell mean.
+
+Obstacles: points with height in [obstacle_min_height_m, camera z + obstacle_above_camera_m]
+(max over time) plus collision marks. Explored: cells of every point plus the free rays of
+each image column (``mapping.projection.free_rays``) plus the agent's footprint.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from enum import IntEnum
+
+import cv2
+import numpy as np
+
+from agent.config import AgentConfig
+from mapping import projection as pj
+from mapping.voxel_map import single_threaded_torch
+
+
+class MapChannels(IntEnum):
+    OBSTACLE = 0      # seen obstacle points (height band)
+    EXPLORED = 1      # observed cells (points and free rays)
+    COLLISION = 2     # cells marked by blocked forward moves
+    VISITED = 3       # cells the agent stood on
+
+
+NUM_CHANNELS = len(MapChannels)
+
+
+class VoxelVotes:
+    """Each observed voxel's latest vote: sorted int64 voxel keys with (flat cell, class,
+    confidence). ``update`` returns the votes it replaced so the caller can subtract them."""
+
+    KEY_BITS = 21                      # bits per voxel axis in a key: +-2^20 voxels (+-52 km at 5 cm)
+    KEY_OFFSET = 1 << (KEY_BITS - 1)
+
+    def __init__(self) -> None:
+        self.keys = np.zeros(0, np.int64)
+        self.cells = np.zeros(0, np.int64)
+        self.classes = np.zeros(0, np.int16)
+        self.conf = np.zeros(0, np.float32)
+
+    @classmethod
+    def encode(cls, ijk: np.ndarray) -> np.ndarray:
+        """(N, 3) int voxel indices -> (N,) int64 keys."""
+        v = ijk.astype(np.int64) + cls.KEY_OFFSET
+        return (v[:, 0] << (2 * cls.KEY_BITS)) | (v[:, 1] << cls.KEY_BITS) | v[:, 2]
+
+    def update(self, keys, cells, classes, conf) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Set the votes of unique ``keys`` (N,); returns the replaced (cells, classes, conf)."""
+        idx = np.searchsorted(self.keys, keys)
+        found = idx < len(self.keys)
+        found[found] = self.keys[idx[found]] == keys[found]
+        fi = idx[found]
+        old = (self.cells[fi].copy(), self.classes[fi].copy(), self.conf[fi].copy())
+        self.cells[fi], self.classes[fi], self.conf[fi] = cells[found], classes[found], conf[found]
+        new = ~found
+        if new.any():
+            pos = idx[new]
+            self.keys = np.insert(self.keys, pos, keys[new])
+            self.cells = np.insert(self.cells, pos, cells[new])
+            self.classes = np.insert(self.classes, pos, classes[new])
+            self.conf = np.insert(self.conf, pos, conf[new])
+        return old
+
+
+@dataclass
+class MapState:
+    """Everything the map remembers for one episode. origin (2,) world metres of the map's
+    corner; channels (C, n, n) bool; semantic (K, n, n) float32; sums / counts (K, n*n) for the
+    fused mean; votes of the fused voxels."""
+
+    origin: np.ndarray
+    channels: np.ndarray
+    semantic: np.ndarray
+    sums: np.ndarray
+    counts: np.ndarray
+    votes: VoxelVotes = field(default_factory=VoxelVotes)
+    bbox: list[int] = field(default_factory=lambda: [1 << 30, -1, 1 << 30, -1])  # explored rows/cols (min, max, min, max)
+
+    @classmethod
+    def empty(cls, start_xy: np.ndarray, cfg: AgentConfig, num_classes: int) -> "MapState":
+        n = cfg.map_cells
+        origin = np.asarray(start_xy, np.float64) - cfg.map_size_m / 2
+        return cls(origin, np.zeros((NUM_CHANNELS, n, n), bool), np.zeros((num_classes, n, n), np.float32),
+                   np.zeros((num_classes, n * n), np.float32), np.zeros((num_classes, n * n), np.int32))
+
+    @property
+    def size(self) -> int:
+        return self.channels.shape[1]
+
+    def to_cell(self, xy: np.ndarray, cell_m: float) -> tuple[int, int]:
+        """(row, col) of world xy (2,) metres (clipped to the map)."""
+        c = np.floor((np.asarray(xy, np.float64) - self.origin) / cell_m).astype(int)
+        c = np.clip(c, 0, self.size - 1)
+        return int(c[1]), int(c[0])
+
+    def to_world(self, row: float, col: float, cell_m: float) -> np.ndarray:
+        """World xy (2,) metres of a cell centre."""
+        return self.origin + (np.array([col, row], np.float64) + 0.5) * cell_m
+
+    def grow_bbox(self, flat_cells: np.ndarray) -> None:
+        """Extend the explored bounding box by flat cell indices (so nothing scans the map)."""
+        if len(flat_cells) == 0:
+            return
+        r, c = np.divmod(flat_cells, self.size)
+        b = self.bbox
+        self.bbox = [min(b[0], int(r.min())), max(b[1], int(r.max())), min(b[2], int(c.min())), max(b[3], int(c.max()))]
+
+    def window(self, margin_cells: int) -> tuple[slice, slice]:
+        """(row slice, col slice) of the explored bounding box plus a margin, clipped."""
+        b, n = self.bbox, self.size
+        return (slice(max(0, b[0] - margin_cells), min(n, b[1] + margin_cells + 1)),
+                slice(max(0, b[2] - margin_cells), min(n, b[3] + margin_cells + 1)))
+
+    def obstacles(self, window: tuple[slice, slice] = (slice(None), slice(None))) -> np.ndarray:
+        """Obstacle or collision cells (bool) inside ``window``."""
+        return self.channels[MapChannels.OBSTACLE][window] | self.channels[MapChannels.COLLISION][window]
+
+    def traversable(self, cfg: AgentConfig, window: tuple[slice, slice] = (slice(None), slice(None))) -> np.ndarray:
+        """Explored minus obstacles dilated by the agent radius (bool) inside ``window``."""
+        return self.channels[MapChannels.EXPLORED][window] & ~dilate(self.obstacles(window), cfg.agent_radius_m / cfg.cell_m)
+
+
+def dilate(mask: np.ndarray, radius_cells: float) -> np.ndarray:
+    """Bool mask dilated by a disc of ``radius_cells``."""
+    r = int(np.ceil(radius_cells))
+    if r <= 0:
+        return mask.copy()
+    kernel = np.zeros((2 * r + 1, 2 * r + 1), np.uint8)
+    kernel[tuple((pj.disc_offsets(radius_cells) + r).T)] = 1
+    return cv2.dilate(mask.astype(np.uint8), kernel).astype(bool)
+
+
+class SemanticMapModule:
+    """Stateless update of a ``MapState`` from one frame (the voxel map is passed in)."""
+
+    def __init__(self, cfg: AgentConfig, num_classes: int, voxel_size_m: float):
+        self.cfg = cfg
+        self.num_classes = num_classes
+        self.voxel_size_m = voxel_size_m
+
+    def update(self, state: MapState, depth: np.ndarray, probs: np.ndarray, intrinsics: np.ndarray,
+               pose: np.ndarray, vmap=None) -> None:
+        """Project one frame. depth (h, w) m; probs (h, w, K) per-pixel class probabilities;
+        intrinsics (3, 3) at that size; pose (4, 4) world-from-camera; vmap: the
+        ``SemanticVoxelMap`` the frame was already fused into (``fused``) or None (``ndf``)."""
+        cfg, n = self.cfg, state.size
+        points, pix = pj.backproject(depth, intrinsics, pose)
+        cam_xy = pose[:2, 3]
+        obst = pj.obstacle_points(points, cfg.obstacle_min_height_m, pose[2, 3] + cfg.obstacle_above_camera_m)
+        cells, inside = pj.cell_of(points[:, :2], state.origin, cfg.cell_m, n)
+        flat_channels = state.channels.reshape(NUM_CHANNELS, -1)
+        flat_channels[MapChannels.OBSTACLE, cells[inside & obst]] = True
+        free = pj.free_rays(cam_xy, points, pix % depth.shape[1], obst, cfg.free_ray_samples)
+        fcells, finside = pj.cell_of(free, state.origin, cfg.cell_m, n)
+        flat_channels[MapChannels.EXPLORED, fcells[finside]] = True
+        flat_channels[MapChannels.EXPLORED, cells[inside]] = True
+        state.grow_bbox(np.concatenate([fcells[finside], cells[inside]]))
+        self._mark_agent(state, cam_xy)
+        if vmap is not None:
+            self._project_fused(state, points, vmap)
+        else:
+            p = probs.reshape(-1, probs.shape[-1])[pix]
+            self._project_ndf(state, p, cells, inside)
+
+    def _mark_agent(self, state: MapState, xy: np.ndarray) -> None:
+        """Footprint explored and free, centre visited."""
+        cfg = self.cfg
+        r, c = state.to_cell(xy, cfg.cell_m)
+        off = pj.disc_offsets(cfg.agent_radius_m / cfg.cell_m) + (r, c)
+        off = off[((off >= 0) & (off < state.size)).all(axis=1)]
+        state.channels[MapChannels.EXPLORED][off[:, 0], off[:, 1]] = True
+        state.channels[MapChannels.OBSTACLE][off[:, 0], off[:, 1]] = False
+        state.channels[MapChannels.VISITED][r, c] = True
+        state.grow_bbox(off[:, 0] * state.size + off[:, 1])
+
+    def _project_fused(self, state: MapState, points: np.ndarray, vmap) -> None:
+        """Re-project the voxels this frame hit (their fused values changed)."""
+        ijk_all = np.rint(points / self.voxel_size_m).astype(np.int64)
+        _, first = np.unique(VoxelVotes.encode(ijk_all), return_index=True)
+        ijk = ijk_all[first]
+        centres = ijk * self.voxel_size_m
+        with single_threaded_torch():   # small tensors: extra torch threads only contend
+            probs, observed = vmap.query(centres)
+        ijk, centres, probs = ijk[observed], centres[observed], probs[observed]
+        cells, inside = pj.cell_of(centres[:, :2], state.origin, self.cfg.cell_m, state.size)
+        ijk, cells, probs = ijk[inside], cells[inside], probs[inside]
+        cls = probs.argmax(axis=1)
+        conf = probs[np.arange(len(cls)), cls]
+        keys = VoxelVotes.encode(ijk)
+        old_cells, old_cls, old_conf = state.votes.update(keys, cells, cls.astype(np.int16), conf)
+        ncell = state.size ** 2
+        bins = np.concatenate([old_cls.astype(np.int64) * ncell + old_cells, cls.astype(np.int64) * ncell + cells])
+        ones = np.ones(len(cls), np.int64)
+        u, dsum, dcnt = pj.sparse_bin_sums(bins, np.concatenate([-old_conf, conf]),
+                                           np.concatenate([-np.ones(len(old_cls), np.int64), ones]))
+        sums, counts, sem = state.sums.reshape(-1), state.counts.reshape(-1), state.semantic.reshape(-1)
+        sums[u] += dsum.astype(np.float32)
+        counts[u] += dcnt.astype(np.int32)
+        sem[u] = np.where(counts[u] > 0, sums[u] / np.maximum(counts[u], 1), 0.0)
+
+    def _project_ndf(self, state: MapState, probs: np.ndarray, cells: np.ndarray, inside: np.ndarray) -> None:
+        """SemExp-style: thresholded detections, per-frame cell mean, max over time."""
+        cls = probs.argmax(axis=1)
+        conf = probs[np.arange(len(cls)), cls]
+        keep = inside & (conf >= self.cfg.ndf_pixel_threshold)
+        ncell = state.size ** 2
+        u, sums, counts = pj.sparse_bin_sums(cls[keep].astype(np.int64) * ncell + cells[keep], conf[keep])
+        sem = state.semantic.reshape(-1)
+        sem[u] = np.maximum(sem[u], sums / counts)

@@ -1,0 +1,66 @@
+"""Bench section "agent": speed and memory of the PEANUT-like agent's loop.
+
+One ``val`` episode (index EPISODE) of the gym env at 160x120 with the ``gt`` segmenter and
+the default fused map; the agent runs in explore-only mode (goal_threshold 1.0, above what the
+default averaging fusion of the 0.9-confidence gt segmenter can reach), so it maps for the
+whole step limit, the worst case for time and memory:
+
+- ``agent.hz_160x120``: steps per second of the full loop (env step = move + render, then
+  segment + fuse + project + plan in ``act``), wall time over the episode (target >= 15).
+- ``agent.act_ms_160x120``: median ``act`` time, ms.
+- ``agent.rss_growth_mb_500_steps``: resident memory after the last step minus after the first,
+  MiB (target < 300).
+"""
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import numpy as np
+
+EPISODE = 0
+STEPS = 500
+QUICK_STEPS = 60
+EXPLORE_ONLY_THRESHOLD = 1.0
+MIB = float(1 << 20)
+
+
+def rss_mb() -> float:
+    """Resident set size of this process, MiB (Linux /proc)."""
+    import os
+
+    with open("/proc/self/statm") as f:
+        pages = int(f.read().split()[1])
+    return pages * os.sysconf("SC_PAGE_SIZE") / MIB
+
+
+def run(ctx) -> dict[str, float]:
+    import gymnasium as gym
+
+    import envs  # noqa: F401  (registers the env)
+    from agent.policy import PeanutAgent
+    from eval.config import load_config
+
+    cfg = load_config(None, ["env.resolution=160x120", "agent.segmenter=gt"])
+    cfg.agent = dataclasses.replace(cfg.agent, goal_threshold=EXPLORE_ONLY_THRESHOLD)
+    steps = QUICK_STEPS if ctx.quick else STEPS
+    cfg.env = dataclasses.replace(cfg.env, max_episode_steps=steps)
+    env = gym.make("calnav/ObjectNav-v0", split="val", config=cfg.env)
+    agent = PeanutAgent(cfg)
+    obs, _ = env.reset(options={"episode_index": EPISODE})
+    agent.reset(obs)
+    act_ms, rss0 = [], None
+    t0 = time.perf_counter()
+    for i in range(steps):
+        t = time.perf_counter()
+        action = agent.act(obs)
+        act_ms.append((time.perf_counter() - t) * 1e3)
+        if i == 0:
+            rss0 = rss_mb()
+        obs, _, terminated, truncated, _ = env.step(action)
+        if terminated or truncated:
+            break
+    wall = time.perf_counter() - t0
+    n = len(act_ms)
+    return {"agent.hz_160x120": n / wall, "agent.act_ms_160x120": float(np.median(act_ms)),
+            "agent.rss_growth_mb_500_steps": rss_mb() - rss0, "agent.bench_steps": float(n)}

@@ -1,0 +1,119 @@
+"""Ground-plane projection of 3D points and fused voxels (pure numpy, no state).
+
+Conventions: world frame z-up, metres, floor at z = 0. A 2D map of ``n`` x ``n`` cells of edge
+``cell_m`` has its corner (cell (0, 0)'s lower-left) at world ``origin`` (2,) metres; arrays
+are indexed ``[row, col]`` = ``[y, x]``; flat cell index = row * n + col.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+
+def backproject(depth: np.ndarray, intrinsics: np.ndarray, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """World points of the valid (depth > 0) pixels of a depth image.
+
+    depth (H, W) float metres (0 = invalid); intrinsics (3, 3) (pixel (u, v)'s centre at
+    (u, v)); pose (4, 4) world-from-camera, OpenCV axes. Returns points (N, 3) float32 world
+    metres and pix (N,) int64 flat pixel indices (row-major) of the valid pixels.
+    """
+    h, w = depth.shape
+    pix = np.flatnonzero(depth.reshape(-1) > 0)
+    z = depth.reshape(-1)[pix].astype(np.float64)
+    v, u = np.divmod(pix, w)
+    x = (u - intrinsics[0, 2]) * z / intrinsics[0, 0]
+    y = (v - intrinsics[1, 2]) * z / intrinsics[1, 1]
+    cam = np.stack([x, y, z], axis=1)
+    world = cam @ pose[:3, :3].T + pose[:3, 3]
+    return world.astype(np.float32), pix
+
+
+def cell_of(xy: np.ndarray, origin: np.ndarray, cell_m: float, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Flat cell index (N,) int64 of world points xy (N, 2) metres, and an inside mask (N,)
+    bool (points outside the n x n map get index 0 and inside False)."""
+    cr = np.floor((np.asarray(xy, np.float64) - origin) / cell_m).astype(np.int64)
+    inside = (cr >= 0).all(axis=1) & (cr < n).all(axis=1)
+    flat = np.where(inside, cr[:, 1] * n + cr[:, 0], 0)
+    return flat, inside
+
+
+def class_confidence_sums(cells: np.ndarray, classes: np.ndarray, conf: np.ndarray, num_cells: int,
+                          num_classes: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per (class, cell) sum of confidences and point count.
+
+    cells (N,) flat cell index, classes (N,) int class of each point (its arg-max), conf (N,)
+    that class's confidence. Returns sums (K, num_cells) float64 and counts (K, num_cells)
+    int64; mean = sums / counts where counts > 0.
+    """
+    bins = np.asarray(classes, np.int64) * num_cells + np.asarray(cells, np.int64)
+    size = num_classes * num_cells
+    sums = np.bincount(bins, weights=np.asarray(conf, np.float64), minlength=size)
+    counts = np.bincount(bins, minlength=size)
+    return sums.reshape(num_classes, num_cells), counts.reshape(num_classes, num_cells)
+
+
+def sparse_bin_sums(bins: np.ndarray, weights: np.ndarray, counts: np.ndarray | None = None
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Sums over equal bins without a dense array: bins (N,) int64, weights (N,) float, counts
+    (N,) int per-entry count (default 1). Returns (unique bins (M,), weight sums (M,) float64,
+    count sums (M,) int64)."""
+    u, inv = np.unique(bins, return_inverse=True)
+    sums = np.bincount(inv, weights=np.asarray(weights, np.float64), minlength=len(u))
+    cnt = np.ones(len(bins), np.int64) if counts is None else np.asarray(counts, np.int64)
+    return u, sums, np.bincount(inv, weights=cnt, minlength=len(u)).astype(np.int64)
+
+
+def project_voxels(coords: np.ndarray, probs: np.ndarray, origin: np.ndarray, cell_m: float,
+                   n: int) -> np.ndarray:
+    """Ground-plane semantic confidence map of fused voxels (the non-incremental reference).
+
+    coords (N, 3) world metres, probs (N, K) fused probabilities. Each voxel votes for its
+    arg-max class l with confidence probs[l]; the confidence that class l is at a cell is the
+    mean of the votes for l in that cell (0 where none). Returns (K, n, n) float32.
+    """
+    k = probs.shape[1]
+    cells, inside = cell_of(coords[:, :2], origin, cell_m, n)
+    cls = probs.argmax(axis=1)
+    conf = probs[np.arange(len(probs)), cls]
+    sums, counts = class_confidence_sums(cells[inside], cls[inside], conf[inside], n * n, k)
+    mean = np.divide(sums, counts, out=np.zeros_like(sums), where=counts > 0)
+    return mean.astype(np.float32).reshape(k, n, n)
+
+
+def obstacle_points(points: np.ndarray, min_height_m: float, max_height_m: float) -> np.ndarray:
+    """Bool mask (N,) of points (N, 3) whose height above the floor (z) is in
+    [min_height_m, max_height_m] metres."""
+    z = points[:, 2]
+    return (z >= min_height_m) & (z <= max_height_m)
+
+
+def free_rays(camera_xy: np.ndarray, points: np.ndarray, columns: np.ndarray, obstacle: np.ndarray,
+              samples: int) -> np.ndarray:
+    """Ground points (M, 2) world metres seen as free along each image column (a laser scan).
+
+    points (N, 3) world metres of the valid pixels, columns (N,) their image column, obstacle
+    (N,) bool. Per column the view is free from the camera up to the nearest obstacle point's
+    horizontal range (or the farthest point's range if the column holds no obstacle), along
+    the direction of that point; ``samples`` points are placed evenly on each such segment.
+    """
+    if len(points) == 0:
+        return np.zeros((0, 2), np.float32)
+    d = points[:, :2].astype(np.float64) - camera_xy
+    rng = np.hypot(d[:, 0], d[:, 1])
+    # rank key: obstacles first by range, then free points by -range (farthest first)
+    key = np.where(obstacle, rng, -rng + 1e6)
+    order = np.lexsort((key, columns))
+    first = np.ones(len(order), bool)
+    first[1:] = columns[order][1:] != columns[order][:-1]
+    pick = order[first]
+    ends = d[pick]
+    t = np.linspace(0.0, 1.0, samples)
+    seg = camera_xy + ends[:, None, :] * t[None, :, None]
+    return seg.reshape(-1, 2).astype(np.float32)
+
+
+def disc_offsets(radius_cells: float) -> np.ndarray:
+    """(M, 2) int (drow, dcol) offsets of the cells within ``radius_cells`` of a cell."""
+    r = int(np.ceil(radius_cells))
+    dr, dc = np.mgrid[-r:r + 1, -r:r + 1]
+    keep = dr ** 2 + dc ** 2 <= radius_cells ** 2
+    return np.stack([dr[keep], dc[keep]], axis=1)

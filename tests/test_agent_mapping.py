@@ -1,0 +1,171 @@
+"""Agent map stages: ground-plane projection, goal detection, frontiers, collision marking."""
+import numpy as np
+
+from agent.collision import CollisionTracker, collision_points, is_collision
+from agent.config import AgentConfig
+from agent.exploration import choose_frontier, frontier_mask
+from agent.goal_detection import detect_goal, largest_component
+from agent.semantic_map import MapChannels, MapState, SemanticMapModule, VoxelVotes
+from envs.task import Action
+from mapping import projection as pj
+
+
+def test_project_voxels_gives_per_cell_class_means():
+    # cell size 1 m, 2x2 map at origin (0, 0); K = 3
+    coords = np.array([[0.2, 0.2, 0.5], [0.7, 0.4, 1.0], [0.5, 0.5, 0.3], [1.5, 0.5, 0.5], [1.5, 1.5, 0.5]], np.float32)
+    probs = np.array([[0.8, 0.1, 0.1],   # cell (0,0) class 0 conf 0.8
+                      [0.6, 0.3, 0.1],   # cell (0,0) class 0 conf 0.6
+                      [0.1, 0.9, 0.0],   # cell (0,0) class 1 conf 0.9
+                      [0.2, 0.2, 0.6],   # cell row 0, col 1: class 2 conf 0.6
+                      [0.5, 0.4, 0.1]], np.float32)  # cell row 1, col 1: class 0 conf 0.5
+    m = pj.project_voxels(coords, probs, np.zeros(2), 1.0, 2)
+    assert m.shape == (3, 2, 2)
+    np.testing.assert_allclose(m[0, 0, 0], 0.7, atol=1e-6)
+    np.testing.assert_allclose(m[1, 0, 0], 0.9, atol=1e-6)
+    np.testing.assert_allclose(m[2, 0, 1], 0.6, atol=1e-6)
+    np.testing.assert_allclose(m[0, 1, 1], 0.5, atol=1e-6)
+    assert m[1].sum() == np.float32(0.9) and m[2, 0, 0] == 0
+
+
+def test_backproject_and_obstacle_band():
+    k = np.array([[2.0, 0, 1.0], [0, 2.0, 1.0], [0, 0, 1]])
+    pose = np.eye(4)
+    depth = np.array([[1.0, 0.0, 2.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]], np.float32)
+    pts, pix = pj.backproject(depth, k, pose)
+    np.testing.assert_array_equal(pix, [0, 2])
+    np.testing.assert_allclose(pts, [[-0.5, -0.5, 1.0], [1.0, -1.0, 2.0]], atol=1e-6)
+    ob = pj.obstacle_points(np.array([[0, 0, 0.1], [0, 0, 0.5], [0, 0, 0.95]]), 0.25, 0.89)
+    np.testing.assert_array_equal(ob, [False, True, False])
+
+
+def test_incremental_fused_projection_matches_full_projection():
+    """Re-voting voxels by difference equals projecting the final votes from scratch."""
+    cfg = AgentConfig(map_size_m=2.0, cell_m=0.5)
+    state = MapState.empty(np.zeros(2), cfg, 3)
+    module = SemanticMapModule(cfg, 3, voxel_size_m=0.05)
+    rng = np.random.default_rng(0)
+    ijk = rng.integers(-15, 15, (40, 3))
+    ijk = np.unique(ijk, axis=0)
+
+    class FakeMap:
+        def __init__(self):
+            self.table = {}
+
+        def query(self, centres):
+            keys = [tuple(np.rint(c / 0.05).astype(int)) for c in centres]
+            return np.array([self.table[k] for k in keys], np.float32), np.ones(len(keys), bool)
+
+    fake = FakeMap()
+    for rnd in range(3):  # every round changes the fused probs of a subset of voxels
+        sub = ijk[rng.random(len(ijk)) < 0.6]
+        for v in sub:
+            p = rng.random(3)
+            fake.table[tuple(v)] = p / p.sum()
+        module._project_fused(state, sub * 0.05, fake)
+    keys = np.array(list(fake.table))
+    probs = np.array(list(fake.table.values()), np.float32)
+    ref = pj.project_voxels(keys * 0.05, probs, state.origin, cfg.cell_m, state.size)
+    np.testing.assert_allclose(state.semantic, ref, atol=1e-5)
+
+
+def test_voxel_votes_returns_replaced_entries():
+    votes = VoxelVotes()
+    keys = VoxelVotes.encode(np.array([[0, 0, 0], [1, -2, 3]]))
+    order = np.argsort(keys)
+    votes.update(keys[order], np.array([5, 6])[order], np.array([1, 2], np.int16)[order], np.array([0.5, 0.7], np.float32)[order])
+    old = votes.update(keys[:1], np.array([9]), np.array([4], np.int16), np.array([0.9], np.float32))
+    assert old[0].tolist() == [5] and old[1].tolist() == [1]
+    assert len(votes.keys) == 2
+
+
+def test_goal_detection_threshold_components_and_min_area():
+    conf = np.zeros((20, 20), np.float32)
+    conf[2:4, 2:4] = 0.95          # 4 cells
+    conf[10:14, 10:13] = 0.9       # 12 cells, the largest
+    conf[15, 15] = 0.99            # 1 cell
+    det = detect_goal(conf, 0.85, 4)
+    assert det.found and det.area == 12 and det.mask[10:14, 10:13].all() and not det.mask[2, 2]
+    assert not detect_goal(conf, 0.92, 5).found        # only the 4-cell and 1-cell components pass 0.92
+    assert detect_goal(conf, 0.92, 4).area == 4
+    assert not detect_goal(conf, 0.995, 1).found
+    excl = np.zeros_like(conf, bool)
+    excl[10:14, 10:13] = True
+    assert detect_goal(conf, 0.85, 4, exclude=excl).area == 4
+    mask, area = largest_component(np.zeros((5, 5), bool), 1)
+    assert area == 0 and not mask.any()
+
+
+def test_frontier_extraction_and_choice():
+    n = 60
+    explored = np.zeros((n, n), bool)
+    explored[10:50, 10:30] = True            # explored room; unknown beyond
+    trav = explored.copy()
+    trav[10:50, 20] = False                  # a wall with a door gap
+    trav[28:32, 20] = True
+    front = frontier_mask(explored, trav)
+    assert front[10:50, 29].all() and front[10, 15] and not front[30, 15]
+    cfg = AgentConfig(frontier_min_cells=3, frontier_size_weight_m=0.0, cell_m=0.05)
+    choice = choose_frontier(explored, trav, (30, 12), cfg)
+    assert choice is not None
+    r, c = choice.goal
+    assert choice.mask[r, c] and front[r, c]
+    # nearest frontier from (30, 12) is the left edge (col 10), not the far right edge
+    assert c == 10
+    excl = np.zeros_like(explored)
+    excl[:, :20] = True
+    assert choose_frontier(explored, trav, (30, 12), cfg, exclude=excl).goal[1] > 20
+
+
+def test_collision_marking_and_untrap():
+    cfg = AgentConfig()
+    pts = collision_points(np.array([1.0, 2.0]), 0.0, cfg)
+    assert (pts[:, 0] >= 1.0 + cfg.agent_radius_m - 1e-9).all()
+    assert (pts[:, 0] <= 1.0 + cfg.agent_radius_m + cfg.collision_mark_length_m + 1e-9).all()
+    assert np.abs(pts[:, 1] - 2.0).max() <= cfg.collision_mark_width_m / 2 + 1e-9
+    pts = collision_points(np.zeros(2), np.pi / 2, cfg)       # heading +y
+    assert (pts[:, 1] > 0).all()
+    assert is_collision(np.zeros(2), np.array([0.05, 0.0]), int(Action.MOVE_FORWARD), 0.2)
+    assert not is_collision(np.zeros(2), np.array([0.25, 0.0]), int(Action.MOVE_FORWARD), 0.2)
+    assert not is_collision(np.zeros(2), np.zeros(2), int(Action.TURN_LEFT), 0.2)
+    tracker = CollisionTracker(cfg)
+    for _ in range(cfg.untrap_after - 1):
+        tracker.observe(True)
+    assert tracker.next_action() is None
+    tracker.observe(True)
+    acts = [tracker.next_action() for _ in range(cfg.untrap_steps)]
+    assert acts[0] == Action.TURN_LEFT and Action.MOVE_FORWARD in acts and tracker.next_action() is None
+
+
+def test_map_module_marks_obstacles_and_explored_from_a_wall():
+    cfg = AgentConfig(map_size_m=8.0)
+    state = MapState.empty(np.zeros(2), cfg, 3)
+    module = SemanticMapModule(cfg, 3, voxel_size_m=0.05)
+    # camera at (0, 0, 0.88) looking along +x; a wall 2 m ahead fills the image
+    pose = np.eye(4)
+    pose[:3, :3] = np.array([[0, 0, 1], [-1, 0, 0], [0, -1, 0]])
+    pose[:3, 3] = [0, 0, 0.88]
+    k = np.array([[20.0, 0, 16], [0, 20.0, 12], [0, 0, 1]])
+    depth = np.full((24, 32), 2.0, np.float32)
+    probs = np.full((24, 32, 3), 1 / 3, np.float32)
+    module.update(state, depth, probs, k, pose)
+    obst = state.channels[MapChannels.OBSTACLE]
+    wall_col = state.to_cell(np.array([2.0, 0.0]), cfg.cell_m)[1]
+    assert obst[:, wall_col].any() and not obst[:, :wall_col - 1].any()
+    r0, c0 = state.to_cell(np.array([1.0, 0.0]), cfg.cell_m)
+    assert state.channels[MapChannels.EXPLORED][r0, c0]          # free ray in front of the wall
+    assert not state.channels[MapChannels.EXPLORED][r0, state.to_cell(np.array([3.0, 0.0]), cfg.cell_m)[1]]
+    assert state.traversable(cfg)[r0, c0]
+
+
+def test_ndf_projection_keeps_max_over_time_of_thresholded_detections():
+    cfg = AgentConfig(map_size_m=2.0, cell_m=0.5, ndf_pixel_threshold=0.6)
+    state = MapState.empty(np.zeros(2), cfg, 2)
+    module = SemanticMapModule(cfg, 2, voxel_size_m=0.05)
+    cells = np.array([0, 0, 1, 1])
+    inside = np.ones(4, bool)
+    module._project_ndf(state, np.array([[0.9, 0.1], [0.7, 0.3], [0.55, 0.45], [0.2, 0.8]]), cells, inside)
+    sem = state.semantic.reshape(2, -1)
+    np.testing.assert_allclose(sem[0, 0], 0.8)          # mean of 0.9 and 0.7
+    assert sem[0, 1] == 0 and np.isclose(sem[1, 1], 0.8)  # 0.55 below the pixel threshold
+    module._project_ndf(state, np.array([[0.65, 0.35]]), cells[:1], inside[:1])
+    np.testing.assert_allclose(sem[0, 0], 0.8)          # max over time: a lower frame does not lower it
