@@ -15,8 +15,8 @@ from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
-from envs.furniture import (Model, bathtub, bed, cabinet, chair, counter, desk, plant, shelf, sink, sofa, stool,
-                            table, toilet, tv)
+from envs.furniture import (bathtub, bed, cabinet, chair, counter, desk, plant, shelf, sink, sofa, stool, table, toilet, tv)
+from envs.furniture_parts import Model
 from envs.primitives import MeshBuilder
 from envs.scene import Room
 

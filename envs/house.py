@@ -28,7 +28,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from envs.furniture import METAL, WOOD, colour
+from envs.furniture_parts import METAL, WOOD, colour
 from envs.furnish import ROOM_RECIPES, emit_group, find_pose
 from envs.primitives import MeshBuilder, box_mesh
 from envs.scene import Room, Scene, Texture
