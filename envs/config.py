@@ -14,6 +14,7 @@ class DatasetConfig:
     train_scenes: int = 100          # number of procedural houses in the train split
     val_scenes: int = 30             # houses in the val split
     test_scenes: int = 30            # houses in the test split
+    calib_scenes: int = 100          # houses of the map-calibration study (calnav calibrate-map), disjoint seeds
     episodes_per_scene: int = 20     # ObjectNav episodes generated per house
     seed: int = 0                    # base seed; split seeds are derived from it, disjoint
     min_geodesic_m: float = 1.0      # shortest allowed start-to-goal geodesic distance, metres

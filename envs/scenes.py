@@ -6,7 +6,9 @@ Procedural scenes (``DatasetConfig.scene_dir == ""``)
 
         scene_seed = BASE_SEED_STRIDE * base_seed + SPLIT_BLOCK * rank(split) + index
 
-    with rank train = 1, val = 2, test = 3, ``SPLIT_BLOCK`` = 1,000,000 and
+    with rank calib = 0, train = 1, val = 2, test = 3 (``calib``: the houses of the
+    map-calibration study, which must be seen neither by segmenter training nor by ObjectNav
+    episodes), ``SPLIT_BLOCK`` = 1,000,000 and
     ``BASE_SEED_STRIDE`` = 4,000,000: the splits draw from disjoint seed ranges, and so do
     different ``DatasetConfig.seed`` values (base seeds >= 0). Generated houses are cached at
     ``cache_dir()/scenes/<id>_<key>.npz``, ``key`` a hash of the seed, the ``HouseSpec`` and
@@ -39,11 +41,12 @@ from envs.house import HouseSpec, generate_house
 from envs.scan import load_labelled_ply
 from envs.scene import Scene, SceneError, cache_dir
 
-SPLITS = ("train", "val", "test")
+SPLITS = ("train", "val", "test", "calib")
+SPLIT_RANK = {"calib": 0, "train": 1, "val": 2, "test": 3}  # seed block of each split
 SPLIT_BLOCK = 1_000_000                     # seeds per split block (max scenes per split)
 BASE_SEED_STRIDE = 4 * SPLIT_BLOCK          # seed distance between consecutive base seeds
 LRU_SIZE = 4                                # scenes kept in memory
-_ID_RE = re.compile(r"^house_(train|val|test)_(\d+)$")
+_ID_RE = re.compile(r"^house_(train|val|test|calib)_(\d+)$")
 _lru: OrderedDict[tuple, Scene] = OrderedDict()
 
 
@@ -74,7 +77,7 @@ def scene_seed(scene_id: str, base_seed: int = 0) -> int:
     split, index = parse_scene_id(scene_id)
     if base_seed < 0:
         raise ValueError(f"base seed must be >= 0, got {base_seed}")
-    return BASE_SEED_STRIDE * int(base_seed) + SPLIT_BLOCK * (SPLITS.index(split) + 1) + index
+    return BASE_SEED_STRIDE * int(base_seed) + SPLIT_BLOCK * SPLIT_RANK[split] + index
 
 
 # ------------------------------------------------------------------------- user scenes
@@ -148,7 +151,7 @@ def _load_user_scene(path: Path) -> Scene:
 
 # --------------------------------------------------------------------------------- api
 def split_scene_ids(split: str, dataset_cfg: DatasetConfig | None = None) -> list[str]:
-    """The scene ids of ``split`` ("train" | "val" | "test") under ``dataset_cfg``."""
+    """The scene ids of ``split`` ("train" | "val" | "test" | "calib") under ``dataset_cfg``."""
     _check_split(split)
     cfg = dataset_cfg or DatasetConfig()
     if cfg.scene_dir:

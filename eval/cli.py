@@ -57,6 +57,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--frames", type=int, default=500, help="number of frames scored")
     p.add_argument("--output", default=None, help="metrics JSON path (default: print only)")
 
+    p = sub.add_parser("calibrate-map", help="the map-calibration study: fusion strategies x calibration methods, "
+                                             "results.csv / results.md / plots")
+    _add_config_args(p, "configs/calibrate_map.yaml")
+    p.add_argument("--quick", action="store_true", help="small preset (3/1/3 houses, short fits), <= 5 minutes")
+    p.add_argument("--output", default=None, help="results directory (default: run.output_dir)")
+    p.add_argument("--force", action="store_true", help="discard results of a different config in --output")
+
+    p = sub.add_parser("fit-glfs", help="record calibration scans and train GLFS parameters for one segmenter")
+    _add_config_args(p, "configs/calibrate_map.yaml")
+    p.add_argument("--segmenter", required=True, help="segmenter whose observations GLFS is fitted to")
+    p.add_argument("--output", required=True, help="GLFS parameter file (.json / .npz) for mapping.glfs_params")
+    p.add_argument("--work-dir", default=None, help="where scans are kept (default: run.output_dir)")
+
     p = sub.add_parser("demo", help="set-up check + a real ObjectNav evaluation on procedural houses")
     p.add_argument("--episodes", type=int, default=5, help="number of val episodes")
     p.add_argument("--output", default="runs/demo", help="results directory")
@@ -87,6 +100,14 @@ def main(argv: list[str] | None = None) -> int:
             from eval.eval_segmenter import main_eval_segmenter
 
             main_eval_segmenter(args)
+        elif args.command == "calibrate-map":
+            from eval.calibrate_map import main_calibrate_map
+
+            main_calibrate_map(args)
+        elif args.command == "fit-glfs":
+            from eval.calibrate_map import main_fit_glfs
+
+            main_fit_glfs(args)
         elif args.command == "demo":
             from eval.demo import main_demo
 

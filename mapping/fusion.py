@@ -217,3 +217,40 @@ def fuse(logits: torch.Tensor, strategy: str | Strategy, *, mask: torch.Tensor |
     inc = strat.increments(ObservationTerms(z, mu), w)
     acc = {name: v.sum(dim=1) for name, v in inc.items()}
     return strat.readout(acc, g=g_t, eps=eps_t)
+
+
+def fuse_flat(logits: torch.Tensor, voxel: torch.Tensor, num_voxels: int, strategy: str | Strategy, *,
+              weights: torch.Tensor | None = None, temperature=1.0, g=None, eps=None,
+              mu: float = LAPLACE_MU) -> torch.Tensor:
+    """Fusion of a flat list of observations -> probs (num_voxels, K): the same accumulators as
+    ``fuse`` summed with ``index_add`` instead of over a padded T axis, so memory and time follow
+    the number of observations (no padding to the busiest voxel). Differentiable like ``fuse``.
+
+    logits: (n, K) float raw logits; voxel: (n,) int64 voxel index in [0, num_voxels) of each
+    observation; weights: (n,) >= 0 or None (= 1). A voxel without observations reads uniform.
+    """
+    strat = get_strategy(strategy)
+    if not isinstance(logits, torch.Tensor) or logits.ndim != 2 or not logits.is_floating_point():
+        desc = f"{tuple(logits.shape)} {logits.dtype}" if isinstance(logits, torch.Tensor) else type(logits).__name__
+        raise ValueError(f"logits must be a float (n, K) tensor, got {desc}")
+    n, k = logits.shape
+    if k < 2:
+        raise ValueError(f"need at least 2 classes, got K = {k}")
+    if voxel.shape != (n,) or voxel.dtype != torch.int64:
+        raise ValueError(f"voxel must be an int64 (n,) = ({n},) tensor, got {tuple(voxel.shape)} {voxel.dtype}")
+    if n and (int(voxel.min()) < 0 or int(voxel.max()) >= num_voxels):
+        raise ValueError(f"voxel indices must be in [0, {num_voxels})")
+    dtype, device = logits.dtype, logits.device
+    g_t, eps_t = check_gates(strat, g, eps, dtype, device)
+    tau = as_temperature(temperature, k, dtype=dtype, device=device)
+    w = torch.ones(n, dtype=dtype, device=device) if weights is None else weights.to(dtype)
+    if w.shape != (n,):
+        raise ValueError(f"weights must have shape (n,) = ({n},), got {tuple(w.shape)}")
+    z = scale_logits(logits, tau)
+    with torch.no_grad():
+        if not bool(torch.isfinite(z).all()) or not bool(torch.isfinite(w).all()) or bool((w < 0).any()):
+            raise ValueError("logits must be finite and weights finite and >= 0")
+    inc = strat.increments(ObservationTerms(z, mu), w)
+    acc = {name: torch.zeros((num_voxels, v.shape[-1]), dtype=dtype, device=device).index_add(0, voxel, v)
+           for name, v in inc.items()}
+    return strat.readout(acc, g=g_t, eps=eps_t)

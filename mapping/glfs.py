@@ -20,6 +20,7 @@ import torch
 from mapping.weighting import ANGLE_EDGES_DEG, DISTANCE_EDGES_M
 
 FORMAT_VERSION = 1
+REPO_ROOT = Path(__file__).resolve().parents[1]
 
 
 @dataclass
@@ -109,7 +110,12 @@ class GLFSParams:
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> "GLFSParams":
+        """Read a params file; a relative path that does not exist from the working directory is
+        also looked up from the repository root (so configs can name shipped files such as
+        ``agent/weights/glfs_learned_rgb.json``)."""
         path = Path(path)
+        if not path.exists() and not path.is_absolute() and (REPO_ROOT / path).exists():
+            path = REPO_ROOT / path
         if not path.exists():
             raise ValueError(f"GLFS params file not found: {path}")
         try:

@@ -1,6 +1,7 @@
 """Accuracy and calibration metrics of probabilistic classifications (paper Sec. III-C,
 REFERENCE.md Sec. 4): ``accuracy``, ``miou`` / ``per_class_iou``, ``ece``, ``tl_ece``,
-``mece``, ``brier``.
+``mece``, ``brier``; ``reliability`` returns a ``ReliabilityTable`` (per-bin data for
+reliability diagrams, see ``eval/calib_plots.py``).
 
 Every function takes ``probs`` (N, K) float (rows are probability vectors) and ``labels`` (N,)
 int class ids, plus ``n_bins`` (calibration bins; accepted and ignored by the non-binned
@@ -34,6 +35,7 @@ streaming evaluation (update frame by frame, read every metric at the end).
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Iterable
 
 import numpy as np
@@ -42,6 +44,40 @@ DEFAULT_BINS = 10          # the paper's bin count
 CHUNK_ROWS = 1 << 16       # rows processed per pass (temporaries ~CHUNK_ROWS * K * 8 B = 9 MiB at K = 18)
 SUM_TOLERANCE = 1e-2       # |row sum - 1| allowed (fp16 softmax outputs sum to 1 within ~1e-3)
 PRESENT_CHOICES = ("labels", "either")
+
+
+@dataclass(frozen=True, eq=False)
+class ReliabilityTable:
+    """Reliability-diagram data (``CalibrationStats.reliability``). B = n_bins, K = classes.
+
+    edges (B + 1,) float64 bin edges on top-label confidence (0 .. 1, equal width).
+    count (B,) int64 samples per bin. accuracy / confidence (B,) float64 fraction correct /
+    mean top-label confidence per bin (NaN for empty bins).
+    class_count (K, B) int64, class_accuracy / class_confidence (K, B) float64: the same,
+    restricted to samples whose *ground-truth* label is the class (mECE's conditioning; NaN
+    where empty). ece / mece: the scalar metrics (float, NaN without samples).
+    """
+    edges: np.ndarray
+    count: np.ndarray
+    accuracy: np.ndarray
+    confidence: np.ndarray
+    class_count: np.ndarray
+    class_accuracy: np.ndarray
+    class_confidence: np.ndarray
+    ece: float
+    mece: float
+
+    @property
+    def centers(self) -> np.ndarray:
+        """(B,) bin centres."""
+        return 0.5 * (self.edges[:-1] + self.edges[1:])
+
+    def class_ece(self) -> np.ndarray:
+        """(K,) within-class ECE (NaN for classes without samples)."""
+        n_c = self.class_count.sum(axis=1).astype(np.float64)
+        gap = np.nansum(self.class_count * np.abs(self.class_accuracy - self.class_confidence), axis=1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(n_c > 0, gap / np.maximum(n_c, 1.0), np.nan)
 
 
 class CalibrationStats:
@@ -163,10 +199,29 @@ class CalibrationStats:
             iou = iou[ids]
         return float(np.nanmean(iou)) if np.isfinite(iou).any() else float("nan")
 
+    def reliability(self) -> ReliabilityTable:
+        """Per-bin count / accuracy / mean confidence, overall and per ground-truth class
+        (see ``ReliabilityTable`` for shapes; empty bins are NaN)."""
+        correct = self._correct()                                            # (n_bins, K)
+        count = self.count.sum(axis=(1, 2))                                  # (n_bins,)
+        class_count = self.count.sum(axis=1).T.copy()                        # (K_true, n_bins)
+        class_conf = self.conf_sum.sum(axis=1).T                             # (K_true, n_bins)
+        return ReliabilityTable(
+            edges=np.linspace(0.0, 1.0, self.n_bins + 1),
+            count=count, accuracy=_ratio(correct.sum(axis=1), count),
+            confidence=_ratio(self.conf_sum.sum(axis=(1, 2)), count),
+            class_count=class_count, class_accuracy=_ratio(correct.T, class_count),
+            class_confidence=_ratio(class_conf, class_count), ece=self.ece(), mece=self.mece())
+
     def summary(self) -> dict[str, float]:
         """All scalar metrics in one dict."""
         return {"accuracy": self.accuracy(), "miou": self.miou(), "ece": self.ece(), "tl_ece": self.tl_ece(),
                 "mece": self.mece(), "brier": self.brier(), "n": float(self.n)}
+
+
+def _ratio(num: np.ndarray, den: np.ndarray) -> np.ndarray:
+    """num / den as float64, NaN where den == 0 (no warnings)."""
+    return np.where(den > 0, num / np.maximum(den, 1), np.nan).astype(np.float64)
 
 
 # ------------------------------------------------------------------------- validation
@@ -248,3 +303,8 @@ def miou(probs, labels, n_bins: int = DEFAULT_BINS, ignore_index: int | None = N
          classes: Iterable[int] | None = None, present: str = "labels") -> float:
     """Mean IoU over present classes (optionally restricted to ``classes``; n_bins unused)."""
     return _stats(probs, labels, n_bins, ignore_index).miou(classes, present)
+
+
+def reliability(probs, labels, n_bins: int = DEFAULT_BINS, ignore_index: int | None = None) -> ReliabilityTable:
+    """Reliability-diagram data: per-bin counts, accuracy and confidence (overall and per class)."""
+    return _stats(probs, labels, n_bins, ignore_index).reliability()

@@ -48,9 +48,9 @@ def isolated_cache(tmp_path, monkeypatch):
 def test_ids_round_trip_and_split_lists():
     assert procedural_scene_id("val", 3) == "house_val_0003"
     assert parse_scene_id("house_test_0042") == ("test", 42)
-    cfg = DatasetConfig(train_scenes=5, val_scenes=3, test_scenes=2)
+    cfg = DatasetConfig(train_scenes=5, val_scenes=3, test_scenes=2, calib_scenes=4)
     assert split_scene_ids("train", cfg) == [f"house_train_{i:04d}" for i in range(5)]
-    assert [len(split_scene_ids(s, cfg)) for s in SPLITS] == [5, 3, 2]
+    assert [len(split_scene_ids(s, cfg)) for s in SPLITS] == [5, 3, 2, 4]
     assert len(split_scene_ids("val")) == DatasetConfig().val_scenes
 
 
@@ -64,6 +64,7 @@ def test_seeds_are_disjoint_across_splits_and_base_seeds():
                 assert seed not in seen, f"{(base, split, i)} collides with {seen[seed]}"
                 seen[seed] = (base, split, i)
     assert scene_seed("house_train_0000") == 1_000_000 and scene_seed("house_val_0005", 1) == 4_000_000 + 2_000_005
+    assert scene_seed("house_calib_0003") == 3
 
 
 @pytest.mark.parametrize("bad", ["house_dev_0001", "house_val_x", "val_0001", "", "house_val_0003.npz"])

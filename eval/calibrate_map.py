@@ -1,0 +1,254 @@
+"""``calnav calibrate-map``: the paper's map-calibration study as one resumable command.
+
+Stages (each writes its results before the next starts; a rerun skips finished work):
+
+1. record  -- scan every calibration-train / -validation / test house, segment each frame with
+   every segmenter, keep the voxel observation caches and a pixel sample
+   (``eval.calib_record``): ``<out>/scenes/<segmenter>/<scene>.{cache,pixels}.npz``.
+2. fit     -- per segmenter, on calibration-train houses: 2D temperature (pixel NLL), 3D
+   temperature and 3D vector scaling per strategy (voxel mECE of the fused map), and GLFS
+   (early-stopped on calibration-validation houses): ``<out>/fits/<segmenter>/``.
+3. score   -- per segmenter and test house, the calibration statistics of every
+   (strategy, calibration) map: ``<out>/scores/<segmenter>/<scene>.npz``.
+4. report  -- ``results.csv``, ``results.md``, calibration-vs-accuracy and reliability plots
+   (``eval.calib_report``).
+
+Rows: every strategy x calibration method (``none``, ``temperature_2d``, ``temperature_3d``,
+``vector_3d``) for the fixed strategies; GLFS appears once, with calibration ``learned`` (GLFS
+with untrained identity parameters is naive averaging, already a row).
+"""
+from __future__ import annotations
+
+import json
+import shutil
+import zlib
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from eval.calib_config import CalibrateMapConfig
+from eval.calib_record import ROLES, load_role, record_scene, role_scene_ids
+from eval.config import ConfigError, dump_yaml, load_config
+from mapping import metrics
+from mapping.calibration_fit import MapObjective, fit_temperature_2d, fit_temperature_3d, fit_vector_3d
+from mapping.flat_obs import FlatObservations
+from mapping.glfs import GLFSParams
+from mapping.glfs_train import GLFSModel, train_glfs
+
+QUICK_OVERRIDES = (   # --quick: a <= 5 minute smoke run of the whole pipeline on 2 cores
+    "study.calib_train_scenes=3", "study.calib_val_scenes=1", "study.test_scenes=3", "scan.frames=200",
+    "study.fit_max_voxels=8000", "study.grid_points=11", "study.refine_iters=5", "study.vector_sweeps=1",
+    "study.vector_refine_iters=3", "study.glfs_max_voxels=20000", "glfs.epochs=4", "glfs.patience=2",
+)
+
+
+def methods(cfg: CalibrateMapConfig) -> list[tuple[str, str]]:
+    """(strategy, calibration) pairs of the study, in table order."""
+    out = []
+    for s in cfg.study.strategies:
+        out += [(s, "learned")] if s == "glfs" else [(s, c) for c in cfg.study.calibrations]
+    return out
+
+
+def scene_seed(scene_id: str, base: int) -> int:
+    """Per-house trajectory seed (stable across runs and house lists)."""
+    return (zlib.crc32(scene_id.encode()) + 7919 * base) % (2 ** 31)
+
+
+# ------------------------------------------------------------------------------- fit
+class Fits:
+    """The fitted parameters of one segmenter, saved as they are produced (``fits.json`` +
+    ``glfs.json``) so an interrupted run resumes after the last finished fit."""
+
+    def __init__(self, folder: Path):
+        self.folder = folder
+        self.path = folder / "fits.json"
+        self.data = json.loads(self.path.read_text()) if self.path.exists() else {}
+
+    def get(self, key: str):
+        return self.data.get(key)
+
+    def put(self, key: str, value) -> None:
+        self.data[key] = value
+        self.folder.mkdir(parents=True, exist_ok=True)
+        tmp = self.path.with_suffix(".tmp")
+        tmp.write_text(json.dumps(self.data, indent=1))
+        tmp.replace(self.path)
+
+    @property
+    def glfs_path(self) -> Path:
+        return self.folder / "glfs.json"
+
+    def temperature(self, strategy: str, calibration: str):
+        """The logit temperature (float or (K,) list) a (strategy, calibration) row uses."""
+        if calibration == "none":
+            return 1.0
+        if calibration == "temperature_2d":
+            return self.data["temperature_2d"]["temperature"]
+        if calibration == "learned":
+            return GLFSParams.load(self.glfs_path).tau.tolist()
+        return self.data[f"{calibration}/{strategy}"]["temperature"]
+
+
+def fit_segmenter(cfg: CalibrateMapConfig, out: Path, segmenter: str, ids: dict[str, list[str]],
+                  progress: bool = True) -> Fits:
+    from tqdm import tqdm
+
+    st = cfg.study
+    fits = Fits(out / "fits" / segmenter)
+    caches, pix_logits, pix_labels = load_role(out, segmenter, ids["calib_train"])
+    if fits.get("temperature_2d") is None and "temperature_2d" in st.calibrations:
+        r = fit_temperature_2d(pix_logits, pix_labels)
+        fits.put("temperature_2d", {"temperature": r.temperature, "nll": r.objective, "pixels": int(len(pix_labels))})
+    fixed = [s for s in st.strategies if s != "glfs"]
+    todo = [(c, s) for c in ("temperature_3d", "vector_3d") if c in st.calibrations for s in fixed
+            if fits.get(f"{c}/{s}") is None]
+    if todo:
+        flat = FlatObservations.from_caches(caches, max_voxels=st.fit_max_voxels, seed=cfg.run.seed)
+        for c, s in tqdm(todo, desc=f"fit 3D scaling ({segmenter})", unit="fit", disable=not progress):
+            if c == "temperature_3d":
+                r = fit_temperature_3d(flat, s, grid_points=st.grid_points, refine_iters=st.refine_iters)
+            else:
+                init = fits.get(f"temperature_3d/{s}")
+                init = init["temperature"] if init else fit_temperature_3d(flat, s, grid_points=st.grid_points,
+                                                                         refine_iters=st.refine_iters).temperature
+                r = fit_vector_3d(flat, s, init=init, sweeps=st.vector_sweeps, refine_iters=st.vector_refine_iters)
+            t = r.temperature.tolist() if isinstance(r.temperature, np.ndarray) else r.temperature
+            fits.put(f"{c}/{s}", {"temperature": t, "mece_fit": r.objective, "mece_tau1": MapObjective(flat, s)(1.0),
+                                  "evaluations": r.evaluations, "flat": r.flat, "voxels": flat.num_voxels})
+        del flat
+    if "glfs" in st.strategies and not fits.glfs_path.exists():
+        train = FlatObservations.from_caches(caches, max_voxels=st.glfs_max_voxels, seed=cfg.run.seed)
+        val = FlatObservations.from_caches(load_role(out, segmenter, ids["calib_val"])[0],
+                                           max_voxels=st.glfs_max_voxels, seed=cfg.run.seed)
+        params, hist = train_glfs(train, val, cfg.glfs, class_names=caches[0].class_names, progress=progress)
+        fits.put("glfs", {"train_loss": hist.train_loss, "val_loss": hist.val_loss, "best_epoch": hist.best_epoch,
+                          "stopped_early": hist.stopped_early, "g": params.g, "eps": params.eps,
+                          "train_voxels": train.num_voxels, "val_voxels": val.num_voxels})
+        params.save(fits.glfs_path)
+    return fits
+
+
+# ----------------------------------------------------------------------------- score
+def _stats_arrays(stats: metrics.CalibrationStats) -> dict[str, np.ndarray]:
+    return {"count": stats.count, "conf_sum": stats.conf_sum, "brier_sum": np.array(stats.brier_sum)}
+
+
+def score_scene(cfg: CalibrateMapConfig, out: Path, segmenter: str, scene_id: str, fits: Fits) -> Path:
+    """Calibration statistics of every (strategy, calibration) map of one test house."""
+    path = out / "scores" / segmenter / f"{scene_id}.npz"
+    if path.exists():
+        return path
+    caches, _, _ = load_role(out, segmenter, [scene_id])
+    flat = FlatObservations.from_caches(caches)
+    labels = flat.labels.numpy()
+    arrays = {}
+    for strategy, calibration in methods(cfg):
+        with torch.no_grad():
+            if strategy == "glfs":
+                probs = GLFSModel.from_params(GLFSParams.load(fits.glfs_path))(flat).numpy()
+            else:
+                probs = MapObjective(flat, strategy).probs(np.asarray(fits.temperature(strategy, calibration), np.float32))
+        stats = metrics.CalibrationStats(flat.num_classes).update(probs, labels)
+        for k, v in _stats_arrays(stats).items():
+            arrays[f"{strategy}/{calibration}/{k}"] = v
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp.npz")
+    np.savez_compressed(tmp, n_voxels=np.array(flat.num_voxels), **arrays)
+    tmp.replace(path)
+    return path
+
+
+def merged_stats(cfg: CalibrateMapConfig, paths: list[Path], num_classes: int) -> dict[tuple[str, str], metrics.CalibrationStats]:
+    out = {m: metrics.CalibrationStats(num_classes) for m in methods(cfg)}
+    for p in paths:
+        with np.load(p) as d:
+            for (s, c), st in out.items():
+                st.count += d[f"{s}/{c}/count"]
+                st.conf_sum += d[f"{s}/{c}/conf_sum"]
+                st.brier_sum += float(d[f"{s}/{c}/brier_sum"])
+    return out
+
+
+def pixel_mece(logits: np.ndarray, labels: np.ndarray, temperature) -> float:
+    z = torch.from_numpy(logits) / torch.as_tensor(np.asarray(temperature, np.float32))
+    return metrics.mece(torch.softmax(z, dim=1).numpy(), labels)
+
+
+# ------------------------------------------------------------------------------- run
+def _check_output(out: Path, cfg_text: str, force: bool) -> None:
+    saved = out / "config.yaml"
+    if saved.exists() and saved.read_text() != cfg_text:
+        if not force:
+            raise ValueError(f"{out} holds results of a different config ({saved}); rerun with --force to discard "
+                             "them or pass another --output")
+        for sub in ("scenes", "fits", "scores"):
+            shutil.rmtree(out / sub, ignore_errors=True)
+    out.mkdir(parents=True, exist_ok=True)
+    saved.write_text(cfg_text)
+
+
+def run_calibrate_map(cfg: CalibrateMapConfig, out: Path, force: bool = False, progress: bool = True) -> list[dict]:
+    """Run (or resume) the whole study; returns the result rows (also written to ``out``)."""
+    from tqdm import tqdm
+
+    from agent.segmenters import make_segmenter
+    from eval.calib_report import write_report
+
+    _check_output(out, dump_yaml(cfg), force)
+    ids = role_scene_ids(cfg)
+    for role in ROLES:
+        if not ids[role]:
+            raise ValueError(f"no {role} houses (check study.*_scenes and env.dataset.scene_dir)")
+    segs = {n: make_segmenter(n, device=cfg.run.device) for n in cfg.study.segmenters}
+    houses = [sid for role in ROLES for sid in ids[role]]
+    for sid in tqdm(houses, desc="record scans", unit="house", disable=not progress):
+        record_scene(cfg, sid, segs, out, scene_seed(sid, cfg.run.seed))
+    rows, all_stats = [], {}
+    for name in cfg.study.segmenters:
+        fits = fit_segmenter(cfg, out, name, ids, progress)
+        paths = [score_scene(cfg, out, name, sid, fits)
+                 for sid in tqdm(ids["test"], desc=f"score test maps ({name})", unit="house", disable=not progress)]
+        k = segs[name].num_classes
+        stats = merged_stats(cfg, paths, k)
+        _, pix_logits, pix_labels = load_role(out, name, ids["test"])
+        n_vox = sum(int(np.load(p)["n_voxels"]) for p in paths)
+        for (s, c), st in stats.items():
+            rows.append({"segmenter": name, "strategy": s, "calibration": c, "miou": st.miou(), "ece": st.ece(),
+                         "tl_ece": st.tl_ece(), "mece": st.mece(), "brier": st.brier(),
+                         "pixel_mece": pixel_mece(pix_logits, pix_labels, fits.temperature(s, c)), "n_voxels": n_vox})
+        all_stats[name] = stats
+        write_report(out, rows, all_stats, segs[name].class_names)
+    return rows
+
+
+def main_calibrate_map(args) -> None:
+    overrides = (list(QUICK_OVERRIDES) if args.quick else []) + list(args.overrides)
+    cfg = load_config(args.config, overrides, cls=CalibrateMapConfig)
+    out = Path(args.output or (cfg.run.output_dir + "_quick" if args.quick else cfg.run.output_dir))
+    rows = run_calibrate_map(cfg, out, force=args.force)
+    from eval.calib_report import format_table
+
+    print(format_table(rows))
+    print(f"\nresults: {out / 'results.csv'}, {out / 'results.md'}, plots in {out}")
+
+
+def main_fit_glfs(args) -> None:
+    """Record the calibration-train / -validation scans of one segmenter and train GLFS."""
+    from tqdm import tqdm
+
+    from agent.segmenters import make_segmenter
+
+    cfg = load_config(args.config, [*args.overrides, f"study.segmenters=[{args.segmenter}]", "study.strategies=[glfs]"],
+                      cls=CalibrateMapConfig)
+    work = Path(args.work_dir or cfg.run.output_dir)
+    _check_output(work, dump_yaml(cfg), force=False)
+    ids = role_scene_ids(cfg)
+    segs = {args.segmenter: make_segmenter(args.segmenter, device=cfg.run.device)}
+    for sid in tqdm(ids["calib_train"] + ids["calib_val"], desc="record scans", unit="house"):
+        record_scene(cfg, sid, segs, work, scene_seed(sid, cfg.run.seed))
+    fits = fit_segmenter(cfg, work, args.segmenter, ids)
+    params = GLFSParams.load(fits.glfs_path)
+    dest = params.save(args.output)
+    print(f"GLFS parameters: tau mean {params.tau.mean():.3f}, G {params.g:.3f}, eps {params.eps:.3f} -> {dest}")

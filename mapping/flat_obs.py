@@ -1,0 +1,111 @@
+"""Labelled voxel observations in flat (CSR) form, the input of 3D calibration fitting, GLFS
+training and map evaluation: every observation of every labelled voxel of one or more
+observation caches (``mapping.obs_cache``), concatenated.
+
+Fusion over them is ``mapping.fusion.fuse_flat`` (index_add over the voxel axis), so the cost
+follows the number of observations, not the busiest voxel.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Iterable, Sequence
+
+import numpy as np
+import torch
+
+from mapping.obs_cache import ObsCache
+
+
+@dataclass
+class FlatObservations:
+    """logits (n, K) float32; voxel (n,) int64 index of each observation's voxel, sorted;
+    distance_m (n,) metres; angle_deg (n,) degrees; weight (n,) per-observation weight given
+    while mapping (ones if none); labels (N,) int64 ground-truth class per voxel (>= 0)."""
+
+    logits: torch.Tensor
+    voxel: torch.Tensor
+    distance_m: torch.Tensor
+    angle_deg: torch.Tensor
+    weight: torch.Tensor
+    labels: torch.Tensor
+
+    @property
+    def num_voxels(self) -> int:
+        return int(self.labels.shape[0])
+
+    @property
+    def num_classes(self) -> int:
+        return int(self.logits.shape[1])
+
+    def __len__(self) -> int:
+        return int(self.logits.shape[0])
+
+    @classmethod
+    def from_caches(cls, caches: Iterable[ObsCache], max_voxels: int | None = None, seed: int = 0,
+                    ignore_index: int = -1) -> "FlatObservations":
+        """All labelled voxels (label != ``ignore_index``) of ``caches`` (each must have labels,
+        see ``ObsCache.label_from_mesh``); with ``max_voxels``, a seeded uniform subset of them."""
+        parts, k = [], None
+        for i, cache in enumerate(caches):
+            if cache.labels is None:
+                raise ValueError(f"observation cache {i} has no ground-truth labels; call label_from_mesh first")
+            if k is not None and cache.num_classes != k:
+                raise ValueError(f"caches disagree on the number of classes ({k} vs {cache.num_classes})")
+            k = cache.num_classes
+            csr = cache._require()
+            labels = cache.labels
+            keep = np.flatnonzero(labels != ignore_index)
+            off = csr["offsets"]
+            counts = (off[keep + 1] - off[keep])
+            keep, counts = keep[counts > 0], counts[counts > 0]
+            obs = np.repeat(off[keep], counts) + (np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts))
+            parts.append(dict(
+                logits=csr["logits"][obs], counts=counts, labels=labels[keep],
+                distance=csr["distance"][obs], angle=csr["angle"][obs],
+                weight=csr["weight"][obs] if "weight" in csr else np.ones(len(obs), np.float32)))
+        if not parts or sum(len(p["labels"]) for p in parts) == 0:
+            raise ValueError("no labelled voxel observations: the caches are empty or every voxel is void")
+        cat = {name: np.concatenate([p[name] for p in parts]) for name in parts[0]}
+        flat = cls._build(cat, k)
+        if max_voxels is not None and flat.num_voxels > max_voxels:
+            ids = np.sort(np.random.default_rng(seed).choice(flat.num_voxels, max_voxels, replace=False))
+            flat = flat.subset(ids)
+        return flat
+
+    @classmethod
+    def _build(cls, cat: dict[str, np.ndarray], k: int) -> "FlatObservations":
+        voxel = np.repeat(np.arange(len(cat["counts"])), cat["counts"])
+        t = lambda a, dt: torch.from_numpy(np.ascontiguousarray(a)).to(dt)  # noqa: E731
+        logits = t(cat["logits"], torch.float32)
+        if not bool(torch.isfinite(logits).all()):
+            raise ValueError("observation logits contain NaN or inf")
+        labels = t(cat["labels"], torch.int64)
+        if len(labels) and (int(labels.min()) < 0 or int(labels.max()) >= k):
+            raise ValueError(f"voxel labels must be class ids in [0, {k}) (void excluded)")
+        return cls(logits, t(voxel, torch.int64), t(cat["distance"], torch.float32), t(cat["angle"], torch.float32),
+                   t(cat["weight"], torch.float32), labels)
+
+    def offsets(self) -> np.ndarray:
+        """(N + 1,) start of each voxel's observations."""
+        counts = np.bincount(self.voxel.numpy(), minlength=self.num_voxels)
+        return np.concatenate([[0], np.cumsum(counts)])
+
+    def subset(self, voxel_ids: Sequence[int] | np.ndarray) -> "FlatObservations":
+        """The voxels ``voxel_ids`` (renumbered 0..len-1 in the given order) and their observations."""
+        ids = np.asarray(voxel_ids, dtype=np.int64)
+        off = self.offsets()
+        counts = off[ids + 1] - off[ids]
+        obs = torch.from_numpy(np.repeat(off[ids], counts) + (np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)))
+        voxel = torch.from_numpy(np.repeat(np.arange(len(ids)), counts))
+        return FlatObservations(self.logits[obs], voxel, self.distance_m[obs], self.angle_deg[obs],
+                                self.weight[obs], self.labels[torch.from_numpy(ids)])
+
+    def batches(self, batch_voxels: int, rng: np.random.Generator) -> Iterable["FlatObservations"]:
+        """Shuffled voxel mini-batches covering every voxel once."""
+        order = rng.permutation(self.num_voxels)
+        for s in range(0, len(order), batch_voxels):
+            yield self.subset(np.sort(order[s:s + batch_voxels]))
+
+    def class_frequency(self) -> np.ndarray:
+        """(K,) fraction of voxels per ground-truth class."""
+        return np.bincount(self.labels.numpy(), minlength=self.num_classes) / max(self.num_voxels, 1)

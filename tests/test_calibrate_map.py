@@ -1,0 +1,84 @@
+"""`calnav calibrate-map` / `calnav fit-glfs` end to end on a tiny study (the e2e marker: `make
+test` runs it with 1 + 1 + 1 houses and short scans)."""
+from __future__ import annotations
+
+import csv
+import json
+import math
+
+import numpy as np
+import pytest
+
+from conftest import small_or_full
+from eval.cli import main
+
+pytestmark = pytest.mark.e2e
+
+FRAMES = small_or_full(40, 300)
+TINY = [
+    "study.segmenters=[learned_rgb]", "study.strategies=[rbu,histogram,glfs]",
+    "study.calib_train_scenes=1", "study.calib_val_scenes=1", "study.test_scenes=1", f"scan.frames={FRAMES}",
+    "study.fit_max_voxels=3000", "study.grid_points=7", "study.refine_iters=3", "study.vector_sweeps=1",
+    "study.vector_refine_iters=2", "study.glfs_max_voxels=5000", "glfs.epochs=2",
+]
+
+
+def test_calibrate_map_writes_results_resumes_and_refuses_another_config(tmp_path, capsys):
+    out = tmp_path / "study"
+    assert main(["calibrate-map", "--output", str(out), *TINY]) == 0
+    printed = capsys.readouterr().out
+    assert "temperature_3d" in printed and "learned" in printed
+    with open(out / "results.csv") as f:
+        reader = csv.DictReader(f)
+        assert reader.fieldnames == ["segmenter", "strategy", "calibration", "miou", "ece", "tl_ece", "mece", "brier",
+                                     "pixel_mece", "n_voxels"]
+        rows = list(reader)
+    assert [(r["strategy"], r["calibration"]) for r in rows] == [
+        ("rbu", "none"), ("rbu", "temperature_2d"), ("rbu", "temperature_3d"), ("rbu", "vector_3d"),
+        ("histogram", "none"), ("histogram", "temperature_2d"), ("histogram", "temperature_3d"),
+        ("histogram", "vector_3d"), ("glfs", "learned")]
+    for r in rows:
+        for key in ("miou", "ece", "tl_ece", "mece", "pixel_mece"):
+            assert 0.0 <= float(r[key]) <= 1.0, (key, r)
+        assert 0.0 <= float(r["brier"]) <= 2.0 and int(r["n_voxels"]) > 1000
+    # a scalar temperature cannot move histogram votes: identical maps
+    hist = {r["calibration"]: r for r in rows if r["strategy"] == "histogram"}
+    assert hist["none"]["mece"] == hist["temperature_3d"]["mece"]
+    assert "## learned_rgb" in (out / "results.md").read_text()
+    for png in ("calibration_vs_accuracy.png", "reliability_learned_rgb.png", "reliability_classes_learned_rgb.png"):
+        assert (out / png).stat().st_size > 10_000
+    fits = json.loads((out / "fits" / "learned_rgb" / "fits.json").read_text())
+    assert {"temperature_2d", "temperature_3d/rbu", "vector_3d/rbu", "glfs"} <= set(fits)
+    assert len(fits["vector_3d/rbu"]["temperature"]) == 18
+
+    # resume: nothing is recomputed, the table is the same
+    stamps = {p: p.stat().st_mtime_ns for p in out.rglob("*.npz")}
+    assert main(["calibrate-map", "--output", str(out), *TINY]) == 0
+    assert {p: p.stat().st_mtime_ns for p in out.rglob("*.npz")} == stamps
+    with open(out / "results.csv") as f:
+        assert list(csv.DictReader(f)) == rows
+
+    capsys.readouterr()
+    assert main(["calibrate-map", "--output", str(out), *TINY, "study.grid_points=9"]) == 2
+    assert "--force" in capsys.readouterr().err
+
+
+def test_fit_glfs_writes_params_a_map_can_use(tmp_path):
+    from agent.segmenters.base import default_class_names
+    from mapping.config import MappingConfig
+    from mapping.glfs import GLFSParams
+    from mapping.voxel_map import SemanticVoxelMap
+
+    dest = tmp_path / "glfs_rgb.json"
+    assert main(["fit-glfs", "--segmenter", "learned_rgb", "--output", str(dest), "--work-dir", str(tmp_path / "w"),
+                 *TINY]) == 0
+    params = GLFSParams.load(dest)
+    assert params.class_names == default_class_names() and math.isfinite(params.g) and np.all(params.tau > 0)
+    vmap = SemanticVoxelMap(18, MappingConfig(fusion="glfs", glfs_params=str(dest)), class_names=default_class_names())
+    np.testing.assert_allclose(vmap.glfs_params.tau, params.tau)
+
+
+def test_calibrate_map_bad_config(capsys):
+    assert main(["calibrate-map", "study.calibrations=[none,platt]"]) == 2
+    err = capsys.readouterr().err
+    assert "unknown calibration 'platt'" in err and "temperature_3d" in err
