@@ -30,6 +30,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--episodes", default="10", help="N (first N) or A:B (a range) of the split's episodes")
     p.add_argument("--output", default=None, help="results directory (default: run.output_dir)")
     p.add_argument("--force", action="store_true", help="discard results of a different config in --output")
+    p.add_argument("--video", type=int, default=0, metavar="N",
+                   help="write <output>/videos/<episode_id>.mp4 for the first N episodes of the range (peanut)")
+    p.add_argument("-m", "--multirun", action="store_true",
+                   help="cross product of comma-separated overrides (KEY=a,b), one subdirectory of --output "
+                        "each, then comparison.md/.csv/.png")
 
     p = sub.add_parser("view-episode", help="top-down map PNG and a frame strip of one episode")
     _add_config_args(p, "configs/objectnav.yaml")
@@ -70,6 +75,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--output", required=True, help="GLFS parameter file (.json / .npz) for mapping.glfs_params")
     p.add_argument("--work-dir", default=None, help="where scans are kept (default: run.output_dir)")
 
+    p = sub.add_parser("tune", help="grid-search agent.goal_threshold x agent.goal_min_area_cells (peanut agent); "
+                                    "tune.csv + best.yaml")
+    _add_config_args(p, "configs/objectnav.yaml")
+    p.add_argument("--episodes", default="0:100", help="tuning range of the split's episodes: N or A:B")
+    p.add_argument("--thresholds", default="0.5,0.6,0.7,0.8,0.9",
+                   help="comma-separated goal confidence thresholds, each in (0, 1]")
+    p.add_argument("--min-areas", default="2,4,8", help="comma-separated minimum goal areas, map cells (>= 1)")
+    p.add_argument("--metric", default="spl", choices=("spl", "success", "softspl"), help="selection metric")
+    p.add_argument("--output", default="runs/tune", help="results directory (one subdirectory per grid point)")
+    p.add_argument("--force", action="store_true", help="discard results of a different config in --output")
+
     p = sub.add_parser("demo", help="set-up check + a real ObjectNav evaluation on procedural houses")
     p.add_argument("--episodes", type=int, default=5, help="number of val episodes")
     p.add_argument("--output", default="runs/demo", help="results directory")
@@ -108,6 +124,10 @@ def main(argv: list[str] | None = None) -> int:
             from eval.calibrate_map import main_fit_glfs
 
             main_fit_glfs(args)
+        elif args.command == "tune":
+            from eval.tune import main_tune
+
+            main_tune(args)
         elif args.command == "demo":
             from eval.demo import main_demo
 

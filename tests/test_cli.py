@@ -81,3 +81,55 @@ def test_bench_quick_has_required_figures(tmp_path):
     for key in ("env.render_ms_640x480", "env.raycast_ms_640x480", "env.render_ratio_640x480",
                 "env.steps_per_s_640x480", "env.steps_per_s_160x120"):
         assert figures[key] > 0
+
+
+PEANUT_TINY = ["--agent", "peanut", "--episodes", "1", "run.workers=1", "env.resolution=64x48",
+               "env.dataset.val_scenes=1", "env.dataset.episodes_per_scene=2", "env.max_episode_steps=25"]
+
+
+def test_objectnav_video_same_metrics_and_plots(tmp_path):
+    import imageio.v2 as imageio
+
+    assert main(["objectnav", "--output", str(tmp_path / "plain"), *PEANUT_TINY]) == 0
+    assert main(["objectnav", "--output", str(tmp_path / "vid"), "--video", "1", *PEANUT_TINY]) == 0
+    videos = list((tmp_path / "vid" / "videos").glob("*.mp4"))
+    assert len(videos) == 1 and videos[0].stat().st_size > 1000 and ":" not in videos[0].name
+    assert not (tmp_path / "plain" / "videos").exists()
+    plain, vid = (load_records(tmp_path / d / "episodes.jsonl")[0] for d in ("plain", "vid"))
+    n_frames = sum(1 for _ in imageio.get_reader(videos[0]))
+    assert n_frames == vid["steps"] > 0  # one panel per action
+    for key in ("success", "spl", "softspl", "distance_to_goal", "steps", "path_length", "collisions"):
+        assert vid[key] == plain[key], key
+    for name in ("metrics.png", "per_category_success.png"):
+        assert (tmp_path / "vid" / "plots" / name).stat().st_size > 1000
+
+
+def test_objectnav_video_needs_a_map_agent(tmp_path, capsys):
+    args = ["objectnav", "--agent", "oracle", "--episodes", "1", "--video", "1", "--output", str(tmp_path / "o"),
+            *SMALL]
+    assert main(args) == 2
+    assert "agent 'oracle' has none" in capsys.readouterr().err
+
+
+def test_objectnav_multirun_dirs_resume_and_comparison(tmp_path, capsys):
+    out = tmp_path / "mr"
+    args = ["objectnav", "-m", "--agent", "oracle", "--episodes", "0:2", "--output", str(out), "run.workers=1",
+            *SMALL, "env.max_episode_steps=400,500", "env.success_distance_m=0.1,0.2"]
+    assert main(args) == 0
+    printed = capsys.readouterr().out
+    assert "| env.max_episode_steps | env.success_distance_m | SPL | Success | SoftSPL | DTG | N |" in printed
+    subdirs = sorted(p.name for p in out.iterdir() if p.is_dir())
+    assert subdirs == [f"env.max_episode_steps={s}__env.success_distance_m={d}"
+                       for s in (400, 500) for d in (0.1, 0.2)]
+    for sub in subdirs:
+        assert len(load_records(out / sub / "episodes.jsonl")) == 2
+        assert (out / sub / "summary.json").exists() and (out / sub / "plots" / "metrics.png").exists()
+    md = (out / "comparison.md").read_text()
+    assert md.count("| 1.000 (0.000) |") == 4 and "| 400 | 0.2 |" in md
+    header = (out / "comparison.csv").read_text().splitlines()[0].split(",")
+    assert header[:4] == ["env.max_episode_steps", "env.success_distance_m", "spl", "spl_sem"]
+    assert (out / "comparison.png").stat().st_size > 1000
+    # rerun: every combination resumes (nothing re-run, nothing appended)
+    before = {s: (out / s / "episodes.jsonl").read_text() for s in subdirs}
+    assert main(args) == 0
+    assert before == {s: (out / s / "episodes.jsonl").read_text() for s in subdirs}

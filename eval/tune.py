@@ -1,0 +1,184 @@
+"""`calnav tune`: grid-search the goal-detection keys of the ``peanut`` agent.
+
+The grid is ``agent.goal_threshold`` (goal-class confidence a map cell needs, unitless, in
+(0, 1]) x ``agent.goal_min_area_cells`` (smallest accepted goal component, in map cells of
+``agent.cell_m`` metres, >= 1). Each grid point is a resumable ``run_objectnav`` into
+``<output>/<threshold>_<min_area>/`` on a tuning range of ``env.split``'s episodes, so an
+interrupted tune picks up where it stopped.
+
+Outputs: ``<output>/tune.csv`` (one row per grid point: threshold, min_area, success,
+success_sem, spl, spl_sem, softspl, dtg [metres], n [episodes]) and ``<output>/best.yaml``, a
+complete config (input config + overrides + tuned keys) for ``calnav objectnav --config``, whose
+header comment names the tuning episode range so a disjoint evaluation range can be chosen.
+"""
+from __future__ import annotations
+
+import csv
+import math
+from pathlib import Path
+
+from eval.config import Config, ConfigError, dump_yaml, load_config, parse_override
+
+TUNE_METRICS: tuple[str, ...] = ("spl", "success", "softspl")  # all higher-is-better
+TUNED_KEYS: tuple[str, ...] = ("agent.goal_threshold", "agent.goal_min_area_cells")
+CSV_COLUMNS: tuple[str, ...] = ("threshold", "min_area", "success", "success_sem", "spl", "spl_sem",
+                                "softspl", "dtg", "n")
+AGENT = "peanut"
+
+
+def _split_list(text: str, name: str) -> list[str]:
+    items = [s.strip() for s in str(text).split(",") if s.strip()]
+    if not items:
+        raise ConfigError(f"{name} is empty; give a comma-separated list, e.g. {name} "
+                          + ("0.5,0.7,0.9" if "threshold" in name else "2,4,8"))
+    return items
+
+
+def parse_thresholds(text: str) -> list[float]:
+    """'0.5,0.7' -> sorted unique goal thresholds (confidence, unitless); each must be in (0, 1]."""
+    values = []
+    for s in _split_list(text, "--thresholds"):
+        try:
+            v = float(s)
+        except ValueError:
+            raise ConfigError(f"bad threshold {s!r} in --thresholds; expected numbers in (0, 1]") from None
+        if not (0.0 < v <= 1.0):
+            raise ConfigError(f"threshold {s} is outside the valid range (0, 1] (goal-class confidence)")
+        values.append(v)
+    return sorted(set(values))
+
+
+def parse_min_areas(text: str) -> list[int]:
+    """'2,4,8' -> sorted unique minimum goal areas in map cells; each must be an integer >= 1."""
+    values = []
+    for s in _split_list(text, "--min-areas"):
+        try:
+            v = int(s)
+        except ValueError:
+            raise ConfigError(f"bad min area {s!r} in --min-areas; expected integers >= 1 (map cells)") from None
+        if v < 1:
+            raise ConfigError(f"min area {v} is outside the valid range >= 1 (map cells)")
+        values.append(v)
+    return sorted(set(values))
+
+
+def point_name(threshold: float, min_area: int) -> str:
+    """Directory name of one grid point, e.g. ``0.8_4``."""
+    return f"{threshold:g}_{min_area}"
+
+
+def _score(value) -> float:
+    """A metric value for ranking: missing / NaN ranks below everything."""
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        return -math.inf
+    return v if math.isfinite(v) else -math.inf
+
+
+def select_best(rows: list[dict], metric: str = "spl") -> dict:
+    """The best grid point among ``rows`` (dicts with threshold, min_area and metric keys).
+
+    Ranked by ``metric`` (higher is better), ties broken by higher success, then by the lower
+    threshold, then by the smaller min_area (so the choice is deterministic)."""
+    if metric not in TUNE_METRICS:
+        raise ConfigError(f"unknown tuning metric {metric!r}; valid: {', '.join(TUNE_METRICS)}")
+    if not rows:
+        raise ConfigError("no grid points to select from (empty grid)")
+    return max(rows, key=lambda r: (_score(r.get(metric)), _score(r.get("success")),
+                                    -float(r["threshold"]), -int(r["min_area"])))
+
+
+def summary_row(threshold: float, min_area: int, summary: dict) -> dict:
+    """One tune.csv row from a ``run_objectnav`` summary (DTG in metres, n in episodes)."""
+    return {"threshold": threshold, "min_area": min_area,
+            "success": summary["success"], "success_sem": summary["success_sem"],
+            "spl": summary["spl"], "spl_sem": summary["spl_sem"], "softspl": summary["softspl"],
+            "dtg": summary["distance_to_goal"], "n": summary["count"]}
+
+
+def write_csv(rows: list[dict], path: Path) -> None:
+    with open(path, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(CSV_COLUMNS))
+        w.writeheader()
+        for r in rows:
+            w.writerow({k: r[k] for k in CSV_COLUMNS})
+
+
+def best_yaml_text(cfg: Config, *, config_path: str | None, overrides: list[str], split: str,
+                   episodes: range, metric: str, best: dict, n_points: int) -> str:
+    """Complete config YAML of the tuned agent with a header naming the tuning range and metric."""
+    header = [
+        "# calnav tune result: a complete config for `calnav objectnav --agent peanut --config <this file>`.",
+        f"# Tuned agent.goal_threshold={best['threshold']:g}, agent.goal_min_area_cells={best['min_area']}"
+        f" over {n_points} grid points by {metric} (tie-break: success, then lower threshold).",
+        f"# Tuning episodes: {split} split, episodes {episodes.start}:{episodes.stop}"
+        f" ({len(episodes)} episodes). Evaluate on a DISJOINT range (not {episodes.start}:{episodes.stop}).",
+        f"# Tuning result: {metric}={best[metric]:.4f}, success={best['success']:.4f}, n={best['n']}.",
+        f"# Source: --config {config_path}" + (f" with overrides: {' '.join(overrides)}" if overrides else ""),
+    ]
+    return "\n".join(header) + "\n" + dump_yaml(cfg)
+
+
+def run_tune(config_path: str | None, overrides: list[str], episodes: str, thresholds: str,
+             min_areas: str, metric: str, out: Path, force: bool = False,
+             progress: bool = True) -> tuple[list[dict], dict]:
+    """Run the grid (resumably) and write tune.csv and best.yaml under ``out``.
+
+    Returns (rows, best row); every row holds the tune.csv columns."""
+    from envs.episodes import load_split, parse_episode_range
+
+    from eval.objectnav import run_objectnav
+
+    if metric not in TUNE_METRICS:
+        raise ConfigError(f"unknown tuning metric {metric!r}; valid: {', '.join(TUNE_METRICS)}")
+    ts, areas = parse_thresholds(thresholds), parse_min_areas(min_areas)
+    overrides = list(overrides)
+    for text in overrides:
+        if parse_override(text)[0] in TUNED_KEYS:
+            raise ConfigError(f"{parse_override(text)[0]} is tuned by --thresholds / --min-areas; "
+                              "remove it from the overrides")
+    base = load_config(config_path, overrides)
+    indices = parse_episode_range(str(episodes), len(load_split(base.env.split, base.env)))
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    rows: list[dict] = []
+    for t in ts:
+        for a in areas:
+            cfg = load_config(config_path, overrides + [f"agent.goal_threshold={t}",
+                                                        f"agent.goal_min_area_cells={a}"])
+            if progress:
+                print(f"tune: goal_threshold={t:g} goal_min_area_cells={a} -> {out / point_name(t, a)}")
+            summary = run_objectnav(cfg, AGENT, list(indices), out / point_name(t, a),
+                                    force=force, progress=progress)
+            rows.append(summary_row(t, a, summary))
+    write_csv(rows, out / "tune.csv")
+    best = select_best(rows, metric)
+    best_cfg = load_config(config_path, overrides + [f"agent.goal_threshold={best['threshold']}",
+                                                     f"agent.goal_min_area_cells={best['min_area']}"])
+    (out / "best.yaml").write_text(best_yaml_text(
+        best_cfg, config_path=config_path, overrides=overrides, split=base.env.split, episodes=indices,
+        metric=metric, best=best, n_points=len(rows)))
+    return rows, best
+
+
+def format_tune_table(rows: list[dict], best: dict) -> str:
+    """Markdown table of the grid (metric as 'mean (SEM)', DTG in metres); best row marked '*'."""
+    lines = ["| threshold | min_area | Success | SPL | SoftSPL | DTG (m) | N |", "|" + "---|" * 7]
+    for r in rows:
+        mark = " *" if r is best else ""
+        lines.append(f"| {r['threshold']:g}{mark} | {r['min_area']} | {r['success']:.3f} ({r['success_sem']:.3f}) "
+                     f"| {r['spl']:.3f} ({r['spl_sem']:.3f}) | {r['softspl']:.3f} | {r['dtg']:.2f} | {r['n']} |")
+    return "\n".join(lines)
+
+
+def main_tune(args) -> None:
+    out = Path(args.output)
+    rows, best = run_tune(args.config, args.overrides, args.episodes, args.thresholds, args.min_areas,
+                          args.metric, out, force=args.force)
+    print(format_tune_table(rows, best))
+    print(f"best by {args.metric}: agent.goal_threshold={best['threshold']:g} "
+          f"agent.goal_min_area_cells={best['min_area']} ({args.metric}={best[args.metric]:.3f}, "
+          f"success={best['success']:.3f}, n={best['n']})")
+    print(f"results: {out}/tune.csv, {out}/best.yaml (tuned on episodes {args.episodes}; "
+          "evaluate on a disjoint range)")

@@ -1,0 +1,95 @@
+"""`calnav tune`: selection logic on hand-made rows, grid validation, and a tiny end-to-end tune
+(2 thresholds x 1 min area on 1 episode) that writes tune.csv and a loadable best.yaml."""
+import csv
+import math
+
+import pytest
+
+from eval.cli import main
+from eval.config import ConfigError, load_config
+from eval.tune import parse_min_areas, parse_thresholds, point_name, select_best
+
+# A tiny, fast peanut set-up: low resolution, one small house, short episodes.
+SMALL = ["env.resolution=64x48", "env.dataset.val_scenes=1", "env.dataset.episodes_per_scene=2",
+         "env.max_episode_steps=15", "agent.map_resolution=32x24", "agent.map_size_m=16",
+         "mapping.initial_alloc_mb=32", "run.workers=1"]
+
+
+def _row(t, a, success, spl):
+    return {"threshold": t, "min_area": a, "success": success, "spl": spl, "softspl": spl}
+
+
+def test_select_best_by_metric_and_tie_breaks():
+    rows = [_row(0.5, 4, 0.6, 0.30), _row(0.7, 4, 0.5, 0.40), _row(0.9, 4, 0.7, 0.35)]
+    assert select_best(rows, "spl")["threshold"] == 0.7
+    assert select_best(rows, "success")["threshold"] == 0.9
+    # equal SPL: higher success wins, regardless of threshold order
+    tied = [_row(0.6, 2, 0.4, 0.5), _row(0.8, 2, 0.6, 0.5), _row(0.7, 2, 0.5, 0.5)]
+    assert select_best(tied, "spl")["threshold"] == 0.8
+    # equal SPL and success: the lower threshold wins, then the smaller min area
+    tied = [_row(0.8, 8, 0.5, 0.5), _row(0.6, 8, 0.5, 0.5), _row(0.6, 2, 0.5, 0.5), _row(0.9, 1, 0.5, 0.5)]
+    best = select_best(tied, "spl")
+    assert (best["threshold"], best["min_area"]) == (0.6, 2)
+    # a NaN metric (no scored episodes) never wins
+    assert select_best([_row(0.5, 2, math.nan, math.nan), _row(0.9, 2, 0.0, 0.0)], "spl")["threshold"] == 0.9
+    with pytest.raises(ConfigError, match="empty grid"):
+        select_best([], "spl")
+    with pytest.raises(ConfigError, match="valid: spl"):
+        select_best(rows, "dtg")
+
+
+def test_grid_parsing_and_validation():
+    assert parse_thresholds("0.9, 0.5,0.5,1") == [0.5, 0.9, 1.0]
+    assert parse_min_areas("8,2") == [2, 8]
+    assert point_name(0.8, 4) == "0.8_4"
+    for bad in ("0", "1.2", "-0.1"):
+        with pytest.raises(ConfigError, match=r"\(0, 1\]"):
+            parse_thresholds(bad)
+    with pytest.raises(ConfigError, match=">= 1"):
+        parse_min_areas("2,0")
+    with pytest.raises(ConfigError, match="empty"):
+        parse_thresholds(" , ")
+
+
+def test_tune_bad_input_exits_2(tmp_path, capsys):
+    base = ["tune", "--episodes", "0:1", "--output", str(tmp_path / "t"), *SMALL]
+    assert main(base + ["--thresholds", "0.5,1.5"]) == 2
+    assert "(0, 1]" in capsys.readouterr().err
+    assert main(base + ["--min-areas", "0"]) == 2
+    assert ">= 1" in capsys.readouterr().err
+    assert main(base + ["--thresholds", ""]) == 2
+    assert "empty" in capsys.readouterr().err
+    assert main(base + ["agent.goal_threshold=0.7"]) == 2
+    assert "is tuned by" in capsys.readouterr().err
+    assert not (tmp_path / "t").exists()  # nothing ran
+
+
+@pytest.mark.e2e
+def test_tune_end_to_end_writes_csv_and_loadable_best(tmp_path, capsys):
+    out = tmp_path / "tune"
+    args = ["tune", "--episodes", "0:1", "--thresholds", "0.9,0.6", "--min-areas", "3",
+            "--output", str(out), *SMALL]
+    assert main(args) == 0
+    printed = capsys.readouterr().out
+    with open(out / "tune.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert list(rows[0]) == ["threshold", "min_area", "success", "success_sem", "spl", "spl_sem",
+                             "softspl", "dtg", "n"]
+    assert [(float(r["threshold"]), int(r["min_area"]), int(r["n"])) for r in rows] == [(0.6, 3, 1), (0.9, 3, 1)]
+    for t in ("0.6", "0.9"):
+        assert (out / f"{t}_3" / "summary.json").exists()
+    expected = select_best([{**r, "threshold": float(r["threshold"]), "min_area": int(r["min_area"]),
+                             "spl": float(r["spl"]), "success": float(r["success"])} for r in rows], "spl")
+
+    cfg = load_config(out / "best.yaml")  # a complete, loadable config
+    assert cfg.agent.goal_threshold == expected["threshold"]
+    assert cfg.agent.goal_min_area_cells == 3
+    assert cfg.env.max_episode_steps == 15 and cfg.env.resolution == (64, 48)  # overrides kept
+    header = "\n".join(ln for ln in (out / "best.yaml").read_text().splitlines() if ln.startswith("#"))
+    assert "episodes 0:1" in header and "by spl" in header
+    assert f"agent.goal_threshold={expected['threshold']:g}" in printed
+
+    # rerun resumes: no episode is run again, results unchanged
+    before = (out / "0.6_3" / "episodes.jsonl").read_text()
+    assert main(args) == 0
+    assert (out / "0.6_3" / "episodes.jsonl").read_text() == before
