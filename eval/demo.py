@@ -1,11 +1,15 @@
 """`calnav demo` (what `make demo` runs): a real ObjectNav evaluation on the built-in
-procedural houses, printing the metrics table and where the results went."""
+procedural houses -- the PEANUT-like agent with the shipped learned RGB segmenter and GLFS
+fusion (``configs/demo.yaml``) -- printing the metrics table and where the results, plots and
+one episode video went."""
 from __future__ import annotations
 
 from pathlib import Path
 
 from eval.config import load_config
 from eval.stats import format_metrics_table
+
+DEMO_AGENT = "peanut"
 
 
 def main_demo(args) -> None:
@@ -16,8 +20,12 @@ def main_demo(args) -> None:
     episodes = load_split(cfg.env.split, cfg.env)
     indices = list(parse_episode_range(str(args.episodes), len(episodes)))
     out = Path(cfg.run.output_dir)
-    agent = "oracle"
-    summary = run_objectnav(cfg, agent, indices, out, force=True)
+    summary = run_objectnav(cfg, DEMO_AGENT, indices, out, force=True, video=1)
+    label = f"{DEMO_AGENT} ({cfg.agent.segmenter} + {cfg.mapping.fusion})"
     print()
-    print(format_metrics_table([(agent, summary)], first_header="Agent"))
+    print(format_metrics_table([(label, summary)], first_header="Agent"))
+    videos = sorted((out / "videos").glob("*.mp4"))
     print(f"\nresults: {out}/episodes.jsonl, {out}/summary.json, config: {out}/config.yaml")
+    print(f"plots:   {out}/plots/")
+    if videos:
+        print(f"video:   {videos[0]}")
