@@ -16,6 +16,13 @@ import torch
 from mapping.obs_cache import ObsCache
 
 
+def csr_select(offsets: np.ndarray, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(counts (len(ids),), flat observation indices) of the CSR rows ``ids`` under ``offsets``."""
+    counts = offsets[ids + 1] - offsets[ids]
+    starts = np.repeat(offsets[ids], counts)
+    return counts, starts + (np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts))
+
+
 @dataclass
 class FlatObservations:
     """logits (n, K) float32; voxel (n,) int64 index of each observation's voxel, sorted;
@@ -56,9 +63,8 @@ class FlatObservations:
             labels = cache.labels
             keep = np.flatnonzero(labels != ignore_index)
             off = csr["offsets"]
-            counts = (off[keep + 1] - off[keep])
-            keep, counts = keep[counts > 0], counts[counts > 0]
-            obs = np.repeat(off[keep], counts) + (np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts))
+            keep = keep[off[keep + 1] > off[keep]]
+            counts, obs = csr_select(off, keep)
             parts.append(dict(
                 logits=csr["logits"][obs], counts=counts, labels=labels[keep],
                 distance=csr["distance"][obs], angle=csr["angle"][obs],
@@ -93,9 +99,8 @@ class FlatObservations:
     def subset(self, voxel_ids: Sequence[int] | np.ndarray) -> "FlatObservations":
         """The voxels ``voxel_ids`` (renumbered 0..len-1 in the given order) and their observations."""
         ids = np.asarray(voxel_ids, dtype=np.int64)
-        off = self.offsets()
-        counts = off[ids + 1] - off[ids]
-        obs = torch.from_numpy(np.repeat(off[ids], counts) + (np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)))
+        counts, obs = csr_select(self.offsets(), ids)
+        obs = torch.from_numpy(obs)
         voxel = torch.from_numpy(np.repeat(np.arange(len(ids)), counts))
         return FlatObservations(self.logits[obs], voxel, self.distance_m[obs], self.angle_deg[obs],
                                 self.weight[obs], self.labels[torch.from_numpy(ids)])
