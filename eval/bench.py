@@ -109,3 +109,9 @@ def format_table(results: dict[str, float]) -> str:
     lines = [f"{'figure':<{width}}  value", f"{'-' * width}  ---------"]
     lines += [f"{k:<{width}}  {v:.4g}" for k, v in results.items()]
     return "\n".join(lines)
+
+
+def main_bench(args) -> None:
+    """`calnav bench`: ``--only`` names comma-separated sections (default: all)."""
+    only = tuple(s for s in args.only.split(",") if s) or SECTIONS
+    run_bench(args.output, only, quick=args.quick, scene_seed=args.scene_seed)

@@ -160,15 +160,19 @@ def score_scene(cfg: CalibrateMapConfig, out: Path, segmenter: str, scene_id: st
     return path
 
 
-def merged_stats(cfg: CalibrateMapConfig, paths: list[Path], num_classes: int) -> dict[tuple[str, str], metrics.CalibrationStats]:
+def merged_stats(cfg: CalibrateMapConfig, paths: list[Path], num_classes: int
+                 ) -> tuple[dict[tuple[str, str], metrics.CalibrationStats], int]:
+    """Per-(strategy, calibration) statistics summed over houses, and the number of voxels."""
     out = {m: metrics.CalibrationStats(num_classes) for m in methods(cfg)}
+    n_voxels = 0
     for p in paths:
         with np.load(p) as d:
+            n_voxels += int(d["n_voxels"])
             for (s, c), st in out.items():
                 st.count += d[f"{s}/{c}/count"]
                 st.conf_sum += d[f"{s}/{c}/conf_sum"]
                 st.brier_sum += float(d[f"{s}/{c}/brier_sum"])
-    return out
+    return out, n_voxels
 
 
 def pixel_mece(logits: np.ndarray, labels: np.ndarray, temperature) -> float:
@@ -211,9 +215,8 @@ def run_calibrate_map(cfg: CalibrateMapConfig, out: Path, force: bool = False, p
         paths = [score_scene(cfg, out, name, sid, fits)
                  for sid in tqdm(ids["test"], desc=f"score test maps ({name})", unit="house", disable=not progress)]
         k = segs[name].num_classes
-        stats = merged_stats(cfg, paths, k)
+        stats, n_vox = merged_stats(cfg, paths, k)
         _, pix_logits, pix_labels = load_role(out, name, ids["test"])
-        n_vox = sum(int(np.load(p)["n_voxels"]) for p in paths)
         for (s, c), st in stats.items():
             rows.append({"segmenter": name, "strategy": s, "calibration": c, "miou": st.miou(), "ece": st.ece(),
                          "tl_ece": st.tl_ece(), "mece": st.mece(), "brier": st.brier(),

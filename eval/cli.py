@@ -3,6 +3,7 @@ arguments and dispatches, so ``calnav --help`` stays fast (heavy imports happen 
 from __future__ import annotations
 
 import argparse
+import importlib
 import os
 import sys
 
@@ -92,46 +93,25 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+# command -> (module, function taking the parsed args); imported on use so `--help` stays fast
+COMMANDS: dict[str, tuple[str, str]] = {
+    "objectnav": ("eval.objectnav", "main_objectnav"),
+    "view-episode": ("eval.view_episode", "main_view_episode"),
+    "bench": ("eval.bench", "main_bench"),
+    "train-segmenter": ("eval.train_segmenter", "main_train_segmenter"),
+    "eval-segmenter": ("eval.eval_segmenter", "main_eval_segmenter"),
+    "calibrate-map": ("eval.calibrate_map", "main_calibrate_map"),
+    "fit-glfs": ("eval.calibrate_map", "main_fit_glfs"),
+    "tune": ("eval.tune", "main_tune"),
+    "demo": ("eval.demo", "main_demo"),
+}
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
-        if args.command == "bench":
-            from eval.bench import SECTIONS, run_bench
-
-            only = tuple(s for s in args.only.split(",") if s) or SECTIONS
-            run_bench(args.output, only, quick=args.quick, scene_seed=args.scene_seed)
-        elif args.command == "objectnav":
-            from eval.objectnav import main_objectnav
-
-            main_objectnav(args)
-        elif args.command == "view-episode":
-            from eval.view_episode import main_view_episode
-
-            main_view_episode(args)
-        elif args.command == "train-segmenter":
-            from eval.train_segmenter import main_train_segmenter
-
-            main_train_segmenter(args)
-        elif args.command == "eval-segmenter":
-            from eval.eval_segmenter import main_eval_segmenter
-
-            main_eval_segmenter(args)
-        elif args.command == "calibrate-map":
-            from eval.calibrate_map import main_calibrate_map
-
-            main_calibrate_map(args)
-        elif args.command == "fit-glfs":
-            from eval.calibrate_map import main_fit_glfs
-
-            main_fit_glfs(args)
-        elif args.command == "tune":
-            from eval.tune import main_tune
-
-            main_tune(args)
-        elif args.command == "demo":
-            from eval.demo import main_demo
-
-            main_demo(args)
+        module, function = COMMANDS[args.command]
+        getattr(importlib.import_module(module), function)(args)
     except (ConfigError, ValueError, FileNotFoundError) as exc:
         print(f"calnav {args.command}: error: {exc}", file=sys.stderr)
         return 2
