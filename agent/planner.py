@@ -34,10 +34,15 @@ def free_crop(free: np.ndarray, extra: list[tuple[int, int]]) -> tuple[slice, sl
             slice(max(0, int(c.min()) - CROP_MARGIN_CELLS), min(n1, int(c.max()) + CROP_MARGIN_CELLS + 1)))
 
 
-def geodesic_distance(free: np.ndarray, sources: np.ndarray, cost: np.ndarray | None = None) -> np.ndarray:
+def geodesic_distance(free: np.ndarray, sources: np.ndarray, cost: np.ndarray | None = None,
+                      targets: np.ndarray | None = None) -> np.ndarray:
     """Geodesic distance (n0, n1) float64 in cells from the bool ``sources`` mask through the
     bool ``free`` mask (inf where unreachable or not free; sources count as free). cost
-    (n0, n1) float >= 1: optional per-cell traversal cost (default 1 per cell)."""
+    (n0, n1) float >= 1: optional per-cell traversal cost (default 1 per cell). targets (M, 2)
+    int (row, col): optional; the search stops once every passable target is settled, so
+    their values are exact while other cells may hold inf or an upper bound (the planner only
+    reads the agent's cell and its ring, and a far frontier goal no longer costs a search over
+    the whole explored area)."""
     passable = free | sources
     out = np.full(free.shape, np.inf)
     if not sources.any():
@@ -47,7 +52,14 @@ def geodesic_distance(free: np.ndarray, sources: np.ndarray, cost: np.ndarray | 
     base = 1.0 if cost is None else cost[rs, cs]
     costs = np.where(passable[rs, cs], base, np.inf)
     mcp = MCP_Geometric(costs, fully_connected=True)
-    dist, _ = mcp.find_costs(src - (rs.start, cs.start))
+    ends = None
+    if targets is not None:
+        t = np.asarray(targets, int).reshape(-1, 2)
+        inside = (t[:, 0] >= rs.start) & (t[:, 0] < rs.stop) & (t[:, 1] >= cs.start) & (t[:, 1] < cs.stop)
+        t = t[inside]
+        t = t[passable[t[:, 0], t[:, 1]]] - (rs.start, cs.start)
+        ends = [tuple(v) for v in t] or None
+    dist, _ = mcp.find_costs(src - (rs.start, cs.start), ends=ends)
     out[rs, cs] = dist
     out[~passable] = np.inf
     return out
@@ -63,7 +75,8 @@ def heading_to(agent_rc: tuple[int, int], target_rc, yaw: float) -> float:
 @dataclass
 class Plan:
     """action: the Action id; short_term_goal (row, col) or None; distance (n, n) the field
-    (cells) or None; reachable: the agent has a finite distance to the goal."""
+    (cells; exact at the agent and its ring, elsewhere inf or an upper bound) or None;
+    reachable: the agent has a finite distance to the goal."""
 
     action: int
     short_term_goal: tuple[int, int] | None
@@ -109,12 +122,12 @@ class Planner:
         region = self.goal_region(goal)
         near_obstacle = dilate(~free, self.cfg.clearance_m / self.cfg.cell_m)
         cost = np.where(near_obstacle, self.cfg.clearance_cost, 1.0)
-        dist = geodesic_distance(free, region & free | goal, cost)
+        ring = self._ring + agent_rc
+        ring = ring[((ring >= 0) & (ring < n)).all(axis=1)]
+        dist = geodesic_distance(free, region & free | goal, cost, targets=np.vstack([ring, [agent_rc]]))
         here = dist[agent_rc]
         if not np.isfinite(here):
             return Plan(int(Action.TURN_LEFT), None, dist, False)
-        ring = self._ring + agent_rc
-        ring = ring[((ring >= 0) & (ring < n)).all(axis=1)]
         d = dist[ring[:, 0], ring[:, 1]]
         d = np.where(self._line_of_sight(free, agent_rc, ring), d, np.inf)
         if here <= self.cfg.ring_cells or not np.isfinite(d).any():
