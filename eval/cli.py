@@ -87,6 +87,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--output", default="runs/tune", help="results directory (one subdirectory per grid point)")
     p.add_argument("--force", action="store_true", help="discard results of a different config in --output")
 
+    p = sub.add_parser("compare", help="one comparison table (+ paired differences) from finished objectnav runs")
+    p.add_argument("runs", nargs="+", help="run directories (each with config.yaml and episodes.jsonl)")
+    p.add_argument("--keys", default="", help="comma-separated config keys as columns (default: the keys that differ)")
+    p.add_argument("--baseline", default="0", help="position of the run the paired differences are taken against")
+    p.add_argument("--output", required=True, help="directory for comparison.md/.csv/.png and paired.md/.csv")
+
     p = sub.add_parser("demo", help="set-up check + a real ObjectNav evaluation on procedural houses")
     p.add_argument("--episodes", type=int, default=5, help="number of val episodes")
     p.add_argument("--output", default="runs/demo", help="results directory")
@@ -103,6 +109,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "calibrate-map": ("eval.calibrate_map", "main_calibrate_map"),
     "fit-glfs": ("eval.calibrate_map", "main_fit_glfs"),
     "tune": ("eval.tune", "main_tune"),
+    "compare": ("eval.compare", "main_compare"),
     "demo": ("eval.demo", "main_demo"),
 }
 

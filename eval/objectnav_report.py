@@ -24,7 +24,8 @@ PLOT_METRICS: tuple[str, ...] = ("success", "spl", "softspl")  # same unit (frac
 # Readable column headers for common varied keys; other keys are shown as they are.
 KEY_LABELS: dict[str, str] = {"agent.map_type": "Map type", "mapping.fusion": "Fusion",
                               "agent.segmenter": "Segmentation", "agent.uncertainty_aware": "Uncertainty-aware",
-                              "agent.semantic_prior": "Semantic prior"}
+                              "agent.semantic_prior": "Semantic prior", "agent.goal_threshold": "Threshold",
+                              "agent.goal_min_area_cells": "Min area"}
 
 
 def varied_keys(overrides: list[str]) -> list[str]:

@@ -26,20 +26,41 @@ def summarize(records: list[dict]) -> dict:
     and are reported in ``failed``."""
     ok = [r for r in records if r.get("status", "ok") == "ok"]
     out: dict = {"count": len(records), "failed": len(records) - len(ok)}
-    scored = [r if r.get("status", "ok") == "ok" else {**r, "success": 0.0, "spl": 0.0, "softspl": 0.0}
-              for r in records]
+    rows = [scored(r) for r in records]
     for m in METRICS:
-        vals = [r[m] for r in scored if r.get(m) is not None and math.isfinite(r[m])]
+        vals = [r[m] for r in rows if r.get(m) is not None and math.isfinite(r[m])]
         out[m], out[f"{m}_sem"] = mean_sem(vals)
     per_cat: dict[str, dict] = {}
     for cat in sorted({r["category"] for r in records if "category" in r}):
-        sub = [r for r in scored if r.get("category") == cat]
+        sub = [r for r in rows if r.get("category") == cat]
         per_cat[cat] = {"count": len(sub)}
         for m in METRICS:
             vals = [r[m] for r in sub if r.get(m) is not None and math.isfinite(r[m])]
             per_cat[cat][m], per_cat[cat][f"{m}_sem"] = mean_sem(vals)
     out["per_category"] = per_cat
     return out
+
+
+def scored(record: dict) -> dict:
+    """The record as it is scored: a crashed episode (``status != "ok"``) counts as a failure
+    (Success, SPL, SoftSPL 0)."""
+    if record.get("status", "ok") == "ok":
+        return record
+    return {**record, "success": 0.0, "spl": 0.0, "softspl": 0.0}
+
+
+def paired_difference(a: list[dict], b: list[dict], metric: str) -> tuple[float, float, int]:
+    """Mean and SEM of ``metric``(b) - ``metric``(a) over the episodes (matched by ``index``)
+    both record lists hold, and their count. Pairing removes the episode-difficulty variance
+    both runs share, so this SEM is the one that says whether two configs differ."""
+    va = {r["index"]: scored(r).get(metric) for r in a if "index" in r}
+    diffs = []
+    for r in b:
+        x, y = va.get(r.get("index")), scored(r).get(metric)
+        if x is not None and y is not None and math.isfinite(x) and math.isfinite(y):
+            diffs.append(y - x)
+    m, sem = mean_sem(diffs)
+    return m, sem, len(diffs)
 
 
 def format_metrics_table(rows: list[tuple[str, dict]], first_header: str = "Run") -> str:

@@ -49,6 +49,23 @@ def test_geodesic_distance_goes_around_a_wall():
     assert math.isclose(d[25, 10], 5.0)
 
 
+def test_geodesic_distance_targets_are_exact_and_stop_early():
+    rng = np.random.default_rng(0)
+    free = rng.random((80, 80)) > 0.25
+    src = np.zeros_like(free)
+    src[5, 5] = True
+    cost = np.where(rng.random(free.shape) > 0.5, 4.0, 1.0)
+    full = geodesic_distance(free, src, cost)
+    targets = np.array([[10, 12], [20, 7], [0, 0], [79, 79]])   # near, near, maybe blocked, far
+    near = geodesic_distance(free, src, cost, targets=targets[:2])
+    for r, c in targets[:2]:
+        assert near[r, c] == full[r, c]
+    assert np.isinf(near).sum() > np.isinf(full).sum()          # the far cells were not searched
+    both = geodesic_distance(free, src, cost, targets=targets)
+    for r, c in targets:
+        assert both[r, c] == full[r, c] or (np.isinf(both[r, c]) and np.isinf(full[r, c]))
+
+
 def test_heading_to_signs():
     assert math.isclose(heading_to((0, 0), (0, 5), 0.0), 0.0)
     assert math.isclose(heading_to((0, 0), (5, 0), 0.0), math.pi / 2)      # +row = +y = left of +x

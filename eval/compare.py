@@ -1,0 +1,130 @@
+"""`calnav compare`: one comparison table from finished `calnav objectnav` run directories.
+
+For runs made separately (e.g. each with its own tuned ``best.yaml``), this writes what a
+multirun writes (``comparison.md`` / ``.csv`` / ``.png``, ``eval.objectnav_report``) with the
+config keys that differ between the runs as the leading columns, plus ``paired.md`` / ``.csv``:
+each run minus a baseline run on the episodes both hold (matched by index), mean and paired
+SEM (``eval.stats.paired_difference``), and ``|diff| / SEM``. Keys under ``mapping.`` are shown
+as ``-`` for ``agent.map_type: ndf`` runs, which do not use the 3D map.
+"""
+from __future__ import annotations
+
+import csv
+import math
+from pathlib import Path
+
+from eval.config import ConfigError
+from eval.objectnav import load_records
+from eval.stats import METRIC_LABELS, paired_difference, summarize
+
+# Config keys that never change results, so they are never comparison columns.
+IGNORED_KEYS: tuple[str, ...] = ("run.output_dir", "run.workers")
+PAIRED_METRICS: tuple[str, ...] = ("spl", "success")
+
+
+def flatten(tree: dict, prefix: str = "") -> dict[str, object]:
+    """{'a': {'b': 1}} -> {'a.b': 1} (lists stay values)."""
+    out: dict[str, object] = {}
+    for k, v in tree.items():
+        key = f"{prefix}{k}"
+        if isinstance(v, dict):
+            out.update(flatten(v, key + "."))
+        else:
+            out[key] = v
+    return out
+
+
+def load_run(path: Path) -> tuple[dict[str, object], list[dict]]:
+    """(flattened config, episode records) of one run directory."""
+    import yaml
+
+    cfg_path, eps = path / "config.yaml", path / "episodes.jsonl"
+    if not cfg_path.exists() or not eps.exists():
+        raise FileNotFoundError(f"{path} is not a calnav objectnav run directory "
+                                "(needs config.yaml and episodes.jsonl)")
+    records = load_records(eps)
+    if not records:
+        raise ConfigError(f"{path} holds no finished episodes")
+    return flatten(yaml.safe_load(cfg_path.read_text()) or {}), records
+
+
+def differing_keys(configs: list[dict[str, object]]) -> list[str]:
+    """Keys whose value is not the same in every config (a missing key counts as a value),
+    in first-seen order, without IGNORED_KEYS."""
+    keys: list[str] = []
+    for c in configs:
+        keys += [k for k in c if k not in keys]
+    return [k for k in keys if k not in IGNORED_KEYS and len({repr(c.get(k)) for c in configs}) > 1]
+
+
+def cell_value(cfg: dict[str, object], key: str) -> str:
+    if key.startswith("mapping.") and cfg.get("agent.map_type") == "ndf":
+        return "-"
+    return str(cfg.get(key, "-"))
+
+
+def _ratio(d: float, sem: float) -> float:
+    """|d| / SEM (inf for a nonzero d with SEM 0, NaN for 0 / 0 or no pairs)."""
+    if not (math.isfinite(d) and math.isfinite(sem)):
+        return math.nan
+    if sem > 0:
+        return abs(d) / sem
+    return math.inf if d != 0 else math.nan
+
+
+def paired_rows(baseline: list[dict], runs: list[tuple[str, list[dict]]]) -> list[dict]:
+    """One row per run: {'run', 'n', metric, metric_sem, metric_z} (run - baseline)."""
+    rows = []
+    for name, records in runs:
+        row: dict = {"run": name}
+        for m in PAIRED_METRICS:
+            d, sem, n = paired_difference(baseline, records, m)
+            row.update({m: d, f"{m}_sem": sem, f"{m}_z": _ratio(d, sem), "n": n})
+        rows.append(row)
+    return rows
+
+
+def paired_markdown(base_name: str, rows: list[dict]) -> str:
+    heads = ["Run"] + [f"d{METRIC_LABELS[m]} (SEM)" for m in PAIRED_METRICS] + \
+            [f"abs d{METRIC_LABELS[m]} / SEM" for m in PAIRED_METRICS] + ["N paired"]
+    lines = [f"Paired differences, run minus {base_name} (same episodes):", "",
+             "| " + " | ".join(heads) + " |", "|" + "---|" * len(heads)]
+    for r in rows:
+        cells = [r["run"]] + [f"{r[m]:+.3f} ({r[m + '_sem']:.3f})" for m in PAIRED_METRICS] + \
+                [f"{r[m + '_z']:.1f}" for m in PAIRED_METRICS] + [str(r["n"])]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def main_compare(args) -> None:
+    from eval.objectnav_report import write_comparison
+
+    paths = [Path(p) for p in args.runs]
+    if len(paths) < 2:
+        raise ConfigError("calnav compare needs at least two run directories")
+    loaded = [load_run(p) for p in paths]
+    configs = [c for c, _ in loaded]
+    keys = [k.strip() for k in args.keys.split(",")] if args.keys else differing_keys(configs)
+    unknown = [k for k in keys if not any(k in c for c in configs)]
+    if unknown:
+        raise ConfigError(f"--keys {', '.join(unknown)} not in any run's config; keys that differ: "
+                          f"{', '.join(differing_keys(configs)) or '(none)'}")
+    rows = [({k: cell_value(c, k) for k in keys}, summarize(r)) for c, r in loaded]
+    out = Path(args.output)
+    table = write_comparison(keys, rows, out)
+    base = int(args.baseline)
+    if not 0 <= base < len(paths):
+        raise ConfigError(f"--baseline {base} is not a run position (0..{len(paths) - 1})")
+    names = [str(p) for p in paths]
+    others = [(names[i], loaded[i][1]) for i in range(len(paths)) if i != base]
+    prow = paired_rows(loaded[base][1], others)
+    paired = paired_markdown(names[base], prow)
+    (out / "paired.md").write_text(paired + "\n")
+    with open(out / "paired.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(prow[0]))
+        w.writeheader()
+        w.writerows(prow)
+    print(table)
+    print()
+    print(paired)
+    print(f"results: {out}/comparison.md, comparison.csv, comparison.png, paired.md, paired.csv")

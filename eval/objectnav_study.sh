@@ -1,0 +1,37 @@
+#!/usr/bin/env bash
+# The README's ObjectNav comparison (the paper's Table II): for each segmenter and map type, tune
+# the goal threshold on val episodes $TUNE, then evaluate the tuned config on the disjoint range
+# $EVAL; GLFS is also evaluated with the uncertainty-aware agent (GLFS's tuned threshold).
+# Every step is resumable: rerun the script to continue after an interruption.
+#   usage: eval/objectnav_study.sh            (env: OUT, TUNE, EVAL, THRESHOLDS, SEGMENTERS, CALNAV)
+set -euo pipefail
+OUT=${OUT:-runs/study}
+TUNE=${TUNE:-0:100}            # tuning episodes (val), an A:B range
+EVAL=${EVAL:-100:300}          # evaluation episodes (val), disjoint from TUNE
+THRESHOLDS=${THRESHOLDS:-0.5,0.7,0.9}  # goal confidence thresholds tried
+SEGMENTERS=${SEGMENTERS:-learned_rgb gt}
+CALNAV=${CALNAV:-.venv/bin/calnav}
+# 160x120 = the mapping resolution the agent subsamples 640x480 to, and the segmenters' training
+# resolution: same information, 1.7x faster episodes (README, "ObjectNav comparison").
+COMMON=(env.resolution=160x120)
+
+map_overrides() {  # $1 segmenter, $2 map -> overrides selecting the map
+  case $2 in
+    ndf) echo "agent.map_type=ndf" ;;
+    glfs) echo "mapping.fusion=glfs mapping.glfs_params=agent/weights/glfs_$1.json" ;;
+    *) echo "mapping.fusion=$2" ;;
+  esac
+}
+
+for seg in $SEGMENTERS; do
+  for map in ndf rbu averaging glfs; do
+    tune_dir=$OUT/tune/$seg/$map
+    # shellcheck disable=SC2046
+    $CALNAV tune --episodes "$TUNE" --thresholds "$THRESHOLDS" --min-areas 4 --metric spl \
+      --output "$tune_dir" "${COMMON[@]}" agent.segmenter="$seg" $(map_overrides "$seg" "$map")
+    $CALNAV objectnav --agent peanut --config "$tune_dir/best.yaml" --episodes "$EVAL" \
+      --output "$OUT/eval/$seg/$map"
+  done
+  $CALNAV objectnav --agent peanut --config "$OUT/tune/$seg/glfs/best.yaml" --episodes "$EVAL" \
+    --output "$OUT/eval/$seg/glfs_uncertainty" agent.uncertainty_aware=true
+done

@@ -1,0 +1,81 @@
+"""eval.compare and eval.stats.paired_difference: hand-computed paired differences, the
+comparison of separately made run directories, and its errors."""
+import argparse
+import csv
+import json
+import math
+
+import pytest
+import yaml
+
+from eval.compare import differing_keys, flatten, main_compare
+from eval.config import ConfigError
+from eval.stats import paired_difference
+
+
+def _rec(i, success, spl, status="ok"):
+    return {"index": i, "category": "bed", "success": success, "spl": spl, "softspl": spl,
+            "distance_to_goal": 0.0 if success else 1.0, "status": status}
+
+
+def test_paired_difference_hand_computed():
+    a = [_rec(0, 1.0, 0.5), _rec(1, 0.0, 0.0), _rec(2, 1.0, 0.8), _rec(9, 1.0, 1.0)]
+    b = [_rec(2, 1.0, 0.6), _rec(0, 1.0, 0.9), _rec(1, 1.0, 0.7), _rec(5, 0.0, 0.0)]
+    # matched indices 0, 1, 2: SPL diffs 0.4, 0.7, -0.2 -> mean 0.3, std(ddof=1) = sqrt(0.21)
+    d, sem, n = paired_difference(a, b, "spl")
+    assert n == 3
+    assert d == pytest.approx(0.3)
+    assert sem == pytest.approx(math.sqrt(0.21) / math.sqrt(3))
+    # a crashed episode scores as a failure: success diffs 0, 1 - 0 = 1, 0 - 1 = -1
+    b_crash = [_rec(0, 1.0, 0.9), _rec(1, 1.0, 0.7), {"index": 2, "status": "error", "category": "bed"}]
+    d, _, n = paired_difference(a, b_crash, "success")
+    assert (d, n) == (pytest.approx(0.0), 3)
+
+
+def test_flatten_and_differing_keys():
+    assert flatten({"a": {"b": 1, "c": [1, 2]}, "d": "x"}) == {"a.b": 1, "a.c": [1, 2], "d": "x"}
+    cfgs = [{"a.b": 1, "run.output_dir": "x", "e": 2}, {"a.b": 2, "run.output_dir": "y", "e": 2, "f": 0}]
+    assert differing_keys(cfgs) == ["a.b", "f"]
+
+
+def _run_dir(path, cfg, records):
+    path.mkdir(parents=True)
+    (path / "config.yaml").write_text(yaml.safe_dump(cfg))
+    (path / "episodes.jsonl").write_text("".join(json.dumps(r) + "\n" for r in records))
+    return str(path)
+
+
+def test_compare_run_directories(tmp_path, capsys):
+    base = {"agent": {"map_type": "fused", "segmenter": "gt", "goal_threshold": 0.7},
+            "mapping": {"fusion": "rbu"}, "run": {"output_dir": "a"}}
+    ndf = {"agent": {"map_type": "ndf", "segmenter": "gt", "goal_threshold": 0.9},
+           "mapping": {"fusion": "averaging"}, "run": {"output_dir": "b"}}
+    r0 = _run_dir(tmp_path / "rbu", base, [_rec(0, 1.0, 0.5), _rec(1, 1.0, 1.0)])
+    r1 = _run_dir(tmp_path / "ndf", ndf, [_rec(0, 0.0, 0.0), _rec(1, 1.0, 0.5)])
+    out = tmp_path / "cmp"
+    main_compare(argparse.Namespace(runs=[r0, r1], keys="", baseline="0", output=str(out)))
+    md = (out / "comparison.md").read_text().splitlines()
+    assert md[0] == "| Threshold | Map type | Fusion | SPL | Success | SoftSPL | DTG | N |"
+    assert md[2] == "| 0.7 | fused | rbu | 0.750 (0.250) | 1.000 (0.000) | 0.750 (0.250) | 0.000 (0.000) | 2 |"
+    assert md[3].startswith("| 0.9 | ndf | - |")  # ndf runs do not use mapping.*
+    with open(out / "paired.csv") as f:
+        row = next(csv.DictReader(f))
+    assert float(row["spl"]) == pytest.approx(-0.5) and float(row["spl_sem"]) == pytest.approx(0.0)
+    assert float(row["success"]) == pytest.approx(-0.5) and row["n"] == "2"
+    assert row["spl_z"] == "inf" and float(row["success_z"]) == pytest.approx(1.0)  # 0.5 / 0.5
+    assert "Paired differences" in capsys.readouterr().out
+
+
+def test_compare_bad_input(tmp_path):
+    cfg = {"agent": {"segmenter": "gt"}}
+    r0 = _run_dir(tmp_path / "a", cfg, [_rec(0, 1.0, 1.0)])
+    r1 = _run_dir(tmp_path / "b", cfg, [_rec(0, 1.0, 1.0)])
+    args = dict(runs=[r0, r1], keys="", baseline="0", output=str(tmp_path / "o"))
+    with pytest.raises(ConfigError, match="at least two"):
+        main_compare(argparse.Namespace(**{**args, "runs": [r0]}))
+    with pytest.raises(FileNotFoundError, match="not a calnav objectnav run"):
+        main_compare(argparse.Namespace(**{**args, "runs": [r0, str(tmp_path)]}))
+    with pytest.raises(ConfigError, match="not in any run's config"):
+        main_compare(argparse.Namespace(**{**args, "keys": "agent.nope"}))
+    with pytest.raises(ConfigError, match="not a run position"):
+        main_compare(argparse.Namespace(**{**args, "baseline": "5"}))
