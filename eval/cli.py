@@ -84,6 +84,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="comma-separated goal confidence thresholds, each in (0, 1]")
     p.add_argument("--min-areas", default="2,4,8", help="comma-separated minimum goal areas, map cells (>= 1)")
     p.add_argument("--metric", default="spl", choices=("spl", "success", "softspl"), help="selection metric")
+    p.add_argument("--extend", type=int, default=0,
+                   help="while the best threshold is on the grid's edge, try up to this many more beyond it")
     p.add_argument("--output", default="runs/tune", help="results directory (one subdirectory per grid point)")
     p.add_argument("--force", action="store_true", help="discard results of a different config in --output")
 

@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # The README's ObjectNav comparison (the paper's Table II): for each segmenter and map type, tune
-# the goal threshold on val episodes $TUNE, then evaluate the tuned config on the disjoint range
-# $EVAL; GLFS is also evaluated with the uncertainty-aware agent (GLFS's tuned threshold).
+# the goal threshold on val episodes $TUNE (a best threshold on the grid's edge extends the
+# grid, `--extend 2`), then evaluate the tuned config on the disjoint range $EVAL; GLFS is also
+# evaluated with the uncertainty-aware agent (at GLFS's tuned threshold).
 # Every step is resumable: rerun the script to continue after an interruption.
 #   usage: eval/objectnav_study.sh            (env: OUT, TUNE, EVAL, THRESHOLDS, SEGMENTERS, CALNAV)
 set -euo pipefail
@@ -27,7 +28,7 @@ for seg in $SEGMENTERS; do
   for map in ndf rbu averaging glfs; do
     tune_dir=$OUT/tune/$seg/$map
     # shellcheck disable=SC2046
-    $CALNAV tune --episodes "$TUNE" --thresholds "$THRESHOLDS" --min-areas 4 --metric spl \
+    $CALNAV tune --episodes "$TUNE" --thresholds "$THRESHOLDS" --extend 2 --min-areas 4 --metric spl \
       --output "$tune_dir" "${COMMON[@]}" agent.segmenter="$seg" $(map_overrides "$seg" "$map")
     $CALNAV objectnav --agent peanut --config "$tune_dir/best.yaml" --episodes "$EVAL" \
       --output "$OUT/eval/$seg/$map"

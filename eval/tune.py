@@ -10,6 +10,8 @@ Outputs: ``<output>/tune.csv`` (one row per grid point: threshold, min_area, suc
 success_sem, spl, spl_sem, softspl, dtg [metres], n [episodes]) and ``<output>/best.yaml``, a
 complete config (input config + overrides + tuned keys) for ``calnav objectnav --config``, whose
 header comment names the tuning episode range so a disjoint evaluation range can be chosen.
+With ``--extend N``, a best threshold on the edge of the grid adds up to N thresholds beyond it
+(``edge_extension``), so the optimum is bracketed rather than clipped.
 """
 from __future__ import annotations
 
@@ -120,10 +122,26 @@ def best_yaml_text(cfg: Config, *, config_path: str | None, overrides: list[str]
     return "\n".join(header) + "\n" + dump_yaml(cfg)
 
 
+def edge_extension(thresholds: list[float], best: float) -> float | None:
+    """The next threshold to try when ``best`` sits on an edge of the (sorted) grid: halfway
+    to 1 above the top, one grid spacing below the bottom (if that stays > 0); None when
+    ``best`` is interior or there is nowhere to go. A best value on the edge of the grid means
+    the optimum may lie outside it."""
+    top, bottom = max(thresholds), min(thresholds)
+    if best == top and top < 1.0:
+        return round((top + 1.0) / 2.0, 4)
+    if best == bottom and len(thresholds) > 1:
+        spacing = sorted(thresholds)[1] - bottom
+        if bottom - spacing > 0:
+            return round(bottom - spacing, 4)
+    return None
+
+
 def run_tune(config_path: str | None, overrides: list[str], episodes: str, thresholds: str,
              min_areas: str, metric: str, out: Path, force: bool = False,
-             progress: bool = True) -> tuple[list[dict], dict]:
-    """Run the grid (resumably) and write tune.csv and best.yaml under ``out``.
+             progress: bool = True, extend: int = 0) -> tuple[list[dict], dict]:
+    """Run the grid (resumably) and write tune.csv and best.yaml under ``out``. ``extend``:
+    up to this many extra thresholds (``edge_extension``) while the best one is on an edge.
 
     Returns (rows, best row); every row holds the tune.csv columns."""
     from envs.episodes import load_split, parse_episode_range
@@ -133,6 +151,8 @@ def run_tune(config_path: str | None, overrides: list[str], episodes: str, thres
     if metric not in TUNE_METRICS:
         raise ConfigError(f"unknown tuning metric {metric!r}; valid: {', '.join(TUNE_METRICS)}")
     ts, areas = parse_thresholds(thresholds), parse_min_areas(min_areas)
+    if extend < 0:
+        raise ConfigError(f"--extend must be >= 0, got {extend}")
     overrides = list(overrides)
     for text in overrides:
         if parse_override(text)[0] in TUNED_KEYS:
@@ -143,7 +163,8 @@ def run_tune(config_path: str | None, overrides: list[str], episodes: str, thres
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     rows: list[dict] = []
-    for t in ts:
+
+    def run_threshold(t: float) -> None:
         for a in areas:
             cfg = load_config(config_path, overrides + [f"agent.goal_threshold={t}",
                                                         f"agent.goal_min_area_cells={a}"])
@@ -152,6 +173,16 @@ def run_tune(config_path: str | None, overrides: list[str], episodes: str, thres
             summary = run_objectnav(cfg, AGENT, list(indices), out / point_name(t, a),
                                     force=force, progress=progress)
             rows.append(summary_row(t, a, summary))
+
+    for t in ts:
+        run_threshold(t)
+    for _ in range(extend):
+        nxt = edge_extension(ts, float(select_best(rows, metric)["threshold"]))
+        if nxt is None or nxt in ts:
+            break
+        ts = sorted(ts + [nxt])
+        run_threshold(nxt)
+    rows.sort(key=lambda r: (r["threshold"], r["min_area"]))
     write_csv(rows, out / "tune.csv")
     best = select_best(rows, metric)
     best_cfg = load_config(config_path, overrides + [f"agent.goal_threshold={best['threshold']}",
@@ -175,7 +206,7 @@ def format_tune_table(rows: list[dict], best: dict) -> str:
 def main_tune(args) -> None:
     out = Path(args.output)
     rows, best = run_tune(args.config, args.overrides, args.episodes, args.thresholds, args.min_areas,
-                          args.metric, out, force=args.force)
+                          args.metric, out, force=args.force, extend=args.extend)
     print(format_tune_table(rows, best))
     print(f"best by {args.metric}: agent.goal_threshold={best['threshold']:g} "
           f"agent.goal_min_area_cells={best['min_area']} ({args.metric}={best[args.metric]:.3f}, "

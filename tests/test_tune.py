@@ -7,7 +7,7 @@ import pytest
 
 from eval.cli import main
 from eval.config import ConfigError, load_config
-from eval.tune import parse_min_areas, parse_thresholds, point_name, select_best
+from eval.tune import edge_extension, parse_min_areas, parse_thresholds, point_name, select_best
 
 # A tiny, fast peanut set-up: low resolution, one small house, short episodes.
 SMALL = ["env.resolution=64x48", "env.dataset.val_scenes=1", "env.dataset.episodes_per_scene=2",
@@ -51,6 +51,16 @@ def test_grid_parsing_and_validation():
         parse_thresholds(" , ")
 
 
+def test_edge_extension():
+    grid = [0.5, 0.7, 0.9]
+    assert edge_extension(grid, 0.7) is None                     # interior: the grid brackets it
+    assert edge_extension(grid, 0.9) == 0.95                     # halfway to 1
+    assert edge_extension(grid + [0.95], 0.95) == 0.975
+    assert edge_extension(grid, 0.5) == pytest.approx(0.3)       # one spacing below
+    assert edge_extension([0.2, 0.7], 0.2) is None               # 0.2 - 0.5 <= 0
+    assert edge_extension([1.0], 1.0) is None and edge_extension([0.5], 0.5) == 0.75
+
+
 def test_tune_bad_input_exits_2(tmp_path, capsys):
     base = ["tune", "--episodes", "0:1", "--output", str(tmp_path / "t"), *SMALL]
     assert main(base + ["--thresholds", "0.5,1.5"]) == 2
@@ -61,6 +71,8 @@ def test_tune_bad_input_exits_2(tmp_path, capsys):
     assert "empty" in capsys.readouterr().err
     assert main(base + ["agent.goal_threshold=0.7"]) == 2
     assert "is tuned by" in capsys.readouterr().err
+    assert main(base + ["--extend", "-1"]) == 2
+    assert ">= 0" in capsys.readouterr().err
     assert not (tmp_path / "t").exists()  # nothing ran
 
 
@@ -92,4 +104,11 @@ def test_tune_end_to_end_writes_csv_and_loadable_best(tmp_path, capsys):
     # rerun resumes: no episode is run again, results unchanged
     before = (out / "0.6_3" / "episodes.jsonl").read_text()
     assert main(args) == 0
+    assert (out / "0.6_3" / "episodes.jsonl").read_text() == before
+
+    # --extend 1: with two points the best is on an edge, so one threshold beyond it is added
+    assert main(args + ["--extend", "1"]) == 0
+    with open(out / "tune.csv") as f:
+        ts = [float(r["threshold"]) for r in csv.DictReader(f)]
+    assert ts == sorted([0.6, 0.9, edge_extension([0.6, 0.9], expected["threshold"])])
     assert (out / "0.6_3" / "episodes.jsonl").read_text() == before
