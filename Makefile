@@ -6,7 +6,7 @@ PY     := $(VENV)/bin/python
 TORCH_SPEC ?= torch==2.13.0
 STAMP  := $(VENV)/.calnav-installed
 
-.PHONY: setup demo test test-full bench clean-cache
+.PHONY: setup demo test test-full bench study clean-cache
 
 setup: $(STAMP)
 
@@ -29,6 +29,11 @@ test-full: $(STAMP)
 
 bench: $(STAMP)
 	$(VENV)/bin/calnav bench --output bench.json
+
+# The README's ObjectNav comparison: tune per segmenter x map, evaluate on a disjoint range
+# (several hours on 2 cores; resumable, rerun to continue).
+study: $(STAMP)
+	CALNAV=$(VENV)/bin/calnav eval/objectnav_study.sh
 
 clean-cache:
 	rm -rf $${CALNAV_CACHE:-$$HOME/.cache/calnav}

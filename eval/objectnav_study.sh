@@ -4,12 +4,17 @@
 # grid, `--extend 2`), then evaluate the tuned config on the disjoint range $EVAL; GLFS is also
 # evaluated with the uncertainty-aware agent (at GLFS's tuned threshold).
 # Every step is resumable: rerun the script to continue after an interruption.
-#   usage: eval/objectnav_study.sh            (env: OUT, TUNE, EVAL, THRESHOLDS, SEGMENTERS, CALNAV)
+#   usage: eval/objectnav_study.sh   (env: OUT, TUNE, EVAL, THRESHOLDS, THRESHOLDS_<segmenter>,
+#                                     SEGMENTERS, CALNAV)
 set -euo pipefail
 OUT=${OUT:-runs/study}
 TUNE=${TUNE:-0:100}            # tuning episodes (val), an A:B range
 EVAL=${EVAL:-100:300}          # evaluation episodes (val), disjoint from TUNE
 THRESHOLDS=${THRESHOLDS:-0.5,0.7,0.9}  # goal confidence thresholds tried
+# gt's per-pixel confidence is 0.9 by construction (agent.segmenter_config.gt_confidence), so
+# a threshold of 0.9 could only reject true detections: its grid stays below it (the edge rule
+# may still go above).
+THRESHOLDS_gt=${THRESHOLDS_gt:-0.5,0.7,0.85}
 SEGMENTERS=${SEGMENTERS:-learned_rgb gt}
 CALNAV=${CALNAV:-.venv/bin/calnav}
 # 160x120 = the mapping resolution the agent subsamples 640x480 to, and the segmenters' training
@@ -25,10 +30,12 @@ map_overrides() {  # $1 segmenter, $2 map -> overrides selecting the map
 }
 
 for seg in $SEGMENTERS; do
+  thresholds_var="THRESHOLDS_$seg"
+  thresholds=${!thresholds_var:-$THRESHOLDS}
   for map in ndf rbu averaging glfs; do
     tune_dir=$OUT/tune/$seg/$map
     # shellcheck disable=SC2046
-    $CALNAV tune --episodes "$TUNE" --thresholds "$THRESHOLDS" --extend 2 --min-areas 4 --metric spl \
+    $CALNAV tune --episodes "$TUNE" --thresholds "$thresholds" --extend 2 --min-areas 4 --metric spl \
       --output "$tune_dir" "${COMMON[@]}" agent.segmenter="$seg" $(map_overrides "$seg" "$map")
     $CALNAV objectnav --agent peanut --config "$tune_dir/best.yaml" --episodes "$EVAL" \
       --output "$OUT/eval/$seg/$map"
