@@ -4,7 +4,9 @@ For runs made separately (e.g. each with its own tuned ``best.yaml``), this writ
 multirun writes (``comparison.md`` / ``.csv`` / ``.png``, ``eval.objectnav_report``) with the
 config keys that differ between the runs as the leading columns, plus ``paired.md`` / ``.csv``:
 each run minus a baseline run on the episodes both hold (matched by index), mean and paired
-SEM (``eval.stats.paired_difference``), and ``|diff| / SEM``. Keys under ``mapping.`` are shown
+SEM (``eval.stats.paired_difference``), and ``|diff| / SEM``; and ``failures.md``: per run, how
+many episodes failed by a false STOP, by running out of steps, or by a crash
+(``eval.stats.failure_modes``, step limit from each run's ``env.max_episode_steps``). Keys under ``mapping.`` are shown
 as ``-`` for ``agent.map_type: ndf`` runs, which do not use the 3D map.
 """
 from __future__ import annotations
@@ -15,7 +17,7 @@ from pathlib import Path
 
 from eval.config import ConfigError
 from eval.objectnav import load_records
-from eval.stats import METRIC_LABELS, paired_difference, summarize
+from eval.stats import METRIC_LABELS, failure_modes, paired_difference, summarize
 
 # Config keys that never change results, so they are never comparison columns.
 IGNORED_KEYS: tuple[str, ...] = ("run.output_dir", "run.workers")
@@ -96,6 +98,18 @@ def paired_markdown(base_name: str, rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
+DEFAULT_MAX_STEPS = 500  # habitat-lab's ObjectNav limit, used if a config does not name one
+
+
+def failures_markdown(names: list[str], loaded: list[tuple[dict, list[dict]]]) -> str:
+    lines = ["| Run | Failed | False STOP | Out of steps | Crashed | N |", "|---|---|---|---|---|---|"]
+    for name, (cfg, records) in zip(names, loaded):
+        f = failure_modes(records, int(cfg.get("env.max_episode_steps", DEFAULT_MAX_STEPS)))
+        lines.append(f"| {name} | {sum(f.values())} | {f['false_stop']} | {f['timeout']} | {f['crashed']} "
+                     f"| {len(records)} |")
+    return "\n".join(lines)
+
+
 def main_compare(args) -> None:
     from eval.objectnav_report import write_comparison
 
@@ -124,7 +138,11 @@ def main_compare(args) -> None:
         w = csv.DictWriter(f, fieldnames=list(prow[0]))
         w.writeheader()
         w.writerows(prow)
+    failures = failures_markdown(names, loaded)
+    (out / "failures.md").write_text(failures + "\n")
     print(table)
     print()
     print(paired)
-    print(f"results: {out}/comparison.md, comparison.csv, comparison.png, paired.md, paired.csv")
+    print()
+    print(failures)
+    print(f"results: {out}/comparison.md, comparison.csv, comparison.png, paired.md, paired.csv, failures.md")

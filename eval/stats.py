@@ -63,6 +63,19 @@ def paired_difference(a: list[dict], b: list[dict], metric: str) -> tuple[float,
     return m, sem, len(diffs)
 
 
+def failure_modes(records: list[dict], max_steps: int) -> dict[str, int]:
+    """Counts of how episodes failed: ``false_stop`` (STOP called away from the goal before the
+    step limit), ``timeout`` (still searching at ``max_steps`` actions; the agent's forced last
+    STOP does not make it a decision) and ``crashed`` (``status != "ok"``)."""
+    out = {"false_stop": 0, "timeout": 0, "crashed": 0}
+    for r in records:
+        if r.get("status", "ok") != "ok":
+            out["crashed"] += 1
+        elif not r.get("success"):
+            out["timeout" if r.get("steps", 0) >= max_steps else "false_stop"] += 1
+    return out
+
+
 def format_metrics_table(rows: list[tuple[str, dict]], first_header: str = "Run") -> str:
     """Markdown table: one row per (name, summary), each metric as 'mean (SEM)'."""
     header = f"| {first_header} | " + " | ".join(METRIC_LABELS[m] for m in METRICS) + " | N |"

@@ -10,7 +10,7 @@ import yaml
 
 from eval.compare import differing_keys, flatten, main_compare
 from eval.config import ConfigError
-from eval.stats import paired_difference
+from eval.stats import failure_modes, paired_difference
 
 
 def _rec(i, success, spl, status="ok"):
@@ -30,6 +30,15 @@ def test_paired_difference_hand_computed():
     b_crash = [_rec(0, 1.0, 0.9), _rec(1, 1.0, 0.7), {"index": 2, "status": "error", "category": "bed"}]
     d, _, n = paired_difference(a, b_crash, "success")
     assert (d, n) == (pytest.approx(0.0), 3)
+
+
+def test_failure_modes_counts():
+    recs = [{"success": 1.0, "steps": 500, "status": "ok"},          # success on the forced STOP
+            {"success": 0.0, "steps": 120, "status": "ok"},          # false STOP
+            {"success": 0.0, "steps": 500, "status": "ok"},          # out of steps
+            {"success": 0.0, "steps": 499, "status": "ok"},          # STOP one step before the limit
+            {"index": 4, "status": "error"}]
+    assert failure_modes(recs, 500) == {"false_stop": 2, "timeout": 1, "crashed": 1}
 
 
 def test_flatten_and_differing_keys():
@@ -64,6 +73,8 @@ def test_compare_run_directories(tmp_path, capsys):
     assert float(row["success"]) == pytest.approx(-0.5) and row["n"] == "2"
     assert row["spl_z"] == "inf" and float(row["success_z"]) == pytest.approx(1.0)  # 0.5 / 0.5
     assert "Paired differences" in capsys.readouterr().out
+    failures = (out / "failures.md").read_text().splitlines()
+    assert failures[3].endswith("| 1 | 1 | 0 | 0 | 2 |")  # ndf: episode 0 failed with steps absent -> false STOP
 
 
 def test_compare_bad_input(tmp_path):
