@@ -2,7 +2,8 @@
 # The README's ObjectNav comparison (the paper's Table II): for each segmenter and map type, tune
 # the goal threshold on val episodes $TUNE (a best threshold on the grid's edge extends the
 # grid, `--extend 2`), then evaluate the tuned config on the disjoint range $EVAL; GLFS is also
-# evaluated with the uncertainty-aware agent (at GLFS's tuned threshold).
+# evaluated with the uncertainty-aware agent (at GLFS's tuned threshold), and so is RBU (at its
+# own), the control that tells the agent's share of that gain from the calibration's.
 # Every step is resumable: rerun the script to continue after an interruption.
 #   usage: eval/objectnav_study.sh   (env: OUT, TUNE, EVAL, THRESHOLDS, THRESHOLDS_<segmenter>,
 #                                     SEGMENTERS, CALNAV)
@@ -40,6 +41,8 @@ for seg in $SEGMENTERS; do
     $CALNAV objectnav --agent peanut --config "$tune_dir/best.yaml" --episodes "$EVAL" \
       --output "$OUT/eval/$seg/$map"
   done
-  $CALNAV objectnav --agent peanut --config "$OUT/tune/$seg/glfs/best.yaml" --episodes "$EVAL" \
-    --output "$OUT/eval/$seg/glfs_uncertainty" agent.uncertainty_aware=true
+  for map in glfs rbu; do
+    $CALNAV objectnav --agent peanut --config "$OUT/tune/$seg/$map/best.yaml" --episodes "$EVAL" \
+      --output "$OUT/eval/$seg/${map}_uncertainty" agent.uncertainty_aware=true
+  done
 done
