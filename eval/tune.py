@@ -69,19 +69,26 @@ def point_name(threshold: float, min_area: int) -> str:
     return f"{threshold:g}_{min_area}"
 
 
+# Metric means are rounded to this many decimals before ranking: runs with identical episodes
+# can differ in the last bits (episodes finish, and are summed, in a different order), and such
+# noise must tie, not decide.
+SCORE_DECIMALS = 9
+
+
 def _score(value) -> float:
     """A metric value for ranking: missing / NaN ranks below everything."""
     try:
         v = float(value)
     except (TypeError, ValueError):
         return -math.inf
-    return v if math.isfinite(v) else -math.inf
+    return round(v, SCORE_DECIMALS) if math.isfinite(v) else -math.inf
 
 
 def select_best(rows: list[dict], metric: str = "spl") -> dict:
     """The best grid point among ``rows`` (dicts with threshold, min_area and metric keys).
 
-    Ranked by ``metric`` (higher is better), ties broken by higher success, then by the lower
+    Ranked by ``metric`` (higher is better; equal to SCORE_DECIMALS decimals is a tie), ties
+    broken by higher success, then by the lower
     threshold, then by the smaller min_area (so the choice is deterministic)."""
     if metric not in TUNE_METRICS:
         raise ConfigError(f"unknown tuning metric {metric!r}; valid: {', '.join(TUNE_METRICS)}")
@@ -122,18 +129,22 @@ def best_yaml_text(cfg: Config, *, config_path: str | None, overrides: list[str]
     return "\n".join(header) + "\n" + dump_yaml(cfg)
 
 
-def edge_extension(thresholds: list[float], best: float) -> float | None:
-    """The next threshold to try when ``best`` sits on an edge of the (sorted) grid: halfway
-    to 1 above the top, one grid spacing below the bottom (if that stays > 0); None when
-    ``best`` is interior or there is nowhere to go. A best value on the edge of the grid means
-    the optimum may lie outside it."""
-    top, bottom = max(thresholds), min(thresholds)
-    if best == top and top < 1.0:
-        return round((top + 1.0) / 2.0, 4)
-    if best == bottom and len(thresholds) > 1:
-        spacing = sorted(thresholds)[1] - bottom
-        if bottom - spacing > 0:
-            return round(bottom - spacing, 4)
+def edge_extension(scores: dict[float, float]) -> float | None:
+    """The next threshold to try when the best one (``scores``: threshold -> its best metric
+    value, higher is better; ties go to the lower threshold) sits on an edge of the grid and
+    beats its neighbour: halfway to 1 above the top, one grid spacing below the bottom (if that
+    stays > 0). None when the best is interior, ties with its neighbour (a flat optimum needs
+    no bracketing), or there is nowhere to go."""
+    ts = sorted(scores)
+    best = max(ts, key=lambda t: (_score(scores[t]), -t))
+    if len(ts) == 1:
+        return round((best + 1.0) / 2.0, 4) if best < 1.0 else None
+    if best == ts[-1] and _score(scores[ts[-1]]) > _score(scores[ts[-2]]) and best < 1.0:
+        return round((best + 1.0) / 2.0, 4)
+    if best == ts[0] and _score(scores[ts[0]]) > _score(scores[ts[1]]):
+        spacing = ts[1] - ts[0]
+        if ts[0] - spacing > 0:
+            return round(ts[0] - spacing, 4)
     return None
 
 
@@ -177,7 +188,10 @@ def run_tune(config_path: str | None, overrides: list[str], episodes: str, thres
     for t in ts:
         run_threshold(t)
     for _ in range(extend):
-        nxt = edge_extension(ts, float(select_best(rows, metric)["threshold"]))
+        scores: dict[float, float] = {}
+        for r in rows:
+            scores[r["threshold"]] = max(scores.get(r["threshold"], -math.inf), _score(r[metric]))
+        nxt = edge_extension(scores)
         if nxt is None or nxt in ts:
             break
         ts = sorted(ts + [nxt])

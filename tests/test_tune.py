@@ -52,13 +52,22 @@ def test_grid_parsing_and_validation():
 
 
 def test_edge_extension():
-    grid = [0.5, 0.7, 0.9]
-    assert edge_extension(grid, 0.7) is None                     # interior: the grid brackets it
-    assert edge_extension(grid, 0.9) == 0.95                     # halfway to 1
-    assert edge_extension(grid + [0.95], 0.95) == 0.975
-    assert edge_extension(grid, 0.5) == pytest.approx(0.3)       # one spacing below
-    assert edge_extension([0.2, 0.7], 0.2) is None               # 0.2 - 0.5 <= 0
-    assert edge_extension([1.0], 1.0) is None and edge_extension([0.5], 0.5) == 0.75
+    assert edge_extension({0.5: 0.3, 0.7: 0.4, 0.9: 0.35}) is None   # interior: the grid brackets it
+    assert edge_extension({0.5: 0.3, 0.7: 0.4, 0.9: 0.45}) == 0.95   # halfway to 1
+    assert edge_extension({0.7: 0.4, 0.9: 0.45, 0.95: 0.5}) == 0.975
+    assert edge_extension({0.5: 0.5, 0.7: 0.4, 0.9: 0.3}) == pytest.approx(0.3)  # one spacing below
+    assert edge_extension({0.2: 0.5, 0.7: 0.4}) is None              # 0.2 - 0.5 <= 0
+    assert edge_extension({1.0: 0.5}) is None and edge_extension({0.5: 0.5}) == 0.75
+    # a flat optimum (equal up to float noise) is not extended, and ties go to the lower threshold
+    flat = {0.5: 0.5945951766802705, 0.7: 0.5945951766802706, 0.85: 0.5945951766802705}
+    assert edge_extension(flat) is None
+    assert edge_extension({0.5: 0.4, 0.7: 0.5, 0.9: 0.5}) is None
+
+
+def test_select_best_ignores_float_noise():
+    rows = [{"threshold": t, "min_area": 4, "spl": v, "success": 0.95}
+            for t, v in ((0.5, 0.5945951766802705), (0.7, 0.5945951766802706))]
+    assert select_best(rows, "spl")["threshold"] == 0.5
 
 
 def test_tune_bad_input_exits_2(tmp_path, capsys):
@@ -106,9 +115,11 @@ def test_tune_end_to_end_writes_csv_and_loadable_best(tmp_path, capsys):
     assert main(args) == 0
     assert (out / "0.6_3" / "episodes.jsonl").read_text() == before
 
-    # --extend 1: with two points the best is on an edge, so one threshold beyond it is added
+    # --extend 1: with two points the best is on an edge; unless they tie, one threshold beyond it is added
     assert main(args + ["--extend", "1"]) == 0
     with open(out / "tune.csv") as f:
         ts = [float(r["threshold"]) for r in csv.DictReader(f)]
-    assert ts == sorted([0.6, 0.9, edge_extension([0.6, 0.9], expected["threshold"])])
+    scores = {float(r["threshold"]): float(r["spl"]) for r in rows}
+    nxt = edge_extension(scores)
+    assert ts == sorted([0.6, 0.9] + ([nxt] if nxt is not None else []))
     assert (out / "0.6_3" / "episodes.jsonl").read_text() == before
