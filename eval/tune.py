@@ -88,8 +88,8 @@ def select_best(rows: list[dict], metric: str = "spl") -> dict:
     """The best grid point among ``rows`` (dicts with threshold, min_area and metric keys).
 
     Ranked by ``metric`` (higher is better; equal to SCORE_DECIMALS decimals is a tie), ties
-    broken by higher success, then by the lower
-    threshold, then by the smaller min_area (so the choice is deterministic)."""
+    broken by higher success, then by the lower threshold, then by the smaller min_area (so the
+    choice is deterministic)."""
     if metric not in TUNE_METRICS:
         raise ConfigError(f"unknown tuning metric {metric!r}; valid: {', '.join(TUNE_METRICS)}")
     if not rows:
