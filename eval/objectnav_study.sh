@@ -19,7 +19,7 @@ THRESHOLDS_gt=${THRESHOLDS_gt:-0.5,0.7,0.85}
 SEGMENTERS=${SEGMENTERS:-learned_rgb gt}
 CALNAV=${CALNAV:-.venv/bin/calnav}
 # 160x120 = the mapping resolution the agent subsamples 640x480 to, and the segmenters' training
-# resolution: same information, 1.7x faster episodes (README, "ObjectNav comparison").
+# resolution: same information, 1.6x faster episodes (README, "ObjectNav comparison").
 COMMON=(env.resolution=160x120)
 
 map_overrides() {  # $1 segmenter, $2 map -> overrides selecting the map
