@@ -92,7 +92,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("compare", help="one comparison table (+ paired differences) from finished objectnav runs")
     p.add_argument("runs", nargs="+", help="run directories (each with config.yaml and episodes.jsonl)")
     p.add_argument("--keys", default="", help="comma-separated config keys as columns (default: the keys that differ)")
-    p.add_argument("--baseline", default="0", help="position of the run the paired differences are taken against")
+    p.add_argument("--baseline", type=int, default=0, help="position of the run the paired differences are taken against")
     p.add_argument("--output", required=True, help="directory for comparison.md/.csv/.png and paired.md/.csv")
 
     p = sub.add_parser("demo", help="set-up check + a real ObjectNav evaluation on procedural houses")

@@ -98,13 +98,13 @@ def paired_markdown(base_name: str, rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
-DEFAULT_MAX_STEPS = 500  # habitat-lab's ObjectNav limit, used if a config does not name one
-
-
 def failures_markdown(names: list[str], loaded: list[tuple[dict, list[dict]]]) -> str:
+    from envs.config import EnvConfig
+
+    default_steps = EnvConfig().max_episode_steps  # for a config that does not name it
     lines = ["| Run | Failed | False STOP | Out of steps | Crashed | N |", "|---|---|---|---|---|---|"]
     for name, (cfg, records) in zip(names, loaded):
-        f = failure_modes(records, int(cfg.get("env.max_episode_steps", DEFAULT_MAX_STEPS)))
+        f = failure_modes(records, int(cfg.get("env.max_episode_steps", default_steps)))
         lines.append(f"| {name} | {sum(f.values())} | {f['false_stop']} | {f['timeout']} | {f['crashed']} "
                      f"| {len(records)} |")
     return "\n".join(lines)
@@ -116,6 +116,9 @@ def main_compare(args) -> None:
     paths = [Path(p) for p in args.runs]
     if len(paths) < 2:
         raise ConfigError("calnav compare needs at least two run directories")
+    base = int(args.baseline)
+    if not 0 <= base < len(paths):
+        raise ConfigError(f"--baseline {base} is not a run position (0..{len(paths) - 1})")
     loaded = [load_run(p) for p in paths]
     configs = [c for c, _ in loaded]
     keys = [k.strip() for k in args.keys.split(",")] if args.keys else differing_keys(configs)
@@ -126,9 +129,6 @@ def main_compare(args) -> None:
     rows = [({k: cell_value(c, k) for k in keys}, summarize(r)) for c, r in loaded]
     out = Path(args.output)
     table = write_comparison(keys, rows, out)
-    base = int(args.baseline)
-    if not 0 <= base < len(paths):
-        raise ConfigError(f"--baseline {base} is not a run position (0..{len(paths) - 1})")
     names = [str(p) for p in paths]
     others = [(names[i], loaded[i][1]) for i in range(len(paths)) if i != base]
     prow = paired_rows(loaded[base][1], others)
