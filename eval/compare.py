@@ -74,6 +74,10 @@ def _ratio(d: float, sem: float) -> float:
     return math.inf if d != 0 else math.nan
 
 
+def _ratio_cell(z: float) -> str:
+    return "-" if math.isnan(z) else f"{z:.1f}"
+
+
 def paired_rows(baseline: list[dict], runs: list[tuple[str, list[dict]]]) -> list[dict]:
     """One row per run: {'run', 'n', metric, metric_sem, metric_z} (run - baseline)."""
     rows = []
@@ -93,8 +97,10 @@ def paired_markdown(base_name: str, rows: list[dict]) -> str:
              "| " + " | ".join(heads) + " |", "|" + "---|" * len(heads)]
     for r in rows:
         cells = [r["run"]] + [f"{r[m]:+.3f} ({r[m + '_sem']:.3f})" for m in PAIRED_METRICS] + \
-                [f"{r[m + '_z']:.1f}" for m in PAIRED_METRICS] + [str(r["n"])]
+                [_ratio_cell(r[m + "_z"]) for m in PAIRED_METRICS] + [str(r["n"])]
         lines.append("| " + " | ".join(cells) + " |")
+    if any(math.isnan(r[m + "_z"]) for r in rows for m in PAIRED_METRICS):
+        lines += ["", "abs d / SEM \"-\": the metric is identical on every paired episode (or no episodes pair)."]
     return "\n".join(lines)
 
 

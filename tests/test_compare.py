@@ -77,6 +77,21 @@ def test_compare_run_directories(tmp_path, capsys):
     assert failures[3].endswith("| 1 | 1 | 0 | 0 | 2 |")  # ndf: episode 0 failed with steps absent -> false STOP
 
 
+def test_paired_identical_runs_render_dash(tmp_path):
+    cfg = {"agent": {"map_type": "fused", "segmenter": "gt"}, "mapping": {"fusion": "rbu"}}
+    recs = [_rec(0, 1.0, 0.5), _rec(1, 0.0, 0.0)]
+    r0 = _run_dir(tmp_path / "a", cfg, recs)
+    r1 = _run_dir(tmp_path / "b", {**cfg, "mapping": {"fusion": "glfs"}}, recs)
+    out = tmp_path / "cmp"
+    main_compare(argparse.Namespace(runs=[r0, r1], keys="", baseline="0", output=str(out)))
+    paired = (out / "paired.md").read_text()
+    row = next(line for line in paired.splitlines() if line.startswith(f"| {r1} "))
+    assert row.endswith("| +0.000 (0.000) | +0.000 (0.000) | - | - | 2 |")  # 0 / 0 is not a z
+    assert "identical on every paired episode" in paired
+    with open(out / "paired.csv") as f:
+        assert next(csv.DictReader(f))["spl_z"] == "nan"  # the CSV keeps the number
+
+
 def test_compare_bad_input(tmp_path):
     cfg = {"agent": {"segmenter": "gt"}}
     r0 = _run_dir(tmp_path / "a", cfg, [_rec(0, 1.0, 1.0)])
