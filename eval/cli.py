@@ -27,7 +27,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("objectnav", help="run ObjectNav episodes and report Success/SPL/SoftSPL/DTG")
     _add_config_args(p, "configs/objectnav.yaml")
-    p.add_argument("--agent", default="oracle", help="agent to run (oracle)")
+    p.add_argument("--agent", default=None, metavar="NAME",
+                   help="shorthand for run.agent=NAME (default: the config's, peanut)")
     p.add_argument("--episodes", default="10", help="N (first N) or A:B (a range) of the split's episodes")
     p.add_argument("--output", default=None, help="results directory (default: run.output_dir)")
     p.add_argument("--force", action="store_true", help="discard results of a different config in --output")
@@ -40,7 +41,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("view-episode", help="top-down map PNG and a frame strip of one episode")
     _add_config_args(p, "configs/objectnav.yaml")
     p.add_argument("--episode", type=int, default=0, help="episode index within the split")
-    p.add_argument("--agent", default="oracle", help="agent whose path is drawn (oracle)")
+    p.add_argument("--agent", default="oracle",
+                   help="agent whose path is drawn: oracle (default; the shortest path) or peanut")
     p.add_argument("--output", default="runs/view", help="output directory")
 
     p = sub.add_parser("bench", help="speed/memory figures as a flat JSON of name -> number")

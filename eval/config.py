@@ -28,10 +28,17 @@ class ConfigError(ValueError):
     """A config key or value is invalid; the message names it and the valid choices."""
 
 
+# Names of ``eval.agents.AGENTS`` (a test keeps the two in step): the config validates the
+# choice without importing any agent.
+AgentName = Literal["peanut", "oracle"]
+AGENT_NAMES: tuple[str, ...] = AgentName.__args__  # type: ignore[attr-defined]
+
+
 @dataclass
 class RunConfig:
-    """How an experiment runs (not what it computes)."""
+    """How an experiment runs, and which agent runs it (``eval.agents.AGENTS``)."""
 
+    agent: AgentName = "peanut"   # agent that runs the episodes: peanut (semantic map, agent.*) | oracle (shortest path)
     seed: int = 0                 # master random seed
     workers: int = 0              # parallel worker processes; 0 = all cores
     output_dir: str = "runs/latest"  # where results, plots and videos go

@@ -9,9 +9,6 @@ from pathlib import Path
 from eval.config import load_config
 from eval.stats import format_metrics_table
 
-DEMO_AGENT = "peanut"
-
-
 def main_demo(args) -> None:
     from envs.episodes import load_split, parse_episode_range
     from eval.objectnav import run_objectnav
@@ -20,8 +17,8 @@ def main_demo(args) -> None:
     episodes = load_split(cfg.env.split, cfg.env)
     indices = list(parse_episode_range(str(args.episodes), len(episodes)))
     out = Path(cfg.run.output_dir)
-    summary = run_objectnav(cfg, DEMO_AGENT, indices, out, force=True, video=1)
-    label = f"{DEMO_AGENT} ({cfg.agent.segmenter} + {cfg.mapping.fusion})"
+    summary = run_objectnav(cfg, indices, out, force=True, video=1)
+    label = f"{cfg.run.agent} ({cfg.agent.segmenter} + {cfg.mapping.fusion})"
     print()
     print(format_metrics_table([(label, summary)], first_header="Agent"))
     videos = sorted((out / "videos").glob("*.mp4"))

@@ -1,4 +1,5 @@
-"""`calnav objectnav`: run an agent on a split's episodes, in parallel workers, resumably.
+"""`calnav objectnav`: run the configured agent (``run.agent``) on a split's episodes, in
+parallel workers, resumably.
 
 Output directory: ``config.yaml`` (the resolved config), ``episodes.jsonl`` (one line per
 finished episode, appended and flushed as each finishes, so a killed run loses at most the
@@ -133,12 +134,15 @@ def prepare_output(out: Path, cfg: Config, force: bool) -> None:
     cfg_path.write_text(dump_yaml(cfg))
 
 
-def run_objectnav(cfg: Config, agent_name: str, indices: list[int], out: Path, force: bool = False,
+def run_objectnav(cfg: Config, indices: list[int], out: Path, force: bool = False,
                   progress: bool = True, video: int = 0, plots: bool = True) -> dict:
-    """Run (or resume) ``indices`` of ``cfg.env.split``; returns the summary dict. ``video``:
-    write videos of the first ``video`` indices (those still to run); ``plots``: write plots/."""
+    """Run (or resume) ``indices`` of ``cfg.env.split`` with agent ``cfg.run.agent``; returns the
+    summary dict. ``video``: write videos of the first ``video`` indices (those still to run);
+    ``plots``: write plots/. The agent is part of the saved config, so resuming a directory
+    with another agent is refused like any other config change."""
     from tqdm import tqdm
 
+    agent_name = cfg.run.agent
     if video and agent_name not in VIDEO_AGENTS:
         raise ValueError(f"--video draws the agent's semantic map; agent {agent_name!r} has none "
                          f"(agents with videos: {', '.join(VIDEO_AGENTS)})")
@@ -187,30 +191,33 @@ def run_objectnav(cfg: Config, agent_name: str, indices: list[int], out: Path, f
     return summary
 
 
+def agent_overrides(args, overrides: list[str]) -> list[str]:
+    """``overrides`` plus ``run.agent=NAME`` when ``--agent NAME`` was given (its shorthand)."""
+    agent = getattr(args, "agent", None)
+    return [*overrides, f"run.agent={agent}"] if agent else list(overrides)
+
+
 def _run_from_args(args, overrides: list[str], out: Path | None) -> tuple[dict, Path]:
-    """Load the config with ``overrides``, resolve --episodes, run into ``out`` (default:
-    run.output_dir); returns (summary, output directory)."""
+    """Load the config with ``overrides`` (and --agent), resolve --episodes, run into ``out``
+    (default: run.output_dir); returns (summary, output directory)."""
     from envs.episodes import load_split, parse_episode_range
 
-    cfg = load_config(args.config, overrides)
+    cfg = load_config(args.config, agent_overrides(args, overrides))
     episodes = load_split(cfg.env.split, cfg.env)
     indices = list(parse_episode_range(str(args.episodes), len(episodes)))
     out = Path(out or cfg.run.output_dir)
-    summary = run_objectnav(cfg, args.agent, indices, out, force=args.force, video=getattr(args, "video", 0))
+    summary = run_objectnav(cfg, indices, out, force=args.force, video=getattr(args, "video", 0))
     return summary, out
 
 
 def main_objectnav(args) -> None:
-    from eval.agents import AGENTS
     from eval.config import expand_multirun
 
-    if args.agent not in AGENTS:
-        raise ValueError(f"unknown agent {args.agent!r}; valid agents: {', '.join(AGENTS)}")
     if getattr(args, "video", 0) < 0:
         raise ValueError(f"--video must be >= 0, got {args.video}")
     if not getattr(args, "multirun", False):
         summary, out = _run_from_args(args, args.overrides, args.output)
-        print(format_metrics_table([(args.agent, summary)], first_header="Agent"))
+        print(format_metrics_table([(summary["agent"], summary)], first_header="Agent"))
         print(f"results: {out}/episodes.jsonl, {out}/summary.json, {out}/plots/")
         return
     from eval.objectnav_report import combo_dirname, combo_values, varied_keys, write_comparison
@@ -218,7 +225,7 @@ def main_objectnav(args) -> None:
     combos = expand_multirun(list(args.overrides))
     keys = varied_keys(list(args.overrides))
     for combo in combos:  # validate every combination before running any
-        load_config(args.config, combo)
+        load_config(args.config, agent_overrides(args, combo))
     root = Path(args.output or load_config(args.config, combos[0]).run.output_dir)
     rows = []
     for combo in combos:

@@ -25,7 +25,7 @@ TUNE_METRICS: tuple[str, ...] = ("spl", "success", "softspl")  # all higher-is-b
 TUNED_KEYS: tuple[str, ...] = ("agent.goal_threshold", "agent.goal_min_area_cells")
 CSV_COLUMNS: tuple[str, ...] = ("threshold", "min_area", "success", "success_sem", "spl", "spl_sem",
                                 "softspl", "dtg", "n")
-AGENT = "peanut"
+TUNED_AGENT = "peanut"  # the agent whose goal detection the grid tunes
 
 
 def _split_list(text: str, name: str) -> list[str]:
@@ -170,6 +170,9 @@ def run_tune(config_path: str | None, overrides: list[str], episodes: str, thres
             raise ConfigError(f"{parse_override(text)[0]} is tuned by --thresholds / --min-areas; "
                               "remove it from the overrides")
     base = load_config(config_path, overrides)
+    if base.run.agent != TUNED_AGENT:
+        raise ConfigError(f"calnav tune tunes the {TUNED_AGENT} agent's goal detection; "
+                          f"run.agent is {base.run.agent!r} (set run.agent={TUNED_AGENT})")
     indices = parse_episode_range(str(episodes), len(load_split(base.env.split, base.env)))
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -181,7 +184,7 @@ def run_tune(config_path: str | None, overrides: list[str], episodes: str, thres
                                                         f"agent.goal_min_area_cells={a}"])
             if progress:
                 print(f"tune: goal_threshold={t:g} goal_min_area_cells={a} -> {out / point_name(t, a)}")
-            summary = run_objectnav(cfg, AGENT, list(indices), out / point_name(t, a),
+            summary = run_objectnav(cfg, list(indices), out / point_name(t, a),
                                     force=force, progress=progress)
             rows.append(summary_row(t, a, summary))
 

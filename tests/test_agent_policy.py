@@ -18,10 +18,12 @@ def test_agent_config_keys_and_validation():
         load_config(None, ["agent.goal_threshold=1.5"])
 
 
-def test_peanut_is_registered():
+def test_peanut_is_registered_and_the_default():
     from eval.agents import AGENTS
+    from eval.config import AGENT_NAMES, RunConfig
 
-    assert "peanut" in AGENTS
+    assert set(AGENTS) == set(AGENT_NAMES)  # run.agent's choices are exactly the registry's names
+    assert RunConfig().agent == "peanut"
 
 
 def test_agent_imports_no_simulator_internals():

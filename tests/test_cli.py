@@ -53,6 +53,10 @@ def test_objectnav_oracle_run_resume_and_refusal(tmp_path, capsys):
     other = args + ["env.max_episode_steps=100"]
     assert main(other) == 2
     assert "holds results of a different config" in capsys.readouterr().err
+    # so is another agent: its episodes would silently mix with the oracle's
+    peanut = [a if a != "oracle" else "peanut" for a in args]
+    assert main(peanut) == 2
+    assert "holds results of a different config" in capsys.readouterr().err
     assert main(other + ["--force"]) == 0
     assert len(load_records(out / "episodes.jsonl")) == 4
 
@@ -62,7 +66,7 @@ def test_objectnav_bad_input(tmp_path, capsys):
     assert main(base + ["--episodes", "0:999"]) == 2
     assert "outside the split" in capsys.readouterr().err
     assert main(base + ["--agent", "nope"]) == 2
-    assert "valid agents: oracle" in capsys.readouterr().err
+    assert "bad value for run.agent: 'nope'; valid choices: peanut, oracle" in capsys.readouterr().err
     assert main(base + ["mapping.fusion=bayes"]) == 2
     assert "mapping.fusion" in capsys.readouterr().err
 

@@ -82,6 +82,8 @@ def test_tune_bad_input_exits_2(tmp_path, capsys):
     assert "is tuned by" in capsys.readouterr().err
     assert main(base + ["--extend", "-1"]) == 2
     assert ">= 0" in capsys.readouterr().err
+    assert main(base + ["run.agent=oracle"]) == 2  # the oracle has no goal detection to tune
+    assert "run.agent is 'oracle'" in capsys.readouterr().err
     assert not (tmp_path / "t").exists()  # nothing ran
 
 
