@@ -62,7 +62,10 @@ def differing_keys(configs: list[dict[str, object]]) -> list[str]:
 def cell_value(cfg: dict[str, object], key: str) -> str:
     if key.startswith("mapping.") and cfg.get("agent.map_type") == "ndf":
         return "-"
-    return str(cfg.get(key, "-"))
+    value = cfg.get(key, "-")
+    if key.endswith("resolution") and isinstance(value, list) and len(value) == 2:
+        return f"{value[0]}x{value[1]}"  # the WxH form the config accepts
+    return str(value)
 
 
 def _ratio(d: float, sem: float) -> float:

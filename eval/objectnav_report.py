@@ -25,7 +25,8 @@ PLOT_METRICS: tuple[str, ...] = ("success", "spl", "softspl")  # same unit (frac
 KEY_LABELS: dict[str, str] = {"agent.map_type": "Map type", "mapping.fusion": "Fusion",
                               "agent.segmenter": "Segmentation", "agent.uncertainty_aware": "Uncertainty-aware",
                               "agent.semantic_prior": "Semantic prior", "agent.goal_threshold": "Threshold",
-                              "agent.goal_min_area_cells": "Min area"}
+                              "agent.goal_min_area_cells": "Min area", "env.resolution": "Resolution",
+                              "run.agent": "Agent"}
 
 
 def varied_keys(overrides: list[str]) -> list[str]:

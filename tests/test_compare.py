@@ -8,7 +8,7 @@ import math
 import pytest
 import yaml
 
-from eval.compare import differing_keys, flatten, main_compare
+from eval.compare import cell_value, differing_keys, flatten, main_compare
 from eval.config import ConfigError
 from eval.stats import failure_modes, paired_difference
 
@@ -45,6 +45,13 @@ def test_flatten_and_differing_keys():
     assert flatten({"a": {"b": 1, "c": [1, 2]}, "d": "x"}) == {"a.b": 1, "a.c": [1, 2], "d": "x"}
     cfgs = [{"a.b": 1, "run.output_dir": "x", "e": 2}, {"a.b": 2, "run.output_dir": "y", "e": 2, "f": 0}]
     assert differing_keys(cfgs) == ["a.b", "f"]
+
+
+def test_cell_values():
+    assert cell_value({"env.resolution": [640, 480]}, "env.resolution") == "640x480"
+    assert cell_value({"agent.map_type": "ndf", "mapping.fusion": "rbu"}, "mapping.fusion") == "-"
+    assert cell_value({"agent.goal_threshold": 0.7}, "agent.goal_threshold") == "0.7"
+    assert cell_value({}, "agent.segmenter") == "-"
 
 
 def _run_dir(path, cfg, records):
