@@ -16,11 +16,9 @@ import math
 from pathlib import Path
 
 from eval.config import ConfigError
-from eval.objectnav import load_records
+from eval.objectnav import RESULT_NEUTRAL_KEYS, load_records
 from eval.stats import METRIC_LABELS, failure_modes, paired_difference, summarize
 
-# Config keys that never change results, so they are never comparison columns.
-IGNORED_KEYS: tuple[str, ...] = ("run.output_dir", "run.workers")
 PAIRED_METRICS: tuple[str, ...] = ("spl", "success")
 
 
@@ -52,11 +50,11 @@ def load_run(path: Path) -> tuple[dict[str, object], list[dict]]:
 
 def differing_keys(configs: list[dict[str, object]]) -> list[str]:
     """Keys whose value is not the same in every config (a missing key counts as a value),
-    in first-seen order, without IGNORED_KEYS."""
+    in first-seen order, without the keys that never change results (RESULT_NEUTRAL_KEYS)."""
     keys: list[str] = []
     for c in configs:
         keys += [k for k in c if k not in keys]
-    return [k for k in keys if k not in IGNORED_KEYS and len({repr(c.get(k)) for c in configs}) > 1]
+    return [k for k in keys if k not in RESULT_NEUTRAL_KEYS and len({repr(c.get(k)) for c in configs}) > 1]
 
 
 def cell_value(cfg: dict[str, object], key: str) -> str:

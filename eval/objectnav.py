@@ -25,8 +25,9 @@ from pathlib import Path
 from eval.config import Config, ConfigError, build_dataclass, dump_yaml, load_config, to_dict
 from eval.stats import format_metrics_table, summarize
 
-# Keys that do not change results: a rerun with other values may resume the same directory.
-_RESULT_NEUTRAL = {("run", "workers"), ("run", "output_dir")}
+# Dotted config keys that do not change results: a rerun with other values may resume the same
+# directory, and `calnav compare` never makes them columns.
+RESULT_NEUTRAL_KEYS: tuple[str, ...] = ("run.workers", "run.output_dir")
 
 _worker_state: dict = {}
 
@@ -36,7 +37,8 @@ VIDEO_AGENTS = ("peanut",)
 
 def _neutral(cfg_dict: dict) -> dict:
     out = json.loads(json.dumps(cfg_dict))
-    for section, key in _RESULT_NEUTRAL:
+    for dotted in RESULT_NEUTRAL_KEYS:
+        section, key = dotted.split(".")
         out.get(section, {}).pop(key, None)
     return out
 
