@@ -33,7 +33,7 @@ bench: $(STAMP)
 # The README's ObjectNav comparison: tune per segmenter x map, evaluate on a disjoint range
 # (several hours on 2 cores; resumable, rerun to continue).
 study: $(STAMP)
-	CALNAV=$(VENV)/bin/calnav eval/objectnav_study.sh
+	CALNAV=$(VENV)/bin/calnav eval/objectnav/study.sh
 
 clean-cache:
 	rm -rf $${CALNAV_CACHE:-$$HOME/.cache/calnav}

@@ -4,8 +4,9 @@ agent (``agent.policy.PeanutAgent``, ``calnav objectnav --agent peanut``), one f
 | stage | file | what it does |
 |---|---|---|
 | config | ``config.py`` | ``AgentConfig`` (YAML section ``agent``), every default with its unit |
-| perception | ``perception.py`` | subsample to 160x120, segment, fuse into the 3D voxel map (``fused``) |
-| 2D map | ``semantic_map.py`` | ``MapChannels``, ``MapState`` and ``SemanticMapModule``: incremental ground projection (``mapping.projection``) |
+| perception | ``perception.py`` | subsample to 160x120 and segment: ``Frame`` (depth, logits, labels, intrinsics) |
+| maps | ``semantic_map.py`` | ``MapChannels``, ``MapState`` (2D map + the episode's 3D voxel map) and ``SemanticMapModule``: fuse into the voxel map, incremental ground projection |
+| grid geometry | ``projection.py`` | back-projection, cell indices, free rays, discs, dilation |
 | goal detection | ``goal_detection.py`` | threshold + largest connected component with a minimum area |
 | exploration | ``exploration.py`` | frontiers, scored by geodesic distance and size (+ optional co-occurrence prior) |
 | local planning | ``planner.py`` | ``Planner``: geodesic field to the goal region, short-term goal on a ring, TURN / FORWARD |

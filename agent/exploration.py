@@ -12,14 +12,14 @@ a cell whose arg-max class (confidence >= 0.5) is a related class get prior_bonu
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Sequence
 
 import cv2
 import numpy as np
 
 from agent.config import AgentConfig
 from agent.planner import free_crop, geodesic_distance
-from agent.semantic_map import dilate
-from envs.semantics import CLASS_ID
+from agent.projection import dilate
 
 # Goal category -> classes usually in the same room (procedural houses' room priors).
 COOCCURRENCE: dict[str, tuple[str, ...]] = {
@@ -50,11 +50,14 @@ class FrontierChoice:
     frontiers: np.ndarray
 
 
-def prior_mask(semantic: np.ndarray, goal_name: str, cfg: AgentConfig) -> np.ndarray | None:
-    """Cells near co-occurring classes (bool (n, n)), or None without a prior."""
+def prior_mask(semantic: np.ndarray, goal_name: str, class_names: Sequence[str], cfg: AgentConfig
+               ) -> np.ndarray | None:
+    """Cells near co-occurring classes (bool (n, n)), or None without a prior. semantic
+    (K, n, n) confidences of the segmenter's classes ``class_names`` (K); a related class the
+    segmenter does not know is skipped."""
     if cfg.semantic_prior == "none":
         return None
-    related = [CLASS_ID[c] for c in COOCCURRENCE.get(goal_name, ())]
+    related = [class_names.index(c) for c in COOCCURRENCE.get(goal_name, ()) if c in class_names]
     if not related:
         return None
     seen = (semantic[related] >= PRIOR_MIN_CONFIDENCE).any(axis=0)

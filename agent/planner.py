@@ -14,9 +14,8 @@ import numpy as np
 from skimage.graph import MCP_Geometric
 
 from agent.config import AgentConfig
-from agent.semantic_map import dilate
+from agent.projection import dilate, disc_offsets
 from envs.task import Action
-from mapping.projection import disc_offsets
 
 CROP_MARGIN_CELLS = 4  # extra cells around the free area's bounding box
 

@@ -1,6 +1,6 @@
 """``PeanutAgent``: a PEANUT-like ObjectNav agent on a (calibrated, fused) semantic map.
 
-Per step: segment (``agent.perception``) -> fuse + project to the 2D map
+Per step: segment (``agent.perception``) -> fuse into the 3D map + project to the 2D map
 (``agent.semantic_map``) -> collision check (``agent.collision``) -> goal detection
 (``agent.goal_detection``) -> frontier exploration when no goal (``agent.exploration``) ->
 local planning (``agent.planner``). The agent reads only its observations: rgb, depth,
@@ -23,10 +23,9 @@ from agent.exploration import choose_frontier, prior_mask
 from agent.goal_detection import GoalDetection, detect_goal
 from agent.perception import Perception
 from agent.planner import Plan, Planner, heading_to
-from agent.semantic_map import MapChannels, MapState, SemanticMapModule, dilate
-from envs.semantics import CLASS_NAMES
+from agent.projection import cell_of, dilate
+from agent.semantic_map import MapChannels, MapState, SemanticMapModule
 from envs.task import Action
-from mapping import projection as pj
 
 PLAN_MARGIN_M = 1.0  # the planning window: explored bounding box + this margin (unknown = optimistic), metres
 
@@ -54,9 +53,10 @@ class PeanutAgent:
         self.cfg: AgentConfig = cfg.agent
         self.max_steps = int(cfg.env.max_episode_steps)
         self.spin_turns = int(round(360.0 / cfg.env.turn_angle_deg))
-        self.perception = Perception(self.cfg, cfg.mapping, device)
-        self.num_classes = self.perception.num_classes
-        self.map_module = SemanticMapModule(self.cfg, self.num_classes, cfg.mapping.voxel_size_m)
+        self.perception = Perception(self.cfg, device)
+        self.class_names = self.perception.class_names   # class names and ids come from the segmenter
+        self.num_classes = len(self.class_names)
+        self.map_module = SemanticMapModule(self.cfg, cfg.mapping, self.class_names)
         self.planner = Planner(self.cfg)
         self.collisions = CollisionTracker(self.cfg)
         self.state: MapState | None = None
@@ -66,9 +66,8 @@ class PeanutAgent:
     def reset(self, obs: dict) -> None:
         pose = np.asarray(obs["camera_pose"], np.float64)
         self.goal_id = int(np.asarray(obs["objectgoal"]).reshape(-1)[0])
-        self.goal_name = CLASS_NAMES[self.goal_id]
-        self.state = MapState.empty(pose[:2, 3], self.cfg, self.num_classes)
-        self.perception.reset()
+        self.goal_name = self.class_names[self.goal_id]
+        self.state = self.map_module.new_state(pose[:2, 3])
         self.collisions.reset()
         self.steps = 0
         self.last_action: int | None = None
@@ -101,7 +100,7 @@ class PeanutAgent:
             if self.collisions.routines > routines and self.ltg is not None:
                 self._exclude_around(self.ltg)  # stuck on the way to this frontier: give it up
         frame = self.frame = self.perception.observe(obs)
-        self.map_module.update(self.state, frame.depth, frame.probs, frame.intrinsics, pose, frame.vmap)
+        self.map_module.update(self.state, frame, pose)
         self.steps += 1
         self.path.append(self.state.to_cell(xy, self.cfg.cell_m))
         if self.steps >= self.max_steps:
@@ -113,7 +112,7 @@ class PeanutAgent:
 
     # ------------------------------------------------------------------ decisions
     def _mark_collision(self, xy: np.ndarray, yaw: float) -> None:
-        cells, inside = pj.cell_of(collision_points(xy, yaw, self.cfg), self.state.origin, self.cfg.cell_m,
+        cells, inside = cell_of(collision_points(xy, yaw, self.cfg), self.state.origin, self.cfg.cell_m,
                                    self.state.size)
         self.state.channels[MapChannels.COLLISION].reshape(-1)[cells[inside]] = True
 
@@ -207,7 +206,7 @@ class PeanutAgent:
     def _choose_ltg(self, agent_rc) -> tuple[int, int] | None:
         """Choose a frontier (window coordinates in and out); remembers it in map coordinates."""
         st, cfg, win = self.state, self.cfg, self.window
-        prior = prior_mask(st.semantic[:, win[0], win[1]], self.goal_name, cfg)
+        prior = prior_mask(st.semantic[:, win[0], win[1]], self.goal_name, self.class_names, cfg)
         choice = choose_frontier(st.channels[MapChannels.EXPLORED][win], st.traversable(cfg, win), agent_rc, cfg,
                                  prior=prior, exclude=self.excluded[win])
         self.ltg_age = 0

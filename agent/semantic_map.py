@@ -1,36 +1,44 @@
-"""The agent's 2D semantic map: state (``MapState``) and the module that updates it
-(``SemanticMapModule``), home-robot style.
+"""The agent's semantic maps: state (``MapState``: the 2D map and, for ``map_type: fused``,
+the episode's 3D ``SemanticVoxelMap``) and the module that updates it (``SemanticMapModule``),
+home-robot style. This file owns fusion (the frame's logits into the voxel map, with the
+strategy ``mapping.fusion`` and its scaling / GLFS parameters / sample weighting from the
+mapping config) and the ground projection; the grid geometry is ``agent.projection``.
 
-The map is ``n`` x ``n`` cells of ``cfg.cell_m`` centred on the start position, in world
+The 2D map is ``n`` x ``n`` cells of ``cfg.cell_m`` centred on the start position, in world
 coordinates (the agent knows its camera pose). Channels (``MapChannels``) are bool (n, n)
 layers; ``MapState.semantic`` (K, n, n) float32 is the confidence that class l is at a cell.
 
-Per frame (``update``), with the frame at the mapping resolution (depth (h, w) m, probs
-(h, w, K)):
+Per frame (``update``), with the segmented frame at the mapping resolution
+(``agent.perception.Frame``: depth (h, w) m, logits (h, w, K)):
 
 - ``fused``: the frame is fused into the 3D voxel map; the voxels hit by this frame's depth
   (the only ones whose fused value changed) are re-read and re-projected: each voxel keeps its
   latest (cell, arg-max class, confidence) in ``VoxelVotes`` and the per-(class, cell) sums and
   counts are updated by difference, so the semantic layer is exactly the mean over all observed
   surface voxels in the cell and the cost per frame does not grow with the house.
-- ``ndf``: pixels with confidence >= ``ndf_pixel_threshold`` are projected; semantic = max over
-  time of the per-frame per-cell mean.
+- ``ndf``: per-pixel probabilities softmax(logits / mapping.temperature) (the scalar
+  temperature; no 3D map); pixels with confidence >= ``ndf_pixel_threshold`` are projected;
+  semantic = max over time of the per-frame per-cell mean.
 
 Obstacles: points with height in [obstacle_min_height_m, camera z + obstacle_above_camera_m]
 (max over time) plus collision marks. Explored: cells of every point plus the free rays of
-each image column (``mapping.projection.free_rays``) plus the agent's footprint.
+each image column (``agent.projection.free_rays``) plus the agent's footprint.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 from enum import IntEnum
 
-import cv2
+from typing import Sequence
+
 import numpy as np
 
+from agent import projection as pj
 from agent.config import AgentConfig
-from mapping import projection as pj
-from mapping.voxel_map import single_threaded_torch
+from agent.perception import Frame
+from agent.segmenters import softmax
+from mapping.config import MappingConfig
+from mapping.voxel_map import SemanticVoxelMap, single_threaded_torch
 
 
 class MapChannels(IntEnum):
@@ -84,7 +92,7 @@ class VoxelVotes:
 class MapState:
     """Everything the map remembers for one episode. origin (2,) world metres of the map's
     corner; channels (C, n, n) bool; semantic (K, n, n) float32; sums / counts (K, n*n) for the
-    fused mean; votes of the fused voxels."""
+    fused mean; votes of the fused voxels; voxels: the 3D map (``fused``) or None (``ndf``)."""
 
     origin: np.ndarray
     channels: np.ndarray
@@ -92,14 +100,17 @@ class MapState:
     sums: np.ndarray
     counts: np.ndarray
     votes: VoxelVotes = field(default_factory=VoxelVotes)
+    voxels: SemanticVoxelMap | None = None
     bbox: list[int] = field(default_factory=lambda: [1 << 30, -1, 1 << 30, -1])  # explored rows/cols (min, max, min, max)
 
     @classmethod
-    def empty(cls, start_xy: np.ndarray, cfg: AgentConfig, num_classes: int) -> "MapState":
+    def empty(cls, start_xy: np.ndarray, cfg: AgentConfig, num_classes: int,
+              voxels: SemanticVoxelMap | None = None) -> "MapState":
         n = cfg.map_cells
         origin = np.asarray(start_xy, np.float64) - cfg.map_size_m / 2
         return cls(origin, np.zeros((NUM_CHANNELS, n, n), bool), np.zeros((num_classes, n, n), np.float32),
-                   np.zeros((num_classes, n * n), np.float32), np.zeros((num_classes, n * n), np.int32))
+                   np.zeros((num_classes, n * n), np.float32), np.zeros((num_classes, n * n), np.int32),
+                   voxels=voxels)
 
     @property
     def size(self) -> int:
@@ -135,32 +146,41 @@ class MapState:
 
     def traversable(self, cfg: AgentConfig, window: tuple[slice, slice] = (slice(None), slice(None))) -> np.ndarray:
         """Explored minus obstacles dilated by the agent radius (bool) inside ``window``."""
-        return self.channels[MapChannels.EXPLORED][window] & ~dilate(self.obstacles(window), cfg.agent_radius_m / cfg.cell_m)
-
-
-def dilate(mask: np.ndarray, radius_cells: float) -> np.ndarray:
-    """Bool mask dilated by a disc of ``radius_cells``."""
-    r = int(np.ceil(radius_cells))
-    if r <= 0:
-        return mask.copy()
-    kernel = np.zeros((2 * r + 1, 2 * r + 1), np.uint8)
-    kernel[tuple((pj.disc_offsets(radius_cells) + r).T)] = 1
-    return cv2.dilate(mask.astype(np.uint8), kernel).astype(bool)
+        return self.channels[MapChannels.EXPLORED][window] & ~pj.dilate(self.obstacles(window), cfg.agent_radius_m / cfg.cell_m)
 
 
 class SemanticMapModule:
-    """Stateless update of a ``MapState`` from one frame (the voxel map is passed in)."""
+    """Stateless update of a ``MapState`` from one segmented frame: fuse (``fused``), project.
+    class_names: the segmenter's classes (K)."""
 
-    def __init__(self, cfg: AgentConfig, num_classes: int, voxel_size_m: float):
-        self.cfg = cfg
-        self.num_classes = num_classes
-        self.voxel_size_m = voxel_size_m
+    def __init__(self, cfg: AgentConfig, mapping_cfg: MappingConfig, class_names: Sequence[str]):
+        self.cfg, self.mapping_cfg = cfg, mapping_cfg
+        self.class_names = tuple(class_names)
+        self.num_classes = len(self.class_names)
+        self.voxel_size_m = mapping_cfg.voxel_size_m
 
-    def update(self, state: MapState, depth: np.ndarray, probs: np.ndarray, intrinsics: np.ndarray,
-               pose: np.ndarray, vmap=None) -> None:
-        """Project one frame. depth (h, w) m; probs (h, w, K) per-pixel class probabilities;
-        intrinsics (3, 3) at that size; pose (4, 4) world-from-camera; vmap: the
-        ``SemanticVoxelMap`` the frame was already fused into (``fused``) or None (``ndf``)."""
+    def new_state(self, start_xy: np.ndarray) -> MapState:
+        """An empty map centred on ``start_xy`` (2,) world metres, with a fresh voxel map for
+        ``fused`` (none for ``ndf``)."""
+        voxels = None
+        if self.cfg.map_type == "fused":
+            voxels = SemanticVoxelMap(self.num_classes, self.mapping_cfg, class_names=self.class_names)
+        return MapState.empty(start_xy, self.cfg, self.num_classes, voxels)
+
+    def update(self, state: MapState, frame: Frame, pose: np.ndarray) -> None:
+        """Fuse (when ``state.voxels``) and project one frame; pose (4, 4) world-from-camera."""
+        if state.voxels is not None:
+            state.voxels.integrate(frame.depth, frame.intrinsics, pose, logits=frame.logits, rgb=frame.rgb)
+            self.project(state, frame.depth, None, frame.intrinsics, pose, state.voxels)
+        else:
+            probs = softmax(frame.logits, self.mapping_cfg.temperature)
+            self.project(state, frame.depth, probs, frame.intrinsics, pose, None)
+
+    def project(self, state: MapState, depth: np.ndarray, probs: np.ndarray | None, intrinsics: np.ndarray,
+                pose: np.ndarray, vmap: SemanticVoxelMap | None = None) -> None:
+        """Project one frame. depth (h, w) m; probs (h, w, K) per-pixel class probabilities
+        (``ndf``; unused with a voxel map); intrinsics (3, 3) at that size; pose (4, 4)
+        world-from-camera; vmap: the voxel map the frame was already fused into, or None."""
         cfg, n = self.cfg, state.size
         points, pix = pj.backproject(depth, intrinsics, pose)
         cam_xy = pose[:2, 3]

@@ -13,7 +13,6 @@ import cv2
 import numpy as np
 
 from agent.semantic_map import MapChannels
-from envs.semantics import PALETTE
 
 PANEL_HEIGHT = 360          # output panel height, pixels
 MAP_MARGIN_CELLS = 20       # top-down crop margin around the explored area, cells
@@ -64,10 +63,20 @@ def _fit(img: np.ndarray, height: int) -> np.ndarray:
     return cv2.resize(img, (max(1, round(w * height / h)), height), interpolation=cv2.INTER_NEAREST)
 
 
+def class_palette(num_classes: int) -> np.ndarray:
+    """(K, 3) uint8: a fixed, distinguishable colour per class id of the agent's segmenter
+    (matplotlib's tab20, cycled beyond 20 classes)."""
+    from matplotlib import colormaps
+
+    colours = colormaps["tab20"](np.arange(num_classes) % 20)[:, :3]
+    return np.round(colours * 255).astype(np.uint8)
+
+
 def render_panel(agent) -> np.ndarray:
     """RGB | segmentation | top-down map, side by side, (PANEL_HEIGHT, W, 3) uint8."""
     frame = agent.frame
-    seg = PALETTE[np.clip(frame.labels, 0, len(PALETTE) - 1)]
+    palette = class_palette(agent.num_classes)
+    seg = palette[np.clip(frame.labels, 0, len(palette) - 1)]
     parts = [_fit(frame.rgb, PANEL_HEIGHT), _fit(seg, PANEL_HEIGHT), _fit(topdown(agent), PANEL_HEIGHT)]
     panel = np.concatenate(parts, axis=1)
     mode = agent.info.mode if agent.info is not None else ""

@@ -11,7 +11,7 @@ traversable (see ``fits``); ``emit_group`` adds it to a mesh. Lengths are metres
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Callable
+from typing import Callable, Protocol
 
 import numpy as np
 
@@ -20,10 +20,28 @@ from envs.furniture_parts import Model
 from envs.primitives import MeshBuilder
 from envs.scene import Room
 
-if TYPE_CHECKING:
-    from envs.house import HouseSpec
-
 TOP_TRIES = 10   # positions tried for an object on a support surface
+
+
+class PlacementSpec(Protocol):
+    """The placement constants ``find_pose`` reads. ``envs.house.HouseSpec`` provides them
+    (documented there); a Protocol, so that this module does not import ``envs.house``
+    (which imports it)."""
+
+    @property
+    def walk_gap_m(self) -> float: ...
+
+    @property
+    def placement_tries(self) -> int: ...
+
+    @property
+    def any_free_prob(self) -> float: ...
+
+    @property
+    def corner_prob(self) -> float: ...
+
+    @property
+    def scan_step_m(self) -> float: ...
 
 
 @dataclass
@@ -281,7 +299,7 @@ def wall_poses(room: Room, w: float, d: float, side: int, us) -> list[tuple[np.n
     return out
 
 
-def find_pose(group: Group, room: Room, obstacles, zones, mode: str, rng: np.random.Generator, spec: "HouseSpec",
+def find_pose(group: Group, room: Room, obstacles, zones, mode: str, rng: np.random.Generator, spec: PlacementSpec,
                exhaustive: bool) -> tuple[np.ndarray, float] | None:
     """A footprint rect and yaw for ``group`` in ``room``, or None."""
     fx0, fy0, fx1, fy1 = group.footprint()

@@ -13,14 +13,11 @@ straight legs (``path_length``: within about a cell of the continuous geodesic).
 """
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 from scipy import sparse
 from scipy.sparse.csgraph import dijkstra
-
-if TYPE_CHECKING:
-    from envs.navigation import NavGrid
 
 # Grid graph moves (d_row, d_col): 8 neighbours and 8 knight moves.
 GRAPH_OFFSETS: tuple[tuple[int, int], ...] = tuple(
@@ -45,6 +42,31 @@ def _shifted(a: np.ndarray, dr: int, dc: int) -> np.ndarray:
     return out
 
 
+class GridLike(Protocol):
+    """What a ``GeodesicField`` reads from its grid. ``envs.navigation.NavGrid`` provides it;
+    a Protocol, so that this module does not import ``envs.navigation`` (which imports it)."""
+
+    navigable: np.ndarray  # (H, W) bool
+    origin_xy: np.ndarray  # (2,) world xy of cell (0, 0)'s lower corner, metres
+    cell_m: float          # cell side, metres
+
+    @property
+    def shape(self) -> tuple[int, int]: ...
+
+    @property
+    def graph(self) -> tuple[sparse.csr_matrix, np.ndarray, np.ndarray]:
+        """``grid_graph(navigable, cell_m)``: (CSR graph, (H, W) node index, (N, 2) node cells)."""
+        ...
+
+    def to_cell(self, xy) -> tuple[int, int] | np.ndarray: ...
+
+    def to_world(self, rc) -> np.ndarray: ...
+
+    def in_grid(self, rc) -> np.ndarray | bool: ...
+
+    def segment_navigable(self, a_xy, b_xy) -> bool: ...
+
+
 def grid_graph(navigable: np.ndarray, cell_m: float) -> tuple[sparse.csr_matrix, np.ndarray, np.ndarray]:
     """Directed CSR graph over navigable cells (edge weights in metres; every edge stored in
     both directions), the (H, W) int64 node index of each cell (-1 where not navigable) and
@@ -67,14 +89,14 @@ def grid_graph(navigable: np.ndarray, cell_m: float) -> tuple[sparse.csr_matrix,
 
 
 class GeodesicField:
-    """Geodesic distance to a goal set over a ``NavGrid``.
+    """Geodesic distance to a goal set over a ``NavGrid`` (any ``GridLike``).
 
     distances_m (alias ``values``): (H, W) float64 metres from each navigable cell centre to
     the nearest goal cell centre; inf on non-navigable or unreachable cells; 0 on goal cells.
     goal_mask: (H, W) bool goal cells (the navigable part of the requested mask).
     """
 
-    def __init__(self, grid: NavGrid, goal_mask: np.ndarray, distances_m: np.ndarray,
+    def __init__(self, grid: GridLike, goal_mask: np.ndarray, distances_m: np.ndarray,
                  predecessors: np.ndarray | None):
         self.grid, self.goal_mask, self.distances_m = grid, goal_mask, distances_m
         self._pred = predecessors  # (N,) next node towards the goal, < 0 at goals / unreachable
@@ -85,7 +107,7 @@ class GeodesicField:
         return self.distances_m
 
     @classmethod
-    def compute(cls, grid: NavGrid, goal_mask: np.ndarray) -> "GeodesicField":
+    def compute(cls, grid: GridLike, goal_mask: np.ndarray) -> "GeodesicField":
         goals = goal_mask & grid.navigable
         if not goals.any():  # goal off the navigable area: nothing is reachable
             return cls(grid, goals, np.full(grid.shape, np.inf), None)

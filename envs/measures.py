@@ -1,8 +1,17 @@
-"""ObjectNav measures, exactly as habitat-lab defines them.
+"""ObjectNav measures, with habitat-lab's definitions (``habitat.tasks.nav.nav``).
 
 Each measure follows habitat-lab's ``Measure`` protocol: ``reset_metric`` at episode start and
 ``update_metric`` after every action, with explicit dependencies on other measures (resolved by
 ``Measurements``, which updates them in dependency order).
+
+What differs from habitat-lab:
+- names: the SoftSPL measure's uuid (its key in the env's ``info`` and in results files) is
+  ``softspl``; habitat-lab's ``SoftSPL.cls_uuid`` is ``soft_spl``. The other uuids
+  (``distance_to_goal``, ``success``, ``spl``) are habitat-lab's.
+- positions are the agent's 2D floor position, so L sums 2D step lengths (habitat-lab: 3D agent
+  positions; the same on a single floor).
+- where habitat-lab divides by zero (start distance d_0 = 0: SoftSPL always, SPL when L = 0
+  too), calnav's SPL and SoftSPL are 0.
 
 - DistanceToGoal d_t: geodesic distance (metres) from the agent to the nearest view point of
   any instance of the goal category.
@@ -87,15 +96,20 @@ class SPL(Measure):
         self._agent_distance = 0.0
         self.update_metric(task)
 
-    def _path_ratio(self, task: TaskState) -> float:
+    def _advance_path(self, task: TaskState) -> None:
+        """Add the step to ``task.position`` to the travelled path length L."""
         position = np.array(task.position, dtype=np.float64)
         self._agent_distance += float(np.linalg.norm(position - self._previous))
         self._previous = position
+
+    def _path_ratio(self) -> float:
+        """d_0 / max(d_0, L) of the path travelled so far (0 when both are 0); no side effects."""
         d0 = self._start_end_distance
         return d0 / max(d0, self._agent_distance) if max(d0, self._agent_distance) > 0 else 0.0
 
     def update_metric(self, task: TaskState) -> None:
-        self.metric = task.measures["success"].metric * self._path_ratio(task)
+        self._advance_path(task)
+        self.metric = task.measures["success"].metric * self._path_ratio()
 
     @property
     def path_length(self) -> float:
@@ -103,7 +117,10 @@ class SPL(Measure):
 
 
 class SoftSPL(SPL):
-    """SPL with a soft success: progress towards the goal, max(0, 1 - d_T / d_0)."""
+    """SPL with a soft success: progress towards the goal, max(0, 1 - d_T / d_0).
+
+    uuid ``softspl`` (habitat-lab's ``SoftSPL.cls_uuid`` is ``soft_spl``; calnav keeps
+    ``softspl`` because results files are keyed by it)."""
 
     uuid = "softspl"
     dependencies = ("distance_to_goal",)
@@ -112,7 +129,8 @@ class SoftSPL(SPL):
         d0 = self._start_end_distance
         d = task.measures["distance_to_goal"].metric
         soft_success = max(0.0, 1.0 - d / d0) if d0 > 0 else 0.0
-        self.metric = soft_success * self._path_ratio(task)
+        self._advance_path(task)
+        self.metric = soft_success * self._path_ratio()
 
 
 class Measurements:

@@ -143,7 +143,10 @@ def box_room_scene(size_x: float = 6.0, size_y: float = 4.0, wall_height: float 
                    ),
                    name: str = "box_room") -> Scene:
     """A single rectangular room centred on the origin with floor, walls, ceiling and a few box
-    objects ``(class, (x, y) centre, (sx, sy, sz) size)``. Small and fast: for tests/examples."""
+    objects ``(class, (x, y) centre, (sx, sy, sz) size)``. Small and fast.
+
+    Test / reference helper: no calnav code path builds it; the tests (rendering, navigation,
+    episodes, voxel map, ground truth, scene loading, fusion bench) use it as a known scene."""
     b = MeshBuilder(name)
     t = 0.1
     b.add_box((0, 0, -t / 2), (size_x, size_y, t), "floor", b.new_instance(), (150, 120, 90), Texture.GRAIN, faces="+z")

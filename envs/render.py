@@ -12,7 +12,7 @@ Conventions:
   cx + 0.5, cy + 0.5 (see ``Camera.o3d_intrinsics``).
 - Depth is z-depth (distance along the optical axis), metres, 0 where invalid.
 
-Speed (measured as render time / bare ``cast_rays`` time, see ``eval.bench_env``): the rays
+Speed (measured as render time / bare ``cast_rays`` time, see ``eval.bench.env``): the rays
 are built from per-camera precomputed direction components (a world ray direction is
 separable in row and column: R[:, 0] x(u) + R[:, 1] y(v) + R[:, 2]), so a pose costs three
 broadcast adds. Colour = per-triangle pre-lit albedo x a texture tile looked up from the hit

@@ -9,7 +9,6 @@ Conventions (used everywhere in calnav):
 """
 from __future__ import annotations
 
-import json
 import os
 from dataclasses import dataclass, field
 from enum import IntEnum
@@ -17,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from common.npz import load_versioned_npz, save_versioned_npz
 from envs.semantics import CLASS_NAMES, VOID
 
 FORMAT_VERSION = 1
@@ -145,54 +145,26 @@ class Scene:
     def classes_present(self) -> set[int]:
         return set(int(c) for c in np.unique(self.tri_class) if c != VOID)
 
-    def to_legacy_mesh(self):
-        """An ``open3d.geometry.TriangleMesh`` with per-vertex colours (for viewing)."""
-        import open3d as o3d
-
-        mesh = o3d.geometry.TriangleMesh(
-            o3d.utility.Vector3dVector(self.vertices.astype(np.float64)),
-            o3d.utility.Vector3iVector(self.triangles),
-        )
-        colors = np.zeros((len(self.vertices), 3))
-        colors[self.triangles.ravel()] = np.repeat(self.tri_albedo / 255.0, 3, axis=0)
-        mesh.vertex_colors = o3d.utility.Vector3dVector(colors)
-        return mesh
-
     # -------------------------------------------------------------- file io
     def save(self, path: str | os.PathLike) -> Path:
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
         meta = {
-            "format_version": FORMAT_VERSION,
             "name": self.name,
             "class_names": list(self.class_names),
             "rooms": [r.__dict__ for r in self.rooms],
             "floor_z": self.floor_z,
             "meta": self.meta,
         }
-        tmp = path.with_name(path.name + ".tmp.npz")
-        np.savez_compressed(
-            tmp,
-            vertices=self.vertices, triangles=self.triangles, tri_class=self.tri_class,
-            tri_instance=self.tri_instance, tri_albedo=self.tri_albedo,
-            tri_texture=self.tri_texture, meta=np.array(json.dumps(meta)),
-        )
-        os.replace(tmp, path)  # atomic: a crash never leaves a half-written cache entry
-        return path
+        arrays = {
+            "vertices": self.vertices, "triangles": self.triangles, "tri_class": self.tri_class,
+            "tri_instance": self.tri_instance, "tri_albedo": self.tri_albedo, "tri_texture": self.tri_texture,
+        }
+        # atomic: a crash never leaves a half-written cache entry
+        return save_versioned_npz(path, arrays, meta, FORMAT_VERSION)
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> "Scene":
         path = Path(path)
-        if not path.exists():
-            raise SceneError(f"scene file not found: {path}")
-        try:
-            with np.load(path, allow_pickle=False) as data:
-                arrays = {k: data[k] for k in data.files}
-            meta = json.loads(str(arrays.pop("meta")))
-        except Exception as exc:  # zip/npz/json errors all mean the same thing to the user
-            raise SceneError(f"corrupt scene file {path}: {exc}") from exc
-        if meta.get("format_version") != FORMAT_VERSION:
-            raise SceneError(f"scene file {path} has format {meta.get('format_version')}, expected {FORMAT_VERSION}")
+        arrays, meta = load_versioned_npz(path, FORMAT_VERSION, what="scene file", error=SceneError)
         missing = {"vertices", "triangles", "tri_class", "tri_instance", "tri_albedo", "tri_texture"} - set(arrays)
         if missing:
             raise SceneError(f"corrupt scene file {path}: missing arrays {sorted(missing)}")

@@ -45,15 +45,6 @@ def class_id(name: str) -> int:
         raise ValueError(f"unknown class {name!r}; valid classes: {', '.join(CLASS_NAMES)}") from None
 
 
-def goal_category_id(name: str) -> int:
-    """Goal category id (0-5) of ``name``; a clear error lists the six goal categories."""
-    if name not in GOAL_CATEGORIES:
-        raise ValueError(
-            f"unknown goal category {name!r}; valid categories: {', '.join(GOAL_CATEGORIES)}"
-        )
-    return GOAL_CATEGORIES.index(name)
-
-
 def colorize(labels: np.ndarray) -> np.ndarray:
     """(H, W) int class ids (VOID / 255 allowed) -> (H, W, 3) uint8 colours, void black."""
     labels = np.asarray(labels).astype(np.int64)

@@ -105,16 +105,16 @@ def build_parser() -> argparse.ArgumentParser:
 
 # command -> (module, function taking the parsed args); imported on use so `--help` stays fast
 COMMANDS: dict[str, tuple[str, str]] = {
-    "objectnav": ("eval.objectnav", "main_objectnav"),
-    "view-episode": ("eval.view_episode", "main_view_episode"),
-    "bench": ("eval.bench", "main_bench"),
-    "train-segmenter": ("eval.train_segmenter", "main_train_segmenter"),
-    "eval-segmenter": ("eval.eval_segmenter", "main_eval_segmenter"),
-    "calibrate-map": ("eval.calibrate_map", "main_calibrate_map"),
-    "fit-glfs": ("eval.calibrate_map", "main_fit_glfs"),
-    "tune": ("eval.tune", "main_tune"),
-    "compare": ("eval.compare", "main_compare"),
-    "demo": ("eval.demo", "main_demo"),
+    "objectnav": ("eval.objectnav.run", "main_objectnav"),
+    "view-episode": ("eval.objectnav.view_episode", "main_view_episode"),
+    "bench": ("eval.bench.run", "main_bench"),
+    "train-segmenter": ("eval.segmenter.train", "main_train_segmenter"),
+    "eval-segmenter": ("eval.segmenter.evaluate", "main_eval_segmenter"),
+    "calibrate-map": ("eval.calibration.study", "main_calibrate_map"),
+    "fit-glfs": ("eval.calibration.study", "main_fit_glfs"),
+    "tune": ("eval.objectnav.tune", "main_tune"),
+    "compare": ("eval.objectnav.compare", "main_compare"),
+    "demo": ("eval.objectnav.demo", "main_demo"),
 }
 
 

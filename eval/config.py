@@ -28,7 +28,7 @@ class ConfigError(ValueError):
     """A config key or value is invalid; the message names it and the valid choices."""
 
 
-# Names of ``eval.agents.AGENTS`` (a test keeps the two in step): the config validates the
+# Names of ``eval.objectnav.agents.AGENTS`` (a test keeps the two in step): the config validates the
 # choice without importing any agent.
 AgentName = Literal["peanut", "oracle"]
 AGENT_NAMES: tuple[str, ...] = AgentName.__args__  # type: ignore[attr-defined]
@@ -36,7 +36,7 @@ AGENT_NAMES: tuple[str, ...] = AgentName.__args__  # type: ignore[attr-defined]
 
 @dataclass
 class RunConfig:
-    """How an experiment runs, and which agent runs it (``eval.agents.AGENTS``)."""
+    """How an experiment runs, and which agent runs it (``eval.objectnav.agents.AGENTS``)."""
 
     agent: AgentName = "peanut"   # agent that runs the episodes: peanut (semantic map, agent.*) | oracle (shortest path)
     seed: int = 0                 # master random seed
@@ -72,14 +72,13 @@ def _coerce(value: Any, tp: Any, key: str) -> Any:
     if origin in (Union, types.UnionType):
         if value is None and type(None) in args:
             return None
-        errors = []
         for a in args:
             if a is type(None):
                 continue
             try:
                 return _coerce(value, a, key)
-            except ConfigError as e:
-                errors.append(str(e))
+            except ConfigError:
+                pass  # try the next member; the error below names them all
         raise ConfigError(f"bad value for {key}: {value!r}; expected {' or '.join(_describe(a) for a in args)}")
     if origin is tuple:
         if isinstance(value, str) and "x" in value and len(args) == 2:  # "160x120"

@@ -23,6 +23,11 @@ WeightingName = Literal["auto", "none", "lut", "distance", "incidence", "sweet_s
 FUSION_NAMES: tuple[str, ...] = FusionName.__args__  # type: ignore[attr-defined]
 WEIGHTING_NAMES: tuple[str, ...] = WeightingName.__args__  # type: ignore[attr-defined]
 
+# Laplace smoothing constant mu: p' = (p + mu) / (1 + K mu) before any log (paper Sec. III-B and
+# V-A smooth before the log-space updates but give no value; 1e-3 is the authors' constant).
+# The one definition: ``mapping.fusion`` imports it from here.
+LAPLACE_MU = 1e-3
+
 
 @dataclass
 class MappingConfig:
@@ -31,7 +36,7 @@ class MappingConfig:
     weighting: WeightingName = "auto"  # sample weighting: auto | none | lut | distance | incidence | sweet_spot
     temperature: float = 1.0         # logit temperature for non-glfs strategies (glfs: tau from glfs_params)
     glfs_params: str = ""            # GLFSParams file (.json/.npz) for glfs / lut; "" = identity (tau 1, G = eps = 0, M = 1)
-    laplace_mu: float = 1e-3         # Laplace smoothing p' = (p + mu) / (1 + K mu) before any log
+    laplace_mu: float = LAPLACE_MU   # Laplace smoothing p' = (p + mu) / (1 + K mu) before any log
     # --- sample-weighting heuristics (paper Sec. V-B; see mapping.weighting) -----------------
     distance_ref_m: float = 1.0      # 'distance': weight 1 up to this range, then (ref / d)^2, metres
     sweet_spot_m: float = 1.5        # 'sweet_spot': best segmentation distance, metres

@@ -31,9 +31,9 @@ from typing import Callable, Mapping
 
 import torch
 
+from mapping.config import LAPLACE_MU  # noqa: F401  (re-exported: the smoothing constant's default)
 from mapping.scaling import as_temperature, scale_logits
 
-LAPLACE_MU = 1e-3  # the authors' smoothing constant (REFERENCE.md Sec. 3)
 ACCUMULATOR_NAMES: tuple[str, ...] = ("A", "B", "W")
 
 
@@ -182,6 +182,46 @@ def check_gates(strategy: Strategy, g, eps, dtype: torch.dtype = torch.float32,
     return out[0], out[1]
 
 
+def _check_logits(logits, layout: str) -> tuple[int, ...]:
+    """Shape of ``logits`` after checking it is a float tensor of layout ``layout`` (the number
+    of axes is the layout's) with at least 2 classes on the last axis."""
+    ndim = layout.count(",") + 1
+    if not isinstance(logits, torch.Tensor) or logits.ndim != ndim or not logits.is_floating_point():
+        desc = f"{tuple(logits.shape)} {logits.dtype}" if isinstance(logits, torch.Tensor) else type(logits).__name__
+        raise ValueError(f"logits must be a float {layout} tensor, got {desc}")
+    k = logits.shape[-1]
+    if k < 2:
+        raise ValueError(f"need at least 2 classes, got K = {k}")
+    return tuple(logits.shape)
+
+
+def _scaled_inputs(strat: Strategy, logits: torch.Tensor, weights, temperature, g, eps, weight_layout: str,
+                   mask: torch.Tensor | None = None, what: str = "logits"):
+    """The input checks ``fuse`` and ``fuse_flat`` share, on logits already checked by
+    ``_check_logits``: the gates, temperature and weights (one per observation, layout
+    ``weight_layout``); then scales the logits, applies the optional padding ``mask`` (masked
+    entries get logits and weight 0) and checks the result is finite with weights >= 0.
+    Returns (scaled logits z, weights w, g, eps)."""
+    *obs_shape, k = logits.shape
+    obs_shape = tuple(obs_shape)
+    dtype, device = logits.dtype, logits.device
+    g_t, eps_t = check_gates(strat, g, eps, dtype, device)
+    tau = as_temperature(temperature, k, dtype=dtype, device=device)
+    w = torch.ones(obs_shape, dtype=dtype, device=device) if weights is None else weights.to(dtype)
+    if w.shape != obs_shape:
+        raise ValueError(f"weights must have shape {weight_layout} = {obs_shape}, got {tuple(w.shape)}")
+    z = scale_logits(logits, tau)
+    if mask is not None:
+        if mask.shape != obs_shape or mask.dtype != torch.bool:
+            raise ValueError(f"mask must be a bool {weight_layout} = {obs_shape} tensor, got {tuple(mask.shape)} {mask.dtype}")
+        z = torch.where(mask[..., None], z, torch.zeros((), dtype=dtype, device=device))
+        w = torch.where(mask, w, torch.zeros((), dtype=dtype, device=device))
+    with torch.no_grad():
+        if not bool(torch.isfinite(z).all()) or not bool(torch.isfinite(w).all()) or bool((w < 0).any()):
+            raise ValueError(f"{what} must be finite and weights finite and >= 0")
+    return z, w, g_t, eps_t
+
+
 def fuse(logits: torch.Tensor, strategy: str | Strategy, *, mask: torch.Tensor | None = None,
          weights: torch.Tensor | None = None, temperature=1.0, g=None, eps=None,
          mu: float = LAPLACE_MU) -> torch.Tensor:
@@ -193,27 +233,9 @@ def fuse(logits: torch.Tensor, strategy: str | Strategy, *, mask: torch.Tensor |
     temperature: scalar or (K,) (vector scaling). g, eps: GLFS gates in [0, 1] (glfs only).
     """
     strat = get_strategy(strategy)
-    if not isinstance(logits, torch.Tensor) or logits.ndim != 3 or not logits.is_floating_point():
-        desc = f"{tuple(logits.shape)} {logits.dtype}" if isinstance(logits, torch.Tensor) else type(logits).__name__
-        raise ValueError(f"logits must be a float (N, T, K) tensor, got {desc}")
-    n, t, k = logits.shape
-    if k < 2:
-        raise ValueError(f"need at least 2 classes, got K = {k}")
-    dtype, device = logits.dtype, logits.device
-    g_t, eps_t = check_gates(strat, g, eps, dtype, device)
-    tau = as_temperature(temperature, k, dtype=dtype, device=device)
-    w = torch.ones((n, t), dtype=dtype, device=device) if weights is None else weights.to(dtype)
-    if w.shape != (n, t):
-        raise ValueError(f"weights must have shape (N, T) = {(n, t)}, got {tuple(w.shape)}")
-    z = scale_logits(logits, tau)
-    if mask is not None:
-        if mask.shape != (n, t) or mask.dtype != torch.bool:
-            raise ValueError(f"mask must be a bool (N, T) = {(n, t)} tensor, got {tuple(mask.shape)} {mask.dtype}")
-        z = torch.where(mask[..., None], z, torch.zeros((), dtype=dtype, device=device))
-        w = torch.where(mask, w, torch.zeros((), dtype=dtype, device=device))
-    with torch.no_grad():
-        if not bool(torch.isfinite(z).all()) or not bool(torch.isfinite(w).all()) or bool((w < 0).any()):
-            raise ValueError("logits (unmasked entries) must be finite and weights finite and >= 0")
+    _check_logits(logits, "(N, T, K)")
+    z, w, g_t, eps_t = _scaled_inputs(strat, logits, weights, temperature, g, eps, "(N, T)", mask=mask,
+                                      what="logits (unmasked entries)")
     inc = strat.increments(ObservationTerms(z, mu), w)
     acc = {name: v.sum(dim=1) for name, v in inc.items()}
     return strat.readout(acc, g=g_t, eps=eps_t)
@@ -230,26 +252,13 @@ def fuse_flat(logits: torch.Tensor, voxel: torch.Tensor, num_voxels: int, strate
     observation; weights: (n,) >= 0 or None (= 1). A voxel without observations reads uniform.
     """
     strat = get_strategy(strategy)
-    if not isinstance(logits, torch.Tensor) or logits.ndim != 2 or not logits.is_floating_point():
-        desc = f"{tuple(logits.shape)} {logits.dtype}" if isinstance(logits, torch.Tensor) else type(logits).__name__
-        raise ValueError(f"logits must be a float (n, K) tensor, got {desc}")
-    n, k = logits.shape
-    if k < 2:
-        raise ValueError(f"need at least 2 classes, got K = {k}")
+    n, _ = _check_logits(logits, "(n, K)")
     if voxel.shape != (n,) or voxel.dtype != torch.int64:
         raise ValueError(f"voxel must be an int64 (n,) = ({n},) tensor, got {tuple(voxel.shape)} {voxel.dtype}")
     if n and (int(voxel.min()) < 0 or int(voxel.max()) >= num_voxels):
         raise ValueError(f"voxel indices must be in [0, {num_voxels})")
+    z, w, g_t, eps_t = _scaled_inputs(strat, logits, weights, temperature, g, eps, "(n,)")
     dtype, device = logits.dtype, logits.device
-    g_t, eps_t = check_gates(strat, g, eps, dtype, device)
-    tau = as_temperature(temperature, k, dtype=dtype, device=device)
-    w = torch.ones(n, dtype=dtype, device=device) if weights is None else weights.to(dtype)
-    if w.shape != (n,):
-        raise ValueError(f"weights must have shape (n,) = ({n},), got {tuple(w.shape)}")
-    z = scale_logits(logits, tau)
-    with torch.no_grad():
-        if not bool(torch.isfinite(z).all()) or not bool(torch.isfinite(w).all()) or bool((w < 0).any()):
-            raise ValueError("logits must be finite and weights finite and >= 0")
     inc = strat.increments(ObservationTerms(z, mu), w)
     acc = {name: torch.zeros((num_voxels, v.shape[-1]), dtype=dtype, device=device).index_add(0, voxel, v)
            for name, v in inc.items()}

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from common.npz import check_format_version, load_versioned_npz, save_versioned_npz
 from mapping.weighting import ANGLE_EDGES_DEG, DISTANCE_EDGES_M
 
 FORMAT_VERSION = 1
@@ -102,8 +103,8 @@ class GLFSParams:
         if path.suffix == ".json":
             path.write_text(json.dumps(d, indent=1) + "\n")
         elif path.suffix == ".npz":
-            meta = {k: v for k, v in d.items() if k not in ("tau", "M")}
-            np.savez(path, tau=self.tau, M=self.M, meta=np.array(json.dumps(meta)))
+            meta = {k: v for k, v in d.items() if k not in ("format_version", "tau", "M")}
+            save_versioned_npz(path, {"tau": self.tau, "M": self.M}, meta, FORMAT_VERSION)
         else:
             raise ValueError(f"GLFS params file must end in .json or .npz, got {path}")
         return path
@@ -118,17 +119,15 @@ class GLFSParams:
             path = REPO_ROOT / path
         if not path.exists():
             raise ValueError(f"GLFS params file not found: {path}")
-        try:
-            if path.suffix == ".npz":
-                with np.load(path, allow_pickle=False) as data:
-                    d = json.loads(str(data["meta"]))
-                    d.update(tau=data["tau"], M=data["M"])
-            else:
+        if path.suffix == ".npz":
+            arrays, d = load_versioned_npz(path, FORMAT_VERSION, what="GLFS params file")
+            d.update(tau=arrays["tau"], M=arrays["M"])
+        else:
+            try:
                 d = json.loads(path.read_text())
-        except Exception as exc:  # zip / json errors all mean the same to the user
-            raise ValueError(f"corrupt GLFS params file {path}: {exc}") from exc
-        if d.get("format_version") != FORMAT_VERSION:
-            raise ValueError(f"GLFS params file {path} has format {d.get('format_version')}, expected {FORMAT_VERSION}")
+            except Exception as exc:  # json errors all mean the same to the user
+                raise ValueError(f"corrupt GLFS params file {path}: {exc}") from exc
+            check_format_version(d, FORMAT_VERSION, path, what="GLFS params file")
         return cls(tau=np.asarray(d["tau"]), g=d["g"], eps=d["eps"], M=np.asarray(d["M"]),
                    distance_edges=tuple(d["distance_edges"]), angle_edges_deg=tuple(d["angle_edges_deg"]),
                    class_names=tuple(d["class_names"]))

@@ -1,7 +1,7 @@
-"""Accuracy and calibration metrics of probabilistic classifications (paper Sec. III-C,
-REFERENCE.md Sec. 4): ``accuracy``, ``miou`` / ``per_class_iou``, ``ece``, ``tl_ece``,
+"""Accuracy and calibration metrics of probabilistic classifications (paper Sec. III-C, which
+defines ECE, TL-ECE and mECE): ``accuracy``, ``miou`` / ``per_class_iou``, ``ece``, ``tl_ece``,
 ``mece``, ``brier``; ``reliability`` returns a ``ReliabilityTable`` (per-bin data for
-reliability diagrams, see ``eval/calib_plots.py``).
+reliability diagrams, see ``eval/calibration/plots.py``).
 
 Every function takes ``probs`` (N, K) float (rows are probability vectors) and ``labels`` (N,)
 int class ids, plus ``n_bins`` (calibration bins; accepted and ignored by the non-binned

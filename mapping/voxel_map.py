@@ -21,6 +21,7 @@ The hashmap may reallocate when it grows: attribute views are re-fetched on ever
 from __future__ import annotations
 
 from contextlib import contextmanager
+from typing import Protocol
 
 import numpy as np
 import open3d as o3d
@@ -32,7 +33,6 @@ from mapping.config import MappingConfig
 from mapping.fusion import ObservationTerms, get_strategy
 from mapping.glfs import GLFSParams
 from mapping.map_readout import MapReadouts, PointCloud  # noqa: F401  (PointCloud re-exported)
-from mapping.obs_cache import ObsCache
 from mapping.scaling import as_temperature, scale_logits
 from mapping.weighting import WeightingParams, needs_geometry, resolve, sample_weights
 
@@ -45,6 +45,22 @@ NORMAL_BASE_WIDTH_PX = 160  # auto depth-normal baseline: 1 pixel per 160 pixels
 # observations, so "at least w observations" is threshold w - 1/2.
 WEIGHT_STRICT_OFFSET = 0.5
 NO_BLOCK_TOUCHED = "No block is touched"  # Open3D's error for a frame that touches no voxel block
+
+
+class ObservationRecorder(Protocol):
+    """What the map's optional ``obs_cache`` must provide (``mapping.calibration.obs_cache.ObsCache``
+    does; the online map does not import the calibration package)."""
+
+    @property
+    def num_classes(self) -> int: ...
+
+    @property
+    def voxel_size_m(self) -> float: ...
+
+    def record(self, voxel_keys: np.ndarray, logits: np.ndarray, distance_m: np.ndarray, angle_deg: np.ndarray,
+               weights: np.ndarray | None = None) -> None:
+        """One observation per row: voxel_keys (n, 3) int32, logits (n, K) float32, distance_m
+        (n,) metres, angle_deg (n,) degrees (both float16-rounded), weights (n,) or None."""
 
 
 @contextmanager
@@ -67,12 +83,13 @@ class SemanticVoxelMap(MapReadouts):
 
     glfs_params: GLFS tau/G/eps/M (for ``glfs``, and M for ``lut`` weighting); default from
     ``cfg.glfs_params`` or identity. temperature: scalar or (K,) logit temperature for the
-    other strategies (default ``cfg.temperature``). obs_cache: records every observation.
+    other strategies (default ``cfg.temperature``). obs_cache: an ``ObservationRecorder``
+    (e.g. ``mapping.calibration.obs_cache.ObsCache``) that records every observation.
     """
 
     def __init__(self, num_classes: int, cfg: MappingConfig | None = None, device: str = "CPU:0", *,
                  class_names: tuple[str, ...] = (), glfs_params: GLFSParams | None = None,
-                 temperature=None, obs_cache: ObsCache | None = None):
+                 temperature=None, obs_cache: ObservationRecorder | None = None):
         self.cfg = cfg = cfg or MappingConfig()
         if o3c.Device(device).get_type() != o3c.Device.DeviceType.CPU:
             raise ValueError(f"SemanticVoxelMap runs on CPU (zero-copy numpy views), got device {device!r}")
@@ -167,16 +184,16 @@ class SemanticVoxelMap(MapReadouts):
         configured weighting) or None."""
         cfg = self.cfg
         depth, logits, rgb, weights = fg.check_frame(depth, logits, rgb, weights, self.num_classes)
-        k = fg.check_intrinsics(intrinsics)
+        intr = fg.check_intrinsics(intrinsics)
         pose = fg.check_pose(pose)
         depth = fg.clean_depth(depth, cfg.depth_min_m, cfg.depth_max_m)
         if not depth.any():  # nothing valid to integrate (Open3D would raise)
             self.frames_integrated += 1
             return
-        intr, extr = o3c.Tensor(k), o3c.Tensor(fg.invert_rigid(pose))
+        intr_o3d, extr = o3c.Tensor(intr), o3c.Tensor(fg.invert_rigid(pose))
         dimg = o3d.t.geometry.Image(o3c.Tensor.from_numpy(depth))
         try:
-            blocks = self.vbg.compute_unique_block_coordinates(dimg, intr, extr, 1.0, cfg.depth_max_m,
+            blocks = self.vbg.compute_unique_block_coordinates(dimg, intr_o3d, extr, 1.0, cfg.depth_max_m,
                                                                cfg.trunc_voxels)
         except RuntimeError as exc:
             # Open3D aborts a frame whose few valid depth pixels touch no voxel block (e.g.
@@ -186,29 +203,29 @@ class SemanticVoxelMap(MapReadouts):
             self.frames_integrated += 1
             return
         if rgb is None:
-            self.vbg.integrate(blocks, dimg, intr, extr, 1.0, cfg.depth_max_m, cfg.trunc_voxels)
+            self.vbg.integrate(blocks, dimg, intr_o3d, extr, 1.0, cfg.depth_max_m, cfg.trunc_voxels)
         else:
             cimg = o3d.t.geometry.Image(o3c.Tensor.from_numpy(np.multiply(rgb, np.float32(1 / 255), dtype=np.float32)))
-            self.vbg.integrate(blocks, dimg, cimg, intr, extr, 1.0, cfg.depth_max_m, cfg.trunc_voxels)
+            self.vbg.integrate(blocks, dimg, cimg, intr_o3d, extr, 1.0, cfg.depth_max_m, cfg.trunc_voxels)
         if logits is not None and blocks.shape[0] > 0:
             with single_threaded_torch():
-                self._integrate_semantics(depth, k, pose, logits, weights, blocks)
+                self._integrate_semantics(depth, intr, pose, logits, weights, blocks)
         self.frames_integrated += 1
 
-    def _grid(self, k: np.ndarray, h: int, w: int) -> tuple[fg.PixelGrid, int]:
-        """Candidate-pixel grid and depth-normal baseline (pixels) of an intrinsics / size."""
-        key = (h, w, k.tobytes())
+    def _grid(self, intr: np.ndarray, h: int, w: int) -> tuple[fg.PixelGrid, int]:
+        """Candidate-pixel grid and depth-normal baseline (pixels) of intrinsics (3, 3) / size."""
+        key = (h, w, intr.tobytes())
         if key not in self._grids:
             cfg = self.cfg
-            stride = cfg.pixel_stride or fg.auto_stride(k, cfg.voxel_size_m, cfg.depth_max_m, cfg.sample_spacing_voxels)
-            self._grids[key] = (fg.PixelGrid(k, h, w, stride), cfg.normal_offset_px or max(1, w // NORMAL_BASE_WIDTH_PX))
+            stride = cfg.pixel_stride or fg.auto_stride(intr, cfg.voxel_size_m, cfg.depth_max_m, cfg.sample_spacing_voxels)
+            self._grids[key] = (fg.PixelGrid(intr, h, w, stride), cfg.normal_offset_px or max(1, w // NORMAL_BASE_WIDTH_PX))
         return self._grids[key]
 
-    def _candidates(self, depth, k, pose, blocks) -> tuple[np.ndarray, np.ndarray]:
+    def _candidates(self, depth, intr, pose, blocks) -> tuple[np.ndarray, np.ndarray]:
         """Unique candidate voxels of a frame: flat buffer index (n,) int64, key (n, 3) int32
         (the voxels containing the back-projected points of the candidate pixels)."""
         res, vox = self.cfg.block_resolution, self.cfg.voxel_size_m
-        gr, _ = self._grid(k, *depth.shape)
+        gr, _ = self._grid(intr, *depth.shape)
         bc = blocks.numpy()
         buf, found = self.vbg.hashmap().find(blocks)
         # dense block -> buffer table over the frame's blocks, padded by one block on every side
@@ -255,17 +272,17 @@ class SemanticVoxelMap(MapReadouts):
         keys = gr.g[:, ok[win]].T + origin.astype(np.int32)
         return flat[win], np.ascontiguousarray(keys)
 
-    def _integrate_semantics(self, depth, k, pose, logits, weights, blocks) -> None:
+    def _integrate_semantics(self, depth, intr, pose, logits, weights, blocks) -> None:
         cfg = self.cfg
         h, w = depth.shape
-        flat, keys = self._candidates(depth, k, pose, blocks)
+        flat, keys = self._candidates(depth, intr, pose, blocks)
         # associate: project voxel centres, keep those whose pixel sees the same surface
         rot, t = pose[:3, :3].astype(np.float32), pose[:3, 3].astype(np.float32)
         pc = (keys.astype(np.float32) * np.float32(cfg.voxel_size_m) - t) @ rot
         x, y, z = pc.T
         inv_z = 1.0 / np.where(z > 0, z, np.float32(1))
-        u = np.rint((k[0, 0] * x + k[0, 1] * y) * inv_z + k[0, 2]).astype(np.int64)
-        v = np.rint(k[1, 1] * y * inv_z + k[1, 2]).astype(np.int64)
+        u = np.rint((intr[0, 0] * x + intr[0, 1] * y) * inv_z + intr[0, 2]).astype(np.int64)
+        v = np.rint(intr[1, 1] * y * inv_z + intr[1, 2]).astype(np.int64)
         ok = (z > 0) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
         pix = np.where(ok, v * w + u, 0)
         dm = depth.ravel()[pix]
@@ -279,9 +296,9 @@ class SemanticVoxelMap(MapReadouts):
             raise ValueError("logits contain NaN or inf (or values near the float32 limit) at observed pixels")
         geometry = needs_geometry(self.weighting) or self.obs_cache is not None
         if geometry:
-            offset = self._grid(k, h, w)[1]
+            offset = self._grid(intr, h, w)[1]
             dist = np.sqrt(np.einsum("ij,ij->i", pc, pc)).astype(np.float16).astype(np.float32)
-            angle = fg.incidence_angles(depth, k, pix, offset).astype(np.float16).astype(np.float32)
+            angle = fg.incidence_angles(depth, intr, pix, offset).astype(np.float16).astype(np.float32)
         with torch.no_grad():
             z_scaled = scale_logits(rows, self._tau)
             if self.weighting == "none":
@@ -305,10 +322,6 @@ class SemanticVoxelMap(MapReadouts):
         return max(0.0, self.cfg.min_tsdf_weight - WEIGHT_STRICT_OFFSET)
 
     # ----------------------------------------------------------------- stats
-    @property
-    def num_blocks(self) -> int:
-        return int(self.vbg.hashmap().size())
-
     def memory_bytes(self, allocated: bool = False) -> int:
         """Bytes of the voxel blocks in use (or allocated, ``allocated=True``)."""
         hm = self.vbg.hashmap()

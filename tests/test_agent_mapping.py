@@ -5,9 +5,11 @@ from agent.collision import CollisionTracker, collision_points, is_collision
 from agent.config import AgentConfig
 from agent.exploration import choose_frontier, frontier_mask
 from agent.goal_detection import detect_goal, largest_component
+from agent.perception import Frame
 from agent.semantic_map import MapChannels, MapState, SemanticMapModule, VoxelVotes
+from mapping.config import MappingConfig
 from envs.task import Action
-from mapping import projection as pj
+from agent import projection as pj
 
 
 def test_project_voxels_gives_per_cell_class_means():
@@ -42,7 +44,7 @@ def test_incremental_fused_projection_matches_full_projection():
     """Re-voting voxels by difference equals projecting the final votes from scratch."""
     cfg = AgentConfig(map_size_m=2.0, cell_m=0.5)
     state = MapState.empty(np.zeros(2), cfg, 3)
-    module = SemanticMapModule(cfg, 3, voxel_size_m=0.05)
+    module = SemanticMapModule(cfg, MappingConfig(voxel_size_m=0.05), ("a", "b", "c"))
     rng = np.random.default_rng(0)
     ijk = rng.integers(-15, 15, (40, 3))
     ijk = np.unique(ijk, axis=0)
@@ -139,15 +141,16 @@ def test_collision_marking_and_untrap():
 def test_map_module_marks_obstacles_and_explored_from_a_wall():
     cfg = AgentConfig(map_size_m=8.0)
     state = MapState.empty(np.zeros(2), cfg, 3)
-    module = SemanticMapModule(cfg, 3, voxel_size_m=0.05)
+    module = SemanticMapModule(cfg, MappingConfig(voxel_size_m=0.05), ("a", "b", "c"))
     # camera at (0, 0, 0.88) looking along +x; a wall 2 m ahead fills the image
     pose = np.eye(4)
     pose[:3, :3] = np.array([[0, 0, 1], [-1, 0, 0], [0, -1, 0]])
     pose[:3, 3] = [0, 0, 0.88]
     k = np.array([[20.0, 0, 16], [0, 20.0, 12], [0, 0, 1]])
     depth = np.full((24, 32), 2.0, np.float32)
-    probs = np.full((24, 32, 3), 1 / 3, np.float32)
-    module.update(state, depth, probs, k, pose)
+    logits = np.zeros((24, 32, 3), np.float32)  # uniform: softmax gives 1/3 per class
+    frame = Frame(depth, logits, logits.argmax(axis=-1), k, np.zeros((24, 32, 3), np.uint8))
+    module.update(state, frame, pose)
     obst = state.channels[MapChannels.OBSTACLE]
     wall_col = state.to_cell(np.array([2.0, 0.0]), cfg.cell_m)[1]
     assert obst[:, wall_col].any() and not obst[:, :wall_col - 1].any()
@@ -160,7 +163,7 @@ def test_map_module_marks_obstacles_and_explored_from_a_wall():
 def test_ndf_projection_keeps_max_over_time_of_thresholded_detections():
     cfg = AgentConfig(map_size_m=2.0, cell_m=0.5, ndf_pixel_threshold=0.6)
     state = MapState.empty(np.zeros(2), cfg, 2)
-    module = SemanticMapModule(cfg, 2, voxel_size_m=0.05)
+    module = SemanticMapModule(cfg, MappingConfig(voxel_size_m=0.05), ("a", "b"))
     cells = np.array([0, 0, 1, 1])
     inside = np.ones(4, bool)
     module._project_ndf(state, np.array([[0.9, 0.1], [0.7, 0.3], [0.55, 0.45], [0.2, 0.8]]), cells, inside)

@@ -1,4 +1,4 @@
-"""mapping.metrics.reliability (hand-computed case) and eval.calib_plots (each figure writes a
+"""mapping.metrics.reliability (hand-computed case) and eval.calibration.plots (each figure writes a
 readable PNG, also with empty bins and NaN metric rows)."""
 import math
 import warnings
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from mapping import metrics as M
-from eval import calib_plots as P
+from eval.calibration import plots as P
 
 # K = 2, n_bins = 4 (edges 0, .25, .5, .75, 1; bins 0 and 1 are empty since K = 2 => h >= .5):
 #   probs        label  pred  conf  bin  correct

@@ -6,11 +6,11 @@ import pytest
 import torch
 
 from mapping import metrics
-from mapping.calibration_fit import MapObjective, fit_temperature_2d, fit_temperature_3d, fit_vector_3d
-from mapping.flat_obs import FlatObservations
+from mapping.calibration.fit import MapObjective, fit_temperature_2d, fit_temperature_3d, fit_vector_3d
+from mapping.calibration.flat_obs import FlatObservations
 from mapping.fusion import STRATEGIES, fuse, fuse_flat
-from mapping.glfs_train import GLFSModel, GLFSTrainConfig, glfs_loss, class_weights, train_glfs
-from mapping.obs_cache import ObsCache
+from mapping.calibration.glfs_train import GLFSModel, GLFSTrainConfig, glfs_loss, class_weights, train_glfs
+from mapping.calibration.obs_cache import ObsCache
 
 K = 5
 

@@ -5,7 +5,7 @@ import json
 import pytest
 
 from eval.cli import main
-from eval.objectnav import load_records
+from eval.objectnav.run import load_records
 from eval.stats import format_metrics_table, mean_sem, summarize
 
 SMALL = ["env.resolution=32x24", "env.dataset.val_scenes=2", "env.dataset.episodes_per_scene=3"]

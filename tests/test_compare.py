@@ -1,4 +1,4 @@
-"""eval.compare and eval.stats.paired_difference: hand-computed paired differences, the
+"""eval.objectnav.compare and eval.stats.paired_difference: hand-computed paired differences, the
 comparison of separately made run directories, and its errors."""
 import argparse
 import csv
@@ -8,7 +8,7 @@ import math
 import pytest
 import yaml
 
-from eval.compare import cell_value, differing_keys, flatten, main_compare
+from eval.objectnav.compare import cell_value, differing_keys, flatten, main_compare
 from eval.config import ConfigError
 from eval.stats import failure_modes, paired_difference
 

@@ -16,8 +16,8 @@ def test_defaults_and_dotted_overrides():
 
 
 def test_every_shipped_config_loads():
-    from eval.calib_config import CalibrateMapConfig
-    from eval.segmenter_data import SegmenterExperimentConfig
+    from eval.calibration.config import CalibrateMapConfig
+    from eval.segmenter.data import SegmenterExperimentConfig
 
     # experiments with their own schema
     special = {"segmenter.yaml": SegmenterExperimentConfig, "calibrate_map.yaml": CalibrateMapConfig}

@@ -1,9 +1,9 @@
-"""The fusion bench section (eval.bench_fusion) on small ray-cast box-room frames."""
+"""The fusion bench section (eval.bench.fusion) on small ray-cast box-room frames."""
 import numpy as np
 import pytest
 
 from envs.primitives import box_room_scene
-from eval.bench_fusion import BenchFrames, measure
+from eval.bench.fusion import BenchFrames, measure
 from eval.config import ConfigError, load_config
 from mapping.config import MappingConfig
 from mapping.fusion import STRATEGIES

@@ -178,7 +178,7 @@ def test_bad_options():
 def test_dece_approaches_ece_as_temperatures_vanish():
     import torch
 
-    from mapping.metrics_torch import dece, mdece
+    from mapping.calibration.metrics_torch import dece, mdece
 
     # under-confident at low confidence, over-confident at high: bin gaps change sign, so soft
     # binning (large t_b) really differs from hard binning

@@ -1,11 +1,11 @@
-"""eval.objectnav_report: multirun naming, the Table II comparison (md / csv / png) and
+"""eval.objectnav.report: multirun naming, the Table II comparison (md / csv / png) and
 per-run plots, on hand-made summaries (no episodes are run)."""
 import csv
 
 import pytest
 
 from eval.config import expand_multirun
-from eval.objectnav_report import (combo_dirname, combo_values, comparison_markdown, plot_run, varied_keys,
+from eval.objectnav.report import (combo_dirname, combo_values, comparison_markdown, plot_run, varied_keys,
                                    write_comparison)
 from eval.stats import summarize
 

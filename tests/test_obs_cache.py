@@ -1,10 +1,10 @@
-"""Observation cache (mapping.obs_cache): reservoir cap, CSR save/load, padding, errors."""
+"""Observation cache (mapping.calibration.obs_cache): reservoir cap, CSR save/load, padding, errors."""
 import numpy as np
 import pytest
 import torch
 
 from mapping.fusion import fuse
-from mapping.obs_cache import ObsCache
+from mapping.calibration.obs_cache import ObsCache
 
 K = 3
 VOX = 0.05

@@ -206,8 +206,8 @@ def test_bad_inputs_raise(room):
 
 
 def test_bench_env_section_runs():
-    from eval import bench_env
-    from eval.bench import BenchContext
+    from eval.bench import env as bench_env
+    from eval.bench.context import BenchContext
 
     class Ctx(BenchContext):
         @cached_property

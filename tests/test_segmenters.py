@@ -27,7 +27,7 @@ def softmax(z):
 @pytest.fixture(scope="session")
 def frames(small_env_config):
     """Four rendered 64x48 val frames with instance images and poses."""
-    from eval.segmenter_data import SegDataConfig, render_frames
+    from eval.segmenter.data import SegDataConfig, render_frames
 
     return render_frames(small_env_config, SegDataConfig(resolution=RES, scenes=1, walk_steps=2), "val",
                          frames=4, seed=3, with_instance=True, progress=False)

@@ -1,4 +1,4 @@
-"""eval.train_segmenter / eval.eval_segmenter on a tiny rendered set (16 frames at 64x48):
+"""eval.segmenter.train / eval.segmenter.evaluate on a tiny rendered set (16 frames at 64x48):
 training lowers the loss, the weights load into the segmenter, an interrupted run resumed from
 its checkpoint ends bit-identical to an uninterrupted one, the dataset cache is reused, and
 eval-segmenter writes the metrics JSON."""
@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from eval.config import load_config
-from eval.segmenter_data import SegmenterExperimentConfig, cache_path, load_or_render
+from eval.segmenter.data import SegmenterExperimentConfig, cache_path, load_or_render
 
 TINY = ["data.frames=16", "data.scenes=2", "data.resolution=64x48", "data.walk_steps=4",
         "train.epochs=4", "train.batch_size=8", "train.val_frames=4", "train.lr=0.01",
@@ -23,7 +23,7 @@ def cfg():
 
 @pytest.fixture(scope="module")
 def trained(cfg, tmp_path_factory):
-    from eval.train_segmenter import train
+    from eval.segmenter.train import train
 
     out = tmp_path_factory.mktemp("seg") / "rgbd.pt"
     card = train(cfg, "learned_rgbd", out, progress=False, command="test")
@@ -53,7 +53,7 @@ def test_trained_weights_load_into_the_segmenter(trained, cfg):
 
 
 def test_resume_is_bit_identical(trained, cfg, tmp_path):
-    from eval.train_segmenter import checkpoint_path, train
+    from eval.segmenter.train import checkpoint_path, train
 
     full, _ = trained
     part = tmp_path / "part.pt"
@@ -98,7 +98,7 @@ def test_eval_segmenter_cli_writes_metrics(tmp_path):
 
 
 def test_train_rejects_unknown_model(cfg, tmp_path):
-    from eval.train_segmenter import train
+    from eval.segmenter.train import train
 
     with pytest.raises(ValueError, match="trainable models"):
         train(cfg, "gt", tmp_path / "x.pt", progress=False)

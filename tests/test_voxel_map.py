@@ -10,7 +10,7 @@ from mapping.config import MappingConfig
 from mapping.fusion import STRATEGIES, fuse
 from mapping.glfs import GLFSParams
 from mapping.ground_truth import LabelledMesh
-from mapping.obs_cache import ObsCache
+from mapping.calibration.obs_cache import ObsCache
 from mapping.voxel_map import SemanticVoxelMap
 from mapping.weighting import WeightingParams, sample_weights
 

@@ -8,11 +8,11 @@ interface; ``make_segmenter`` builds one by name:
 """
 from __future__ import annotations
 
-from agent.segmenters.base import Segmenter, SegmenterConfig, default_class_names, resolve_device
+from agent.segmenters.base import Segmenter, SegmenterConfig, default_class_names, resolve_device, softmax
 
 SEGMENTER_NAMES: tuple[str, ...] = ("gt", "noisy", "learned_rgb", "learned_rgbd")
 
-__all__ = ["SEGMENTER_NAMES", "Segmenter", "SegmenterConfig", "make_segmenter"]
+__all__ = ["SEGMENTER_NAMES", "Segmenter", "SegmenterConfig", "make_segmenter", "softmax"]
 
 
 def make_segmenter(name: str, cfg: SegmenterConfig | None = None, device: str | None = None,

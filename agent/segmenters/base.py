@@ -5,10 +5,12 @@ A segmenter turns one RGB-D frame into per-pixel class scores:
     logits = segmenter(rgb, depth)                 # (H, W, 3) uint8, (H, W) float32 m -> (H, W, K) float32
     batch = segmenter.segment_batch(rgbs, depths)  # (B, H, W, 3), (B, H, W) -> (B, H, W, K)
 
-``softmax(logits, axis=-1)`` are the class probabilities the semantic map fuses. K and the
-class names (``segmenter.class_names``) are data: the learned networks carry them in their
-weights file, the ground-truth based segmenters take them from ``agent/weights/classes.json``
-(the simulator's ``envs.semantics.CLASS_NAMES``), so agent code never imports ``envs``.
+``softmax(logits)`` (below) are the class probabilities. K and the class names
+(``segmenter.class_names``) are data: the learned networks carry them in their weights file,
+the ground-truth based segmenters take them from ``agent/weights/classes.json`` (a copy of the
+simulator's ``envs.semantics.CLASS_NAMES``, checked by a test), and the agent takes class names
+and ids from its segmenter, never from the simulator. (The agent does import ``envs.task`` for
+the action ids, the task's contract.)
 
 Segmenters built from ground truth (``gt``, ``noisy``) additionally need the environment's
 ``semantic`` observation ((H, W) int class ids, -1 = void); ``noisy`` also uses the
@@ -97,6 +99,14 @@ class SegmenterConfig:
         w, h = self.resolution
         if (w, h) != (0, 0) and (w < 16 or h < 16):
             raise ValueError(f"segmenter.resolution must be (0, 0) or at least 16x16, got {w}x{h}")
+
+
+def softmax(logits: np.ndarray, temperature: float = 1.0) -> np.ndarray:
+    """softmax(logits / temperature) over the last axis: (..., K) -> (..., K) float32."""
+    z = logits / temperature
+    z = z - z.max(axis=-1, keepdims=True)
+    e = np.exp(z)
+    return (e / e.sum(axis=-1, keepdims=True)).astype(np.float32)
 
 
 def default_class_names() -> tuple[str, ...]:

@@ -4,14 +4,14 @@ Stages (each writes its results before the next starts; a rerun skips finished w
 
 1. record  -- scan every calibration-train / -validation / test house, segment each frame with
    every segmenter, keep the voxel observation caches and a pixel sample
-   (``eval.calib_record``): ``<out>/scenes/<segmenter>/<scene>.{cache,pixels}.npz``.
+   (``eval.calibration.record``): ``<out>/scenes/<segmenter>/<scene>.{cache,pixels}.npz``.
 2. fit     -- per segmenter, on calibration-train houses: 2D temperature (pixel NLL), 3D
    temperature and 3D vector scaling per strategy (voxel mECE of the fused map), and GLFS
    (early-stopped on calibration-validation houses): ``<out>/fits/<segmenter>/``.
 3. score   -- per segmenter and test house, the calibration statistics of every
    (strategy, calibration) map: ``<out>/scores/<segmenter>/<scene>.npz``.
 4. report  -- ``results.csv``, ``results.md``, calibration-vs-accuracy and reliability plots
-   (``eval.calib_report``).
+   (``eval.calibration.report``).
 
 Rows: every strategy x calibration method (``none``, ``temperature_2d``, ``temperature_3d``,
 ``vector_3d``) for the fixed strategies; GLFS appears once, with calibration ``learned`` (GLFS
@@ -27,14 +27,14 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from eval.calib_config import CalibrateMapConfig
-from eval.calib_record import ROLES, load_role, record_scene, role_scene_ids
+from eval.calibration.config import CalibrateMapConfig
+from eval.calibration.record import ROLES, load_role, record_scene, role_scene_ids
 from eval.config import ConfigError, dump_yaml, load_config
 from mapping import metrics
-from mapping.calibration_fit import MapObjective, fit_temperature_2d, fit_temperature_3d, fit_vector_3d
-from mapping.flat_obs import FlatObservations
+from mapping.calibration.fit import MapObjective, fit_temperature_2d, fit_temperature_3d, fit_vector_3d
+from mapping.calibration.flat_obs import FlatObservations
 from mapping.glfs import GLFSParams
-from mapping.glfs_train import GLFSModel, train_glfs
+from mapping.calibration.glfs_train import GLFSModel, train_glfs
 
 QUICK_OVERRIDES = (   # --quick: a <= 5 minute smoke run of the whole pipeline on 2 cores
     "study.calib_train_scenes=3", "study.calib_val_scenes=1", "study.test_scenes=3", "scan.frames=200",
@@ -198,7 +198,7 @@ def run_calibrate_map(cfg: CalibrateMapConfig, out: Path, force: bool = False, p
     from tqdm import tqdm
 
     from agent.segmenters import make_segmenter
-    from eval.calib_report import write_report
+    from eval.calibration.report import write_report
 
     _check_output(out, dump_yaml(cfg), force)
     ids = role_scene_ids(cfg)
@@ -231,7 +231,7 @@ def main_calibrate_map(args) -> None:
     cfg = load_config(args.config, overrides, cls=CalibrateMapConfig)
     out = Path(args.output or (cfg.run.output_dir + "_quick" if args.quick else cfg.run.output_dir))
     rows = run_calibrate_map(cfg, out, force=args.force)
-    from eval.calib_report import format_table
+    from eval.calibration.report import format_table
 
     print(format_table(rows))
     print(f"\nresults: {out / 'results.csv'}, {out / 'results.md'}, plots in {out}")

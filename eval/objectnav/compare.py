@@ -1,7 +1,7 @@
 """`calnav compare`: one comparison table from finished `calnav objectnav` run directories.
 
 For runs made separately (e.g. each with its own tuned ``best.yaml``), this writes what a
-multirun writes (``comparison.md`` / ``.csv`` / ``.png``, ``eval.objectnav_report``) with the
+multirun writes (``comparison.md`` / ``.csv`` / ``.png``, ``eval.objectnav.report``) with the
 config keys that differ between the runs as the leading columns, plus ``paired.md`` / ``.csv``:
 each run minus a baseline run on the episodes both hold (matched by index), mean and paired
 SEM (``eval.stats.paired_difference``), and ``|diff| / SEM``; and ``failures.md``: per run, how
@@ -16,7 +16,7 @@ import math
 from pathlib import Path
 
 from eval.config import ConfigError
-from eval.objectnav import RESULT_NEUTRAL_KEYS, load_records
+from eval.objectnav.run import RESULT_NEUTRAL_KEYS, load_records
 from eval.stats import METRIC_LABELS, failure_modes, paired_difference, summarize
 
 PAIRED_METRICS: tuple[str, ...] = ("spl", "success")
@@ -118,7 +118,7 @@ def failures_markdown(names: list[str], loaded: list[tuple[dict, list[dict]]]) -
 
 
 def main_compare(args) -> None:
-    from eval.objectnav_report import write_comparison
+    from eval.objectnav.report import write_comparison
 
     paths = [Path(p) for p in args.runs]
     if len(paths) < 2:

@@ -9,7 +9,7 @@ from envs.config import EnvConfig
 from envs.trajectories import ScanConfig
 from eval.config import RunConfig
 from mapping.config import FUSION_NAMES, MappingConfig
-from mapping.glfs_train import GLFSTrainConfig
+from mapping.calibration.glfs_train import GLFSTrainConfig
 
 CALIBRATIONS: tuple[str, ...] = ("none", "temperature_2d", "temperature_3d", "vector_3d")
 LEARNED_SEGMENTERS: tuple[str, ...] = ("learned_rgb", "learned_rgbd")

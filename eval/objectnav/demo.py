@@ -11,7 +11,7 @@ from eval.stats import format_metrics_table
 
 def main_demo(args) -> None:
     from envs.episodes import load_split, parse_episode_range
-    from eval.objectnav import run_objectnav
+    from eval.objectnav.run import run_objectnav
 
     cfg = load_config("configs/demo.yaml", [f"run.output_dir={args.output}"])
     episodes = load_split(cfg.env.split, cfg.env)

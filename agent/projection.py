@@ -1,4 +1,5 @@
-"""Ground-plane projection of 3D points and fused voxels (pure numpy, no state).
+"""The 2D map's grid geometry: ground-plane projection of 3D points and fused voxels, cell
+indices, discs and dilation (pure numpy / OpenCV, no state).
 
 Conventions: world frame z-up, metres, floor at z = 0. A 2D map of ``n`` x ``n`` cells of edge
 ``cell_m`` has its corner (cell (0, 0)'s lower-left) at world ``origin`` (2,) metres; arrays
@@ -6,6 +7,7 @@ are indexed ``[row, col]`` = ``[y, x]``; flat cell index = row * n + col.
 """
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
 
@@ -38,7 +40,8 @@ def cell_of(xy: np.ndarray, origin: np.ndarray, cell_m: float, n: int) -> tuple[
 
 def class_confidence_sums(cells: np.ndarray, classes: np.ndarray, conf: np.ndarray, num_cells: int,
                           num_classes: int) -> tuple[np.ndarray, np.ndarray]:
-    """Per (class, cell) sum of confidences and point count.
+    """Per (class, cell) sum of confidences and point count (dense; the reference that
+    ``project_voxels`` and the tests use -- the agent updates sparsely, ``sparse_bin_sums``).
 
     cells (N,) flat cell index, classes (N,) int class of each point (its arg-max), conf (N,)
     that class's confidence. Returns sums (K, num_cells) float64 and counts (K, num_cells)
@@ -64,7 +67,8 @@ def sparse_bin_sums(bins: np.ndarray, weights: np.ndarray, counts: np.ndarray | 
 
 def project_voxels(coords: np.ndarray, probs: np.ndarray, origin: np.ndarray, cell_m: float,
                    n: int) -> np.ndarray:
-    """Ground-plane semantic confidence map of fused voxels (the non-incremental reference).
+    """Ground-plane semantic confidence map of fused voxels: the non-incremental reference
+    that the tests check ``SemanticMapModule``'s incremental projection against.
 
     coords (N, 3) world metres, probs (N, K) fused probabilities. Each voxel votes for its
     arg-max class l with confidence probs[l]; the confidence that class l is at a cell is the
@@ -117,3 +121,13 @@ def disc_offsets(radius_cells: float) -> np.ndarray:
     dr, dc = np.mgrid[-r:r + 1, -r:r + 1]
     keep = dr ** 2 + dc ** 2 <= radius_cells ** 2
     return np.stack([dr[keep], dc[keep]], axis=1)
+
+
+def dilate(mask: np.ndarray, radius_cells: float) -> np.ndarray:
+    """Bool mask dilated by a disc of ``radius_cells``."""
+    r = int(np.ceil(radius_cells))
+    if r <= 0:
+        return mask.copy()
+    kernel = np.zeros((2 * r + 1, 2 * r + 1), np.uint8)
+    kernel[tuple((disc_offsets(radius_cells) + r).T)] = 1
+    return cv2.dilate(mask.astype(np.uint8), kernel).astype(bool)

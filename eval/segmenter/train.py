@@ -3,7 +3,7 @@
     calnav train-segmenter --model learned_rgb [--config configs/segmenter.yaml] [KEY=VALUE ...]
                            [--output agent/weights/learned_rgb.pt] [--resume]
 
-Data: ``data.frames`` frames rendered from the *train* split only (``eval.segmenter_data``,
+Data: ``data.frames`` frames rendered from the *train* split only (``eval.segmenter.data``,
 cached on disk); ``train.val_frames`` val-split frames are scored after every epoch.
 Training: cross-entropy (void ignored, optional inverse-log-frequency class weights), AdamW with
 a one-cycle learning-rate schedule, on-the-fly augmentation (brightness, contrast, per-channel
@@ -24,7 +24,6 @@ import math
 import os
 import platform
 import shlex
-import sys
 import time
 import uuid
 from dataclasses import asdict
@@ -38,7 +37,7 @@ from agent.segmenters.base import resolve_device
 from agent.segmenters.learned import LEARNED_MODELS, default_weights_path, save_weights
 from agent.segmenters.network import NetSpec, SegNet, count_parameters
 from eval.config import load_config, to_dict
-from eval.segmenter_data import (VAL_SEED_OFFSET, SegData, SegmenterExperimentConfig, TrainConfig,
+from eval.segmenter.data import (VAL_SEED_OFFSET, SegData, SegmenterExperimentConfig, TrainConfig,
                                  load_or_render)
 from mapping.metrics import CalibrationStats
 
@@ -262,9 +261,3 @@ def main_train_segmenter(args) -> None:
     if args.output:
         parts += ["--output", str(args.output)]
     train(cfg, args.model, output, resume=args.resume, command=shlex.join(parts))
-
-
-if __name__ == "__main__":  # pragma: no cover
-    from eval.cli import main
-
-    sys.exit(main(["train-segmenter", *sys.argv[1:]]))

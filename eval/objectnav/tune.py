@@ -28,40 +28,33 @@ CSV_COLUMNS: tuple[str, ...] = ("threshold", "min_area", "success", "success_sem
 TUNED_AGENT = "peanut"  # the agent whose goal detection the grid tunes
 
 
-def _split_list(text: str, name: str) -> list[str]:
+def _parse_list(text: str, option: str, convert, valid, description: str, example: str) -> list:
+    """A comma-separated option value -> sorted unique values; ``convert`` parses one item,
+    ``valid`` checks it, ``description`` names the valid range (with its unit)."""
     items = [s.strip() for s in str(text).split(",") if s.strip()]
     if not items:
-        raise ConfigError(f"{name} is empty; give a comma-separated list, e.g. {name} "
-                          + ("0.5,0.7,0.9" if "threshold" in name else "2,4,8"))
-    return items
+        raise ConfigError(f"{option} is empty; give a comma-separated list, e.g. {option} {example}")
+    values = []
+    for s in items:
+        try:
+            v = convert(s)
+        except ValueError:
+            raise ConfigError(f"bad value {s!r} in {option}; expected {description}") from None
+        if not valid(v):
+            raise ConfigError(f"{s} in {option} is outside the valid range: {description}")
+        values.append(v)
+    return sorted(set(values))
 
 
 def parse_thresholds(text: str) -> list[float]:
     """'0.5,0.7' -> sorted unique goal thresholds (confidence, unitless); each must be in (0, 1]."""
-    values = []
-    for s in _split_list(text, "--thresholds"):
-        try:
-            v = float(s)
-        except ValueError:
-            raise ConfigError(f"bad threshold {s!r} in --thresholds; expected numbers in (0, 1]") from None
-        if not (0.0 < v <= 1.0):
-            raise ConfigError(f"threshold {s} is outside the valid range (0, 1] (goal-class confidence)")
-        values.append(v)
-    return sorted(set(values))
+    return _parse_list(text, "--thresholds", float, lambda v: 0.0 < v <= 1.0,
+                       "numbers in (0, 1] (goal-class confidence)", "0.5,0.7,0.9")
 
 
 def parse_min_areas(text: str) -> list[int]:
     """'2,4,8' -> sorted unique minimum goal areas in map cells; each must be an integer >= 1."""
-    values = []
-    for s in _split_list(text, "--min-areas"):
-        try:
-            v = int(s)
-        except ValueError:
-            raise ConfigError(f"bad min area {s!r} in --min-areas; expected integers >= 1 (map cells)") from None
-        if v < 1:
-            raise ConfigError(f"min area {v} is outside the valid range >= 1 (map cells)")
-        values.append(v)
-    return sorted(set(values))
+    return _parse_list(text, "--min-areas", int, lambda v: v >= 1, "integers >= 1 (map cells)", "2,4,8")
 
 
 def point_name(threshold: float, min_area: int) -> str:
@@ -157,7 +150,7 @@ def run_tune(config_path: str | None, overrides: list[str], episodes: str, thres
     Returns (rows, best row); every row holds the tune.csv columns."""
     from envs.episodes import load_split, parse_episode_range
 
-    from eval.objectnav import run_objectnav
+    from eval.objectnav.run import run_objectnav
 
     if metric not in TUNE_METRICS:
         raise ConfigError(f"unknown tuning metric {metric!r}; valid: {', '.join(TUNE_METRICS)}")

@@ -17,7 +17,7 @@ import time
 
 import numpy as np
 
-from eval.bench import BenchContext, timeit_ms
+from eval.bench.context import BenchContext, timeit_ms
 
 RESOLUTIONS: tuple[tuple[int, int], ...] = ((640, 480), (160, 120))
 TURN_EVERY = 4  # the stepping agent turns every this many steps (as an exploring agent does)

@@ -1,5 +1,6 @@
-"""Differentiable calibration error (DECE, Bohdal et al., Meta-Calibration; REFERENCE.md Sec. 4)
-for training calibration through the fusion (the GLFS loss uses 0.5 * mDECE).
+"""Differentiable calibration error (DECE, Bohdal et al., Meta-Calibration; mDECE, its mean over
+classes: paper Sec. V-D) for training calibration through the fusion (the GLFS loss uses
+0.5 * mDECE).
 
 Inputs: probs (N, K) float tensor (rows are probability vectors), labels (N,) int64.
 

@@ -1,21 +1,12 @@
-"""`calnav bench`: speed and memory figures, measured in one run on one scene.
-
-Each section is a module ``eval.bench_<name>`` with ``run(ctx: BenchContext) -> dict[str, float]``;
-this file owns the shared context (one procedural house, one real trajectory through it, frames
-rendered once per resolution), the table and the flat JSON output (name -> number).
-"""
+"""The shared inputs of every ``calnav bench`` section: one procedural house, one real
+trajectory through it, frames rendered once per resolution; and the timing helper."""
 from __future__ import annotations
 
-import importlib
-import json
 import time
 from dataclasses import dataclass, field
 from functools import cached_property
-from pathlib import Path
 
 import numpy as np
-
-SECTIONS: tuple[str, ...] = ("env", "fusion", "segmenter", "agent")
 
 
 @dataclass
@@ -83,35 +74,3 @@ def timeit_ms(fn, repeats: int, warmup: int = 1) -> float:
         fn()
         times.append((time.perf_counter() - t0) * 1e3)
     return float(np.median(times))
-
-
-def run_bench(output: str | Path | None, sections: tuple[str, ...] = SECTIONS, quick: bool = False,
-              scene_seed: int = 7) -> dict[str, float]:
-    ctx = BenchContext(scene_seed=scene_seed, quick=quick, n_poses=12 if quick else 60)
-    results: dict[str, float] = {}
-    for name in sections:
-        if name not in SECTIONS:
-            raise ValueError(f"unknown bench section {name!r}; valid sections: {', '.join(SECTIONS)}")
-        module = importlib.import_module(f"eval.bench_{name}")
-        t0 = time.perf_counter()
-        part = module.run(ctx)
-        print(f"[bench] {name}: {len(part)} figures in {time.perf_counter() - t0:.1f} s", flush=True)
-        results.update({k: float(v) for k, v in part.items()})
-    print(format_table(results))
-    if output:
-        Path(output).write_text(json.dumps(results, indent=2, sort_keys=True) + "\n")
-        print(f"wrote {output}")
-    return results
-
-
-def format_table(results: dict[str, float]) -> str:
-    width = max((len(k) for k in results), default=10)
-    lines = [f"{'figure':<{width}}  value", f"{'-' * width}  ---------"]
-    lines += [f"{k:<{width}}  {v:.4g}" for k, v in results.items()]
-    return "\n".join(lines)
-
-
-def main_bench(args) -> None:
-    """`calnav bench`: ``--only`` names comma-separated sections (default: all)."""
-    only = tuple(s for s in args.only.split(",") if s) or SECTIONS
-    run_bench(args.output, only, quick=args.quick, scene_seed=args.scene_seed)

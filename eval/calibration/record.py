@@ -16,8 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from eval.calib_config import CalibrateMapConfig
-from mapping.obs_cache import ObsCache
+from eval.calibration.config import CalibrateMapConfig
+from mapping.calibration.obs_cache import ObsCache
 
 SEGMENT_BATCH = 16   # frames per segmenter forward pass
 ROLES = ("calib_train", "calib_val", "test")

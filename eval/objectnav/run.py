@@ -4,12 +4,12 @@ parallel workers, resumably.
 Output directory: ``config.yaml`` (the resolved config), ``episodes.jsonl`` (one line per
 finished episode, appended and flushed as each finishes, so a killed run loses at most the
 episodes in flight), ``summary.json`` (mean and SEM of Success, SPL, SoftSPL, DistanceToGoal,
-per-category breakdown), ``plots/*.png`` (``eval.objectnav_report.plot_run``) and, with
+per-category breakdown), ``plots/*.png`` (``eval.objectnav.report.plot_run``) and, with
 ``--video N``, ``videos/<episode_id>.mp4`` (":" -> "_") for the first N episodes of the range (drawn in the
 worker that runs the episode; agents with a map only). Rerunning into the same directory skips
 finished episodes; a directory holding a different config is refused unless ``--force``.
 ``-m/--multirun`` runs the cross product of comma-separated overrides, one subdirectory each,
-and writes ``comparison.md`` / ``.csv`` / ``.png`` (``eval.objectnav_report``).
+and writes ``comparison.md`` / ``.csv`` / ``.png`` (``eval.objectnav.report``).
 """
 from __future__ import annotations
 
@@ -79,7 +79,7 @@ def _worker_init(cfg_dict: dict, agent_name: str, video_dir: str | None = None,
     import gymnasium as gym
 
     import envs  # noqa: F401  (registers the env)
-    from eval.agents import make_agent
+    from eval.objectnav.agents import make_agent
 
     cfg = build_dataclass(Config, cfg_dict)
     env = gym.make("calnav/ObjectNav-v0", split=cfg.env.split, config=cfg.env)
@@ -187,7 +187,7 @@ def run_objectnav(cfg: Config, indices: list[int], out: Path, force: bool = Fals
     summary["agent"] = agent_name
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     if plots and records:
-        from eval.objectnav_report import plot_run
+        from eval.objectnav.report import plot_run
 
         plot_run(summary, out, title=agent_name)
     return summary
@@ -222,7 +222,7 @@ def main_objectnav(args) -> None:
         print(format_metrics_table([(summary["agent"], summary)], first_header="Agent"))
         print(f"results: {out}/episodes.jsonl, {out}/summary.json, {out}/plots/")
         return
-    from eval.objectnav_report import combo_dirname, combo_values, varied_keys, write_comparison
+    from eval.objectnav.report import combo_dirname, combo_values, varied_keys, write_comparison
 
     combos = expand_multirun(list(args.overrides))
     keys = varied_keys(list(args.overrides))

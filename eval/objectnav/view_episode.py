@@ -99,7 +99,7 @@ def main_view_episode(args) -> None:
     import gymnasium as gym
 
     import envs  # noqa: F401
-    from eval.agents import make_agent
+    from eval.objectnav.agents import make_agent
     from eval.config import load_config
 
     cfg = load_config(args.config, args.overrides)

@@ -1,6 +1,6 @@
 """Labelled voxel observations in flat (CSR) form, the input of 3D calibration fitting, GLFS
 training and map evaluation: every observation of every labelled voxel of one or more
-observation caches (``mapping.obs_cache``), concatenated.
+observation caches (``mapping.calibration.obs_cache``), concatenated.
 
 Fusion over them is ``mapping.fusion.fuse_flat`` (index_add over the voxel axis), so the cost
 follows the number of observations, not the busiest voxel.
@@ -13,7 +13,7 @@ from typing import Iterable, Sequence
 import numpy as np
 import torch
 
-from mapping.obs_cache import ObsCache
+from mapping.calibration.obs_cache import ObsCache
 
 
 def csr_select(offsets: np.ndarray, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -1,4 +1,4 @@
-"""Fitting logit temperatures (paper Sec. V-C; REFERENCE.md Sec. 3).
+"""Fitting logit temperatures (paper Sec. V-C; the paper's search set-up: Sec. VI-B).
 
 - ``fit_temperature_2d``: classic temperature scaling of the *segmenter* (Guo et al.): one tau
   minimising the pixel negative log-likelihood, by L-BFGS on log tau (the NLL is smooth and
@@ -27,7 +27,7 @@ import numpy as np
 import torch
 
 from mapping import metrics
-from mapping.flat_obs import FlatObservations
+from mapping.calibration.flat_obs import FlatObservations
 from mapping.fusion import fuse_flat, get_strategy
 
 TAU_RANGE = (0.01, 200.0)     # the authors' temperature search range
@@ -76,7 +76,8 @@ def fit_temperature_2d(logits: np.ndarray | torch.Tensor, labels: np.ndarray | t
     tau = float(math.exp(min(max(float(log_tau.detach()), lo), hi)))
     with torch.no_grad():
         nll = float(torch.nn.functional.cross_entropy(z / tau, y))
-    return FitResult(tau, nll, opt.state[opt._params[0]].get("func_evals", 0))
+    # LBFGS keeps its counters in the (public) per-parameter state of its first parameter
+    return FitResult(tau, nll, opt.state[log_tau].get("func_evals", 0))
 
 
 class MapObjective:

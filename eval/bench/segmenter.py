@@ -16,7 +16,7 @@ Models whose weight file is missing are skipped with a message (the figures are 
 """
 from __future__ import annotations
 
-from eval.bench import timeit_ms
+from eval.bench.context import timeit_ms
 
 MODELS = ("learned_rgb", "learned_rgbd")
 WARMUP = 3                   # calls before timing (allocator and oneDNN kernel caches warm up)

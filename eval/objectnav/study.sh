@@ -5,7 +5,7 @@
 # evaluated with the uncertainty-aware agent (at GLFS's tuned threshold), and so is RBU (at its
 # own), the control that tells the agent's share of that gain from the calibration's.
 # Every step is resumable: rerun the script to continue after an interruption.
-#   usage: eval/objectnav_study.sh   (env: OUT, TUNE, EVAL, THRESHOLDS, THRESHOLDS_<segmenter>,
+#   usage: eval/objectnav/study.sh   (env: OUT, TUNE, EVAL, THRESHOLDS, THRESHOLDS_<segmenter>,
 #                                     SEGMENTERS, CALNAV)
 set -euo pipefail
 OUT=${OUT:-runs/study}

@@ -40,7 +40,7 @@ def _reliability_tables(stats: dict) -> dict:
 
 def write_report(out: Path, rows: list[dict], stats_by_segmenter: dict, class_names) -> None:
     """Write CSV, Markdown and plots for ``rows`` (all segmenters so far)."""
-    from eval.calib_plots import plot_calibration_vs_accuracy, plot_reliability, plot_reliability_per_class
+    from eval.calibration.plots import plot_calibration_vs_accuracy, plot_reliability, plot_reliability_per_class
 
     out.mkdir(parents=True, exist_ok=True)
     tmp = out / "results.csv.tmp"

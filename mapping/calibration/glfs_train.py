@@ -1,4 +1,4 @@
-"""Training the Generalized Learned Fusion Strategy (paper Sec. V-D; REFERENCE.md Sec. 3).
+"""Training the Generalized Learned Fusion Strategy (paper Sec. V-D: theta and the loss).
 
 theta = (tau (K) per-class temperatures, M (K, n_dist, n_angle) sample-weight table, G and eps
 gates). Unlike the authors' release, which fixed G = eps = 0, calnav learns the gates too
@@ -20,10 +20,10 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from mapping.flat_obs import FlatObservations
+from mapping.calibration.flat_obs import FlatObservations
 from mapping.fusion import fuse_flat
 from mapping.glfs import GLFSParams
-from mapping.metrics_torch import mdece
+from mapping.calibration.metrics_torch import mdece
 from mapping.weighting import ANGLE_EDGES_DEG, DISTANCE_EDGES_M, WeightingParams, sample_weights
 
 PROB_FLOOR = 1e-6   # log(max(p, floor)) in the NLL: a hard zero probability must not give inf

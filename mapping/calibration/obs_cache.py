@@ -15,13 +15,14 @@ flat per-observation arrays.
 """
 from __future__ import annotations
 
-import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
+
+from common.npz import load_versioned_npz, save_versioned_npz
 
 FORMAT_VERSION = 1
 DEFAULT_CAP = 256
@@ -32,7 +33,11 @@ COMPACT_MIN_OBS = 1 << 20  # never compact below this many stored observations
 @dataclass
 class PaddedObservations:
     """Observations of N voxels padded to T: logits (N, T, K) float32, mask (N, T) bool (False =
-    padding), distance_m (N, T), angle_deg (N, T), weight (N, T) (ones when none were given)."""
+    padding), distance_m (N, T), angle_deg (N, T), weight (N, T) (ones when none were given).
+
+    Test / reference helper (from ``ObsCache.to_padded``): the input of the padded reference
+    fusion ``mapping.fusion.fuse`` in the tests; calibration itself uses the flat layout
+    (``mapping.calibration.flat_obs.FlatObservations`` with ``fuse_flat``)."""
 
     logits: torch.Tensor
     mask: torch.Tensor
@@ -196,7 +201,10 @@ class ObsCache:
                   device: torch.device | str = "cpu") -> PaddedObservations:
         """Observations of the voxels ``voxel_ids`` (default all, in cache order) padded to
         T = min(max_T, most observations). Voxels with more than max_T keep a seeded uniform
-        random subset (in temporal order). Chunk big caches with ``voxel_ids``."""
+        random subset (in temporal order). Chunk big caches with ``voxel_ids``.
+
+        Test / reference helper: only the tests use it (see ``PaddedObservations``); memory
+        grows with the busiest voxel, so calibration uses ``FlatObservations.from_caches``."""
         csr = self._require()
         offsets = csr["offsets"]
         ids = np.arange(len(offsets) - 1) if voxel_ids is None else np.asarray(voxel_ids, dtype=np.int64).reshape(-1)
@@ -228,31 +236,16 @@ class ObsCache:
     # ------------------------------------------------------------------ file io
     def save(self, path: str | os.PathLike) -> Path:
         csr = self._require()
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        meta = {"format_version": FORMAT_VERSION, "num_classes": self.num_classes, "voxel_size_m": self.voxel_size_m,
+        meta = {"num_classes": self.num_classes, "voxel_size_m": self.voxel_size_m,
                 "cap": self.cap, "seed": self.seed, "class_names": list(self.class_names)}
         arrays = dict(csr)
         if self.labels is not None:
             arrays["labels"] = self.labels
-        tmp = path.with_name(path.name + ".tmp.npz")
-        np.savez_compressed(tmp, meta=np.array(json.dumps(meta)), **arrays)
-        os.replace(tmp, path)
-        return path
+        return save_versioned_npz(path, arrays, meta, FORMAT_VERSION)
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> "ObsCache":
-        path = Path(path)
-        if not path.exists():
-            raise ValueError(f"observation cache file not found: {path}")
-        try:
-            with np.load(path, allow_pickle=False) as data:
-                arrays = {k: data[k] for k in data.files}
-            meta = json.loads(str(arrays.pop("meta")))
-        except Exception as exc:
-            raise ValueError(f"corrupt observation cache file {path}: {exc}") from exc
-        if meta.get("format_version") != FORMAT_VERSION:
-            raise ValueError(f"observation cache {path} has format {meta.get('format_version')}, expected {FORMAT_VERSION}")
+        arrays, meta = load_versioned_npz(path, FORMAT_VERSION, what="observation cache file")
         cache = cls(meta["num_classes"], meta["voxel_size_m"], meta["cap"], meta["seed"], tuple(meta["class_names"]))
         labels = arrays.pop("labels", None)
         cache._csr = arrays

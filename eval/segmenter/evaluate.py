@@ -18,18 +18,10 @@ from pathlib import Path
 import numpy as np
 
 from eval.config import load_config
-from eval.segmenter_data import EVAL_SEED_OFFSET, SegmenterExperimentConfig, load_or_render
+from eval.segmenter.data import EVAL_SEED_OFFSET, SegmenterExperimentConfig, load_or_render
 from mapping.metrics import CalibrationStats
 
 BATCH = 16                     # frames per segment_batch call
-
-
-def _softmax(logits: np.ndarray) -> np.ndarray:
-    """Row softmax over the last axis (float32, in place on a copy)."""
-    z = logits - logits.max(axis=-1, keepdims=True)
-    np.exp(z, out=z)
-    z /= z.sum(axis=-1, keepdims=True)
-    return z
 
 
 def evaluate(cfg: SegmenterExperimentConfig, model: str, split: str = "test", frames: int = 500,
@@ -37,7 +29,7 @@ def evaluate(cfg: SegmenterExperimentConfig, model: str, split: str = "test", fr
     """Score segmenter ``model`` on ``frames`` frames of ``split``; returns the metrics dict."""
     from tqdm import tqdm
 
-    from agent.segmenters import make_segmenter
+    from agent.segmenters import make_segmenter, softmax
     from envs.semantics import CLASS_NAMES, GOAL_CATEGORIES, STRUCTURE_CLASSES
 
     if frames < 1:
@@ -57,7 +49,7 @@ def evaluate(cfg: SegmenterExperimentConfig, model: str, split: str = "test", fr
         extra = {}
         if seg.needs_semantic:
             extra = {"semantic": data.labels[sl], "instance": data.instance[sl], "poses": data.poses[sl].astype(np.float64)}
-        probs = _softmax(seg.segment_batch(data.rgb[sl], depth, **extra)).reshape(-1, k)
+        probs = softmax(seg.segment_batch(data.rgb[sl], depth, **extra)).reshape(-1, k)
         labels = data.labels[sl].reshape(-1).astype(np.int64)
         stats.update(probs, labels, ignore_index=-1)
         valid = labels >= 0

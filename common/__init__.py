@@ -1,0 +1,6 @@
+"""Shared mechanisms with no project imports: everything may import ``common``; it imports no
+project package (``agent``, ``envs``, ``mapping``, ``eval``).
+
+- ``common.npz``: save / load a versioned ``.npz`` (arrays + a JSON metadata record carrying
+  ``format_version``), with clear errors naming the file.
+"""

@@ -1,0 +1,54 @@
+"""`calnav bench`: speed and memory figures, measured in one run on one scene.
+
+Each section is a module of this package with ``run(ctx: BenchContext) -> dict[str, float]``,
+chosen by name from ``SECTIONS``; this file owns the table and the flat JSON output
+(name -> number). The sections import their heavy dependencies inside ``run``.
+"""
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Callable
+
+from eval.bench import agent, env, fusion, segmenter
+from eval.bench.context import BenchContext
+
+SECTIONS: dict[str, Callable[[BenchContext], dict[str, float]]] = {
+    "env": env.run,
+    "fusion": fusion.run,
+    "segmenter": segmenter.run,
+    "agent": agent.run,
+}
+
+
+def run_bench(output: str | Path | None, sections: tuple[str, ...] = tuple(SECTIONS), quick: bool = False,
+              scene_seed: int = 7) -> dict[str, float]:
+    unknown = [name for name in sections if name not in SECTIONS]
+    if unknown:  # checked before any section runs
+        raise ValueError(f"unknown bench section {unknown[0]!r}; valid sections: {', '.join(SECTIONS)}")
+    ctx = BenchContext(scene_seed=scene_seed, quick=quick, n_poses=12 if quick else 60)
+    results: dict[str, float] = {}
+    for name in sections:
+        t0 = time.perf_counter()
+        part = SECTIONS[name](ctx)
+        print(f"[bench] {name}: {len(part)} figures in {time.perf_counter() - t0:.1f} s", flush=True)
+        results.update({k: float(v) for k, v in part.items()})
+    print(format_table(results))
+    if output:
+        Path(output).write_text(json.dumps(results, indent=2, sort_keys=True) + "\n")
+        print(f"wrote {output}")
+    return results
+
+
+def format_table(results: dict[str, float]) -> str:
+    width = max((len(k) for k in results), default=10)
+    lines = [f"{'figure':<{width}}  value", f"{'-' * width}  ---------"]
+    lines += [f"{k:<{width}}  {v:.4g}" for k, v in results.items()]
+    return "\n".join(lines)
+
+
+def main_bench(args) -> None:
+    """`calnav bench`: ``--only`` names comma-separated sections (default: all)."""
+    only = tuple(s for s in args.only.split(",") if s) or tuple(SECTIONS)
+    run_bench(args.output, only, quick=args.quick, scene_seed=args.scene_seed)
