@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from common.atomic import atomic_path, write_json_atomic
 from eval.calibration.config import CalibrateMapConfig
 from eval.calibration.record import ROLES, load_role, record_scene, role_scene_ids
 from eval.config import ConfigError, dump_yaml, load_config
@@ -71,10 +72,7 @@ class Fits:
 
     def put(self, key: str, value) -> None:
         self.data[key] = value
-        self.folder.mkdir(parents=True, exist_ok=True)
-        tmp = self.path.with_suffix(".tmp")
-        tmp.write_text(json.dumps(self.data, indent=1))
-        tmp.replace(self.path)
+        write_json_atomic(self.path, self.data, indent=1)
 
     @property
     def glfs_path(self) -> Path:
@@ -153,10 +151,8 @@ def score_scene(cfg: CalibrateMapConfig, out: Path, segmenter: str, scene_id: st
         stats = metrics.CalibrationStats(flat.num_classes).update(probs, labels)
         for k, v in _stats_arrays(stats).items():
             arrays[f"{strategy}/{calibration}/{k}"] = v
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp.npz")
-    np.savez_compressed(tmp, n_voxels=np.array(flat.num_voxels), **arrays)
-    tmp.replace(path)
+    with atomic_path(path) as tmp:
+        np.savez_compressed(tmp, n_voxels=np.array(flat.num_voxels), **arrays)
     return path
 
 
