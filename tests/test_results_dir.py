@@ -56,8 +56,8 @@ def test_second_run_is_refused_while_the_first_holds_the_directory_and_not_after
     try:
         assert holder.stdout.readline().strip() == "locked"
         assert main(_objectnav(out, "0:2")) == 2
-        err = capsys.readouterr().err.strip()
-        assert f"{out} is in use by another calnav run (pid {holder.pid})" in err and "\n" not in err
+        err = _one_line_error(capsys, "objectnav")
+        assert f"{out} is in use by another calnav run (pid {holder.pid})" in err
         assert not (out / "episodes.jsonl").exists()  # the refused run wrote nothing
         with pytest.raises(ResultsError, match="in use"):
             ResultsDir(out).open()
@@ -127,9 +127,13 @@ def test_crashed_episode_is_retried_and_replaced(run_copy):
 
 
 def _one_line_error(capsys, command: str) -> str:
+    """The error line, checked to be the one last line of stderr (progress bars may precede it)
+    with no traceback."""
     err = capsys.readouterr().err.strip()
-    assert err.startswith(f"calnav {command}: error: ") and "\n" not in err, err
-    return err
+    last = err.splitlines()[-1]
+    assert last.startswith(f"calnav {command}: error: ") and "Traceback" not in err, err
+    assert err.count("error:") == 1, err
+    return last
 
 
 def test_unusable_results_directories_give_one_line_errors(run_copy, tmp_path, capsys):
