@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 from eval.cli import main
-from eval.results_dir import ResultsDir, ResultsError, read_records
+from eval.results_dir import RECORDS_NAME as RECORDS, ResultsDir, ResultsError, read_records
 
 SMALL = ["env.resolution=32x24", "env.dataset.val_scenes=2", "env.dataset.episodes_per_scene=3"]
 REPO_ROOT = Path(__file__).resolve().parents[1]
@@ -136,7 +136,7 @@ def _one_line_error(capsys, command: str) -> str:
     return last
 
 
-def test_unusable_results_directories_give_one_line_errors(run_copy, tmp_path, capsys):
+def test_unusable_results_directories_give_one_line_errors(tmp_path, capsys):
     a_file = tmp_path / "a_file"
     a_file.write_text("x")
     assert main(_objectnav(a_file)) == 2
@@ -144,6 +144,10 @@ def test_unusable_results_directories_give_one_line_errors(run_copy, tmp_path, c
     assert main(["tune", "--output", str(a_file), "--episodes", "0:1", "--thresholds", "0.9",
                  "--min-areas", "2", *SMALL]) == 2
     assert "is a file, not a directory" in _one_line_error(capsys, "tune")
+    assert main(["calibrate-map", "--output", str(a_file), "study.segmenters=[gt]"]) == 2
+    assert "is a file, not a directory" in _one_line_error(capsys, "calibrate-map")
+    assert main(["fit-glfs", "--segmenter", "gt", "--output", str(tmp_path / "g.json"), "--work-dir", str(a_file)]) == 2
+    assert f"--work-dir {a_file} is a file, not a directory" in _one_line_error(capsys, "fit-glfs")
 
     for name in ("episodes.jsonl", "config.yaml"):
         d = tmp_path / f"dir_{name}"
@@ -192,3 +196,28 @@ def test_run_whose_episodes_all_crash_exits_nonzero_with_the_first_error(tmp_pat
     assert "all 2 episodes failed; first error (episode 0): RuntimeError: bad glfs params (episode 0)" in err
     summary = json.loads((out / "summary.json").read_text())  # the records and summary are still written
     assert summary["failed"] == 2
+
+
+def test_config_check_ignores_neutral_keys_and_force_discards(tmp_path):
+    """One meaning everywhere (objectnav and calibrate-map configs alike): resolved dicts are
+    compared without run.workers / run.output_dir; --force deletes only the ``discard`` names."""
+    from eval.calibration.config import CalibrateMapConfig
+    from eval.config import load_config
+
+    for cls, name in ((None, "objectnav"), (CalibrateMapConfig, "calibrate")):
+        kw = {"cls": cls} if cls else {}
+        out = tmp_path / name
+        with ResultsDir(out, load_config(None, ["run.workers=1"], **kw), discard=("fits", RECORDS)):
+            (out / "fits").mkdir()
+            (out / RECORDS).write_text("{}\n")
+            (out / "keep.txt").write_text("x")
+        with ResultsDir(out, load_config(None, ["run.workers=3", "run.output_dir=elsewhere"], **kw)):
+            pass  # neutral keys: the same config
+        other = load_config(None, ["run.seed=5"], **kw)
+        with pytest.raises(ResultsError, match="holds results of a different config"):
+            ResultsDir(out, other).open()
+        assert (out / "fits").is_dir()
+        with ResultsDir(out, other, force=True, discard=("fits", RECORDS)):
+            pass
+        assert not (out / "fits").exists() and not (out / RECORDS).exists() and (out / "keep.txt").exists()
+        assert "seed: 5" in (out / "config.yaml").read_text()
