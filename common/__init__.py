@@ -1,6 +1,8 @@
 """Shared mechanisms with no project imports: everything may import ``common``; it imports no
 project package (``agent``, ``envs``, ``mapping``, ``eval``).
 
+- ``common.atomic``: atomic file writes (unique temporary file, fsync, ``os.replace``), whole
+  contents or through a temporary path for writers such as ``np.savez`` / ``torch.save``.
 - ``common.npz``: save / load a versioned ``.npz`` (arrays + a JSON metadata record carrying
   ``format_version``), with clear errors naming the file.
 """

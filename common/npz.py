@@ -1,8 +1,8 @@
 """Versioned ``.npz`` files: named arrays plus one JSON metadata record (the ``meta`` entry)
 whose ``format_version`` says which layout the file has.
 
-``save_versioned_npz`` writes atomically (a temporary file, then ``os.replace``, so a crash
-never leaves a half-written file); ``load_versioned_npz`` returns (arrays, meta) and raises
+``save_versioned_npz`` writes atomically (``common.atomic``: a crash never leaves a
+half-written file); ``load_versioned_npz`` returns (arrays, meta) and raises
 ``error`` (default ``NpzFormatError``, a ValueError) naming the file when it is missing, is not
 a readable ``.npz`` with a JSON ``meta`` record, lacks a format version or has another one.
 ``check_format_version`` is that last check alone, for metadata read some other way (e.g. JSON).
@@ -15,6 +15,8 @@ from pathlib import Path
 from typing import Mapping
 
 import numpy as np
+
+from common.atomic import atomic_path
 
 META_KEY = "meta"
 VERSION_KEY = "format_version"
@@ -44,9 +46,8 @@ def save_versioned_npz(path: str | os.PathLike, arrays: Mapping[str, np.ndarray]
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     record = {VERSION_KEY: version, **meta}
-    tmp = path.with_name(path.name + ".tmp.npz")
-    np.savez_compressed(tmp, **arrays, **{META_KEY: np.array(json.dumps(record))})
-    os.replace(tmp, path)  # atomic: a crash never leaves a half-written file
+    with atomic_path(path) as tmp:  # a crash never leaves a half-written file
+        np.savez_compressed(tmp, **arrays, **{META_KEY: np.array(json.dumps(record))})
     return path
 
 

@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 from scipy import ndimage
 
+from common.atomic import atomic_path
 from envs.config import EnvConfig
 from envs.scene import Scene, cache_dir, sample_surface
 from envs.semantics import GOAL_CATEGORIES
@@ -248,11 +249,8 @@ def episodes_from_habitat(data: dict) -> list[ObjectNavEpisode]:
 
 
 def write_json_gz(path: Path, data: dict) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    with gzip.open(tmp, "wt") as f:
+    with atomic_path(path) as tmp, gzip.open(tmp, "wt") as f:
         json.dump(data, f)
-    tmp.replace(path)
 
 
 def read_json_gz(path: Path) -> dict:

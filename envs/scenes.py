@@ -29,13 +29,12 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 import re
-import uuid
 import warnings
 from collections import OrderedDict
 from pathlib import Path
 
+from common.atomic import atomic_path, is_temp_file
 from envs.config import DatasetConfig
 from envs.house import HouseSpec, generate_house
 from envs.scan import load_labelled_ply
@@ -91,7 +90,7 @@ def _scene_files(folder: Path) -> dict[str, Path]:
     """{stem: path} of the scene files in ``folder``; ``.npz`` wins over ``.ply``."""
     files: dict[str, Path] = {}
     for p in sorted(folder.glob("*.ply")) + sorted(folder.glob("*.npz")):
-        if not p.name.endswith(".tmp.npz"):
+        if not is_temp_file(p):
             files[p.stem] = p
     return files
 
@@ -172,13 +171,11 @@ def scene_cache_path(scene_id: str, dataset_cfg: DatasetConfig | None = None, sp
 
 def _save_atomic(scene: Scene, path: Path) -> None:
     """Save under a unique temporary name, then rename: concurrent workers never see half a file."""
-    tmp = path.with_name(f".{path.stem}.{os.getpid()}.{uuid.uuid4().hex[:8]}.npz")
     try:
-        scene.save(tmp)
-        os.replace(tmp, path)
+        with atomic_path(path) as tmp:
+            scene.save(tmp)
     except OSError as exc:   # a read-only cache only costs speed
         warnings.warn(f"could not cache scene at {path}: {exc}")
-        tmp.unlink(missing_ok=True)
 
 
 def load_scene(scene_id: str, dataset_cfg: DatasetConfig | None = None, spec: HouseSpec | None = None) -> Scene:

@@ -13,6 +13,7 @@ import sys
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 from eval.config import ConfigError
+from eval.results_dir import ResultsError
 
 
 def _add_config_args(p: argparse.ArgumentParser, default_config: str) -> None:
@@ -123,7 +124,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         module, function = COMMANDS[args.command]
         getattr(importlib.import_module(module), function)(args)
-    except (ConfigError, ValueError, FileNotFoundError) as exc:
+    except (ConfigError, ValueError, FileNotFoundError, ResultsError) as exc:
         print(f"calnav {args.command}: error: {exc}", file=sys.stderr)
         return 2
     return 0

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from common.atomic import write_json_atomic
 from common.npz import check_format_version, load_versioned_npz, save_versioned_npz
 from mapping.weighting import ANGLE_EDGES_DEG, DISTANCE_EDGES_M
 
@@ -101,7 +102,7 @@ class GLFSParams:
         path.parent.mkdir(parents=True, exist_ok=True)
         d = self.to_dict()
         if path.suffix == ".json":
-            path.write_text(json.dumps(d, indent=1) + "\n")
+            write_json_atomic(path, d, indent=1)
         elif path.suffix == ".npz":
             meta = {k: v for k, v in d.items() if k not in ("format_version", "tau", "M")}
             save_versioned_npz(path, {"tau": self.tau, "M": self.M}, meta, FORMAT_VERSION)

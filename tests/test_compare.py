@@ -112,3 +112,26 @@ def test_compare_bad_input(tmp_path):
         main_compare(argparse.Namespace(**{**args, "keys": "agent.nope"}))
     with pytest.raises(ConfigError, match="not a run position"):
         main_compare(argparse.Namespace(**{**args, "baseline": "5"}))
+
+
+def test_compare_refuses_runs_without_shared_episodes(tmp_path, capsys):
+    """Disjoint episode ranges give no paired difference: a clear error, never '+nan (nan)'."""
+    cfg = {"agent": {"segmenter": "gt"}, "mapping": {"fusion": "rbu"}}
+    r0 = _run_dir(tmp_path / "a", cfg, [_rec(0, 1.0, 1.0), _rec(1, 0.0, 0.0)])
+    r1 = _run_dir(tmp_path / "b", {**cfg, "mapping": {"fusion": "glfs"}}, [_rec(2, 1.0, 0.5), _rec(3, 1.0, 0.5)])
+    out = tmp_path / "cmp"
+    with pytest.raises(ConfigError, match=r"episodes 2:4\) shares no episodes with the baseline .*episodes 0:2"):
+        main_compare(argparse.Namespace(runs=[r0, r1], keys="", baseline="0", output=str(out)))
+    assert "nan" not in capsys.readouterr().out
+    assert not (out / "paired.md").exists()
+
+
+def test_compare_counts_a_duplicated_episode_once(tmp_path, capsys):
+    cfg = {"agent": {"segmenter": "gt"}, "mapping": {"fusion": "rbu"}}
+    recs = [_rec(0, 1.0, 1.0), _rec(1, 0.0, 0.0)]
+    r0 = _run_dir(tmp_path / "a", cfg, recs + [_rec(1, 1.0, 0.5)])  # episode 1 twice: the last one counts
+    r1 = _run_dir(tmp_path / "b", {**cfg, "mapping": {"fusion": "glfs"}}, recs)
+    main_compare(argparse.Namespace(runs=[r0, r1], keys="", baseline="0", output=str(tmp_path / "cmp")))
+    md = (tmp_path / "cmp" / "comparison.md").read_text().splitlines()
+    assert md[2] == "| rbu | 0.750 (0.250) | 1.000 (0.000) | 0.750 (0.250) | 0.000 (0.000) | 2 |"
+    assert "1 duplicate record(s) of episode(s) 1" in capsys.readouterr().err

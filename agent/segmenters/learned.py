@@ -21,6 +21,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from common.atomic import atomic_path
 from agent.segmenters.base import WEIGHTS_DIR, Segmenter, SegmenterConfig, check_frame, resolve_device
 from agent.segmenters.network import NetSpec, SegNet, fuse_batchnorm
 
@@ -64,21 +65,16 @@ def save_weights(net: SegNet, path: Path | str, model: str, class_names, resolut
                  meta: dict | None = None) -> Path:
     """Write ``net`` as a weight file (floating tensors as fp16; see the module docstring),
     atomically (a temporary file renamed into place). Returns the path."""
-    import os
-    import uuid
-
     if model not in LEARNED_MODELS:
         raise ValueError(f"unknown learned model {model!r}; valid: {', '.join(LEARNED_MODELS)}")
     if len(class_names) != net.spec.num_classes:
         raise ValueError(f"{len(class_names)} class names for a {net.spec.num_classes}-class network")
     state = {k: (v.detach().cpu().half() if v.is_floating_point() else v.detach().cpu()) for k, v in net.state_dict().items()}
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp")
-    torch.save({"format": WEIGHTS_FORMAT, "model": model, "spec": net.spec.to_dict(), "state_dict": state,
-                "class_names": list(class_names), "resolution": [int(v) for v in resolution],
-                "meta": dict(meta or {})}, tmp)
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        torch.save({"format": WEIGHTS_FORMAT, "model": model, "spec": net.spec.to_dict(), "state_dict": state,
+                    "class_names": list(class_names), "resolution": [int(v) for v in resolution],
+                    "meta": dict(meta or {})}, tmp)
     return path
 
 

@@ -11,11 +11,11 @@ finished houses):
 from __future__ import annotations
 
 import dataclasses
-import os
 from pathlib import Path
 
 import numpy as np
 
+from common.atomic import atomic_path
 from eval.calibration.config import CalibrateMapConfig
 from mapping.calibration.obs_cache import ObsCache
 
@@ -76,9 +76,8 @@ def _scan_frames(cfg: CalibrateMapConfig, scene_id: str, seed: int):
 
 
 def _save_pixels(path: Path, logits: np.ndarray, labels: np.ndarray) -> None:
-    tmp = path.with_name(path.name + ".tmp.npz")
-    np.savez_compressed(tmp, logits=logits.astype(np.float16), labels=labels.astype(np.int16))
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        np.savez_compressed(tmp, logits=logits.astype(np.float16), labels=labels.astype(np.int16))
 
 
 def record_scene(cfg: CalibrateMapConfig, scene_id: str, segmenters: dict, out_dir: Path, seed: int) -> list[str]:

@@ -8,6 +8,8 @@ import csv
 import math
 from pathlib import Path
 
+from common.atomic import atomic_path
+
 COLUMNS = ("segmenter", "strategy", "calibration", "miou", "ece", "tl_ece", "mece", "brier", "pixel_mece", "n_voxels")
 METRIC_COLUMNS = COLUMNS[3:9]
 
@@ -43,13 +45,11 @@ def write_report(out: Path, rows: list[dict], stats_by_segmenter: dict, class_na
     from eval.calibration.plots import plot_calibration_vs_accuracy, plot_reliability, plot_reliability_per_class
 
     out.mkdir(parents=True, exist_ok=True)
-    tmp = out / "results.csv.tmp"
-    with open(tmp, "w", newline="") as f:
+    with atomic_path(out / "results.csv") as tmp, open(tmp, "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=COLUMNS)
         w.writeheader()
         for r in rows:
             w.writerow({c: (f"{r[c]:.6f}" if isinstance(r[c], float) else r[c]) for c in COLUMNS})
-    tmp.replace(out / "results.csv")
     parts = ["# Map calibration results", "",
              "Voxel metrics on the test houses' fused maps; pixel_mece is the mECE of the segmenter's pixels "
              "with the row's temperature. Produced by `calnav calibrate-map` (config: config.yaml).", ""]

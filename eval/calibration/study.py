@@ -20,16 +20,17 @@ with untrained identity parameters is naive averaging, already a row).
 from __future__ import annotations
 
 import json
-import shutil
 import zlib
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from common.atomic import atomic_path, write_json_atomic
 from eval.calibration.config import CalibrateMapConfig
 from eval.calibration.record import ROLES, load_role, record_scene, role_scene_ids
-from eval.config import ConfigError, dump_yaml, load_config
+from eval.config import load_config
+from eval.results_dir import ResultsDir, writing
 from mapping import metrics
 from mapping.calibration.fit import MapObjective, fit_temperature_2d, fit_temperature_3d, fit_vector_3d
 from mapping.calibration.flat_obs import FlatObservations
@@ -71,10 +72,7 @@ class Fits:
 
     def put(self, key: str, value) -> None:
         self.data[key] = value
-        self.folder.mkdir(parents=True, exist_ok=True)
-        tmp = self.path.with_suffix(".tmp")
-        tmp.write_text(json.dumps(self.data, indent=1))
-        tmp.replace(self.path)
+        write_json_atomic(self.path, self.data, indent=1)
 
     @property
     def glfs_path(self) -> Path:
@@ -153,10 +151,8 @@ def score_scene(cfg: CalibrateMapConfig, out: Path, segmenter: str, scene_id: st
         stats = metrics.CalibrationStats(flat.num_classes).update(probs, labels)
         for k, v in _stats_arrays(stats).items():
             arrays[f"{strategy}/{calibration}/{k}"] = v
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp.npz")
-    np.savez_compressed(tmp, n_voxels=np.array(flat.num_voxels), **arrays)
-    tmp.replace(path)
+    with atomic_path(path) as tmp:
+        np.savez_compressed(tmp, n_voxels=np.array(flat.num_voxels), **arrays)
     return path
 
 
@@ -181,16 +177,14 @@ def pixel_mece(logits: np.ndarray, labels: np.ndarray, temperature) -> float:
 
 
 # ------------------------------------------------------------------------------- run
-def _check_output(out: Path, cfg_text: str, force: bool) -> None:
-    saved = out / "config.yaml"
-    if saved.exists() and saved.read_text() != cfg_text:
-        if not force:
-            raise ValueError(f"{out} holds results of a different config ({saved}); rerun with --force to discard "
-                             "them or pass another --output")
-        for sub in ("scenes", "fits", "scores"):
-            shutil.rmtree(out / sub, ignore_errors=True)
-    out.mkdir(parents=True, exist_ok=True)
-    saved.write_text(cfg_text)
+# What --force deletes from a directory that holds another config's study.
+STUDY_RESULTS: tuple[str, ...] = ("scenes", "fits", "scores", "results.csv", "results.md")
+
+
+def _check_roles(ids: dict[str, list[str]], roles=ROLES) -> None:
+    for role in roles:
+        if not ids[role]:
+            raise ValueError(f"no {role} houses (check study.*_scenes and env.dataset.scene_dir)")
 
 
 def run_calibrate_map(cfg: CalibrateMapConfig, out: Path, force: bool = False, progress: bool = True) -> list[dict]:
@@ -200,29 +194,28 @@ def run_calibrate_map(cfg: CalibrateMapConfig, out: Path, force: bool = False, p
     from agent.segmenters import make_segmenter
     from eval.calibration.report import write_report
 
-    _check_output(out, dump_yaml(cfg), force)
     ids = role_scene_ids(cfg)
-    for role in ROLES:
-        if not ids[role]:
-            raise ValueError(f"no {role} houses (check study.*_scenes and env.dataset.scene_dir)")
+    _check_roles(ids)
     segs = {n: make_segmenter(n, device=cfg.run.device) for n in cfg.study.segmenters}
     houses = [sid for role in ROLES for sid in ids[role]]
-    for sid in tqdm(houses, desc="record scans", unit="house", disable=not progress):
-        record_scene(cfg, sid, segs, out, scene_seed(sid, cfg.run.seed))
-    rows, all_stats = [], {}
-    for name in cfg.study.segmenters:
-        fits = fit_segmenter(cfg, out, name, ids, progress)
-        paths = [score_scene(cfg, out, name, sid, fits)
-                 for sid in tqdm(ids["test"], desc=f"score test maps ({name})", unit="house", disable=not progress)]
-        k = segs[name].num_classes
-        stats, n_vox = merged_stats(cfg, paths, k)
-        _, pix_logits, pix_labels = load_role(out, name, ids["test"])
-        for (s, c), st in stats.items():
-            rows.append({"segmenter": name, "strategy": s, "calibration": c, "miou": st.miou(), "ece": st.ece(),
-                         "tl_ece": st.tl_ece(), "mece": st.mece(), "brier": st.brier(),
-                         "pixel_mece": pixel_mece(pix_logits, pix_labels, fits.temperature(s, c)), "n_voxels": n_vox})
-        all_stats[name] = stats
-        write_report(out, rows, all_stats, segs[name].class_names)
+    with ResultsDir(out, cfg, force=force, discard=STUDY_RESULTS, files=("results.csv",)):
+        for sid in tqdm(houses, desc="record scans", unit="house", disable=not progress):
+            record_scene(cfg, sid, segs, out, scene_seed(sid, cfg.run.seed))
+        rows, all_stats = [], {}
+        for name in cfg.study.segmenters:
+            fits = fit_segmenter(cfg, out, name, ids, progress)
+            paths = [score_scene(cfg, out, name, sid, fits) for sid in
+                     tqdm(ids["test"], desc=f"score test maps ({name})", unit="house", disable=not progress)]
+            k = segs[name].num_classes
+            stats, n_vox = merged_stats(cfg, paths, k)
+            _, pix_logits, pix_labels = load_role(out, name, ids["test"])
+            for (s, c), st in stats.items():
+                rows.append({"segmenter": name, "strategy": s, "calibration": c, "miou": st.miou(), "ece": st.ece(),
+                             "tl_ece": st.tl_ece(), "mece": st.mece(), "brier": st.brier(),
+                             "pixel_mece": pixel_mece(pix_logits, pix_labels, fits.temperature(s, c)),
+                             "n_voxels": n_vox})
+            all_stats[name] = stats
+            write_report(out, rows, all_stats, segs[name].class_names)
     return rows
 
 
@@ -246,12 +239,14 @@ def main_fit_glfs(args) -> None:
     cfg = load_config(args.config, [*args.overrides, f"study.segmenters=[{args.segmenter}]", "study.strategies=[glfs]"],
                       cls=CalibrateMapConfig)
     work = Path(args.work_dir or cfg.run.output_dir)
-    _check_output(work, dump_yaml(cfg), force=False)
     ids = role_scene_ids(cfg)
+    _check_roles(ids, ("calib_train", "calib_val"))
     segs = {args.segmenter: make_segmenter(args.segmenter, device=cfg.run.device)}
-    for sid in tqdm(ids["calib_train"] + ids["calib_val"], desc="record scans", unit="house"):
-        record_scene(cfg, sid, segs, work, scene_seed(sid, cfg.run.seed))
-    fits = fit_segmenter(cfg, work, args.segmenter, ids)
-    params = GLFSParams.load(fits.glfs_path)
-    dest = params.save(args.output)
+    with ResultsDir(work, cfg, discard=STUDY_RESULTS, files=(), option="--work-dir"):
+        for sid in tqdm(ids["calib_train"] + ids["calib_val"], desc="record scans", unit="house"):
+            record_scene(cfg, sid, segs, work, scene_seed(sid, cfg.run.seed))
+        fits = fit_segmenter(cfg, work, args.segmenter, ids)
+        params = GLFSParams.load(fits.glfs_path)
+    with writing(args.output):
+        dest = params.save(args.output)
     print(f"GLFS parameters: tau mean {params.tau.mean():.3f}, G {params.g:.3f}, eps {params.eps:.3f} -> {dest}")

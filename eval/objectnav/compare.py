@@ -6,7 +6,9 @@ config keys that differ between the runs as the leading columns, plus ``paired.m
 each run minus a baseline run on the episodes both hold (matched by index), mean and paired
 SEM (``eval.stats.paired_difference``), and ``|diff| / SEM``; and ``failures.md``: per run, how
 many episodes failed by a false STOP, by running out of steps, or by a crash
-(``eval.stats.failure_modes``, step limit from each run's ``env.max_episode_steps``). Keys under ``mapping.`` are shown
+(``eval.stats.failure_modes``, step limit from each run's ``env.max_episode_steps``). A run that
+shares no episode with the baseline is refused (no paired difference exists); each episode
+counts once (``eval.results_dir.read_records``: the last valid record of an index). Keys under ``mapping.`` are shown
 as ``-`` for ``agent.map_type: ndf`` runs, which do not use the 3D map.
 """
 from __future__ import annotations
@@ -16,7 +18,7 @@ import math
 from pathlib import Path
 
 from eval.config import ConfigError
-from eval.objectnav.run import RESULT_NEUTRAL_KEYS, load_records
+from eval.results_dir import NEUTRAL_KEYS, read_records
 from eval.stats import METRIC_LABELS, failure_modes, paired_difference, summarize
 
 PAIRED_METRICS: tuple[str, ...] = ("spl", "success")
@@ -42,7 +44,7 @@ def load_run(path: Path) -> tuple[dict[str, object], list[dict]]:
     if not cfg_path.exists() or not eps.exists():
         raise FileNotFoundError(f"{path} is not a calnav objectnav run directory "
                                 "(needs config.yaml and episodes.jsonl)")
-    records = load_records(eps)
+    records = list(read_records(eps).records.values())  # each episode once (its last record)
     if not records:
         raise ConfigError(f"{path} holds no finished episodes")
     return flatten(yaml.safe_load(cfg_path.read_text()) or {}), records
@@ -50,11 +52,11 @@ def load_run(path: Path) -> tuple[dict[str, object], list[dict]]:
 
 def differing_keys(configs: list[dict[str, object]]) -> list[str]:
     """Keys whose value is not the same in every config (a missing key counts as a value),
-    in first-seen order, without the keys that never change results (RESULT_NEUTRAL_KEYS)."""
+    in first-seen order, without the keys that never change results (NEUTRAL_KEYS)."""
     keys: list[str] = []
     for c in configs:
         keys += [k for k in c if k not in keys]
-    return [k for k in keys if k not in RESULT_NEUTRAL_KEYS and len({repr(c.get(k)) for c in configs}) > 1]
+    return [k for k in keys if k not in NEUTRAL_KEYS and len({repr(c.get(k)) for c in configs}) > 1]
 
 
 def cell_value(cfg: dict[str, object], key: str) -> str:
@@ -77,6 +79,24 @@ def _ratio(d: float, sem: float) -> float:
 
 def _ratio_cell(z: float) -> str:
     return "-" if math.isnan(z) else f"{z:.1f}"
+
+
+def episode_span(records: list[dict]) -> str:
+    """'episodes A:B' (a contiguous range) or 'N episodes in A:B' of ``records``' indices."""
+    idx = sorted(r["index"] for r in records)
+    span = f"{idx[0]}:{idx[-1] + 1}"
+    return f"episodes {span}" if len(idx) == idx[-1] + 1 - idx[0] else f"{len(idx)} episodes in {span}"
+
+
+def check_shared_episodes(names: list[str], loaded: list[tuple[dict, list[dict]]], base: int) -> None:
+    """Refuse (ConfigError) a run that shares no episode index with the baseline: its paired
+    difference has no pairs, so any number printed for it would be made up."""
+    base_idx = {r["index"] for r in loaded[base][1]}
+    for i, (name, (_, records)) in enumerate(zip(names, loaded)):
+        if i != base and not base_idx & {r["index"] for r in records}:
+            raise ConfigError(f"{name} ({episode_span(records)}) shares no episodes with the baseline "
+                              f"{names[base]} ({episode_span(loaded[base][1])}); compare runs over the same "
+                              "episode range (--episodes) or pick another --baseline")
 
 
 def paired_rows(baseline: list[dict], runs: list[tuple[str, list[dict]]]) -> list[dict]:
@@ -127,6 +147,8 @@ def main_compare(args) -> None:
     if not 0 <= base < len(paths):
         raise ConfigError(f"--baseline {base} is not a run position (0..{len(paths) - 1})")
     loaded = [load_run(p) for p in paths]
+    names = [str(p) for p in paths]
+    check_shared_episodes(names, loaded, base)
     configs = [c for c, _ in loaded]
     keys = [k.strip() for k in args.keys.split(",")] if args.keys else differing_keys(configs)
     unknown = [k for k in keys if not any(k in c for c in configs)]
@@ -136,7 +158,6 @@ def main_compare(args) -> None:
     rows = [({k: cell_value(c, k) for k in keys}, summarize(r)) for c, r in loaded]
     out = Path(args.output)
     table = write_comparison(keys, rows, out)
-    names = [str(p) for p in paths]
     others = [(names[i], loaded[i][1]) for i in range(len(paths)) if i != base]
     prow = paired_rows(loaded[base][1], others)
     paired = paired_markdown(names[base], prow)

@@ -6,14 +6,17 @@ finished episode, appended and flushed as each finishes, so a killed run loses a
 episodes in flight), ``summary.json`` (mean and SEM of Success, SPL, SoftSPL, DistanceToGoal,
 per-category breakdown), ``plots/*.png`` (``eval.objectnav.report.plot_run``) and, with
 ``--video N``, ``videos/<episode_id>.mp4`` (":" -> "_") for the first N episodes of the range (drawn in the
-worker that runs the episode; agents with a map only). Rerunning into the same directory skips
-finished episodes; a directory holding a different config is refused unless ``--force``.
+worker that runs the episode; agents with a map only). The directory is owned by
+``eval.results_dir``: it is locked while a run writes it (a second run into it is refused), a
+directory holding a different config is refused unless ``--force``, and rerunning into it skips
+finished episodes, retries crashed ones and counts each episode once (``summary.json``'s
+``duplicates`` says how many duplicate records were dropped). A run whose episodes all crash
+raises ``AllEpisodesFailed`` (exit 2) with the first error, after writing its records and summary.
 ``-m/--multirun`` runs the cross product of comma-separated overrides, one subdirectory each,
 and writes ``comparison.md`` / ``.csv`` / ``.png`` (``eval.objectnav.report``).
 """
 from __future__ import annotations
 
-import json
 import multiprocessing as mp
 import os
 import re
@@ -22,25 +25,17 @@ import traceback
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
-from eval.config import Config, ConfigError, build_dataclass, dump_yaml, load_config, to_dict
+from eval.config import Config, build_dataclass, load_config, to_dict
+from eval.results_dir import RECORDS_NAME, AllEpisodesFailed, ResultsDir, writing
 from eval.stats import format_metrics_table, summarize
 
-# Dotted config keys that do not change results: a rerun with other values may resume the same
-# directory, and `calnav compare` never makes them columns.
-RESULT_NEUTRAL_KEYS: tuple[str, ...] = ("run.workers", "run.output_dir")
+# What --force deletes from a directory that holds another config's results.
+RUN_RESULTS: tuple[str, ...] = (RECORDS_NAME, "summary.json", "plots", "videos")
 
 _worker_state: dict = {}
 
 # Agents that ``render_panel`` can draw (it needs a semantic map, a frame and step info).
 VIDEO_AGENTS = ("peanut",)
-
-
-def _neutral(cfg_dict: dict) -> dict:
-    out = json.loads(json.dumps(cfg_dict))
-    for dotted in RESULT_NEUTRAL_KEYS:
-        section, key = dotted.split(".")
-        out.get(section, {}).pop(key, None)
-    return out
 
 
 def run_one_episode(env, agent, index: int, video_dir: Path | None = None) -> dict:
@@ -96,44 +91,19 @@ def _worker_run(index: int) -> dict:
                 "traceback": traceback.format_exc(limit=5)}
 
 
-def load_records(path: Path) -> list[dict]:
-    """Finished episode records; a torn last line (killed mid-write) is ignored."""
-    if not path.exists():
-        return []
-    records = []
-    for line in path.read_text().splitlines():
-        try:
-            records.append(json.loads(line))
-        except json.JSONDecodeError:
-            continue
-    return records
+def _crashed(record: dict) -> bool:
+    """A record to retry on resume: the episode crashed (``status != "ok"``)."""
+    return record.get("status", "ok") != "ok"
 
 
-def repair_records(path: Path) -> None:
-    """Drop a torn last line (a run killed mid-write) so appends start on a fresh line."""
-    if not path.exists():
-        return
-    text = path.read_text()
-    if text and not text.endswith("\n"):
-        keep = text[: text.rfind("\n") + 1]
-        tmp = path.with_name(path.name + ".tmp")
-        tmp.write_text(keep)
-        tmp.replace(path)
-
-
-def prepare_output(out: Path, cfg: Config, force: bool) -> None:
-    out.mkdir(parents=True, exist_ok=True)
-    cfg_path = out / "config.yaml"
-    import yaml
-
-    if cfg_path.exists():
-        old = yaml.safe_load(cfg_path.read_text()) or {}
-        if _neutral(old) != _neutral(to_dict(cfg)):
-            if not force:
-                raise ConfigError(f"{out} holds results of a different config ({cfg_path}); "
-                                  "use another --output, or --force to discard them")
-            (out / "episodes.jsonl").unlink(missing_ok=True)
-    cfg_path.write_text(dump_yaml(cfg))
+def check_not_all_failed(records: list[dict]) -> None:
+    """Raise AllEpisodesFailed (with the first error) when every one of ``records`` crashed: a
+    table of zeros from a broken setup (e.g. an unreadable ``mapping.glfs_params``) must not
+    look like a result."""
+    if records and all(_crashed(r) for r in records):
+        first = min(records, key=lambda r: r["index"])
+        raise AllEpisodesFailed(f"all {len(records)} episodes failed; first error (episode {first['index']}): "
+                                f"{first.get('error', 'unknown error')}")
 
 
 def run_objectnav(cfg: Config, indices: list[int], out: Path, force: bool = False,
@@ -148,48 +118,51 @@ def run_objectnav(cfg: Config, indices: list[int], out: Path, force: bool = Fals
     if video and agent_name not in VIDEO_AGENTS:
         raise ValueError(f"--video draws the agent's semantic map; agent {agent_name!r} has none "
                          f"(agents with videos: {', '.join(VIDEO_AGENTS)})")
-    prepare_output(out, cfg, force)
-    results_path = out / "episodes.jsonl"
-    repair_records(results_path)
-    done = {r["index"] for r in load_records(results_path) if "index" in r}
-    todo = [i for i in indices if i not in done]
-    workers = cfg.run.workers or os.cpu_count() or 1
-    workers = max(1, min(workers, len(todo)))
-    cfg_dict = to_dict(cfg)
-    init_args = (cfg_dict, agent_name, str(out / "videos"), tuple(indices[:max(0, video)]))
-    bar = tqdm(total=len(indices), initial=len(indices) - len(todo), disable=not progress,
-               desc=f"objectnav[{agent_name}]", unit="ep")
-    records = [r for r in load_records(results_path) if r.get("index") in set(indices)]
+    with ResultsDir(out, cfg, force=force, discard=RUN_RESULTS) as results:
+        records_file = results.records()
+        # crashed episodes of this range are dropped from the file, so they run again
+        resumed = records_file.resume(retry=_crashed, indices=indices)
+        wanted = set(indices)
+        records = {i: r for i, r in resumed.records.items() if i in wanted}
+        todo = [i for i in indices if i not in records]
+        workers = cfg.run.workers or os.cpu_count() or 1
+        workers = max(1, min(workers, len(todo)))
+        init_args = (to_dict(cfg), agent_name, str(out / "videos"), tuple(indices[:max(0, video)]))
+        bar = tqdm(total=len(indices), initial=len(indices) - len(todo), disable=not progress,
+                   desc=f"objectnav[{agent_name}]", unit="ep")
 
-    def finish(rec: dict, f) -> None:
-        f.write(json.dumps(rec) + "\n")
-        f.flush()
-        records.append(rec)
-        s = summarize(records)
-        bar.set_postfix(Success=f"{s['success']:.3f}", SPL=f"{s['spl']:.3f}")
-        bar.update(1)
-        if rec.get("status") != "ok":
-            tqdm.write(f"episode {rec['index']} failed: {rec.get('error')}")
+        def finish(rec: dict) -> None:
+            records_file.append(rec)
+            records[rec["index"]] = rec
+            s = summarize(list(records.values()))
+            bar.set_postfix(Success=f"{s['success']:.3f}", SPL=f"{s['spl']:.3f}")
+            bar.update(1)
+            if _crashed(rec):
+                tqdm.write(f"episode {rec['index']} failed: {rec.get('error')}")
 
-    with open(results_path, "a") as f:
-        if workers == 1 and todo:
-            _worker_init(*init_args)
-            for i in todo:
-                finish(_worker_run(i), f)
-        elif todo:
-            ctx = mp.get_context("spawn")  # Open3D's thread pools do not survive fork()
-            with ProcessPoolExecutor(workers, mp_context=ctx, initializer=_worker_init,
-                                     initargs=init_args) as pool:
-                for fut in as_completed([pool.submit(_worker_run, i) for i in todo]):
-                    finish(fut.result(), f)
-    bar.close()
-    summary = summarize(records)
-    summary["agent"] = agent_name
-    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
-    if plots and records:
-        from eval.objectnav.report import plot_run
+        with records_file:
+            if workers == 1 and todo:
+                _worker_init(*init_args)
+                for i in todo:
+                    finish(_worker_run(i))
+            elif todo:
+                ctx = mp.get_context("spawn")  # Open3D's thread pools do not survive fork()
+                with ProcessPoolExecutor(workers, mp_context=ctx, initializer=_worker_init,
+                                         initargs=init_args) as pool:
+                    for fut in as_completed([pool.submit(_worker_run, i) for i in todo]):
+                        finish(fut.result())
+        bar.close()
+        ordered = [records[i] for i in indices if i in records]
+        summary = summarize(ordered)
+        summary["agent"] = agent_name
+        summary["duplicates"] = resumed.duplicates  # found (and dropped) in the records file
+        results.write_json("summary.json", summary)
+        if plots and ordered:
+            from eval.objectnav.report import plot_run
 
-        plot_run(summary, out, title=agent_name)
+            with writing(out / "plots"):
+                plot_run(summary, out, title=agent_name)
+    check_not_all_failed(ordered)
     return summary
 
 
@@ -230,11 +203,13 @@ def main_objectnav(args) -> None:
         load_config(args.config, agent_overrides(args, combo))
     root = Path(args.output or load_config(args.config, combos[0]).run.output_dir)
     rows = []
-    for combo in combos:
-        values = combo_values(combo, keys)
-        print(f"== {combo_dirname(values)}")
-        summary, _ = _run_from_args(args, combo, root / combo_dirname(values))
-        rows.append((values, summary))
-    table = write_comparison(keys, rows, root)
+    with ResultsDir(root, files=()):  # one multirun per root: its comparison covers its own runs
+        for combo in combos:
+            values = combo_values(combo, keys)
+            print(f"== {combo_dirname(values)}")
+            summary, _ = _run_from_args(args, combo, root / combo_dirname(values))
+            rows.append((values, summary))
+        with writing(root / "comparison.md"):
+            table = write_comparison(keys, rows, root)
     print(table)
     print(f"results: {root}/<combination>/, {root}/comparison.md, {root}/comparison.csv, {root}/comparison.png")

@@ -16,10 +16,12 @@ With ``--extend N``, a best threshold on the edge of the grid adds up to N thres
 from __future__ import annotations
 
 import csv
+import io
 import math
 from pathlib import Path
 
 from eval.config import Config, ConfigError, dump_yaml, load_config, parse_override
+from eval.results_dir import ResultsDir
 
 TUNE_METRICS: tuple[str, ...] = ("spl", "success", "softspl")  # all higher-is-better
 TUNED_KEYS: tuple[str, ...] = ("agent.goal_threshold", "agent.goal_min_area_cells")
@@ -99,12 +101,14 @@ def summary_row(threshold: float, min_area: int, summary: dict) -> dict:
             "dtg": summary["distance_to_goal"], "n": summary["count"]}
 
 
-def write_csv(rows: list[dict], path: Path) -> None:
-    with open(path, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(CSV_COLUMNS))
-        w.writeheader()
-        for r in rows:
-            w.writerow({k: r[k] for k in CSV_COLUMNS})
+def csv_text(rows: list[dict]) -> str:
+    """tune.csv's contents: a header of CSV_COLUMNS, then one line per row."""
+    buf = io.StringIO(newline="")
+    w = csv.DictWriter(buf, fieldnames=list(CSV_COLUMNS))
+    w.writeheader()
+    for r in rows:
+        w.writerow({k: r[k] for k in CSV_COLUMNS})
+    return buf.getvalue()
 
 
 def best_yaml_text(cfg: Config, *, config_path: str | None, overrides: list[str], split: str,
@@ -168,7 +172,6 @@ def run_tune(config_path: str | None, overrides: list[str], episodes: str, thres
                           f"run.agent is {base.run.agent!r} (set run.agent={TUNED_AGENT})")
     indices = parse_episode_range(str(episodes), len(load_split(base.env.split, base.env)))
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     rows: list[dict] = []
 
     def run_threshold(t: float) -> None:
@@ -181,25 +184,28 @@ def run_tune(config_path: str | None, overrides: list[str], episodes: str, thres
                                     force=force, progress=progress)
             rows.append(summary_row(t, a, summary))
 
-    for t in ts:
-        run_threshold(t)
-    for _ in range(extend):
-        scores: dict[float, float] = {}
-        for r in rows:
-            scores[r["threshold"]] = max(scores.get(r["threshold"], -math.inf), _score(r[metric]))
-        nxt = edge_extension(scores)
-        if nxt is None or nxt in ts:
-            break
-        ts = sorted(ts + [nxt])
-        run_threshold(nxt)
-    rows.sort(key=lambda r: (r["threshold"], r["min_area"]))
-    write_csv(rows, out / "tune.csv")
-    best = select_best(rows, metric)
-    best_cfg = load_config(config_path, overrides + [f"agent.goal_threshold={best['threshold']}",
-                                                     f"agent.goal_min_area_cells={best['min_area']}"])
-    (out / "best.yaml").write_text(best_yaml_text(
-        best_cfg, config_path=config_path, overrides=overrides, split=base.env.split, episodes=indices,
-        metric=metric, best=best, n_points=len(rows)))
+    # the root holds no config of its own (each grid point checks its own): a lock only, so two
+    # tunes into one --output cannot interleave their grids and tune.csv
+    with ResultsDir(out, files=("tune.csv", "best.yaml")) as root:
+        for t in ts:
+            run_threshold(t)
+        for _ in range(extend):
+            scores: dict[float, float] = {}
+            for r in rows:
+                scores[r["threshold"]] = max(scores.get(r["threshold"], -math.inf), _score(r[metric]))
+            nxt = edge_extension(scores)
+            if nxt is None or nxt in ts:
+                break
+            ts = sorted(ts + [nxt])
+            run_threshold(nxt)
+        rows.sort(key=lambda r: (r["threshold"], r["min_area"]))
+        root.write_text("tune.csv", csv_text(rows))
+        best = select_best(rows, metric)
+        best_cfg = load_config(config_path, overrides + [f"agent.goal_threshold={best['threshold']}",
+                                                         f"agent.goal_min_area_cells={best['min_area']}"])
+        root.write_text("best.yaml", best_yaml_text(
+            best_cfg, config_path=config_path, overrides=overrides, split=base.env.split, episodes=indices,
+            metric=metric, best=best, n_points=len(rows)))
     return rows, best
 
 

@@ -24,8 +24,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
-import uuid
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Iterator, Literal
@@ -33,6 +31,7 @@ from typing import Iterator, Literal
 import numpy as np
 
 from agent.segmenters.base import SegmenterConfig
+from common.atomic import atomic_path
 from envs.config import EnvConfig
 from envs.semantics import STRUCTURE_CLASSES as STRUCTURE_NAMES
 from eval.config import RunConfig
@@ -234,14 +233,12 @@ def load_or_render(env_cfg: EnvConfig, data_cfg: SegDataConfig, split: str, fram
         except (OSError, ValueError, KeyError, EOFError):
             pass  # a corrupt cache entry: render again
     data = render_frames(env_cfg, data_cfg, split, frames, seed, with_instance, progress, rebalance)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.{os.getpid()}.{uuid.uuid4().hex[:8]}.npz")
     arrays = {k: v for k, v in asdict_shallow(data).items() if v is not None}
     try:
-        np.savez_compressed(tmp, **arrays)
-        os.replace(tmp, path)
+        with atomic_path(path) as tmp:
+            np.savez_compressed(tmp, **arrays)
     except OSError:   # a read-only cache only costs speed
-        tmp.unlink(missing_ok=True)
+        pass
     return data
 
 

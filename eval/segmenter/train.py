@@ -21,11 +21,9 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-import os
 import platform
 import shlex
 import time
-import uuid
 from dataclasses import asdict
 from pathlib import Path
 
@@ -36,6 +34,7 @@ import torch.nn.functional as F
 from agent.segmenters.base import resolve_device
 from agent.segmenters.learned import LEARNED_MODELS, default_weights_path, save_weights
 from agent.segmenters.network import NetSpec, SegNet, count_parameters
+from common.atomic import atomic_path
 from eval.config import load_config, to_dict
 from eval.segmenter.data import (VAL_SEED_OFFSET, SegData, SegmenterExperimentConfig, TrainConfig,
                                  load_or_render)
@@ -138,10 +137,8 @@ def checkpoint_path(cfg: SegmenterExperimentConfig, model: str) -> Path:
 
 
 def _save_atomic(obj, path: Path) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp")
-    torch.save(obj, tmp)
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        torch.save(obj, tmp)
 
 
 # ----------------------------------------------------------------------------- training

@@ -1,0 +1,282 @@
+"""The one owner of calnav results directories (``objectnav``, ``tune``, ``calibrate-map``,
+``fit-glfs`` all go through it).
+
+``ResultsDir(path, cfg, force=...)``, used as a context manager, opens a results directory:
+
+1. ``path`` must be a directory (created if missing) that this process can write;
+2. a lock: ``fcntl.flock`` on ``<path>/.lock``, held open for the run's lifetime. A second run
+   into the same directory is refused (``ResultsError``, one line) while the first holds it; the
+   kernel drops the lock when its holder exits or is killed (kill -9 included), so it never
+   stays stuck;
+3. the config check, one meaning everywhere: the saved ``config.yaml`` and ``cfg`` are compared
+   as resolved config dicts without the result-neutral keys (``NEUTRAL_KEYS``); a different
+   config is refused unless ``force``, which deletes the directory's results (``discard``);
+4. ``config.yaml`` is (re)written atomically.
+
+``RecordsFile`` is the per-episode records file (``episodes.jsonl``): one JSON object per line,
+keyed by ``index``, appended and flushed per record. ``read_records`` keeps the last valid
+record of each index, skips (with a warning naming the file and line) lines that are not JSON
+objects with an integer ``index`` (a torn last line of a killed run, a stray ``5``), and
+counts duplicates. ``RecordsFile.resume`` also drops the records to retry (crashed episodes)
+and rewrites the file atomically whenever it dropped anything, so the file never holds two
+records of one index.
+
+Every problem with the directory (a file where a directory or a file is expected, a read-only
+file system, a held lock) is a ``ResultsError`` with a one-line message (``calnav`` exits 2).
+"""
+from __future__ import annotations
+
+import fcntl
+import json
+import os
+import shutil
+import sys
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Iterable, Iterator
+
+import yaml
+
+from common.atomic import write_text_atomic
+
+# Dotted config keys that do not change results: a rerun with other values may resume the same
+# directory, and `calnav compare` never makes them columns.
+NEUTRAL_KEYS: tuple[str, ...] = ("run.workers", "run.output_dir")
+LOCK_NAME = ".lock"
+CONFIG_NAME = "config.yaml"
+RECORDS_NAME = "episodes.jsonl"
+RECORD_KEY = "index"  # the field that identifies an episode's record
+
+
+class ResultsError(Exception):
+    """A results directory cannot be used, or a run produced no usable result (one line)."""
+
+
+class AllEpisodesFailed(ResultsError):
+    """Every episode of a run crashed: its numbers would be a table of zeros."""
+
+
+def warn(message: str) -> None:
+    """One warning line on stderr (kept out of stdout, which holds the results table)."""
+    print(f"calnav: warning: {message}", file=sys.stderr)
+
+
+@contextmanager
+def writing(what: Path | str) -> Iterator[None]:
+    """Turn an OSError (read-only file system, no permission, a directory in the way) while
+    writing ``what`` into a one-line ResultsError naming it."""
+    try:
+        yield
+    except OSError as exc:
+        raise ResultsError(f"cannot write {what}: {exc.strerror or exc}") from exc
+
+
+def strip_neutral(cfg_dict: dict, neutral_keys: Iterable[str] = NEUTRAL_KEYS) -> dict:
+    """A deep copy of a resolved config dict without the dotted ``neutral_keys``."""
+    out = json.loads(json.dumps(cfg_dict))
+    for dotted in neutral_keys:
+        *sections, key = dotted.split(".")
+        node = out
+        for s in sections:
+            node = node.get(s, {}) if isinstance(node, dict) else {}
+        if isinstance(node, dict):
+            node.pop(key, None)
+    return out
+
+
+class ResultsDir:
+    """An opened, locked results directory (see the module docstring). ``cfg``: the run's
+    config dataclass, or None for a directory that only groups others (a tune or multirun
+    root: locked, no config). ``discard``: names removed by ``force`` when the config differs.
+    ``files``: names that must be files, not directories, when they exist. ``option``: the
+    command-line option that names the directory, for messages."""
+
+    def __init__(self, path: str | os.PathLike, cfg=None, *, force: bool = False,
+                 discard: tuple[str, ...] = (RECORDS_NAME,), files: tuple[str, ...] = (RECORDS_NAME,),
+                 neutral_keys: tuple[str, ...] = NEUTRAL_KEYS, option: str = "--output"):
+        self.path = Path(path)
+        self.cfg, self.force, self.discard, self.files = cfg, force, discard, files
+        self.neutral_keys, self.option = neutral_keys, option
+        self._lock_fd: int | None = None
+
+    # ------------------------------------------------------------------ open / close
+    def __enter__(self) -> "ResultsDir":
+        self.open()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def open(self) -> "ResultsDir":
+        if self.path.exists() and not self.path.is_dir():
+            raise ResultsError(f"{self.option} {self.path} is a file, not a directory; pass a directory")
+        with writing(f"results directory {self.path}"):
+            self.path.mkdir(parents=True, exist_ok=True)
+        self._lock()
+        try:
+            for name in (CONFIG_NAME, *self.files):
+                if (self.path / name).is_dir():
+                    raise ResultsError(f"{self.path / name} is a directory, not a file; remove it or "
+                                       f"pass another {self.option}")
+            if self.cfg is not None:
+                self._check_config()
+        except BaseException:
+            self.close()
+            raise
+        return self
+
+    def close(self) -> None:
+        if self._lock_fd is not None:
+            os.close(self._lock_fd)  # closing the last descriptor releases the flock
+            self._lock_fd = None
+
+    def _lock(self) -> None:
+        lock = self.path / LOCK_NAME
+        with writing(f"lock file {lock}"):
+            fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.read(fd, 32).decode(errors="replace").strip() or "unknown"
+            os.close(fd)
+            raise ResultsError(f"{self.path} is in use by another calnav run (pid {holder}); wait for it "
+                               f"to finish or pass another {self.option}") from None
+        os.ftruncate(fd, 0)
+        os.write(fd, f"{os.getpid()}\n".encode())
+        self._lock_fd = fd
+
+    def _check_config(self) -> None:
+        from eval.config import dump_yaml
+
+        saved = self.path / CONFIG_NAME
+        text = dump_yaml(self.cfg)
+        if saved.exists():
+            try:
+                old = yaml.safe_load(saved.read_text()) or {}
+            except (yaml.YAMLError, UnicodeDecodeError) as exc:
+                raise ResultsError(f"{saved} is not a readable config ({type(exc).__name__}); remove it or "
+                                   f"pass another {self.option}") from None
+            if not isinstance(old, dict) or (strip_neutral(old, self.neutral_keys)
+                                             != strip_neutral(yaml.safe_load(text), self.neutral_keys)):
+                if not self.force:
+                    raise ResultsError(f"{self.path} holds results of a different config ({saved}); use "
+                                       f"another {self.option}, or --force to discard them")
+                self._discard()
+        self.write_text(CONFIG_NAME, text)
+
+    def _discard(self) -> None:
+        with writing(f"results in {self.path}"):
+            for name in self.discard:
+                p = self.path / name
+                if p.is_dir():
+                    shutil.rmtree(p)
+                else:
+                    p.unlink(missing_ok=True)
+
+    # ------------------------------------------------------------------------ writes
+    def write_text(self, name: str, text: str) -> Path:
+        """Write ``<dir>/name`` atomically."""
+        with writing(self.path / name):
+            return write_text_atomic(self.path / name, text)
+
+    def write_json(self, name: str, obj) -> Path:
+        return self.write_text(name, json.dumps(obj, indent=2) + "\n")
+
+    def records(self, name: str = RECORDS_NAME) -> "RecordsFile":
+        return RecordsFile(self.path / name)
+
+
+# ----------------------------------------------------------------------------- records
+@dataclass
+class RecordsRead:
+    """What ``read_records`` found: the last valid record per index (in file order of their
+    first appearance), the number of duplicate records dropped, the damaged line numbers."""
+
+    records: dict[int, dict] = field(default_factory=dict)
+    duplicates: int = 0
+    damaged: list[int] = field(default_factory=list)
+    clean_end: bool = True  # the file ends with a newline (appends start on a fresh line)
+
+
+def _parse(line: str) -> tuple[dict | None, str]:
+    try:
+        rec = json.loads(line)
+    except json.JSONDecodeError as exc:
+        return None, f"not JSON: {exc.msg}"
+    if not isinstance(rec, dict):
+        return None, f"a JSON {type(rec).__name__}, not an object"
+    if not isinstance(rec.get(RECORD_KEY), int) or isinstance(rec.get(RECORD_KEY), bool):
+        return None, f"no integer {RECORD_KEY!r}"
+    return rec, ""
+
+
+def read_records(path: str | os.PathLike, quiet: bool = False) -> RecordsRead:
+    """The records of ``path`` (missing file: none). Damaged lines are skipped and duplicates
+    dropped (the last valid record of an index wins), each with a warning unless ``quiet``."""
+    path = Path(path)
+    out = RecordsRead()
+    if not path.exists():
+        return out
+    if path.is_dir():
+        raise ResultsError(f"{path} is a directory, not a records file")
+    text = path.read_text(errors="replace")
+    out.clean_end = not text or text.endswith("\n")
+    dup_indices = []
+    for lineno, line in enumerate(text.splitlines(), start=1):
+        if not line.strip():
+            continue
+        rec, why = _parse(line)
+        if rec is None:
+            out.damaged.append(lineno)
+            if not quiet:
+                warn(f"{path}:{lineno}: skipped a damaged record ({why})")
+            continue
+        i = rec[RECORD_KEY]
+        if i in out.records:
+            out.duplicates += 1
+            dup_indices.append(i)
+        out.records[i] = rec
+    if out.duplicates and not quiet:
+        shown = ", ".join(str(i) for i in sorted(set(dup_indices)))
+        warn(f"{path}: {out.duplicates} duplicate record(s) of episode(s) {shown}; each episode counts once "
+             "(its last valid record)")
+    return out
+
+
+class RecordsFile:
+    """The append-only records file of one run (see the module docstring)."""
+
+    def __init__(self, path: str | os.PathLike):
+        self.path = Path(path)
+        self._f = None
+
+    def resume(self, retry: Callable[[dict], bool] = lambda r: False,
+               indices: Iterable[int] | None = None) -> RecordsRead:
+        """Read the records, drop those of ``indices`` (default: all) for which ``retry`` is true,
+        and rewrite the file atomically if anything was dropped (damaged lines, duplicates,
+        retried records, a torn end). Returns what was kept."""
+        read = read_records(self.path)
+        scope = None if indices is None else set(indices)
+        kept = {i: r for i, r in read.records.items() if not ((scope is None or i in scope) and retry(r))}
+        if len(kept) < len(read.records) or read.damaged or read.duplicates or not read.clean_end:
+            with writing(self.path):
+                write_text_atomic(self.path, "".join(json.dumps(r) + "\n" for r in kept.values()))
+        read.records = kept
+        return read
+
+    def __enter__(self) -> "RecordsFile":
+        with writing(self.path):
+            self._f = open(self.path, "a")
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self._f is not None:
+            self._f.close()
+            self._f = None
+
+    def append(self, record: dict) -> None:
+        """Append one record and flush it, so a killed run loses only the episodes in flight."""
+        with writing(self.path):
+            self._f.write(json.dumps(record) + "\n")
+            self._f.flush()

@@ -1,0 +1,223 @@
+"""eval.results_dir through the commands that use it: the lock (a second run into one --output is
+refused, a killed run does not leave it stuck), duplicate / damaged / crashed records on resume,
+results directories that cannot be used, and runs whose episodes all crash."""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from eval.cli import main
+from eval.results_dir import RECORDS_NAME as RECORDS, ResultsDir, ResultsError, read_records
+
+SMALL = ["env.resolution=32x24", "env.dataset.val_scenes=2", "env.dataset.episodes_per_scene=3"]
+REPO_ROOT = Path(__file__).resolve().parents[1]
+LOCK_HOLDER = ("import sys, time; from eval.results_dir import ResultsDir; ResultsDir(sys.argv[1]).open(); "
+               "print('locked', flush=True); time.sleep(600)")
+
+pytestmark = pytest.mark.e2e
+
+
+def _objectnav(out: Path, episodes: str = "0:4", *extra: str) -> list[str]:
+    return ["objectnav", "--agent", "oracle", "--episodes", episodes, "--output", str(out), "run.workers=1",
+            *SMALL, *extra]
+
+
+def _lines(out: Path) -> list[dict]:
+    return [json.loads(line) for line in (out / "episodes.jsonl").read_text().splitlines()]
+
+
+@pytest.fixture(scope="module")
+def finished_run(tmp_path_factory) -> Path:
+    """An oracle run of episodes 0:4, finished once for the module (copy it before changing it)."""
+    out = tmp_path_factory.mktemp("finished") / "run"
+    assert main(_objectnav(out)) == 0
+    return out
+
+
+@pytest.fixture
+def run_copy(finished_run, tmp_path) -> Path:
+    out = tmp_path / "run"
+    shutil.copytree(finished_run, out)
+    return out
+
+
+def test_second_run_is_refused_while_the_first_holds_the_directory_and_not_after_kill9(tmp_path, capsys):
+    out = tmp_path / "run"
+    env = {**os.environ, "PYTHONPATH": str(REPO_ROOT)}
+    holder = subprocess.Popen([sys.executable, "-c", LOCK_HOLDER, str(out)], cwd=REPO_ROOT, env=env,
+                              stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "locked"
+        assert main(_objectnav(out, "0:2")) == 2
+        err = _one_line_error(capsys, "objectnav")
+        assert f"{out} is in use by another calnav run (pid {holder.pid})" in err
+        assert not (out / "episodes.jsonl").exists()  # the refused run wrote nothing
+        with pytest.raises(ResultsError, match="in use"):
+            ResultsDir(out).open()
+    finally:
+        holder.send_signal(signal.SIGKILL)  # kill -9: no clean-up code runs in the holder
+        holder.wait()
+    assert main(_objectnav(out, "0:2")) == 0  # the kernel released the lock with the process
+    assert sorted(r["index"] for r in _lines(out)) == [0, 1]
+
+
+def test_lock_is_released_when_the_run_ends(tmp_path):
+    with ResultsDir(tmp_path / "d"):
+        pass
+    with ResultsDir(tmp_path / "d"):  # not stuck after a clean exit either
+        pass
+
+
+def test_duplicate_record_counts_once_and_is_reported(run_copy, capsys):
+    records = run_copy / "episodes.jsonl"
+    lines = records.read_text().splitlines()
+    records.write_text("\n".join(lines + [lines[2]]) + "\n")  # episode 2 twice: N was 5 for 0:4
+    assert main(_objectnav(run_copy)) == 0
+    summary = json.loads((run_copy / "summary.json").read_text())
+    assert summary["count"] == 4 and summary["duplicates"] == 1
+    assert "1 duplicate record(s) of episode(s) 2" in capsys.readouterr().err
+    assert sorted(r["index"] for r in _lines(run_copy)) == [0, 1, 2, 3]  # the file holds each once
+
+
+def test_summary_reports_zero_duplicates_normally(finished_run):
+    assert json.loads((finished_run / "summary.json").read_text())["duplicates"] == 0
+
+
+def test_non_object_json_line_is_skipped_and_its_episode_rerun(run_copy, capsys):
+    records = run_copy / "episodes.jsonl"
+    lines = records.read_text().splitlines()
+    lost = json.loads(lines[1])["index"]
+    records.write_text("\n".join([lines[0], "5", *lines[2:]]) + "\n")
+    assert main(_objectnav(run_copy)) == 0
+    err = capsys.readouterr().err
+    assert f"{records}:2: skipped a damaged record (a JSON int, not an object)" in err
+    got = _lines(run_copy)
+    assert sorted(r["index"] for r in got) == [0, 1, 2, 3] and got[-1]["index"] == lost  # re-run
+
+
+def test_read_records_skips_damage_and_keeps_the_last_valid_record(tmp_path, capsys):
+    p = tmp_path / "episodes.jsonl"
+    p.write_text('{"index": 0, "v": 1}\n[1, 2]\n{"v": 3}\n{"index": 0, "v": 2}\n{"index": 1, "v"')
+    read = read_records(p)
+    assert read.records == {0: {"index": 0, "v": 2}} and read.duplicates == 1
+    assert read.damaged == [2, 3, 5] and not read.clean_end
+    err = capsys.readouterr().err
+    assert f"{p}:3: skipped a damaged record (no integer 'index')" in err and f"{p}:5:" in err
+
+
+def test_crashed_episode_is_retried_and_replaced(run_copy):
+    records = run_copy / "episodes.jsonl"
+    lines = records.read_text().splitlines()
+    crashed = json.loads(lines[1])["index"]
+    lines[1] = json.dumps({"index": crashed, "status": "error", "error": "RuntimeError: boom"})
+    records.write_text("\n".join(lines) + "\n")
+    assert main(_objectnav(run_copy)) == 0
+    got = _lines(run_copy)
+    assert sorted(r["index"] for r in got) == [0, 1, 2, 3]  # never two records of one index
+    assert all(r["status"] == "ok" for r in got)
+    summary = json.loads((run_copy / "summary.json").read_text())
+    assert summary["failed"] == 0 and summary["success"] == 1.0
+
+
+def _one_line_error(capsys, command: str) -> str:
+    """The error line, checked to be the one last line of stderr (progress bars may precede it)
+    with no traceback."""
+    err = capsys.readouterr().err.strip()
+    last = err.splitlines()[-1]
+    assert last.startswith(f"calnav {command}: error: ") and "Traceback" not in err, err
+    assert err.count("error:") == 1, err
+    return last
+
+
+def test_unusable_results_directories_give_one_line_errors(tmp_path, capsys):
+    a_file = tmp_path / "a_file"
+    a_file.write_text("x")
+    assert main(_objectnav(a_file)) == 2
+    assert f"--output {a_file} is a file, not a directory" in _one_line_error(capsys, "objectnav")
+    assert main(["tune", "--output", str(a_file), "--episodes", "0:1", "--thresholds", "0.9",
+                 "--min-areas", "2", *SMALL]) == 2
+    assert "is a file, not a directory" in _one_line_error(capsys, "tune")
+    assert main(["calibrate-map", "--output", str(a_file), "study.segmenters=[gt]"]) == 2
+    assert "is a file, not a directory" in _one_line_error(capsys, "calibrate-map")
+    assert main(["fit-glfs", "--segmenter", "gt", "--output", str(tmp_path / "g.json"), "--work-dir", str(a_file)]) == 2
+    assert f"--work-dir {a_file} is a file, not a directory" in _one_line_error(capsys, "fit-glfs")
+
+    for name in ("episodes.jsonl", "config.yaml"):
+        d = tmp_path / f"dir_{name}"
+        (d / name).mkdir(parents=True)
+        assert main(_objectnav(d)) == 2
+        assert f"{d / name} is a directory, not a file" in _one_line_error(capsys, "objectnav")
+
+
+def _read_only_dir(path: Path):
+    """``path`` as a read-only directory: a read-only tmpfs when running as root (which ignores
+    permission bits), else mode 0555. Returns an undo function, or None if neither works."""
+    path.mkdir()
+    if os.geteuid() != 0:
+        path.chmod(0o555)
+        return lambda: path.chmod(0o755)
+    if shutil.which("mount") is None or subprocess.run(
+            ["mount", "-t", "tmpfs", "-o", "ro,size=1m", "tmpfs", str(path)], capture_output=True).returncode:
+        return None
+    return lambda: subprocess.run(["umount", str(path)], check=True)
+
+
+def test_read_only_file_system_gives_a_one_line_error(tmp_path, capsys):
+    ro = tmp_path / "ro"
+    undo = _read_only_dir(ro)
+    if undo is None:
+        pytest.skip("cannot make a read-only directory here (root without mount permission)")
+    try:
+        assert main(_objectnav(ro / "run")) == 2
+        assert "cannot write results directory" in _one_line_error(capsys, "objectnav")
+        assert main(_objectnav(ro)) == 2  # the directory exists, but cannot be written
+        assert "Read-only file system" in _one_line_error(capsys, "objectnav") or os.geteuid() != 0
+    finally:
+        undo()
+
+
+def test_run_whose_episodes_all_crash_exits_nonzero_with_the_first_error(tmp_path, capsys, monkeypatch):
+    import eval.objectnav.run as run
+
+    def crash(env, agent, index, video_dir=None):
+        raise RuntimeError(f"bad glfs params (episode {index})")
+
+    monkeypatch.setattr(run, "run_one_episode", crash)  # workers=1 runs episodes in this process
+    out = tmp_path / "run"
+    assert main(_objectnav(out, "0:2")) == 2
+    err = _one_line_error(capsys, "objectnav")
+    assert "all 2 episodes failed; first error (episode 0): RuntimeError: bad glfs params (episode 0)" in err
+    summary = json.loads((out / "summary.json").read_text())  # the records and summary are still written
+    assert summary["failed"] == 2
+
+
+def test_config_check_ignores_neutral_keys_and_force_discards(tmp_path):
+    """One meaning everywhere (objectnav and calibrate-map configs alike): resolved dicts are
+    compared without run.workers / run.output_dir; --force deletes only the ``discard`` names."""
+    from eval.calibration.config import CalibrateMapConfig
+    from eval.config import load_config
+
+    for cls, name in ((None, "objectnav"), (CalibrateMapConfig, "calibrate")):
+        kw = {"cls": cls} if cls else {}
+        out = tmp_path / name
+        with ResultsDir(out, load_config(None, ["run.workers=1"], **kw), discard=("fits", RECORDS)):
+            (out / "fits").mkdir()
+            (out / RECORDS).write_text("{}\n")
+            (out / "keep.txt").write_text("x")
+        with ResultsDir(out, load_config(None, ["run.workers=3", "run.output_dir=elsewhere"], **kw)):
+            pass  # neutral keys: the same config
+        other = load_config(None, ["run.seed=5"], **kw)
+        with pytest.raises(ResultsError, match="holds results of a different config"):
+            ResultsDir(out, other).open()
+        assert (out / "fits").is_dir()
+        with ResultsDir(out, other, force=True, discard=("fits", RECORDS)):
+            pass
+        assert not (out / "fits").exists() and not (out / RECORDS).exists() and (out / "keep.txt").exists()
+        assert "seed: 5" in (out / "config.yaml").read_text()
