@@ -6,7 +6,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from agent.config import SegmenterName
-
 from envs.config import EnvConfig
 from envs.trajectories import ScanConfig
 from eval.config import RunConfig
