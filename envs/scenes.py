@@ -96,22 +96,30 @@ def _scene_files(folder: Path) -> dict[str, Path]:
     return files
 
 
+def _found(files: dict[str, Path], folder: Path) -> dict[str, Path]:
+    """``files``, or ValueError when ``folder`` held none (a run would have nothing to do)."""
+    if not files:
+        raise ValueError(f"no scenes found in {folder}: put *.ply labelled meshes or *.npz calnav scenes there "
+                         "(any file name) and set env.dataset.scene_dir to it")
+    return files
+
+
 def _user_files(scene_dir: str, split: str | None) -> dict[str, Path]:
     root = Path(scene_dir).expanduser()
     if not root.is_dir():
         raise ValueError(f"dataset.scene_dir {str(root)!r} is not a directory")
     dirs = _split_dirs(root)
     if dirs is None:
-        return _scene_files(root)
+        return _found(_scene_files(root), root)
     if split is not None:
         if split not in dirs:
             raise ValueError(f"{root} has split folders {sorted(dirs)} but no {split!r} folder")
-        return _scene_files(dirs[split])
+        return _found(_scene_files(dirs[split]), dirs[split])
     merged: dict[str, Path] = {}
     for folder in (dirs[s] for s in SPLITS if s in dirs):   # any split's scene loads by id; first split wins
         for stem, p in _scene_files(folder).items():
             merged.setdefault(stem, p)
-    return merged
+    return _found(merged, root)
 
 
 def _ply_settings(ply: Path) -> dict:

@@ -43,6 +43,23 @@ SEGMENTERS: dict[str, Callable[..., Segmenter]] = {
 SEGMENTER_NAMES: tuple[str, ...] = tuple(SEGMENTERS)
 
 
+def check_segmenter(name: str, cfg: SegmenterConfig | None = None, device: str | None = None) -> tuple[str, ...]:
+    """Open and validate everything segmenter ``name`` will need (its device; the weight file of
+    a learned one, whose tensors must fit its network; the class list of the ground-truth
+    based ones) without building it, and return its class names. Raises ValueError /
+    FileNotFoundError naming the file: run before a run writes anything or starts workers."""
+    cfg = cfg or SegmenterConfig()
+    if name not in SEGMENTERS:
+        raise ValueError(f"unknown segmenter {name!r}; valid names: {', '.join(SEGMENTER_NAMES)}")
+    if (device or cfg.device or "cpu") != "cpu":
+        resolve_device(device or cfg.device)
+    if SEGMENTERS[name] is _ground_truth:
+        return default_class_names()
+    from agent.segmenters.learned import check_weights, default_weights_path
+
+    return check_weights(cfg.weights or default_weights_path(name), name)
+
+
 def make_segmenter(name: str, cfg: SegmenterConfig | None = None, device: str | None = None,
                    class_names: tuple[str, ...] | None = None) -> Segmenter:
     """The segmenter ``name`` (one of SEGMENTER_NAMES) configured by ``cfg``.

@@ -23,6 +23,7 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
 from eval.config import Config, ConfigError, build_dataclass, dump_yaml, load_config, to_dict
+from eval.preflight import check_command
 from eval.stats import format_metrics_table, summarize
 
 # Dotted config keys that do not change results: a rerun with other values may resume the same
@@ -213,6 +214,7 @@ def _run_from_args(args, overrides: list[str], out: Path | None) -> tuple[dict, 
 
 
 def main_objectnav(args) -> None:
+    check_command(args, "objectnav")  # every file the configs name, before anything is written
     from eval.config import expand_multirun
 
     if getattr(args, "video", 0) < 0:
