@@ -46,6 +46,7 @@ SPLIT_RANK = {"calib": 0, "train": 1, "val": 2, "test": 3}  # seed block of each
 SPLIT_BLOCK = 1_000_000                     # seeds per split block (max scenes per split)
 BASE_SEED_STRIDE = 4 * SPLIT_BLOCK          # seed distance between consecutive base seeds
 LRU_SIZE = 4                                # scenes kept in memory
+USER_SEED_MODULUS = 2 ** 31                 # user-scene generation seeds lie in [0, this)
 _ID_RE = re.compile(r"^house_(train|val|test|calib)_(\d+)$")
 _lru: OrderedDict[tuple, Scene] = OrderedDict()
 
@@ -78,6 +79,18 @@ def scene_seed(scene_id: str, base_seed: int = 0) -> int:
     if base_seed < 0:
         raise ValueError(f"base seed must be >= 0, got {base_seed}")
     return BASE_SEED_STRIDE * int(base_seed) + SPLIT_BLOCK * SPLIT_RANK[split] + index
+
+
+def generation_seed(scene_id: str, base_seed: int = 0) -> int:
+    """The seed of the episodes generated in ``scene_id``: its house seed for a procedural id
+    (``scene_seed``); for a user scene (any file name) a stable hash of the id and the base
+    seed, in [0, 2^31)."""
+    if _ID_RE.match(str(scene_id)):
+        return scene_seed(scene_id, base_seed)
+    if base_seed < 0:
+        raise ValueError(f"base seed must be >= 0, got {base_seed}")
+    digest = hashlib.sha1(f"{int(base_seed)}:{scene_id}".encode()).digest()
+    return int.from_bytes(digest[:4], "little") % USER_SEED_MODULUS
 
 
 # ------------------------------------------------------------------------- user scenes
