@@ -131,3 +131,17 @@ def test_segmenter_choices_are_the_registry_names():
     from agent.segmenters import SEGMENTER_NAMES, SEGMENTERS
 
     assert set(typing.get_args(SegmenterName)) == set(SEGMENTERS) == set(SEGMENTER_NAMES)
+
+
+def test_env_fields_of_view_are_ones_the_map_accepts():
+    """A camera the voxel map would refuse mid-run (field of view outside (1, 179) deg) is a
+    config error; the bounds are the map's."""
+    from envs.config import FOV_BOUNDS_DEG
+    from mapping.frame_geometry import MAX_FOV_DEG, MIN_FOV_DEG
+
+    assert FOV_BOUNDS_DEG == (MIN_FOV_DEG, MAX_FOV_DEG)
+    with pytest.raises(ConfigError, match=r"env.hfov_deg must be in \(1, 179\) degrees, got 179.5"):
+        load_config(None, ["env.hfov_deg=179.5"])
+    with pytest.raises(ConfigError, match=r"vertical field of view of 0.0\d+ deg.*outside \(1, 179\)"):
+        load_config(None, ["env.hfov_deg=2", "env.resolution=1000x8"])
+    load_config(None, ["env.hfov_deg=150"])
