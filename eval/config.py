@@ -43,7 +43,11 @@ class StrictLoader(yaml.SafeLoader):
         for key_node, _ in node.value:
             key = self.construct_object(key_node, deep=deep)
             line = key_node.start_mark.line + 1
-            if key in seen:
+            try:
+                duplicate = key in seen
+            except TypeError:  # an unhashable key: SafeLoader's own error names it below
+                continue
+            if duplicate:
                 raise ConfigError(f"duplicate key {key!r} at line {line} (first at line {seen[key]}); "
                                   "write each key once")
             seen[key] = line
