@@ -20,12 +20,15 @@ from agent.segmenters.base import SegmenterConfig
 MapType = Literal["fused", "ndf"]
 MAP_TYPES: tuple[str, ...] = MapType.__args__  # type: ignore[attr-defined]
 SemanticPrior = Literal["none", "cooccurrence"]
+# Names of ``agent.segmenters.SEGMENTERS`` (a test keeps the two equal): the config loader
+# rejects a misspelt segmenter before anything runs, without importing any network.
+SegmenterName = Literal["gt", "noisy", "learned_rgb", "learned_rgbd"]
 
 
 @dataclass
 class AgentConfig:
     # --- perception ---------------------------------------------------------------------------
-    segmenter: str = "gt"               # segmenter name (agent.segmenters.SEGMENTER_NAMES)
+    segmenter: SegmenterName = "gt"     # segmenter: gt | noisy | learned_rgb | learned_rgbd (agent.segmenters)
     segmenter_config: SegmenterConfig = field(default_factory=SegmenterConfig)  # its settings
     map_type: MapType = "fused"         # fused (3D calibrated fusion) | ndf (per-frame 2D max baseline)
     map_resolution: tuple[int, int] = (160, 120)  # mapping resolution WxH (depth/logits subsampled), pixels

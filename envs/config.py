@@ -1,10 +1,15 @@
 """Typed configuration of the simulator and task (loaded from YAML by ``eval.config``)."""
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Literal
 
 SplitName = Literal["train", "val", "test"]
+# Fields of view (degrees, exclusive) the semantic map accepts (``mapping.frame_geometry``
+# MIN_FOV_DEG / MAX_FOV_DEG; a test keeps them equal): a camera outside them would be refused
+# by the map in the middle of a run.
+FOV_BOUNDS_DEG = (1.0, 179.0)
 
 
 @dataclass
@@ -53,7 +58,12 @@ class EnvConfig:
         w, h = self.resolution
         if w < 8 or h < 8:
             raise ValueError(f"env.resolution must be at least 8x8 pixels, got {w}x{h}")
-        if not 0 < self.hfov_deg < 180:
-            raise ValueError(f"env.hfov_deg must be in (0, 180), got {self.hfov_deg}")
+        lo, hi = FOV_BOUNDS_DEG
+        if not lo < self.hfov_deg < hi:
+            raise ValueError(f"env.hfov_deg must be in ({lo:g}, {hi:g}) degrees, got {self.hfov_deg}")
+        vfov = math.degrees(2 * math.atan(math.tan(math.radians(self.hfov_deg) / 2) * h / w))
+        if not lo < vfov < hi:
+            raise ValueError(f"env.hfov_deg = {self.hfov_deg} at {w}x{h} gives a vertical field of view of "
+                             f"{vfov:.3g} deg, outside ({lo:g}, {hi:g}); use a wider view or a taller image")
         if not 0 < self.min_depth_m < self.max_depth_m:
             raise ValueError(f"need 0 < env.min_depth_m < env.max_depth_m, got {self.min_depth_m}, {self.max_depth_m}")

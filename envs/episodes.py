@@ -22,6 +22,7 @@ import gzip
 import hashlib
 import json
 import math
+import zlib
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -254,11 +255,28 @@ def write_json_gz(path: Path, data: dict) -> None:
 
 
 def read_json_gz(path: Path) -> dict:
+    """The JSON object of a gzip file; ValueError naming the file when it is not readable gzip
+    JSON (EOFError: a truncated file, e.g. a killed writer)."""
     try:
         with gzip.open(path, "rt") as f:
-            return json.load(f)
-    except (OSError, json.JSONDecodeError) as exc:
-        raise ValueError(f"corrupt episode file {path}: {exc}") from exc
+            data = json.load(f)
+    except (OSError, EOFError, zlib.error, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ValueError(f"corrupt episode file {path}: {exc}") from None
+    if not isinstance(data, dict):
+        raise ValueError(f"damaged episode file {path}: expected a JSON object, got {type(data).__name__}")
+    return data
+
+
+def read_episode_file(path: Path) -> list[ObjectNavEpisode]:
+    """The episodes of one habitat-lab content file (``<split>/content/<scene>.json.gz``);
+    ValueError naming the file and the missing / malformed entry when it is damaged."""
+    data = read_json_gz(path)
+    try:
+        return episodes_from_habitat(data)
+    except KeyError as exc:
+        raise ValueError(f"damaged episode file {path}: missing key {exc}") from None
+    except (TypeError, IndexError, ValueError) as exc:
+        raise ValueError(f"damaged episode file {path}: {exc}") from None
 
 
 # ---------------------------------------------------------------- splits (cached)
@@ -277,9 +295,20 @@ def split_dir(split: str, env_cfg: EnvConfig) -> Path:
     return cache_dir() / "episodes" / f"{split}_{dataset_key(env_cfg)}"
 
 
+def _cached_episodes(path: Path) -> list[ObjectNavEpisode] | None:
+    """A scene's cached episodes, or None when the cache file is missing or damaged (a killed
+    writer, another layout): the cache is rebuilt, as damaged scene caches are."""
+    if not path.exists():
+        return None
+    try:
+        return read_episode_file(path)
+    except ValueError:
+        return None
+
+
 def load_split(split: str, env_cfg: EnvConfig, progress: bool = True) -> list[ObjectNavEpisode]:
-    """All episodes of a split, generating (and caching) missing scenes' episodes first."""
-    from envs.scenes import load_scene, scene_seed, split_scene_ids
+    """All episodes of a split, generating (and caching) missing or damaged scenes' episodes first."""
+    from envs.scenes import generation_seed, load_scene, split_scene_ids
     from envs.navigation import NavGrid
     from envs.render import Camera, Renderer
 
@@ -287,7 +316,8 @@ def load_split(split: str, env_cfg: EnvConfig, progress: bool = True) -> list[Ob
         raise ValueError(f"unknown split {split!r}; valid splits: train, val, test")
     root = split_dir(split, env_cfg)
     scene_ids = split_scene_ids(split, env_cfg.dataset)
-    todo = [s for s in scene_ids if not (root / "content" / f"{s}.json.gz").exists()]
+    cached = {s: _cached_episodes(root / "content" / f"{s}.json.gz") for s in scene_ids}
+    todo = [s for s in scene_ids if cached[s] is None]
     if todo:
         from tqdm import tqdm
 
@@ -295,19 +325,17 @@ def load_split(split: str, env_cfg: EnvConfig, progress: bool = True) -> list[Ob
             scene = load_scene(sid, env_cfg.dataset)
             renderer = Renderer(scene, Camera.from_config(env_cfg))
             navgrid = NavGrid.build(scene, env_cfg, renderer.raycasting_scene)
-            seed = scene_seed(sid, env_cfg.dataset.seed)
+            seed = generation_seed(sid, env_cfg.dataset.seed)
             eps = generate_scene_episodes(sid, scene, navgrid, renderer.raycasting_scene, env_cfg,
                                           env_cfg.dataset.episodes_per_scene, seed)
             write_json_gz(root / "content" / f"{sid}.json.gz", episodes_to_habitat(eps))
+            cached[sid] = episodes_from_habitat(episodes_to_habitat(eps))  # exactly what a later load reads
         write_json_gz(root / f"{split}.json.gz", {
             "episodes": [],
             "category_to_task_category_id": {c: i for i, c in enumerate(GOAL_CATEGORIES)},
             "category_to_scene_annotation_category_id": {c: i for i, c in enumerate(GOAL_CATEGORIES)},
         })
-    episodes: list[ObjectNavEpisode] = []
-    for sid in scene_ids:
-        episodes += episodes_from_habitat(read_json_gz(root / "content" / f"{sid}.json.gz"))
-    return episodes
+    return [ep for sid in scene_ids for ep in cached[sid]]
 
 
 def parse_episode_range(spec: str, n_total: int) -> range:

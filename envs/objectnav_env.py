@@ -33,6 +33,7 @@ from envs.task import Action, check_action, num_actions
 SLACK_REWARD = -0.01
 SUCCESS_REWARD = 2.5
 MAX_PITCH_RAD = math.radians(90)
+RESET_OPTIONS = ("episode_index", "episode_id")  # keys reset(options=...) understands
 
 
 class ObjectNavEnv(gym.Env):
@@ -110,21 +111,11 @@ class ObjectNavEnv(gym.Env):
 
     # ---------------------------------------------------------------- gym API
     def reset(self, *, seed: int | None = None, options: dict | None = None):
-        """options: {"episode_index": i} or {"episode_id": "scene:idx"}; otherwise an episode
-        is drawn with the env's seeded generator."""
+        """options: None, {"episode_index": i} (an int in [0, number of episodes)) or
+        {"episode_id": "scene:idx"}; without either an episode is drawn with the env's seeded
+        generator. Anything else is a ValueError naming the option."""
         super().reset(seed=seed)
-        options = options or {}
-        if "episode_index" in options:
-            i = int(options["episode_index"])
-            if not 0 <= i < len(self.episodes):
-                raise ValueError(f"episode_index {i} outside 0:{len(self.episodes)}")
-        elif "episode_id" in options:
-            ids = [e.episode_id for e in self.episodes]
-            if options["episode_id"] not in ids:
-                raise ValueError(f"unknown episode_id {options['episode_id']!r}")
-            i = ids.index(options["episode_id"])
-        else:
-            i = int(self.np_random.integers(len(self.episodes)))
+        i = self._episode_from_options(options)
         ep = self.episodes[i]
         self._load_scene(ep.scene_id)
         self._episode = ep
@@ -141,6 +132,36 @@ class ObjectNavEnv(gym.Env):
         self._done = False
         self._last_obs = self._observe()
         return self._last_obs, self._info()
+
+    def _episode_from_options(self, options) -> int:
+        """Index of the episode ``reset(options=...)`` asks for (see ``reset``)."""
+        if options is None:
+            options = {}
+        if not isinstance(options, dict):
+            raise ValueError(f"reset options must be a dict such as {{'episode_index': 0}}, got "
+                             f"{type(options).__name__} {options!r}")
+        unknown = sorted(set(options) - set(RESET_OPTIONS), key=str)
+        if unknown:
+            raise ValueError(f"unknown reset option {unknown[0]!r}; valid options: {', '.join(RESET_OPTIONS)}")
+        if len(options) > 1:
+            raise ValueError("reset options: give either episode_index or episode_id, not both")
+        n = len(self.episodes)
+        if "episode_index" in options:
+            i = options["episode_index"]
+            if isinstance(i, (bool, np.bool_)) or not isinstance(i, (int, np.integer)):
+                raise ValueError(f"reset option episode_index must be an int in [0, {n}), got {i!r}")
+            if not 0 <= i < n:
+                raise ValueError(f"reset option episode_index {i} is outside 0:{n} (the split's episodes)")
+            return int(i)
+        if "episode_id" in options:
+            eid = options["episode_id"]
+            if not isinstance(eid, str):
+                raise ValueError(f"reset option episode_id must be a str like 'scene:000', got {eid!r}")
+            ids = [e.episode_id for e in self.episodes]
+            if eid not in ids:
+                raise ValueError(f"unknown episode_id {eid!r}; ids look like {ids[0]!r}")
+            return ids.index(eid)
+        return int(self.np_random.integers(n))
 
     def step(self, action):
         if self._done:

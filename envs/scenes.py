@@ -45,6 +45,7 @@ SPLIT_RANK = {"calib": 0, "train": 1, "val": 2, "test": 3}  # seed block of each
 SPLIT_BLOCK = 1_000_000                     # seeds per split block (max scenes per split)
 BASE_SEED_STRIDE = 4 * SPLIT_BLOCK          # seed distance between consecutive base seeds
 LRU_SIZE = 4                                # scenes kept in memory
+USER_SEED_MODULUS = 2 ** 31                 # user-scene generation seeds lie in [0, this)
 _ID_RE = re.compile(r"^house_(train|val|test|calib)_(\d+)$")
 _lru: OrderedDict[tuple, Scene] = OrderedDict()
 
@@ -79,6 +80,18 @@ def scene_seed(scene_id: str, base_seed: int = 0) -> int:
     return BASE_SEED_STRIDE * int(base_seed) + SPLIT_BLOCK * SPLIT_RANK[split] + index
 
 
+def generation_seed(scene_id: str, base_seed: int = 0) -> int:
+    """The seed of the episodes generated in ``scene_id``: its house seed for a procedural id
+    (``scene_seed``); for a user scene (any file name) a stable hash of the id and the base
+    seed, in [0, 2^31)."""
+    if _ID_RE.match(str(scene_id)):
+        return scene_seed(scene_id, base_seed)
+    if base_seed < 0:
+        raise ValueError(f"base seed must be >= 0, got {base_seed}")
+    digest = hashlib.sha1(f"{int(base_seed)}:{scene_id}".encode()).digest()
+    return int.from_bytes(digest[:4], "little") % USER_SEED_MODULUS
+
+
 # ------------------------------------------------------------------------- user scenes
 def _split_dirs(root: Path) -> dict[str, Path] | None:
     """{split: folder} when ``root`` has split subfolders, else None (one shared list)."""
@@ -95,22 +108,30 @@ def _scene_files(folder: Path) -> dict[str, Path]:
     return files
 
 
+def _found(files: dict[str, Path], folder: Path) -> dict[str, Path]:
+    """``files``, or ValueError when ``folder`` held none (a run would have nothing to do)."""
+    if not files:
+        raise ValueError(f"no scenes found in {folder}: put *.ply labelled meshes or *.npz calnav scenes there "
+                         "(any file name) and set env.dataset.scene_dir to it")
+    return files
+
+
 def _user_files(scene_dir: str, split: str | None) -> dict[str, Path]:
     root = Path(scene_dir).expanduser()
     if not root.is_dir():
         raise ValueError(f"dataset.scene_dir {str(root)!r} is not a directory")
     dirs = _split_dirs(root)
     if dirs is None:
-        return _scene_files(root)
+        return _found(_scene_files(root), root)
     if split is not None:
         if split not in dirs:
             raise ValueError(f"{root} has split folders {sorted(dirs)} but no {split!r} folder")
-        return _scene_files(dirs[split])
+        return _found(_scene_files(dirs[split]), dirs[split])
     merged: dict[str, Path] = {}
     for folder in (dirs[s] for s in SPLITS if s in dirs):   # any split's scene loads by id; first split wins
         for stem, p in _scene_files(folder).items():
             merged.setdefault(stem, p)
-    return merged
+    return _found(merged, root)
 
 
 def _ply_settings(ply: Path) -> dict:

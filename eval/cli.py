@@ -119,8 +119,21 @@ COMMANDS: dict[str, tuple[str, str]] = {
 }
 
 
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    """Parse ``argv`` (default: sys.argv[1:]). Options and KEY=VALUE overrides may be intermixed
+    (``objectnav a.b=1 --episodes 0:2 c.d=2``): argparse's ``parse_intermixed_args`` does that,
+    but not across subparsers, so the top-level parser only picks the command and the
+    command's own parser reads the rest."""
+    parser = build_parser()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    args, _ = parser.parse_known_args(argv)   # the command (and --help / a bad command exit here)
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    rest = argv[argv.index(args.command) + 1:]
+    return sub.choices[args.command].parse_intermixed_args(rest, namespace=argparse.Namespace(command=args.command))
+
+
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    args = parse_args(argv)
     try:
         module, function = COMMANDS[args.command]
         getattr(importlib.import_module(module), function)(args)

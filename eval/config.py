@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+import re
 import types
 import typing
 from dataclasses import dataclass, field
@@ -28,6 +29,55 @@ class ConfigError(ValueError):
     """A config key or value is invalid; the message names it and the valid choices."""
 
 
+# "WxH" sizes (160x120). YAML 1.1 reads "0x0" / "0x10" as hexadecimal integers (0, 16), so the
+# loader keeps text of this form a string and the tuple coercion splits it.
+WXH_RE = re.compile(r"^\d+x\d+$")
+
+
+class StrictLoader(yaml.SafeLoader):
+    """SafeLoader that refuses a mapping key written twice (plain YAML keeps the last, silently
+    dropping e.g. a whole section) and reads ``WxH`` as text, never as a hex integer."""
+
+    def construct_mapping(self, node, deep=False):
+        seen: dict = {}
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=deep)
+            line = key_node.start_mark.line + 1
+            try:
+                duplicate = key in seen
+            except TypeError:  # an unhashable key: SafeLoader's own error names it below
+                continue
+            if duplicate:
+                raise ConfigError(f"duplicate key {key!r} at line {line} (first at line {seen[key]}); "
+                                  "write each key once")
+            seen[key] = line
+        return super().construct_mapping(node, deep=deep)
+
+
+StrictLoader.yaml_implicit_resolvers = {k: list(v) for k, v in yaml.SafeLoader.yaml_implicit_resolvers.items()}
+for _digit in "0123456789":  # checked before YAML's int resolver, which would take 0x0 as hex
+    StrictLoader.yaml_implicit_resolvers.setdefault(_digit, []).insert(0, ("tag:yaml.org,2002:str", WXH_RE))
+
+
+def _yaml_error_text(exc: yaml.YAMLError) -> str:
+    """One line: the problem and where (line/column of the YAML text, 1-based)."""
+    mark = getattr(exc, "problem_mark", None)
+    where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark is not None else ""
+    problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+    return f"{where}{problem}"
+
+
+def load_yaml_text(text: str, source: str) -> Any:
+    """Parse YAML ``text`` with ``StrictLoader``; a syntax error becomes a one-line ConfigError
+    naming ``source`` (a file path or an override)."""
+    try:
+        return yaml.load(text, Loader=StrictLoader)  # noqa: S506 (StrictLoader is a SafeLoader)
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"YAML syntax error in {source}: {_yaml_error_text(exc)}") from None
+    except ConfigError as exc:  # a duplicate key
+        raise ConfigError(f"{source}: {exc}") from None
+
+
 # Names of ``eval.objectnav.agents.AGENTS`` (a test keeps the two in step): the config validates the
 # choice without importing any agent.
 AgentName = Literal["peanut", "oracle"]
@@ -43,6 +93,10 @@ class RunConfig:
     workers: int = 0              # parallel worker processes; 0 = all cores
     output_dir: str = "runs/latest"  # where results, plots and videos go
     device: str = "cpu"           # torch device for learned models ("cpu", "cuda", "cuda:1")
+
+    def __post_init__(self) -> None:
+        if self.workers < 0:
+            raise ValueError(f"run.workers must be >= 0 (0 = all cores), got {self.workers}")
 
 
 @dataclass
@@ -167,7 +221,9 @@ def parse_override(text: str) -> tuple[str, Any]:
     key, raw = text.split("=", 1)
     if not key:
         raise ConfigError(f"override {text!r} has an empty key")
-    return key.strip(), (yaml.safe_load(raw) if raw.strip() else "")
+    if not raw.strip():
+        return key.strip(), ""
+    return key.strip(), load_yaml_text(raw, f"override {text!r}")
 
 
 def load_config(path: str | Path | None = None, overrides: list[str] | tuple[str, ...] = (),
@@ -180,7 +236,9 @@ def load_config(path: str | Path | None = None, overrides: list[str] | tuple[str
             path = CONFIG_DIR / path.name
         if not path.exists():
             raise ConfigError(f"config file not found: {path}")
-        loaded = yaml.safe_load(path.read_text()) or {}
+        if path.is_dir():
+            raise ConfigError(f"config {path} is a directory; give a YAML file, e.g. {CONFIG_DIR.name}/objectnav.yaml")
+        loaded = load_yaml_text(path.read_text(), str(path)) or {}
         if not isinstance(loaded, dict):
             raise ConfigError(f"config file {path} must hold a mapping at the top level")
         tree = loaded

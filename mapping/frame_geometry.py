@@ -7,26 +7,50 @@ camera axes (x right, y down, z forward); depth (H, W) float32 z-depth in metres
 from __future__ import annotations
 
 
+import math
+
 import numpy as np
+import torch
 
 ROTATION_TOL = 1e-4   # |R^T R - I| and |det R - 1| tolerance of a rigid pose
 LAST_ROW_TOL = 1e-6   # |pose[3] - (0, 0, 0, 1)| tolerance
 # Depth-normal differences: both one-sided differences are "smooth" (use the central difference)
 # when they differ by at most this fraction of the larger one; else the smaller jump wins.
 SMOOTH_JUMP_RATIO = 0.5
+# Plausible pinhole fields of view, degrees: a focal length of a few pixels or less (e.g. 1e-3, a
+# near-180-degree view) sends back-projected points kilometres away and sizes the per-frame
+# block table in tebibytes; one that sees under a degree is a unit mix-up (metres vs pixels).
+MIN_FOV_DEG, MAX_FOV_DEG = 1.0, 179.0
 
 
 def _describe(a) -> str:
     return f"{a.shape} {a.dtype}" if isinstance(a, np.ndarray) else type(a).__name__
 
 
-def check_intrinsics(intrinsics) -> np.ndarray:
-    """(3, 3) float64 pinhole matrix with fx, fy > 0 and last row (0, 0, 1)."""
+def field_of_view_deg(focal_px: float, centre_px: float, size_px: int) -> float:
+    """Angle in degrees that ``size_px`` pixels span through a pinhole of focal length
+    ``focal_px`` (pixels) with principal point ``centre_px`` (pixels; the image spans
+    [-0.5, size - 0.5], OpenCV pixel centres)."""
+    return math.degrees(math.atan2(centre_px + 0.5, focal_px) + math.atan2(size_px - 0.5 - centre_px, focal_px))
+
+
+def check_intrinsics(intrinsics, width: int | None = None, height: int | None = None) -> np.ndarray:
+    """(3, 3) float64 pinhole matrix with fx, fy > 0 and last row (0, 0, 1). With the image
+    size (pixels), the horizontal and vertical fields of view must also be plausible: within
+    (MIN_FOV_DEG, MAX_FOV_DEG)."""
     k = np.asarray(intrinsics, dtype=np.float64)
     if k.shape != (3, 3) or not np.isfinite(k).all():
         raise ValueError(f"intrinsics must be a finite (3, 3) matrix, got {_describe(np.asarray(intrinsics))}")
     if k[0, 0] <= 0 or k[1, 1] <= 0 or not np.allclose(k[2], (0, 0, 1)) or k[1, 0] != 0:
         raise ValueError(f"intrinsics must be [[fx, s, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0, got {k.tolist()}")
+    if width is not None and height is not None:
+        for axis, f, c, size in (("horizontal", k[0, 0], k[0, 2], width), ("vertical", k[1, 1], k[1, 2], height)):
+            fov = field_of_view_deg(f, c, size)
+            if not MIN_FOV_DEG < fov < MAX_FOV_DEG:
+                raise ValueError(f"intrinsics give a {axis} field of view of {fov:.4g} deg for a {width}x{height} "
+                                 f"image, outside ({MIN_FOV_DEG:g}, {MAX_FOV_DEG:g}) deg: focal lengths are in "
+                                 f"pixels (fx = fy = {width / 2 / math.tan(math.radians(79 / 2)):.1f} for a "
+                                 f"79-degree view), got fx = {k[0, 0]:g}, fy = {k[1, 1]:g}")
     return k
 
 
@@ -91,6 +115,21 @@ def check_frame(depth, logits, rgb, weights, num_classes: int) -> tuple:
         if not np.isfinite(weights).all() or (weights < 0).any():
             raise ValueError("weights must be finite and >= 0")
     return np.ascontiguousarray(depth), logits, rgb, weights
+
+
+def check_observed_logits(logits: np.ndarray | None, depth: np.ndarray) -> None:
+    """ValueError when ``logits`` (H, W, K) are NaN or inf at a pixel of valid ``depth`` (H, W)
+    (cleaned: 0 = invalid), i.e. at a pixel the frame can observe; other pixels may hold
+    anything. One reduction over the whole array is the fast path (a sum is finite when every
+    term is, barring overflow); only a non-finite sum looks at the pixels one by one."""
+    if logits is None:
+        return
+    with torch.no_grad():
+        if bool(torch.isfinite(torch.from_numpy(logits).sum())):
+            return
+    if not np.isfinite(logits[depth > 0]).all():
+        raise ValueError("logits contain NaN or inf at observed pixels (pixels of valid depth); the frame was not "
+                         "integrated")
 
 
 def clean_depth(depth: np.ndarray, depth_min: float, depth_max: float) -> np.ndarray:

@@ -182,9 +182,16 @@ def check_gates(strategy: Strategy, g, eps, dtype: torch.dtype = torch.float32,
     return out[0], out[1]
 
 
-def _check_logits(logits, layout: str) -> tuple[int, ...]:
-    """Shape of ``logits`` after checking it is a float tensor of layout ``layout`` (the number
-    of axes is the layout's) with at least 2 classes on the last axis."""
+# Floating dtypes too narrow to fuse in: the clamp bound and log-space sums overflow float16
+# (max 65504), and bfloat16 keeps 8 bits of mantissa. Such logits (e.g. fp16 observation caches)
+# are fused in float32.
+HALF_DTYPES = (torch.float16, torch.bfloat16)
+
+
+def _check_logits(logits, layout: str) -> torch.Tensor:
+    """``logits`` after checking it is a float tensor of layout ``layout`` (the number of axes
+    is the layout's) with at least 2 classes on the last axis; half-precision logits are
+    returned as float32 (differentiably), the dtype everything is then computed in."""
     ndim = layout.count(",") + 1
     if not isinstance(logits, torch.Tensor) or logits.ndim != ndim or not logits.is_floating_point():
         desc = f"{tuple(logits.shape)} {logits.dtype}" if isinstance(logits, torch.Tensor) else type(logits).__name__
@@ -192,7 +199,7 @@ def _check_logits(logits, layout: str) -> tuple[int, ...]:
     k = logits.shape[-1]
     if k < 2:
         raise ValueError(f"need at least 2 classes, got K = {k}")
-    return tuple(logits.shape)
+    return logits.float() if logits.dtype in HALF_DTYPES else logits
 
 
 def _scaled_inputs(strat: Strategy, logits: torch.Tensor, weights, temperature, g, eps, weight_layout: str,
@@ -228,12 +235,12 @@ def fuse(logits: torch.Tensor, strategy: str | Strategy, *, mask: torch.Tensor |
     """Batched fusion of T observations per voxel -> probs (N, K), differentiable w.r.t.
     temperature, weights, g and eps (histogram's argmax is not).
 
-    logits: (N, T, K) float tensor of raw segmentation logits.
+    logits: (N, T, K) float tensor of raw segmentation logits (float16 / bfloat16: fused in float32).
     mask: (N, T) bool, False = padding (ignored). weights: (N, T) >= 0 sample weights.
     temperature: scalar or (K,) (vector scaling). g, eps: GLFS gates in [0, 1] (glfs only).
     """
     strat = get_strategy(strategy)
-    _check_logits(logits, "(N, T, K)")
+    logits = _check_logits(logits, "(N, T, K)")
     z, w, g_t, eps_t = _scaled_inputs(strat, logits, weights, temperature, g, eps, "(N, T)", mask=mask,
                                       what="logits (unmasked entries)")
     inc = strat.increments(ObservationTerms(z, mu), w)
@@ -248,11 +255,12 @@ def fuse_flat(logits: torch.Tensor, voxel: torch.Tensor, num_voxels: int, strate
     ``fuse`` summed with ``index_add`` instead of over a padded T axis, so memory and time follow
     the number of observations (no padding to the busiest voxel). Differentiable like ``fuse``.
 
-    logits: (n, K) float raw logits; voxel: (n,) int64 voxel index in [0, num_voxels) of each
+    logits: (n, K) float raw logits (float16 / bfloat16: fused in float32); voxel: (n,) int64 voxel index in [0, num_voxels) of each
     observation; weights: (n,) >= 0 or None (= 1). A voxel without observations reads uniform.
     """
     strat = get_strategy(strategy)
-    n, _ = _check_logits(logits, "(n, K)")
+    logits = _check_logits(logits, "(n, K)")
+    n = logits.shape[0]
     if voxel.shape != (n,) or voxel.dtype != torch.int64:
         raise ValueError(f"voxel must be an int64 (n,) = ({n},) tensor, got {tuple(voxel.shape)} {voxel.dtype}")
     if n and (int(voxel.min()) < 0 or int(voxel.max()) >= num_voxels):

@@ -111,24 +111,35 @@ class GLFSParams:
         return path
 
     @classmethod
-    def load(cls, path: str | os.PathLike) -> "GLFSParams":
-        """Read a params file; a relative path that does not exist from the working directory is
-        also looked up from the repository root (so configs can name shipped files such as
-        ``agent/weights/glfs_learned_rgb.json``)."""
+    def load(cls, path: str | os.PathLike, class_names=None) -> "GLFSParams":
+        """Read and validate a params file; a relative path that does not exist from the working
+        directory is also looked up from the repository root (so configs can name shipped files
+        such as ``agent/weights/glfs_learned_rgb.json``). With ``class_names``, the parameters
+        must be for exactly those classes. Every error is a ValueError naming the file."""
         path = Path(path)
         if not path.exists() and not path.is_absolute() and (REPO_ROOT / path).exists():
             path = REPO_ROOT / path
-        if not path.exists():
-            raise ValueError(f"GLFS params file not found: {path}")
+        if not path.is_file():
+            raise ValueError(f"GLFS params file not found: {path}" + (" (a directory)" if path.is_dir() else ""))
         if path.suffix == ".npz":
             arrays, d = load_versioned_npz(path, FORMAT_VERSION, what="GLFS params file")
-            d.update(tau=arrays["tau"], M=arrays["M"])
+            d.update(arrays)
         else:
             try:
                 d = json.loads(path.read_text())
             except Exception as exc:  # json errors all mean the same to the user
                 raise ValueError(f"corrupt GLFS params file {path}: {exc}") from exc
+            if not isinstance(d, dict):
+                raise ValueError(f"corrupt GLFS params file {path}: expected a JSON object, got {type(d).__name__}")
             check_format_version(d, FORMAT_VERSION, path, what="GLFS params file")
-        return cls(tau=np.asarray(d["tau"]), g=d["g"], eps=d["eps"], M=np.asarray(d["M"]),
-                   distance_edges=tuple(d["distance_edges"]), angle_edges_deg=tuple(d["angle_edges_deg"]),
-                   class_names=tuple(d["class_names"]))
+        try:
+            params = cls(tau=np.asarray(d["tau"]), g=d["g"], eps=d["eps"], M=np.asarray(d["M"]),
+                         distance_edges=tuple(d["distance_edges"]), angle_edges_deg=tuple(d["angle_edges_deg"]),
+                         class_names=tuple(d["class_names"]))
+            if class_names is not None:
+                params.check_classes(class_names)
+        except KeyError as exc:
+            raise ValueError(f"corrupt GLFS params file {path}: missing {exc}") from None
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"GLFS params file {path}: {exc}") from None
+        return params

@@ -124,7 +124,7 @@ class MapReadouts:
         the map grows under-sizes a range buffer and silently misses most rays.)
         """
         cfg, kk = self.cfg, self.num_classes
-        k, pose = fg.check_intrinsics(intrinsics), fg.check_pose(pose)
+        k, pose = fg.check_intrinsics(intrinsics, width, height), fg.check_pose(pose)
         probs = np.zeros((height * width, kk), np.float32)
         valid = np.zeros(height * width, bool)
         scene = self._surface_scene()

@@ -183,10 +183,12 @@ class SemanticVoxelMap(MapReadouts):
         uint8 or None; weights (H, W) float32 >= 0 per-pixel sample weights (multiply the
         configured weighting) or None."""
         cfg = self.cfg
+        # every check comes before the first change to the map: a rejected frame leaves it untouched
         depth, logits, rgb, weights = fg.check_frame(depth, logits, rgb, weights, self.num_classes)
-        intr = fg.check_intrinsics(intrinsics)
+        intr = fg.check_intrinsics(intrinsics, depth.shape[1], depth.shape[0])
         pose = fg.check_pose(pose)
         depth = fg.clean_depth(depth, cfg.depth_min_m, cfg.depth_max_m)
+        fg.check_observed_logits(logits, depth)
         if not depth.any():  # nothing valid to integrate (Open3D would raise)
             self.frames_integrated += 1
             return
@@ -291,9 +293,8 @@ class SemanticVoxelMap(MapReadouts):
         if len(sel) == 0:
             return
         flat, keys, pix, pc = flat[sel], keys[sel], pix[sel], pc[sel]
+        # finite: integrate() checked every pixel of valid depth (a superset of these) up front
         rows = torch.from_numpy(logits.reshape(h * w, self.num_classes)).index_select(0, torch.from_numpy(pix))
-        if not np.isfinite(float(rows.sum())):  # one reduction; NaN / inf anywhere poisons the sum
-            raise ValueError("logits contain NaN or inf (or values near the float32 limit) at observed pixels")
         geometry = needs_geometry(self.weighting) or self.obs_cache is not None
         if geometry:
             offset = self._grid(intr, h, w)[1]

@@ -141,3 +141,13 @@ def test_objectnav_multirun_dirs_resume_and_comparison(tmp_path, capsys):
     before = {s: (out / s / "episodes.jsonl").read_text() for s in subdirs}
     assert main(args) == 0
     assert before == {s: (out / s / "episodes.jsonl").read_text() for s in subdirs}
+
+
+def test_overrides_on_both_sides_of_an_option_are_accepted():
+    from eval.cli import parse_args
+
+    args = parse_args(["objectnav", "a.b=1", "--episodes", "0:2", "c.d=2", "--force"])
+    assert args.command == "objectnav" and args.overrides == ["a.b=1", "c.d=2"]
+    assert args.episodes == "0:2" and args.force
+    args = parse_args(["compare", "r1", "--output", "o", "r2"])
+    assert args.runs == ["r1", "r2"] and args.output == "o"

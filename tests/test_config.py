@@ -70,3 +70,78 @@ def test_multirun_cross_product():
     runs = expand_multirun(["mapping.fusion=rbu,averaging", "env.split=val", "x=[1,2]"])
     assert runs == [["mapping.fusion=rbu", "env.split=val", "x=[1,2]"],
                     ["mapping.fusion=averaging", "env.split=val", "x=[1,2]"]]
+
+
+# ------------------------------------------------------------ issue 15: bad input before any work
+def test_yaml_syntax_errors_are_one_line_config_errors(tmp_path):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("env:\n  split: [val\n")
+    with pytest.raises(ConfigError, match=r"YAML syntax error in .*bad.yaml.*line \d+"):
+        load_config(bad)
+    with pytest.raises(ConfigError, match=r"YAML syntax error in override 'env.split=\[val'"):
+        load_config(None, ["env.split=[val"])
+
+
+def test_config_path_that_is_a_directory_is_refused(tmp_path):
+    with pytest.raises(ConfigError, match=r"is a directory.*YAML file"):
+        load_config(tmp_path)
+
+
+def test_duplicate_yaml_keys_are_refused(tmp_path):
+    path = tmp_path / "dup.yaml"
+    path.write_text("env:\n  split: test\nrun:\n  seed: 1\nenv:\n  hfov_deg: 60\n")
+    with pytest.raises(ConfigError, match=r"duplicate key 'env'.*line 5"):
+        load_config(path)
+    path.write_text("run:\n  seed: 1\n  seed: 2\n")
+    with pytest.raises(ConfigError, match=r"duplicate key 'seed'.*line 3"):
+        load_config(path)
+
+
+def test_negative_workers_are_refused():
+    with pytest.raises(ConfigError, match=r"run.workers must be >= 0"):
+        load_config(None, ["run.workers=-1"])
+
+
+def test_wxh_is_parsed_from_the_raw_text_and_0x0_is_a_bad_resolution(tmp_path):
+    # YAML 1.1 reads 0x0 / 0x10 as hexadecimal integers: WxH must never go through that
+    with pytest.raises(ConfigError, match=r"env.resolution must be at least 8x8 pixels, got 0x0"):
+        load_config(None, ["env.resolution=0x0"])
+    with pytest.raises(ConfigError, match=r"got 0x16"):
+        load_config(None, ["env.resolution=0x16"])
+    path = tmp_path / "res.yaml"
+    path.write_text("env:\n  resolution: 0x0\n")
+    with pytest.raises(ConfigError, match=r"got 0x0"):
+        load_config(path)
+
+
+def test_segmenter_names_are_checked_at_load_time():
+    with pytest.raises(ConfigError, match=r"bad value for agent.segmenter: 'learnd_rgb'; valid choices: "
+                                          r"gt, noisy, learned_rgb, learned_rgbd"):
+        load_config(None, ["agent.segmenter=learnd_rgb"])
+    from eval.calibration.config import CalibrateMapConfig
+
+    with pytest.raises(ConfigError, match=r"study.segmenters.*'learnd_rgb'.*valid choices"):
+        load_config(None, ["study.segmenters=[learnd_rgb]"], cls=CalibrateMapConfig)
+
+
+def test_segmenter_choices_are_the_registry_names():
+    import typing
+
+    from agent.config import SegmenterName
+    from agent.segmenters import SEGMENTER_NAMES, SEGMENTERS
+
+    assert set(typing.get_args(SegmenterName)) == set(SEGMENTERS) == set(SEGMENTER_NAMES)
+
+
+def test_env_fields_of_view_are_ones_the_map_accepts():
+    """A camera the voxel map would refuse mid-run (field of view outside (1, 179) deg) is a
+    config error; the bounds are the map's."""
+    from envs.config import FOV_BOUNDS_DEG
+    from mapping.frame_geometry import MAX_FOV_DEG, MIN_FOV_DEG
+
+    assert FOV_BOUNDS_DEG == (MIN_FOV_DEG, MAX_FOV_DEG)
+    with pytest.raises(ConfigError, match=r"env.hfov_deg must be in \(1, 179\) degrees, got 179.5"):
+        load_config(None, ["env.hfov_deg=179.5"])
+    with pytest.raises(ConfigError, match=r"vertical field of view of 0.0\d+ deg.*outside \(1, 179\)"):
+        load_config(None, ["env.hfov_deg=2", "env.resolution=1000x8"])
+    load_config(None, ["env.hfov_deg=150"])

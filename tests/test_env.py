@@ -157,3 +157,30 @@ def test_same_seed_same_observations(small_env_config):
     oa, _ = a.reset(seed=7)
     ob, _ = b.reset(seed=7)
     assert all(np.array_equal(oa[k], ob[k]) for k in oa)
+
+
+@pytest.mark.parametrize("options, message", [
+    ({"episode_index": 1.7}, r"episode_index must be an int.*got 1.7"),
+    ({"episode_index": "abc"}, r"episode_index must be an int.*got 'abc'"),
+    ({"episode_index": True}, r"episode_index must be an int.*got True"),
+    ({"episode_index": -1}, r"episode_index -1 is outside 0:8"),
+    ({"episode_index": 8}, r"episode_index 8 is outside 0:8"),
+    ([1], r"options must be a dict.*got list"),
+    ({"episode": 1}, r"unknown reset option 'episode'; valid options: episode_index, episode_id"),
+    ({"episode_index": 1, "episode_id": "x"}, r"either episode_index or episode_id"),
+    ({"episode_id": 3}, r"episode_id must be a str"),
+    ({"episode_id": "nope:000"}, r"unknown episode_id 'nope:000'"),
+])
+def test_reset_options_are_validated(env, options, message):
+    with pytest.raises(ValueError, match=message):
+        env.reset(options=options)
+
+
+def test_reset_accepts_numpy_integers_and_ids(env):
+    import numpy as np
+
+    _, info = env.reset(options={"episode_index": np.int64(1)})
+    first = env.unwrapped.episode.episode_id
+    env.reset(options={"episode_id": first})
+    assert env.unwrapped.episode.episode_id == first
+    env.reset(options={})

@@ -132,3 +132,39 @@ def test_scene_without_goal_instance_is_an_error():
     rs, nav = _scene_tools(scene, cfg)
     with pytest.raises(ValueError, match="no reachable, visible instance of any goal category"):
         generate_scene_episodes("box", scene, nav, rs, cfg, 3, seed=0)
+
+
+def _small_split(small_env_config):
+    from envs.episodes import split_dir
+
+    eps = load_split("val", small_env_config, progress=False)
+    return eps, split_dir("val", small_env_config) / "content"
+
+
+@pytest.mark.parametrize("damage", ["truncated", "wrong layout", "not gzip"])
+def test_damaged_episode_cache_is_regenerated(small_env_config, damage):
+    eps, content = _small_split(small_env_config)
+    path = sorted(content.glob("*.json.gz"))[0]
+    if damage == "truncated":       # a killed writer: gzip raises EOFError
+        path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+    elif damage == "wrong layout":  # valid JSON, not an episode file: KeyError
+        with gzip.open(path, "wt") as f:
+            json.dump({"episodes": [{"episode_id": "x"}]}, f)
+    else:
+        path.write_text("not gzip")
+    again = load_split("val", small_env_config, progress=False)
+    assert [e.episode_id for e in again] == [e.episode_id for e in eps]
+    assert all(np.array_equal(a.start_position, b.start_position) for a, b in zip(again, eps))
+
+
+def test_damaged_episode_file_is_named(tmp_path):
+    from envs.episodes import read_episode_file
+
+    path = tmp_path / "given.json.gz"
+    with gzip.open(path, "wt") as f:
+        json.dump({"episodes": [{"episode_id": "x"}]}, f)
+    with pytest.raises(ValueError, match=r"damaged episode file .*given.json.gz.*'scene_id'"):
+        read_episode_file(path)
+    path.write_bytes(b"\x1f\x8b\x08\x00")   # a gzip header, then nothing
+    with pytest.raises(ValueError, match=r"episode file .*given.json.gz"):
+        read_episode_file(path)

@@ -176,3 +176,23 @@ def test_bad_input_raises_clear_errors():
         fuse(z, "rbu", mask=torch.ones(3, 2))
     with pytest.raises(ValueError, match="finite"):
         fuse(torch.full_like(z, float("nan")), "averaging")
+
+
+@pytest.mark.parametrize("name", list(STRATEGIES))
+@pytest.mark.parametrize("half", [torch.float16, torch.bfloat16])
+def test_half_precision_logits_fuse_in_float32(name, half):
+    """fp16 / bf16 logits (as the observation caches store them) fuse like the float32 tensor
+    of the same values, and the result is float32."""
+    from mapping.fusion import fuse_flat
+
+    gen = torch.Generator().manual_seed(3)
+    z = (3 * torch.randn(4, 5, 6, generator=gen)).to(half)
+    kw = {"g": 0.3, "eps": 0.2} if get_strategy(name).gated else {}
+    tau = torch.linspace(0.5, 2.0, 6)
+    out = fuse(z, name, temperature=tau, **kw)
+    assert out.dtype == torch.float32
+    assert torch.equal(out, fuse(z.float(), name, temperature=tau, **kw))
+    voxel = torch.arange(4).repeat_interleave(5)
+    flat = fuse_flat(z.reshape(20, 6), voxel, 4, name, temperature=tau, **kw)
+    assert flat.dtype == torch.float32
+    assert torch.equal(flat, fuse_flat(z.float().reshape(20, 6), voxel, 4, name, temperature=tau, **kw))

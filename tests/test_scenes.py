@@ -151,3 +151,28 @@ def test_user_scene_dir_with_split_folders(tmp_path):
     assert load_scene("v1", cfg).name == "v1"
     with pytest.raises(ValueError, match="not a directory"):
         split_scene_ids("val", DatasetConfig(scene_dir=str(tmp_path / "nowhere")))
+
+
+def test_scan_with_any_file_name_gets_episodes(tmp_path):
+    """README: put *.ply / *.npz scenes in a folder and set env.dataset.scene_dir; a scan called
+    room.ply (not named like a procedural house) must work end to end."""
+    from envs.episodes import load_split
+    from eval.config import load_config
+
+    d = tmp_path / "scans"
+    d.mkdir()
+    _write_scan(d / "room.ply")
+    (d / "labels.json").write_text(json.dumps(LABEL_MAP))
+    env = load_config(None, ["env.resolution=64x48", f"env.dataset.scene_dir={d}",
+                             "env.dataset.episodes_per_scene=2", "env.dataset.min_geodesic_m=0.3"]).env
+    eps = load_split("val", env, progress=False)
+    assert len(eps) == 2 and {e.scene_id for e in eps} == {"room"} and eps[0].object_category == "chair"
+    assert [e.episode_id for e in load_split("val", env, progress=False)] == [e.episode_id for e in eps]
+
+
+def test_empty_scene_dir_says_no_scenes_found(tmp_path):
+    with pytest.raises(ValueError, match=f"no scenes found in {tmp_path}"):
+        split_scene_ids("val", DatasetConfig(scene_dir=str(tmp_path)))
+    (tmp_path / "val").mkdir()
+    with pytest.raises(ValueError, match=f"no scenes found in {tmp_path / 'val'}"):
+        split_scene_ids("val", DatasetConfig(scene_dir=str(tmp_path)))

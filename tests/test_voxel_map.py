@@ -256,3 +256,51 @@ def test_bad_input(room):
         SemanticVoxelMap(kk, MappingConfig(fusion="glfs"), temperature=2.0)
     with pytest.raises(ValueError, match="CPU"):
         SemanticVoxelMap(kk, device="CUDA:0")
+
+
+def _snapshot(m: SemanticVoxelMap) -> dict:
+    """Copies of every voxel attribute, the hashmap's keys and slots, and the frame count."""
+    from mapping.voxel_map import BASE_ATTRS, SEM
+
+    hm = m.vbg.hashmap()
+    out = {name: m.vbg.attribute(name).numpy().copy() for name in [a for a, _ in BASE_ATTRS] + [SEM]}
+    out["active"] = np.sort(hm.active_buf_indices().numpy().astype(np.int64))
+    out["keys"] = hm.key_tensor().numpy()[out["active"]].copy()
+    out["size"], out["capacity"], out["frames"] = hm.size(), hm.capacity(), m.frames_integrated
+    return out
+
+
+def _assert_same(a: dict, b: dict) -> None:
+    assert a.keys() == b.keys()
+    for k in a:
+        if isinstance(a[k], np.ndarray):
+            assert a[k].shape == b[k].shape and a[k].tobytes() == b[k].tobytes(), k  # bit-identical
+        else:
+            assert a[k] == b[k], k
+
+
+@pytest.mark.parametrize("bad", ["nan logits at one observed pixel", "inf logits", "tiny focal length",
+                                 "huge focal length"])
+def test_a_rejected_frame_leaves_the_map_bit_identical(room, bad):
+    scene, _, k, frames = room
+    kk = scene.num_classes
+    m = SemanticVoxelMap(kk, MappingConfig(initial_alloc_mb=SMALL_ALLOC_MB), class_names=scene.class_names)
+    depth0, pose0, labels0 = frames[0]
+    m.integrate(depth0, k, pose0, onehot_logits(labels0, kk))
+    depth, pose, labels = frames[1]          # another view: new blocks and new TSDF weights if it went in
+    logits, intr = onehot_logits(labels, kk), k.copy()
+    v, u = np.argwhere(depth > 0)[len(np.argwhere(depth > 0)) // 2]
+    if bad.startswith("nan"):
+        logits[v, u, 3] = np.nan
+    elif bad.startswith("inf"):
+        logits[v, u, 0] = np.inf
+    elif bad.startswith("tiny"):             # fx = fy = 1e-3: a 180-degree view (41.8 TiB of candidate table)
+        intr[0, 0] = intr[1, 1] = 1e-3
+    else:                                    # a 0.01-degree view
+        intr[0, 0] = intr[1, 1] = 1e6
+    before = _snapshot(m)
+    with pytest.raises(ValueError, match="NaN or inf" if "logits" in bad else r"field of view .* outside \(1, 179\)"):
+        m.integrate(depth, intr, pose, logits)
+    _assert_same(before, _snapshot(m))
+    m.integrate(depth, k, pose, onehot_logits(labels, kk))  # the same frame, sound, still goes in
+    assert m.frames_integrated == 2

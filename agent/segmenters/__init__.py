@@ -8,11 +8,56 @@ interface; ``make_segmenter`` builds one by name:
 """
 from __future__ import annotations
 
+from typing import Callable
+
 from agent.segmenters.base import Segmenter, SegmenterConfig, default_class_names, resolve_device, softmax
 
-SEGMENTER_NAMES: tuple[str, ...] = ("gt", "noisy", "learned_rgb", "learned_rgbd")
+__all__ = ["SEGMENTERS", "SEGMENTER_NAMES", "Segmenter", "SegmenterConfig", "check_segmenter", "make_segmenter",
+           "softmax"]
 
-__all__ = ["SEGMENTER_NAMES", "Segmenter", "SegmenterConfig", "make_segmenter", "softmax"]
+
+def _ground_truth(name: str, cfg: SegmenterConfig, device: str | None, class_names) -> Segmenter:
+    if (device or cfg.device or "cpu") != "cpu":  # same validation as the networks (imports torch)
+        resolve_device(device or cfg.device)
+    names = tuple(class_names) if class_names is not None else default_class_names()
+    if name == "gt":
+        from agent.segmenters.ground_truth import GroundTruthSegmenter
+
+        return GroundTruthSegmenter(cfg, names)
+    from agent.segmenters.noisy import NoisySegmenter
+
+    return NoisySegmenter(cfg, names)
+
+
+def _learned(name: str, cfg: SegmenterConfig, device: str | None, class_names) -> Segmenter:
+    from agent.segmenters.learned import LearnedSegmenter
+
+    return LearnedSegmenter(name, cfg, device)
+
+
+# The registry: name -> builder(name, cfg, device, class_names). ``agent.config.SegmenterName``
+# lists the same names for the config loader (a test keeps the two equal).
+SEGMENTERS: dict[str, Callable[..., Segmenter]] = {
+    "gt": _ground_truth, "noisy": _ground_truth, "learned_rgb": _learned, "learned_rgbd": _learned,
+}
+SEGMENTER_NAMES: tuple[str, ...] = tuple(SEGMENTERS)
+
+
+def check_segmenter(name: str, cfg: SegmenterConfig | None = None, device: str | None = None) -> tuple[str, ...]:
+    """Open and validate everything segmenter ``name`` will need (its device; the weight file of
+    a learned one, whose tensors must fit its network; the class list of the ground-truth
+    based ones) without building it, and return its class names. Raises ValueError /
+    FileNotFoundError naming the file: run before a run writes anything or starts workers."""
+    cfg = cfg or SegmenterConfig()
+    if name not in SEGMENTERS:
+        raise ValueError(f"unknown segmenter {name!r}; valid names: {', '.join(SEGMENTER_NAMES)}")
+    if (device or cfg.device or "cpu") != "cpu":
+        resolve_device(device or cfg.device)
+    if SEGMENTERS[name] is _ground_truth:
+        return default_class_names()
+    from agent.segmenters.learned import check_weights, default_weights_path
+
+    return check_weights(cfg.weights or default_weights_path(name), name)
 
 
 def make_segmenter(name: str, cfg: SegmenterConfig | None = None, device: str | None = None,
@@ -25,19 +70,7 @@ def make_segmenter(name: str, cfg: SegmenterConfig | None = None, device: str | 
     list); the learned ones read theirs from the weights file.
     """
     cfg = cfg or SegmenterConfig()
-    if name not in SEGMENTER_NAMES:
+    if name not in SEGMENTERS:
         raise ValueError(f"unknown segmenter {name!r}; valid names: {', '.join(SEGMENTER_NAMES)}")
-    if name in ("gt", "noisy"):
-        if (device or cfg.device or "cpu") != "cpu":  # same validation as the networks (imports torch)
-            resolve_device(device or cfg.device)
-        names = tuple(class_names) if class_names is not None else default_class_names()
-        if name == "gt":
-            from agent.segmenters.ground_truth import GroundTruthSegmenter
+    return SEGMENTERS[name](name, cfg, device, class_names)
 
-            return GroundTruthSegmenter(cfg, names)
-        from agent.segmenters.noisy import NoisySegmenter
-
-        return NoisySegmenter(cfg, names)
-    from agent.segmenters.learned import LearnedSegmenter
-
-    return LearnedSegmenter(name, cfg, device)

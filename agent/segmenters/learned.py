@@ -56,9 +56,28 @@ def load_weights(path: Path | str, model: str | None = None) -> dict:
         raise ValueError(f"cannot read segmenter weights {path}: {exc}") from exc
     if not isinstance(data, dict) or data.get("format") != WEIGHTS_FORMAT:
         raise ValueError(f"{path} is not a calnav segmenter weight file (format {WEIGHTS_FORMAT})")
-    if model is not None and data["model"] != model:
-        raise ValueError(f"{path} holds weights for {data['model']!r}, not {model!r}")
+    if model is not None and data.get("model") != model:
+        raise ValueError(f"{path} holds weights for {data.get('model')!r}, not {model!r}")
     return data
+
+
+def check_weights(path: Path | str, model: str) -> tuple[str, ...]:
+    """Validate the weight file ``path`` of ``model`` without keeping the network: readable,
+    for this model, one class name per network output, tensors that fit the network's spec.
+    Returns the class names; FileNotFoundError / ValueError name the file."""
+    data = load_weights(path, model)
+    try:
+        spec = NetSpec.from_dict(data["spec"])
+        names = tuple(str(n) for n in data["class_names"])
+        if len(names) != spec.num_classes:
+            raise ValueError(f"{len(names)} class names for a {spec.num_classes}-class network")
+        SegNet(spec).load_state_dict({k: v.float() for k, v in data["state_dict"].items()})
+        if len(data["resolution"]) != 2:
+            raise ValueError(f"resolution must be [W, H], got {data['resolution']}")
+    except (KeyError, TypeError, ValueError, RuntimeError) as exc:  # RuntimeError: tensors of another shape
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise ValueError(f"damaged segmenter weights {path}: {first}") from None
+    return names
 
 
 def save_weights(net: SegNet, path: Path | str, model: str, class_names, resolution: tuple[int, int],

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from agent.config import SegmenterName
 from envs.config import EnvConfig
 from envs.trajectories import ScanConfig
 from eval.config import RunConfig
@@ -22,7 +23,7 @@ class StudyConfig:
     (seeds disjoint from every other split); test houses are the first ``test_scenes`` of the
     ``test`` split (or the user scene folders train/val/test when env.dataset.scene_dir is set)."""
 
-    segmenters: list[str] = field(default_factory=lambda: list(LEARNED_SEGMENTERS))  # learned_rgb | learned_rgbd (gt | noisy also work)
+    segmenters: list[SegmenterName] = field(default_factory=lambda: list(LEARNED_SEGMENTERS))  # learned_rgb | learned_rgbd (gt | noisy also work)
     strategies: list[str] = field(default_factory=lambda: list(FUSION_NAMES))  # fusion strategies compared
     calibrations: list[str] = field(default_factory=lambda: list(CALIBRATIONS))  # none | temperature_2d | temperature_3d | vector_3d
     calib_train_scenes: int = 12     # houses the temperatures and GLFS are fitted on

@@ -31,6 +31,7 @@ from eval.calibration.config import CalibrateMapConfig
 from eval.calibration.record import ROLES, load_role, record_scene, role_scene_ids
 from eval.config import load_config
 from eval.results_dir import ResultsDir, writing
+from eval.preflight import check_command
 from mapping import metrics
 from mapping.calibration.fit import MapObjective, fit_temperature_2d, fit_temperature_3d, fit_vector_3d
 from mapping.calibration.flat_obs import FlatObservations
@@ -220,6 +221,7 @@ def run_calibrate_map(cfg: CalibrateMapConfig, out: Path, force: bool = False, p
 
 
 def main_calibrate_map(args) -> None:
+    check_command(args, "calibrate-map")  # every file the config names, before anything is written
     overrides = (list(QUICK_OVERRIDES) if args.quick else []) + list(args.overrides)
     cfg = load_config(args.config, overrides, cls=CalibrateMapConfig)
     out = Path(args.output or (cfg.run.output_dir + "_quick" if args.quick else cfg.run.output_dir))
@@ -232,6 +234,7 @@ def main_calibrate_map(args) -> None:
 
 def main_fit_glfs(args) -> None:
     """Record the calibration-train / -validation scans of one segmenter and train GLFS."""
+    check_command(args, "fit-glfs")  # every file the config names, before anything is written
     from tqdm import tqdm
 
     from agent.segmenters import make_segmenter

@@ -27,6 +27,7 @@ from pathlib import Path
 
 from eval.config import Config, build_dataclass, load_config, to_dict
 from eval.results_dir import RECORDS_NAME, AllEpisodesFailed, ResultsDir, writing
+from eval.preflight import check_command
 from eval.stats import format_metrics_table, summarize
 
 # What --force deletes from a directory that holds another config's results.
@@ -186,6 +187,7 @@ def _run_from_args(args, overrides: list[str], out: Path | None) -> tuple[dict, 
 
 
 def main_objectnav(args) -> None:
+    check_command(args, "objectnav")  # every file the configs name, before anything is written
     from eval.config import expand_multirun
 
     if getattr(args, "video", 0) < 0:

@@ -1,0 +1,118 @@
+"""Issue 15: every file a config names is opened and validated before a run writes anything or
+starts a worker (``eval.preflight``), for objectnav, tune, calibrate-map and fit-glfs."""
+from __future__ import annotations
+
+import json
+import math
+
+import pytest
+
+from agent.segmenters.base import WEIGHTS_DIR
+from eval.cli import main
+from eval.config import load_config
+from eval.preflight import check_run_resources
+
+SHIPPED_GLFS = WEIGHTS_DIR / "glfs_learned_rgb.json"
+SMALL = ["env.resolution=32x24", "env.dataset.val_scenes=2", "env.dataset.episodes_per_scene=3"]
+
+
+def _glfs_variant(tmp_path, name: str, edit) -> str:
+    d = json.loads(SHIPPED_GLFS.read_text())
+    edit(d)
+    path = tmp_path / name
+    path.write_text(json.dumps(d))   # json writes NaN as the bare token NaN, as Python reads it back
+    return str(path)
+
+
+def _drop_last_class(d: dict) -> None:
+    d["tau"], d["M"], d["class_names"] = d["tau"][:-1], d["M"][:-1], d["class_names"][:-1]
+
+
+def _nan_tau(d: dict) -> None:
+    d["tau"][0] = math.nan
+
+
+def bad_files(tmp_path) -> dict[str, tuple[list[str], str]]:
+    """name -> (overrides naming a damaged file, regex the error must match)."""
+    truncated_weights = tmp_path / "truncated.pt"
+    truncated_weights.write_bytes((WEIGHTS_DIR / "learned_rgb.pt").read_bytes()[:5000])
+    truncated_glfs = tmp_path / "truncated.json"
+    truncated_glfs.write_text(SHIPPED_GLFS.read_text()[:300])
+    learned = ["agent.segmenter=learned_rgb"]
+    return {
+        "missing weights": (learned + [f"agent.segmenter_config.weights={tmp_path / 'none.pt'}"],
+                            r"segmenter weights not found: .*none.pt.*calnav train-segmenter"),
+        "truncated weights": (learned + [f"agent.segmenter_config.weights={truncated_weights}"],
+                              r"cannot read segmenter weights .*truncated.pt"),
+        "missing glfs": (learned + [f"mapping.glfs_params={tmp_path / 'none.json'}"],
+                         r"GLFS params file not found: .*none.json"),
+        "truncated glfs": (learned + [f"mapping.glfs_params={truncated_glfs}"], r"corrupt GLFS params file .*truncated"),
+        "nan glfs": (learned + [f"mapping.glfs_params={_glfs_variant(tmp_path, 'nan.json', _nan_tau)}"],
+                     r"nan.json.*tau must be finite"),
+        "17-class glfs": (learned + [f"mapping.glfs_params={_glfs_variant(tmp_path, 'k17.json', _drop_last_class)}"],
+                          r"k17.json.*17 classes.*18"),
+        "missing scene_dir": ([f"env.dataset.scene_dir={tmp_path / 'nowhere'}"], r"scene_dir .*nowhere.* is not a directory"),
+        "empty scene_dir": ([f"env.dataset.scene_dir={tmp_path}"], r"no scenes found in .*"),
+    }
+
+
+def test_shipped_resources_pass():
+    check_run_resources(load_config(None, ["agent.segmenter=learned_rgb",
+                                           "mapping.glfs_params=agent/weights/glfs_learned_rgb.json"]))
+    check_run_resources(load_config("configs/objectnav.yaml"))
+
+
+@pytest.mark.parametrize("case", ["missing weights", "truncated weights", "missing glfs", "truncated glfs",
+                                  "nan glfs", "17-class glfs", "missing scene_dir", "empty scene_dir"])
+def test_damaged_files_are_named_before_the_run(tmp_path, case):
+    overrides, message = bad_files(tmp_path)[case]
+    cfg = load_config(None, overrides)      # the loader cannot know: the files are opened by the preflight
+    with pytest.raises((ValueError, FileNotFoundError), match=message):
+        check_run_resources(cfg)
+
+
+@pytest.mark.parametrize("workers", ["1", "2"])
+def test_objectnav_refuses_bad_weights_before_writing(tmp_path, capsys, workers):
+    out = tmp_path / "run"
+    overrides, message = bad_files(tmp_path)["truncated weights"]
+    code = main(["objectnav", "--output", str(out), "--episodes", "2", *SMALL, f"run.workers={workers}", *overrides])
+    err = capsys.readouterr().err
+    assert code == 2 and "cannot read segmenter weights" in err and "Traceback" not in err
+    assert len(err.strip().splitlines()) == 1
+    assert not out.exists()                  # nothing written: the corrected rerun is not "another config"
+
+
+def test_objectnav_multirun_checks_every_combination(tmp_path, capsys):
+    out = tmp_path / "multi"
+    glfs = bad_files(tmp_path)["nan glfs"][0][1]
+    code = main(["objectnav", "-m", "--output", str(out), *SMALL, "agent.segmenter=gt,learned_rgb", glfs])
+    assert code == 2 and "tau must be finite" in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_tune_refuses_bad_glfs_before_writing(tmp_path, capsys):
+    out = tmp_path / "tune"
+    overrides, _ = bad_files(tmp_path)["17-class glfs"]
+    assert main(["tune", "--output", str(out), "--episodes", "0:2", *SMALL, *overrides]) == 2
+    assert "17 classes" in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_calibrate_map_and_fit_glfs_refuse_bad_weights_before_writing(tmp_path, capsys):
+    # the study's segmenters load their shipped weights; what a config can name wrongly is the
+    # scene folder, the GLFS file and the segmenter itself
+    missing = tmp_path / "none.json"
+    study = tmp_path / "study"
+    assert main(["calibrate-map", "--output", str(study), "study.segmenters=[learned_rgb]",
+                 f"env.dataset.scene_dir={tmp_path / 'nowhere'}"]) == 2
+    assert "is not a directory" in capsys.readouterr().err
+    assert not study.exists()
+    work = tmp_path / "work"
+    assert main(["fit-glfs", "--segmenter", "learned_rgb", "--output", str(tmp_path / "g.json"),
+                 "--work-dir", str(work), f"mapping.glfs_params={missing}"]) == 2
+    assert "GLFS params file not found" in capsys.readouterr().err
+    assert not work.exists()
+    assert main(["fit-glfs", "--segmenter", "learnd_rgb", "--output", str(tmp_path / "g.json"),
+                 "--work-dir", str(work)]) == 2
+    assert "valid choices: gt, noisy, learned_rgb, learned_rgbd" in capsys.readouterr().err
+    assert not work.exists()
