@@ -113,7 +113,10 @@ def read_vertex_labels(path, prop: str = "label") -> tuple[np.ndarray, np.ndarra
     if not path.exists():
         raise ValueError(f"labelled PLY not found: {path}")
     try:
-        ply = PlyData.read(str(path), mmap=False)
+        try:   # fast path: faces read as fixed-size triangle lists (only the vertices are used)
+            ply = PlyData.read(str(path), known_list_len={"face": {"vertex_indices": 3}})
+        except Exception:   # polygons, another face property name, ascii: plyfile's generic parser
+            ply = PlyData.read(str(path), mmap=False)
         v = ply["vertex"].data
         names = v.dtype.names
     except Exception as exc:   # plyfile raises many types for malformed headers / bodies
