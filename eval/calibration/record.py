@@ -24,11 +24,17 @@ ROLES = ("calib_train", "calib_val", "test")
 
 
 def role_scene_ids(cfg: CalibrateMapConfig) -> dict[str, list[str]]:
-    """{role: scene ids}: procedural houses from the ``calib`` / ``test`` splits, or the user
-    scene folders train / val / test when ``env.dataset.scene_dir`` is set."""
+    """{role: scene ids}: procedural houses from the ``calib`` / ``test`` splits, the user
+    scene folders train / val / test when ``env.dataset.scene_dir`` is set, or the recorded
+    sequences of ``sequences.list`` (all of them: the study's house counts do not apply)."""
     from envs.scenes import split_scene_ids
 
     st, ds = cfg.study, cfg.env.dataset
+    if cfg.sequences.list:
+        from eval.sequence.source import read_sequence_list
+
+        listed = read_sequence_list(cfg.sequences.list, cfg.sequences.layout)
+        return {role: [sid for sid, _, _ in listed[role]] for role in ROLES}
     if ds.scene_dir:
         ids = {role: split_scene_ids(split, ds) for role, split in zip(ROLES, ("train", "val", "test"))}
         for role, n in zip(ROLES, (st.calib_train_scenes, st.calib_val_scenes, st.test_scenes)):

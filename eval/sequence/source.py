@@ -143,6 +143,8 @@ def read_sequence_list(path, default_layout: str = "scannet") -> dict[str, list[
         if layout not in LAYOUT_NAMES:
             raise ValueError(f"{path}:{n}: unknown layout {layout!r}; valid layouts: {', '.join(LAYOUT_NAMES)}")
         folder = Path(parts[1]) if Path(parts[1]).is_absolute() else path.parent / parts[1]
+        if not folder.is_dir():
+            raise ValueError(f"{path}:{n}: sequence directory not found: {folder}")
         sid = folder.resolve().name
         if sid in seen:
             raise ValueError(f"{path}:{n}: a second sequence named {sid!r} (ids are directory names)")
