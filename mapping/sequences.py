@@ -122,8 +122,9 @@ def _imread(path: Path, flags: int) -> np.ndarray:
 
 
 class Sequence:
-    """An opened (validated) recording. ``frames()`` yields ``SequenceFrame`` one at a time;
-    ``skipped`` lists the frame numbers dropped for a non-finite pose (filled while iterating)."""
+    """An opened (validated) recording: ``ids`` the frame numbers used (stride, max_frames,
+    valid pose), ``skipped`` those dropped for a non-finite pose; ``frames()`` yields
+    ``SequenceFrame`` one at a time. Every pose is checked when the sequence is opened."""
 
     def __init__(self, root, layout: str, cfg: SequenceConfig | None = None):
         self.root = root = Path(root)
@@ -135,9 +136,15 @@ class Sequence:
         self.layout = layout
         ids, self._paths, self.k_color, self.k_depth = (_open_scannet if layout == "scannet" else _open_7scenes)(root)
         ids = ids[::cfg.frame_stride]
-        self.ids = ids[:cfg.max_frames] if cfg.max_frames else ids
+        ids = ids[:cfg.max_frames] if cfg.max_frames else ids
+        # every pose is read up front (small text files: ~0.1 ms each), so a non-rigid pose is
+        # reported before anything is written and the invalid ones are known
+        self._poses = {i: self._read_pose(i) for i in ids}
+        self.skipped = [i for i in ids if self._poses[i] is None]
+        self.ids = [i for i in ids if self._poses[i] is not None]
         if not self.ids:
-            raise ValueError(f"{root}: no frames to read (frame_stride {cfg.frame_stride}, max_frames {cfg.max_frames})")
+            raise ValueError(f"{root}: no frames to read ({len(ids)} after frame_stride {cfg.frame_stride} / max_frames "
+                             f"{cfg.max_frames}, {len(self.skipped)} of them with an invalid pose)")
         first = self.ids[0]
         rgb = _imread(self._paths(first)["color"], cv2.IMREAD_COLOR)
         depth = _imread(self._paths(first)["depth"], cv2.IMREAD_UNCHANGED)
@@ -147,7 +154,6 @@ class Sequence:
         self.color_size = (rgb.shape[1], rgb.shape[0])    # (W, H) pixels
         self.depth_size = (depth.shape[1], depth.shape[0])
         self.has_semantic = self._paths(first).get("semantic") is not None
-        self.skipped: list[int] = []
 
     def __len__(self) -> int:
         return len(self.ids)
@@ -165,21 +171,27 @@ class Sequence:
                 return found[0]
         return None
 
-    def read(self, index: int) -> SequenceFrame | None:
-        """Frame ``index`` (a frame number of ``ids``), or None when its pose is not finite."""
-        paths = self._paths(index)
+    def _read_pose(self, index: int) -> np.ndarray | None:
+        """Rigid (4, 4) pose of frame ``index``; None when not finite; ValueError naming the
+        frame when unreadable or not rigid."""
+        path = self._paths(index)["pose"]
         try:
-            pose = np.loadtxt(paths["pose"], dtype=np.float64, ndmin=2)
+            pose = np.loadtxt(path, dtype=np.float64, ndmin=2)
         except ValueError as exc:
-            raise ValueError(f"frame {index}: unreadable pose {paths['pose']}: {exc}") from exc
+            raise ValueError(f"frame {index}: unreadable pose {path}: {exc}") from exc
         if pose.shape != (4, 4):
-            raise ValueError(f"frame {index}: pose {paths['pose']} must be 4x4, got shape {pose.shape}")
+            raise ValueError(f"frame {index}: pose {path} must be 4x4, got shape {pose.shape}")
         if not np.isfinite(pose).all():   # ScanNet: -inf rows where tracking failed
             return None
         try:
-            pose = fg.check_pose(pose)
+            return fg.check_pose(pose)
         except ValueError as exc:
-            raise ValueError(f"frame {index} ({paths['pose']}): {exc}") from exc
+            raise ValueError(f"frame {index} ({path}): {exc}") from exc
+
+    def read(self, index: int) -> SequenceFrame:
+        """Frame ``index`` (one of ``ids``)."""
+        paths = self._paths(index)
+        pose = self._poses[index]
         raw = _imread(paths["depth"], cv2.IMREAD_UNCHANGED)
         if (raw.shape[1], raw.shape[0]) != self.depth_size:
             raise ValueError(f"frame {index}: depth is {raw.shape[1]}x{raw.shape[0]}, the sequence's is "
@@ -195,14 +207,9 @@ class Sequence:
         return SequenceFrame(index, rgb, depth, self.k_color, self.k_depth, pose, sem)
 
     def frames(self) -> Iterator[SequenceFrame]:
-        """The frames in order, decoded one at a time (invalid poses skipped into ``skipped``)."""
-        self.skipped = []
+        """The frames of ``ids`` in order, decoded one at a time."""
         for index in self.ids:
-            frame = self.read(index)
-            if frame is None:
-                self.skipped.append(index)
-                continue
-            yield frame
+            yield self.read(index)
 
 
 def _numeric_stems(folder: Path, suffix: str) -> set[int]:
