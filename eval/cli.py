@@ -151,7 +151,12 @@ COMMANDS: dict[str, tuple[str, str]] = {
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args, extra = parser.parse_known_args(argv)
+    if extra:   # KEY=VALUE overrides after options (argparse takes one run of positionals only)
+        if getattr(args, "overrides", None) is None or not all("=" in e and not e.startswith("-") for e in extra):
+            parser.error(f"unrecognized arguments: {' '.join(extra)}")
+        args.overrides = [*args.overrides, *extra]
     try:
         module, function = COMMANDS[args.command]
         getattr(importlib.import_module(module), function)(args)
