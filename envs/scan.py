@@ -8,7 +8,7 @@ raw labels to calnav classes:
 - ``label_map`` None: the raw labels already are calnav class ids (out of range -> void).
 - ``label_map`` a dict ``{raw id: class name}`` (keys may be ints or digit strings), or a path
   to a ``.json`` file holding such a dict (or a list of ``{"id": .., "name": ..}`` records),
-  or a ``.tsv``/``.csv`` file with a header: the id column is the first of ``ID_COLUMNS``
+  or a ``.tsv``/``.csv`` file with a header: the id column is the first of ``common.ply_labels.ID_COLUMNS``
   found, the name column the first of ``NAME_COLUMNS`` (ScanNet's
   ``scannetv2-labels.combined.tsv`` works: ``id`` -> ``nyu40class``).
 - Names are matched case-insensitively against calnav's classes and ``common.ply_labels.SYNONYMS``

@@ -7,7 +7,9 @@
   Ground truth: ``<scene>_vh_clean_2.labels.ply`` (per-vertex ``label``, NYU40 ids on ScanNet).
 - ``7scenes`` (7-Scenes / 3DMatch): ``frame-NNNNNN.color.{png,jpg}``, ``frame-NNNNNN.depth.png``
   (uint16 millimetres, 0 = missing, 65535 = invalid), ``frame-NNNNNN.pose.txt`` and
-  ``camera-intrinsics.txt`` (3x3, in the sequence folder or its parent; colour and depth share it).
+  ``camera-intrinsics.txt`` (3x3, in the sequence folder or its parent; colour and depth share it,
+  as in 3DMatch -- 7-Scenes' own colour is not registered to its depth: colours and colour-based
+  logits are then off by the sensors' baseline, a few pixels).
 
 Every reader streams: ``Sequence.frames()`` decodes one frame at a time, so memory does not grow
 with the recording. Frames whose pose is not finite (ScanNet writes rows of ``-inf`` where

@@ -51,11 +51,13 @@ def logits_source(seq: Sequence, cfg: MapSequenceConfig, segmenter: str | None, 
     return SegmenterLogits(make_segmenter(segmenter, cfg.segmenter, device=cfg.run.device), seq)
 
 
-def map_sequence(seq: Sequence, source, mapping_cfg, progress: bool = False) -> MappedSequence:
-    """Fuse every frame of ``seq`` with logits from ``source`` into a new map."""
+def map_sequence(seq: Sequence, source, mapping_cfg, progress: bool = False, vmap=None) -> MappedSequence:
+    """Fuse every frame of ``seq`` with logits from ``source`` into ``vmap`` (default: a new
+    ``SemanticVoxelMap`` of ``mapping_cfg``)."""
     from mapping.voxel_map import SemanticVoxelMap
 
-    vmap = SemanticVoxelMap(len(source.class_names), mapping_cfg, class_names=tuple(source.class_names))
+    if vmap is None:
+        vmap = SemanticVoxelMap(len(source.class_names), mapping_cfg, class_names=tuple(source.class_names))
     t0 = time.perf_counter()
     n = fuse_frames(vmap, prefetched(map_frames(seq, source)), total=len(seq), progress=progress)
     return MappedSequence(vmap, n, list(seq.skipped), time.perf_counter() - t0)
@@ -99,12 +101,12 @@ def main_map(args) -> None:
     gt = vertex_ground_truth(ply, names, cfg.sequence, seq.root) if ply is not None else None
     from mapping.voxel_map import SemanticVoxelMap
 
-    SemanticVoxelMap(len(names), cfg.mapping, class_names=names)   # GLFS parameter file / K checked before writing
+    vmap = SemanticVoxelMap(len(names), cfg.mapping, class_names=names)   # GLFS parameter file / K checked here
     out = Path(args.output)
     out.mkdir(parents=True, exist_ok=True)
     (out / "config.yaml").write_text(dump_yaml(cfg))
 
-    res = map_sequence(seq, source, cfg.mapping, progress=True)
+    res = map_sequence(seq, source, cfg.mapping, progress=True, vmap=vmap)
     coords, probs = res.vmap.voxels()
     meta = {"sequence": str(seq.root), "layout": seq.layout, "voxel_size_m": cfg.mapping.voxel_size_m,
             "fusion": cfg.mapping.fusion, "frames": res.frames, "skipped_frames": res.skipped}
