@@ -241,3 +241,26 @@ def test_densify_bounds_edges_and_keeps_area_and_classes():
     assert set(dc.tolist()) == {4, 7}
     on_first = np.abs(dv[:, 2]) < 1e-12
     assert (dc[on_first & (dv.sum(1) < 1 - 1e-9)] == 4).all()   # strictly inside triangle 0: its class
+
+
+def test_prefetched_keeps_order_reraises_and_stops_its_thread():
+    import threading
+
+    from eval.sequence.source import prefetched
+
+    assert list(prefetched(iter(range(7)))) == list(range(7))
+
+    def failing():
+        yield 1
+        raise ValueError("frame 2: broken")
+
+    got = []
+    with pytest.raises(ValueError, match="frame 2: broken"):
+        for x in prefetched(failing()):
+            got.append(x)
+    assert got == [1]
+    before = threading.active_count()
+    gen = prefetched(iter(range(1000)))
+    assert next(gen) == 0
+    gen.close()   # the consumer stops early: the producer thread must end, not block on the queue
+    assert threading.active_count() <= before

@@ -1,7 +1,10 @@
-"""Recording the map-calibration data: each house is scanned once (``envs.trajectories``), every
+"""Recording the map-calibration data: each house is scanned (``envs.trajectories``), every
 frame is segmented by each segmenter, and a semantic voxel map with an observation cache
 records every voxel observation (logits, distance, incidence angle). Voxels are labelled from
-the house mesh. Per house and segmenter two files are written (atomically, so a rerun skips
+the house mesh. The frames come from a frame source (``frame_source``): ``HouseScan`` renders a
+house's scan batch by batch (once per segmenter: rendering is cheap next to segmenting, and
+no scan is held in memory); ``eval.sequence.source.RecordedScan`` reads a recorded sequence of
+``sequences.list`` and labels voxels from its labelled mesh. Per house and segmenter two files are written (atomically, so a rerun skips
 finished houses):
 
 - ``<scene>.cache.npz``: the ``ObsCache`` (what 3D scaling and GLFS re-fuse);
