@@ -1,4 +1,4 @@
-"""Recorded sequences (mapping/sequences.py, eval/sequence/): near-rigid poses, colour-to-depth
+"""Recorded sequences (mapping/sequences/, eval/sequence/): near-rigid poses, colour-to-depth
 registration, the ScanNet and 7-Scenes readers, vertex ground truth, mesh densification."""
 from __future__ import annotations
 
@@ -264,3 +264,35 @@ def test_prefetched_keeps_order_reraises_and_stops_its_thread():
     assert next(gen) == 0
     gen.close()   # the consumer stops early: the producer thread must end, not block on the queue
     assert threading.active_count() <= before
+
+
+def test_scannet_label_filt_frames_map_through_the_label_table(tmp_path):
+    """ScanNet's label-filt/N.png hold raw ScanNet ids; with sequence.frame_label_map (e.g.
+    scannetv2-labels.combined.tsv) and a class list they become per-frame class labels."""
+    from mapping.sequences import read_scannet
+
+    root = write_scannet(tmp_path / "seq", n=2)
+    frames, _ = render_frames(2)
+    raw_of = {WALL: 1, FLOOR: 2, TABLE: 7, -1: 0}   # ScanNet raw ids of the room's classes (0: unlabelled)
+    for d in root.glob("semantic/*.png"):
+        d.unlink()
+    (root / "label-filt").mkdir()
+    for i, (_, _, labels, _) in enumerate(frames):
+        raw = np.vectorize(lambda c: raw_of.get(int(c), 0))(labels).astype(np.uint16)
+        cv2.imwrite(str(root / "label-filt" / f"{i}.png"), raw)
+    tsv = tmp_path / "scannetv2-labels.combined.tsv"
+    tsv.write_text("id\traw_category\tcategory\tnyu40id\tnyu40class\n1\twall\twall\t1\twall\n"
+                   "2\tfloor\tfloor\t2\tfloor\n7\tdining table\tdining table\t7\ttable\n")
+    assert all(f.semantic is None for f in read_scannet(root))           # no table: not read
+    seq = Sequence(root, "scannet", SequenceConfig(frame_label_map=str(tsv)))
+    assert not seq.has_semantic
+    seq.use_class_names(CLASSES)
+    assert seq.has_semantic
+    for f in seq.frames():
+        labels = frames[f.index][2]
+        expect = np.where(np.isin(labels, [WALL, FLOOR, TABLE]), labels, -1)   # the ceiling has no raw id here
+        np.testing.assert_array_equal(f.semantic, expect)
+    reg = Registration(intrinsics(80, 60), (80, 60), seq.k_depth, seq.depth_size)
+    assert reg.labels(expect) is expect                                   # already at the depth size
+    with pytest.raises(ValueError, match="label image is 3x3"):
+        reg.labels(np.zeros((3, 3), np.int64))

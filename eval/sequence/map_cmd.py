@@ -48,7 +48,9 @@ def logits_source(seq: Sequence, cfg: MapSequenceConfig, segmenter: str | None, 
         return PrecomputedLogits(LogitsDir(logits, seq, classes))
     from agent.segmenters import make_segmenter
 
-    return SegmenterLogits(make_segmenter(segmenter, cfg.segmenter, device=cfg.run.device), seq)
+    seg = make_segmenter(segmenter, cfg.segmenter, device=cfg.run.device)
+    seq.use_class_names(seg.class_names)   # label-filt/ frames (ScanNet) for gt / noisy
+    return SegmenterLogits(seg, seq)
 
 
 def map_sequence(seq: Sequence, source, mapping_cfg, progress: bool = False, vmap=None) -> MappedSequence:

@@ -160,6 +160,7 @@ class RecordedScan:
 
     def __init__(self, seq: Sequence, class_names: tuple[str, ...]):
         self.seq, self.class_names = seq, tuple(class_names)
+        seq.use_class_names(self.class_names)   # 2D labels from ScanNet's label-filt/ when mapped
         self.intrinsics = seq.k_depth
         self.ply = seq.labelled_ply()
         if self.ply is None:

@@ -1,36 +1,9 @@
-"""Recorded RGB-D sequences as a stream of posed frames (``SequenceFrame``), one reader per layout:
-
-- ``scannet`` (ScanNet's SensReader export): ``color/N.jpg`` (1296x968), ``depth/N.png``
-  (uint16, 640x480), ``pose/N.txt`` (4x4 camera-to-world), ``intrinsic/intrinsic_color.txt`` and
-  ``intrinsic/intrinsic_depth.txt`` (4x4; the top-left 3x3 is K). Optional: ``semantic/N.png``
-  (uint16 class id + 1, 0 = void, at colour resolution; written by ``calnav export-sequence``).
-  Ground truth: ``<scene>_vh_clean_2.labels.ply`` (per-vertex ``label``, NYU40 ids on ScanNet).
-- ``7scenes`` (7-Scenes / 3DMatch): ``frame-NNNNNN.color.{png,jpg}``, ``frame-NNNNNN.depth.png``
-  (uint16 millimetres, 0 = missing, 65535 = invalid), ``frame-NNNNNN.pose.txt`` and
-  ``camera-intrinsics.txt`` (3x3, in the sequence folder or its parent; colour and depth share it,
-  as in 3DMatch -- 7-Scenes' own colour is not registered to its depth: colours and colour-based
-  logits are then off by the sensors' baseline, a few pixels).
-
-Every reader streams: ``Sequence.frames()`` decodes one frame at a time, so memory does not grow
-with the recording. Frames whose pose is not finite (ScanNet writes rows of ``-inf`` where
-tracking failed) are skipped and listed in ``Sequence.skipped``; a clearly non-rigid pose
-raises ValueError naming the frame; nearly rigid ones are re-orthonormalised
-(``frame_geometry.check_pose``). Depth: raw / ``depth_scale`` metres, raw 0 and
-``invalid_depth_raw`` set to 0 (invalid), depth beyond ``depth_trunc_m`` set to 0.
-
-Colour and depth may differ in resolution (ScanNet): ``Registration`` resamples colour-camera
-images (rgb, labels, logits) onto the depth camera through the two intrinsics -- a depth pixel
-(u, v) reads the colour image at K_c K_d^-1 (u, v, 1) (the cameras share their optical centre,
-as in ScanNet's registered export). rgb is resampled bilinearly with ``cv2.remap``; class
-labels and logits by nearest neighbour (an index gather: any K, no blending of label ids);
-pixels falling outside the colour image get void / all-zero (uniform) logits. ``cv2.resize``
-is not used: it assumes the principal points scale with the image size, which ScanNet's do not.
-"""
+"""Sequence readers: ``SequenceConfig``, ``SequenceFrame``, ``Sequence`` (one opened recording,
+``scannet`` or ``7scenes`` layout) and the per-layout generators ``read_scannet`` /
+``read_7scenes``. See ``mapping.sequences`` for the layouts and conventions."""
 from __future__ import annotations
 
-import json
 import re
-from contextlib import nullcontext
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator, Literal
@@ -61,6 +34,7 @@ class SequenceConfig:
     label_distance_m: float = 0.05   # voxel ground truth: nearest labelled vertex within this distance, metres
     label_map: str = ""              # raw PLY label -> class name (.json / .tsv / .csv); "" = <seq>/label_map.json if present, else NYU40 names
     label_property: str = "label"    # integer vertex property of the labelled PLY holding the raw label
+    frame_label_map: str = ""        # raw id -> class name table (.tsv/.csv/.json) of ScanNet's label-filt/N.png; "" = label-filt not read
 
     def __post_init__(self) -> None:
         if not self.depth_scale > 0:
@@ -78,7 +52,7 @@ class SequenceFrame:
     """One posed RGB-D frame. index: frame number in the recording; rgb (H, W, 3) uint8 at the
     colour camera; depth (h, w) float32 metres (0 = invalid) at the depth camera; k_color /
     k_depth (3, 3) float64 pixels; pose (4, 4) float64 camera-to-world, OpenCV axes (rigid);
-    semantic (H, W) int64 class ids (-1 void) at the colour camera, or None."""
+    semantic int64 class ids (-1 void) at the colour (H, W) or the depth (h, w) size, or None."""
 
     index: int
     rgb: np.ndarray
@@ -155,10 +129,34 @@ class Sequence:
                              f"got {depth.dtype} with shape {depth.shape}")
         self.color_size = (rgb.shape[1], rgb.shape[0])    # (W, H) pixels
         self.depth_size = (depth.shape[1], depth.shape[0])
-        self.has_semantic = self._paths(first).get("semantic") is not None
+        self._has_labels = {k: self._paths(first).get(k) is not None for k in ("semantic", "label_raw")}
+        self._label_lut: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.ids)
+
+    @property
+    def has_semantic(self) -> bool:
+        """Whether frames carry class labels (``semantic/``, or ``label-filt/`` once mapped)."""
+        return self._has_labels["semantic"] or self._label_lut is not None
+
+    def use_class_names(self, class_names) -> None:
+        """Map ScanNet's ``label-filt/`` raw ids to indices of ``class_names`` through
+        ``cfg.frame_label_map`` (when both exist; ``semantic/`` frames take precedence)."""
+        from common.ply_labels import class_ids_of, class_index, int_keyed, read_label_table
+
+        if self._has_labels["semantic"] or not self._has_labels["label_raw"] or not self.cfg.frame_label_map:
+            return
+        table = int_keyed(read_label_table(self.cfg.frame_label_map))
+        ids = class_ids_of(class_names)
+        lut = np.full(max(table, default=0) + 1, VOID, np.int64)
+        for raw, name in table.items():
+            if raw >= 0 and (c := class_index(name, ids)) is not None:
+                lut[raw] = c
+        if not (lut != VOID).any():
+            raise ValueError(f"frame_label_map {self.cfg.frame_label_map}: no raw id maps to a class of "
+                             f"{', '.join(class_names)}")
+        self._label_lut = lut
 
     @property
     def name(self) -> str:
@@ -206,6 +204,10 @@ class Sequence:
         sem = None
         if paths.get("semantic") is not None:
             sem = _imread(paths["semantic"], cv2.IMREAD_UNCHANGED).astype(np.int64) - SEMANTIC_OFFSET
+        elif self._label_lut is not None and paths.get("label_raw") is not None:
+            raw_ids = _imread(paths["label_raw"], cv2.IMREAD_UNCHANGED).astype(np.int64)
+            lut = self._label_lut
+            sem = np.where(raw_ids < len(lut), lut[np.minimum(raw_ids, len(lut) - 1)], VOID)
         return SequenceFrame(index, rgb, depth, self.k_color, self.k_depth, pose, sem)
 
     def frames(self) -> Iterator[SequenceFrame]:
@@ -238,12 +240,13 @@ def _open_scannet(root: Path):
         missing = sorted(depth - have)
         if missing:
             raise ValueError(f"{root}: {len(missing)} depth frames have no {name} file, e.g. frame {missing[0]}")
-    sem_dir = root / "semantic"
-    sem = _numeric_stems(sem_dir, ".png")
+    sem_dir, raw_dir = root / "semantic", root / "label-filt"
+    sem, raw = _numeric_stems(sem_dir, ".png"), _numeric_stems(raw_dir, ".png")
 
     def paths(i: int) -> dict:
         return {"color": root / "color" / f"{i}{ext}", "depth": root / "depth" / f"{i}.png",
-                "pose": root / "pose" / f"{i}.txt", "semantic": sem_dir / f"{i}.png" if i in sem else None}
+                "pose": root / "pose" / f"{i}.txt", "semantic": sem_dir / f"{i}.png" if i in sem else None,
+                "label_raw": raw_dir / f"{i}.png" if i in raw else None}
 
     return sorted(depth), paths, k_color, k_depth
 
@@ -266,132 +269,20 @@ def _open_7scenes(root: Path):
 
     def paths(i: int) -> dict:
         return {"color": root / f"{name(i)}{ext}", "depth": root / f"{name(i)}.depth.png",
-                "pose": root / f"{name(i)}.pose.txt", "semantic": None}
+                "pose": root / f"{name(i)}.pose.txt", "semantic": None, "label_raw": None}
 
     return ids, paths, k, k.copy()
 
 
-class Registration:
-    """Colour camera -> depth camera resampling (see the module docstring). Identity (no copy)
-    when both cameras have the same K and size."""
-
-    def __init__(self, k_color: np.ndarray, color_size: tuple[int, int], k_depth: np.ndarray,
-                 depth_size: tuple[int, int]):
-        self.color_size, self.depth_size = tuple(color_size), tuple(depth_size)
-        self.identity = self.color_size == self.depth_size and np.allclose(k_color, k_depth, rtol=0, atol=1e-9)
-        if self.identity:
-            return
-        wd, hd = depth_size
-        wc, hc = color_size
-        v, u = np.mgrid[0:hd, 0:wd].astype(np.float64)
-        h = k_color @ np.linalg.inv(k_depth)
-        z = h[2, 0] * u + h[2, 1] * v + h[2, 2]
-        self.map_x = ((h[0, 0] * u + h[0, 1] * v + h[0, 2]) / z).astype(np.float32)
-        self.map_y = ((h[1, 0] * u + h[1, 1] * v + h[1, 2]) / z).astype(np.float32)
-        ui, vi = np.rint(self.map_x).astype(np.int64), np.rint(self.map_y).astype(np.int64)
-        self.inside = ((ui >= 0) & (ui < wc) & (vi >= 0) & (vi < hc)).ravel()
-        self.nearest = np.where(self.inside, vi.ravel() * wc + ui.ravel(), 0)
-
-    def rgb(self, rgb: np.ndarray) -> np.ndarray:
-        """(Hc, Wc, 3) uint8 -> (Hd, Wd, 3) uint8, bilinear (black outside the colour image)."""
-        if self.identity:
-            return rgb
-        return cv2.remap(rgb, self.map_x, self.map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
-
-    def labels(self, labels: np.ndarray) -> np.ndarray:
-        """(Hc, Wc) int class ids -> (Hd, Wd), nearest (void outside)."""
-        if self.identity:
-            return labels
-        out = np.where(self.inside, labels.ravel()[self.nearest], VOID)
-        return out.reshape(self.depth_size[1], self.depth_size[0])
-
-    def logits(self, logits: np.ndarray) -> np.ndarray:
-        """(Hc, Wc, K) -> (Hd, Wd, K) float32, nearest (all-zero = uniform outside)."""
-        if self.identity:
-            return logits
-        k = logits.shape[2]
-        out = np.take(logits.reshape(-1, k), self.nearest, axis=0).astype(np.float32, copy=False)
-        out[~self.inside] = 0.0
-        return out.reshape(self.depth_size[1], self.depth_size[0], k)
+def read_scannet(root, cfg: SequenceConfig | None = None) -> Iterator[SequenceFrame]:
+    """The frames of a ScanNet SensReader export, one at a time (validated on the first ``next``;
+    open a ``Sequence`` to validate first and to read ``skipped``)."""
+    yield from Sequence(root, "scannet", cfg).frames()
 
 
-def read_class_list(path) -> tuple[str, ...]:
-    """Class names from a .json file (a list, or {"class_names": [...]}) or a text file (one per line)."""
-    path = Path(path)
-    if not path.exists():
-        raise ValueError(f"class list not found: {path}")
-    if path.suffix.lower() == ".json":
-        data = json.loads(path.read_text())
-        names = data.get("class_names") if isinstance(data, dict) else data
-    else:
-        names = [line.strip() for line in path.read_text().splitlines() if line.strip()]
-    if not isinstance(names, list) or len(names) < 2 or not all(isinstance(n, str) for n in names):
-        raise ValueError(f"class list {path} must name at least 2 classes (a JSON list or one name per line)")
-    return tuple(names)
+def read_7scenes(root, cfg: SequenceConfig | None = None) -> Iterator[SequenceFrame]:
+    """The frames of a 7-Scenes / 3DMatch sequence folder, one at a time."""
+    yield from Sequence(root, "7scenes", cfg).frames()
 
 
-class LogitsDir:
-    """Precomputed per-frame logits ``<dir>/N.npy`` or ``N.npz`` (the array ``logits``, or the
-    only one), (H, W, K) float16 / float32 at the colour or the depth resolution, with the class
-    list in ``classes`` (default ``<dir>/classes.json`` or ``classes.txt``). The first frame is
-    checked when opened (K, size); every frame when read."""
-
-    def __init__(self, folder, seq: Sequence, classes=None):
-        self.folder = folder = Path(folder)
-        if not folder.is_dir():
-            raise ValueError(f"logits directory not found: {folder}")
-        if classes is None:
-            classes = next((folder / n for n in ("classes.json", "classes.txt") if (folder / n).exists()), None)
-            if classes is None:
-                raise ValueError(f"{folder} has no classes.json / classes.txt: pass the class list file with --classes")
-        self.class_names = read_class_list(classes)
-        self.sizes = {seq.color_size: "colour", seq.depth_size: "depth"}
-        self.get(seq.ids[0])
-
-    @property
-    def num_classes(self) -> int:
-        return len(self.class_names)
-
-    def get(self, index: int) -> np.ndarray:
-        """(H, W, K) float32 logits of frame ``index``."""
-        path = next((self.folder / f"{index}{s}" for s in (".npy", ".npz") if (self.folder / f"{index}{s}").exists()), None)
-        if path is None:
-            raise ValueError(f"no logits for frame {index}: expected {self.folder}/{index}.npy or .npz")
-        with (np.load(path) if path.suffix == ".npz" else nullcontext(np.load(path))) as data:
-            arr = data if isinstance(data, np.ndarray) else data["logits" if "logits" in data.files else data.files[0]]
-        if arr.ndim != 3 or arr.dtype not in (np.float16, np.float32):
-            raise ValueError(f"logits {path} must be (H, W, K) float16 / float32, got {arr.dtype} {arr.shape}")
-        if arr.shape[2] != self.num_classes:
-            raise ValueError(f"logits {path} have K = {arr.shape[2]} classes, the class list names {self.num_classes}")
-        size = (arr.shape[1], arr.shape[0])
-        if size not in self.sizes:
-            valid = " or ".join(f"{w}x{h} ({what})" for (w, h), what in self.sizes.items())
-            raise ValueError(f"logits {path} are {size[0]}x{size[1]} pixels; expected {valid}")
-        return arr.astype(np.float32, copy=False)
-
-
-
-def vertex_ground_truth(ply_path, class_names, cfg: SequenceConfig, seq_root=None) -> tuple[np.ndarray, np.ndarray]:
-    """(vertices (V, 3) float64 m, class per vertex (V,) int64 index into ``class_names``, -1
-    void) of a labelled PLY. Raw labels (``cfg.label_property``) map to names through
-    ``cfg.label_map``: a .json / .tsv / .csv file, ``nyu40`` (ScanNet's NYU40 ids), or "" =
-    ``<seq_root>/label_map.json`` when present, else ``nyu40``; names match ``class_names``
-    exactly, then by synonym (``common.ply_labels``). Raises ValueError when nothing maps."""
-    from common.ply_labels import NYU40_NAMES, class_ids_of, class_index, int_keyed, read_label_table, read_vertex_labels
-
-    vertices, raw = read_vertex_labels(ply_path, cfg.label_property)
-    source = cfg.label_map
-    if not source and seq_root is not None and (Path(seq_root) / "label_map.json").exists():
-        source = str(Path(seq_root) / "label_map.json")
-    if not source or source == "nyu40":
-        table, source = {i + 1: n for i, n in enumerate(NYU40_NAMES)}, "nyu40"
-    else:
-        table = int_keyed(read_label_table(source))
-    ids = class_ids_of(class_names)
-    values, inverse = np.unique(raw, return_inverse=True)
-    lut = np.array([c if (c := class_index(table.get(int(v)), ids)) is not None else VOID for v in values], np.int64)
-    classes = lut[inverse.ravel()] if len(values) else np.zeros(0, np.int64)
-    if not (classes != VOID).any():
-        raise ValueError(f"{ply_path}: none of its labels {values[:20].tolist()} maps to a class of "
-                         f"{', '.join(class_names)} through the label map {source}")
-    return vertices, classes
+LAYOUTS = {"scannet": read_scannet, "7scenes": read_7scenes}   # layout name -> frame generator
