@@ -8,11 +8,13 @@ raw labels to calnav classes:
 - ``label_map`` None: the raw labels already are calnav class ids (out of range -> void).
 - ``label_map`` a dict ``{raw id: class name}`` (keys may be ints or digit strings), or a path
   to a ``.json`` file holding such a dict (or a list of ``{"id": .., "name": ..}`` records),
-  or a ``.tsv``/``.csv`` file with a header: the id column is the first of ``ID_COLUMNS``
+  or a ``.tsv``/``.csv`` file with a header: the id column is the first of ``common.ply_labels.ID_COLUMNS``
   found, the name column the first of ``NAME_COLUMNS`` (ScanNet's
   ``scannetv2-labels.combined.tsv`` works: ``id`` -> ``nyu40class``).
-- Names are matched case-insensitively against calnav's classes and ``SYNONYMS`` (couch ->
-  sofa, television -> tv_monitor, ...); anything else, and unmapped ids, become void.
+- Names are matched case-insensitively against calnav's classes and ``common.ply_labels.SYNONYMS``
+  (couch -> sofa, television -> tv_monitor, ...); anything else, and unmapped ids, become void.
+  (The label-table reading and name matching live in ``common.ply_labels``, shared with the
+  map evaluation of recorded sequences.)
 
 Per-vertex labels become per-face by majority vote of the face's vertices (ties: the first
 vertex). The mesh is rotated to z-up (``up_axis="y"``) and shifted so that its floor lies at
@@ -22,8 +24,6 @@ without one, from connected components of same-class faces sharing a vertex.
 """
 from __future__ import annotations
 
-import csv
-import json
 import os
 from pathlib import Path
 
@@ -31,60 +31,28 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
+from common.ply_labels import class_ids_of, class_index, int_keyed, read_label_table
 from envs.scene import Scene, SceneError, Texture
 from envs.semantics import CLASS_ID, CLASS_NAMES, NUM_CLASSES, VOID
 
 INSTANCE_PROPERTIES = ("instance", "objectId", "object_id", "instance_id", "objectid")
-ID_COLUMNS = ("id", "raw_id", "label_id", "label", "nyu40id", "index")
-NAME_COLUMNS = ("calnav", "class", "class_name", "category", "nyu40class", "name", "raw_category")
-SYNONYMS = {
-    "couch": "sofa", "sofa chair": "chair", "armchair": "chair", "office chair": "chair", "seat": "chair",
-    "potted plant": "plant", "houseplant": "plant", "flower pot": "plant",
-    "tv": "tv_monitor", "television": "tv_monitor", "monitor": "tv_monitor", "tv monitor": "tv_monitor",
-    "computer monitor": "tv_monitor", "screen": "tv_monitor",
-    "bookshelf": "shelf", "bookcase": "shelf", "shelves": "shelf", "shelving": "shelf",
-    "dresser": "cabinet", "night stand": "cabinet", "nightstand": "cabinet", "wardrobe": "cabinet",
-    "kitchen cabinets": "cabinet", "kitchen cabinet": "cabinet", "cupboard": "cabinet",
-    "kitchen counter": "counter", "countertop": "counter", "bath": "bathtub", "tub": "bathtub",
-    "dining table": "table", "coffee table": "table", "end table": "table", "ottoman": "stool",
-    "floor mat": "floor", "carpet": "floor", "rug": "floor", "doorframe": "door",
-}
 FLOOR_PERCENTILE = 2.0     # floor height = this percentile of floor-vertex z (robust to stray points), percent
 DEFAULT_ALBEDO = 180       # grey level of faces when the file has no colours, uint8
+_CALNAV_IDS = class_ids_of(CLASS_NAMES)
 
 
 def _class_of_name(name) -> int:
     """calnav class id of a (possibly synonymous) name; VOID when it names no calnav class."""
-    if name is None:
-        return VOID
-    key = str(name).strip().lower().replace("-", " ")
-    key = SYNONYMS.get(key, key).replace(" ", "_")
-    return CLASS_ID.get(key, VOID)
+    found = class_index(name, _CALNAV_IDS)
+    return VOID if found is None else found
 
 
 def _read_label_table(path: Path) -> dict:
     """``{raw id or name: class name}`` from a .json / .tsv / .csv label-map file."""
-    if not path.exists():
-        raise SceneError(f"label map file not found: {path}")
     try:
-        if path.suffix.lower() == ".json":
-            data = json.loads(path.read_text())
-            if isinstance(data, list):
-                data = {rec["id"]: rec["name"] for rec in data}
-            if not isinstance(data, dict):
-                raise ValueError("expected an object {raw id: class name} or a list of {id, name} records")
-            return data
-        with path.open(newline="") as f:
-            rows = list(csv.DictReader(f, delimiter="\t" if path.suffix.lower() == ".tsv" else ","))
-    except (ValueError, KeyError, TypeError, csv.Error) as exc:
-        raise SceneError(f"unreadable label map {path}: {exc}") from exc
-    header = list(rows[0].keys()) if rows else []
-    id_col = next((c for c in ID_COLUMNS if c in header), None)
-    name_col = next((c for c in NAME_COLUMNS if c in header), None)
-    if id_col is None or name_col is None:
-        raise SceneError(f"label map {path} needs an id column (one of {ID_COLUMNS}) and a name column "
-                         f"(one of {NAME_COLUMNS}); its header is {header}")
-    return {row[id_col]: row[name_col] for row in rows}
+        return read_label_table(path)
+    except ValueError as exc:
+        raise SceneError(str(exc)) from exc
 
 
 def _label_lut(raw: np.ndarray, label_map) -> dict[int, int]:
@@ -94,12 +62,7 @@ def _label_lut(raw: np.ndarray, label_map) -> dict[int, int]:
         return {v: (v if 0 <= v < NUM_CLASSES else VOID) for v in values}
     if isinstance(label_map, (str, os.PathLike)):
         label_map = _read_label_table(Path(label_map))
-    by_key = {}
-    for k, name in dict(label_map).items():
-        try:
-            by_key[int(k)] = _class_of_name(name)
-        except (TypeError, ValueError):
-            continue   # a non-numeric key cannot match an integer label
+    by_key = {k: _class_of_name(name) for k, name in int_keyed(label_map).items()}
     return {v: by_key.get(v, VOID) for v in values}
 
 

@@ -72,6 +72,36 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quick", action="store_true", help="small preset (3/1/3 houses, short fits), <= 5 minutes")
     p.add_argument("--output", default=None, help="results directory (default: run.output_dir)")
     p.add_argument("--force", action="store_true", help="discard results of a different config in --output")
+    p.add_argument("--sequences", default=None, metavar="LIST",
+                   help="recorded sequences instead of calnav's houses: a list file of '<role> <dir> [layout]' lines "
+                        "(role: calib_train | calib_val | test); shorthand for sequences.list=LIST")
+
+    p = sub.add_parser("map", help="fuse a recorded RGB-D sequence (ScanNet / 7-Scenes layout) into a semantic map "
+                                   "and score it against a labelled mesh")
+    p.add_argument("sequence_dir", help="the recording's directory")
+    p.add_argument("--layout", required=True, choices=("scannet", "7scenes"), help="file layout of the recording")
+    p.add_argument("--segmenter", default=None, metavar="NAME",
+                   help="calnav segmenter run on every frame (gt | noisy | learned_rgb | learned_rgbd)")
+    p.add_argument("--logits", default=None, metavar="DIR", help="precomputed logits DIR/N.npy|.npz (H, W, K)")
+    p.add_argument("--classes", default=None, metavar="FILE",
+                   help="class list of --logits (.json list or one name per line; default DIR/classes.json|.txt)")
+    p.add_argument("--labels-ply", default=None, metavar="PLY",
+                   help="labelled ground-truth mesh (default: *_vh_clean_2.labels.ply in the sequence directory)")
+    p.add_argument("--config", default=None, help="YAML config (default: configs/map_sequence.yaml)")
+    p.add_argument("--output", required=True, help="results directory")
+    p.add_argument("overrides", nargs="*", metavar="KEY=VALUE",
+                   help="dotted config overrides, e.g. mapping.fusion=glfs sequence.frame_stride=2")
+
+    p = sub.add_parser("export-sequence", help="write calnav's own frames (a house's calibration scan) in "
+                                               "ScanNet layout, with a labelled mesh")
+    _add_config_args(p, "configs/calibrate_map.yaml")
+    p.add_argument("--scene", default="house_val_0000", help="scene id (default: house_val_0000)")
+    p.add_argument("--frames", type=int, default=0, help="scan length, frames (default: the config's scan.frames)")
+    p.add_argument("--resolution", default="640x480", help="frame size WxH, pixels (default 640x480)")
+    p.add_argument("--max-edge", type=float, default=0.05,
+                   help="ground-truth mesh: longest edge after subdivision, metres (default 0.05)")
+    p.add_argument("--output", required=True, help="output directory (must be empty unless --force)")
+    p.add_argument("--force", action="store_true", help="write into a non-empty --output")
 
     p = sub.add_parser("fit-glfs", help="record calibration scans and train GLFS parameters for one segmenter")
     _add_config_args(p, "configs/calibrate_map.yaml")
@@ -113,6 +143,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "eval-segmenter": ("eval.segmenter.evaluate", "main_eval_segmenter"),
     "calibrate-map": ("eval.calibration.study", "main_calibrate_map"),
     "fit-glfs": ("eval.calibration.study", "main_fit_glfs"),
+    "map": ("eval.sequence.map_cmd", "main_map"),
+    "export-sequence": ("eval.sequence.export", "main_export_sequence"),
     "tune": ("eval.objectnav.tune", "main_tune"),
     "compare": ("eval.objectnav.compare", "main_compare"),
     "demo": ("eval.objectnav.demo", "main_demo"),

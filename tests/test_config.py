@@ -18,9 +18,11 @@ def test_defaults_and_dotted_overrides():
 def test_every_shipped_config_loads():
     from eval.calibration.config import CalibrateMapConfig
     from eval.segmenter.data import SegmenterExperimentConfig
+    from eval.sequence.config import MapSequenceConfig
 
     # experiments with their own schema
-    special = {"segmenter.yaml": SegmenterExperimentConfig, "calibrate_map.yaml": CalibrateMapConfig}
+    special = {"segmenter.yaml": SegmenterExperimentConfig, "calibrate_map.yaml": CalibrateMapConfig,
+               "map_sequence.yaml": MapSequenceConfig}
     files = sorted(CONFIG_DIR.glob("*.yaml"))
     assert files
     for path in files:

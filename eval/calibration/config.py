@@ -11,6 +11,8 @@ from envs.trajectories import ScanConfig
 from eval.config import RunConfig
 from mapping.config import FUSION_NAMES, MappingConfig
 from mapping.calibration.glfs_train import GLFSTrainConfig
+from mapping.sequences import SequenceConfig
+from eval.sequence.config import SequenceSetConfig
 
 CALIBRATIONS: tuple[str, ...] = ("none", "temperature_2d", "temperature_3d", "vector_3d")
 LEARNED_SEGMENTERS: tuple[str, ...] = ("learned_rgb", "learned_rgbd")
@@ -63,3 +65,5 @@ class CalibrateMapConfig:
     scan: ScanConfig = field(default_factory=ScanConfig)
     study: StudyConfig = field(default_factory=StudyConfig)
     glfs: GLFSTrainConfig = field(default_factory=GLFSTrainConfig)
+    sequences: SequenceSetConfig = field(default_factory=SequenceSetConfig)  # recorded sequences instead of houses
+    sequence: SequenceConfig = field(default_factory=SequenceConfig)      # how recorded sequences are read

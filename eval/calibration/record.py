@@ -1,7 +1,10 @@
-"""Recording the map-calibration data: each house is scanned once (``envs.trajectories``), every
+"""Recording the map-calibration data: each house is scanned (``envs.trajectories``), every
 frame is segmented by each segmenter, and a semantic voxel map with an observation cache
 records every voxel observation (logits, distance, incidence angle). Voxels are labelled from
-the house mesh. Per house and segmenter two files are written (atomically, so a rerun skips
+the house mesh. The frames come from a frame source (``frame_source``): ``HouseScan`` renders a
+house's scan batch by batch (once per segmenter: rendering is cheap next to segmenting, and
+no scan is held in memory); ``eval.sequence.source.RecordedScan`` reads a recorded sequence of
+``sequences.list`` and labels voxels from its labelled mesh. Per house and segmenter two files are written (atomically, so a rerun skips
 finished houses):
 
 - ``<scene>.cache.npz``: the ``ObsCache`` (what 3D scaling and GLFS re-fuse);
@@ -24,11 +27,17 @@ ROLES = ("calib_train", "calib_val", "test")
 
 
 def role_scene_ids(cfg: CalibrateMapConfig) -> dict[str, list[str]]:
-    """{role: scene ids}: procedural houses from the ``calib`` / ``test`` splits, or the user
-    scene folders train / val / test when ``env.dataset.scene_dir`` is set."""
+    """{role: scene ids}: procedural houses from the ``calib`` / ``test`` splits, the user
+    scene folders train / val / test when ``env.dataset.scene_dir`` is set, or the recorded
+    sequences of ``sequences.list`` (all of them: the study's house counts do not apply)."""
     from envs.scenes import split_scene_ids
 
     st, ds = cfg.study, cfg.env.dataset
+    if cfg.sequences.list:
+        from eval.sequence.source import read_sequence_list
+
+        listed = read_sequence_list(cfg.sequences.list, cfg.sequences.layout)
+        return {role: [sid for sid, _, _ in listed[role]] for role in ROLES}
     if ds.scene_dir:
         ids = {role: split_scene_ids(split, ds) for role, split in zip(ROLES, ("train", "val", "test"))}
         for role, n in zip(ROLES, (st.calib_train_scenes, st.calib_val_scenes, st.test_scenes)):
@@ -51,28 +60,50 @@ def scene_files(out_dir: Path, segmenter: str, scene_id: str) -> tuple[Path, Pat
     return d / f"{scene_id}.cache.npz", d / f"{scene_id}.pixels.npz"
 
 
-def _scan_frames(cfg: CalibrateMapConfig, scene_id: str, seed: int):
-    """(scene, camera intrinsics, poses (F, 4, 4), rgb (F, H, W, 3), depth (F, H, W), semantic (F, H, W))."""
-    from envs.navigation import NavGrid
-    from envs.render import Camera, Renderer
-    from envs.scenes import load_scene
-    from envs.trajectories import scan_poses
+class HouseScan:
+    """Frame source of one procedural (or user) house: its calibration scan (``envs.trajectories``),
+    rendered a batch at a time. ``class_names``, ``intrinsics`` (3, 3), ``len()`` frames;
+    ``batches(n)`` yields (rgb (B, H, W, 3) uint8, depth (B, H, W) float32 m, semantic (B, H, W)
+    int16 class or -1, poses (B, 4, 4) world-from-camera); ``label(cache)`` labels an ``ObsCache``
+    from the house mesh. ``eval.sequence.source.RecordedScan`` is the same for a recording."""
 
-    env = cfg.env
-    scene = load_scene(scene_id, dataset_for(cfg))
-    w, h = env.resolution
-    camera = Camera(width=w, height=h, hfov_deg=env.hfov_deg)
-    renderer = Renderer(scene, camera, min_depth_m=env.min_depth_m, max_depth_m=env.max_depth_m)
-    grid = NavGrid.build(scene, env, raycasting_scene=renderer.raycasting_scene)
-    poses = scan_poses(scene, grid, env, cfg.scan, seed=seed)
-    n = len(poses)
-    rgb, depth = np.empty((n, h, w, 3), np.uint8), np.empty((n, h, w), np.float32)
-    sem = np.empty((n, h, w), np.int16)
-    for i, pose in enumerate(poses):
-        fr = renderer.render(pose)
-        rgb[i], depth[i] = fr.rgb, fr.depth
-        sem[i] = np.where((fr.semantic >= 0) & (fr.semantic < len(scene.class_names)), fr.semantic, -1)
-    return scene, camera.intrinsics, poses, rgb, depth, sem
+    def __init__(self, cfg: CalibrateMapConfig, scene_id: str, seed: int):
+        from envs.navigation import NavGrid
+        from envs.render import Camera, Renderer
+        from envs.scenes import load_scene
+        from envs.trajectories import scan_poses
+
+        env = cfg.env
+        self.scene = scene = load_scene(scene_id, dataset_for(cfg))
+        w, h = env.resolution
+        camera = Camera(width=w, height=h, hfov_deg=env.hfov_deg)
+        self.renderer = Renderer(scene, camera, min_depth_m=env.min_depth_m, max_depth_m=env.max_depth_m)
+        grid = NavGrid.build(scene, env, raycasting_scene=self.renderer.raycasting_scene)
+        self.poses = scan_poses(scene, grid, env, cfg.scan, seed=seed)
+        self.intrinsics = camera.intrinsics
+        self.class_names = tuple(scene.class_names)
+
+    def __len__(self) -> int:
+        return len(self.poses)
+
+    def batches(self, size: int):
+        k = len(self.class_names)
+        for s in range(0, len(self.poses), size):
+            frames = [self.renderer.render(p) for p in self.poses[s:s + size]]
+            sem = np.stack([np.where((f.semantic >= 0) & (f.semantic < k), f.semantic, -1) for f in frames])
+            yield (np.stack([f.rgb for f in frames]), np.stack([f.depth for f in frames]), sem.astype(np.int16),
+                   self.poses[s:s + size])
+
+    def label(self, cache: ObsCache) -> None:
+        cache.label_from_mesh(self.scene.vertices, self.scene.triangles, self.scene.tri_class)
+
+
+def frame_source(cfg: CalibrateMapConfig, scene_id: str, seed: int):
+    """The frames of ``scene_id``: a recorded sequence of ``sequences.list`` when it names one,
+    else a calnav house scan."""
+    from eval.sequence.source import recorded_scan
+
+    return recorded_scan(cfg, scene_id) or HouseScan(cfg, scene_id, seed)
 
 
 def _save_pixels(path: Path, logits: np.ndarray, labels: np.ndarray) -> None:
@@ -88,23 +119,22 @@ def record_scene(cfg: CalibrateMapConfig, scene_id: str, segmenters: dict, out_d
     todo = [n for n in segmenters if not all(p.exists() for p in scene_files(out_dir, n, scene_id))]
     if not todo:
         return []
-    scene, intrinsics, poses, rgb, depth, sem = _scan_frames(cfg, scene_id, seed)
+    src = frame_source(cfg, scene_id, seed)
     rng = np.random.default_rng([seed, 1])
     map_cfg = dataclasses.replace(cfg.mapping, fusion="rbu", weighting="none", glfs_params="")
-    k = len(scene.class_names)
+    names = src.class_names
+    k = len(names)
     for name in todo:
         seg = segmenters[name]
-        if tuple(seg.class_names) != tuple(scene.class_names):
-            raise ValueError(f"segmenter {name} predicts classes {seg.class_names}, the scene {scene_id} has {scene.class_names}")
-        cache = ObsCache(k, map_cfg.voxel_size_m, cap=cfg.study.cache_cap, seed=seed, class_names=scene.class_names)
-        vmap = SemanticVoxelMap(k, map_cfg, class_names=scene.class_names, obs_cache=cache)
+        if tuple(seg.class_names) != tuple(names):
+            raise ValueError(f"segmenter {name} predicts classes {seg.class_names}, the scene {scene_id} has {names}")
+        cache = ObsCache(k, map_cfg.voxel_size_m, cap=cfg.study.cache_cap, seed=seed, class_names=names)
+        vmap = SemanticVoxelMap(k, map_cfg, class_names=names, obs_cache=cache)
         pix_logits, pix_labels = [], []
-        for s in range(0, len(poses), SEGMENT_BATCH):
-            sl = slice(s, s + SEGMENT_BATCH)
-            logits = seg.segment_batch(rgb[sl], depth[sl], semantic=sem[sl], poses=poses[sl])
-            for i, lg in enumerate(logits):
-                f = s + i
-                vmap.integrate(depth[f], intrinsics, poses[f], lg)
+        for rgb, depth, sem, poses in src.batches(SEGMENT_BATCH):
+            logits = seg.segment_batch(rgb, depth, semantic=sem, poses=poses)
+            for f, lg in enumerate(logits):
+                vmap.integrate(depth[f], src.intrinsics, poses[f], lg)
                 valid = np.flatnonzero(sem[f].ravel() >= 0)
                 if len(valid):
                     pick = rng.choice(valid, min(cfg.study.pixels_per_frame, len(valid)), replace=False)
@@ -112,7 +142,9 @@ def record_scene(cfg: CalibrateMapConfig, scene_id: str, segmenters: dict, out_d
                     pix_labels.append(sem[f].ravel()[pick])
         if len(cache) == 0:
             raise ValueError(f"scan of {scene_id} observed no voxel (empty observation cache)")
-        cache.label_from_mesh(scene.vertices, scene.triangles, scene.tri_class)
+        if not pix_labels:
+            raise ValueError(f"{scene_id} has no labelled pixels (no semantic frames) for 2D scaling and pixel mECE")
+        src.label(cache)
         cache_path, pix_path = scene_files(out_dir, name, scene_id)
         cache_path.parent.mkdir(parents=True, exist_ok=True)
         _save_pixels(pix_path, np.concatenate(pix_logits), np.concatenate(pix_labels))

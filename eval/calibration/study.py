@@ -223,6 +223,8 @@ def run_calibrate_map(cfg: CalibrateMapConfig, out: Path, force: bool = False, p
 def main_calibrate_map(args) -> None:
     check_command(args, "calibrate-map")  # every file the config names, before anything is written
     overrides = (list(QUICK_OVERRIDES) if args.quick else []) + list(args.overrides)
+    if getattr(args, "sequences", None):
+        overrides.append(f"sequences.list={Path(args.sequences).resolve()}")
     cfg = load_config(args.config, overrides, cls=CalibrateMapConfig)
     out = Path(args.output or (cfg.run.output_dir + "_quick" if args.quick else cfg.run.output_dir))
     rows = run_calibrate_map(cfg, out, force=args.force)

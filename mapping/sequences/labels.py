@@ -1,0 +1,93 @@
+"""Class information of a recording: precomputed logits (``LogitsDir``) with their class list
+(``read_class_list``), and per-vertex ground truth of its labelled mesh (``vertex_ground_truth``)."""
+from __future__ import annotations
+
+import json
+from contextlib import nullcontext
+from pathlib import Path
+
+import numpy as np
+
+from mapping.sequences.readers import VOID, SequenceConfig
+
+
+def read_class_list(path) -> tuple[str, ...]:
+    """Class names from a .json file (a list, or {"class_names": [...]}) or a text file (one per line)."""
+    path = Path(path)
+    if not path.exists():
+        raise ValueError(f"class list not found: {path}")
+    if path.suffix.lower() == ".json":
+        data = json.loads(path.read_text())
+        names = data.get("class_names") if isinstance(data, dict) else data
+    else:
+        names = [line.strip() for line in path.read_text().splitlines() if line.strip()]
+    if not isinstance(names, list) or len(names) < 2 or not all(isinstance(n, str) for n in names):
+        raise ValueError(f"class list {path} must name at least 2 classes (a JSON list or one name per line)")
+    return tuple(names)
+
+
+class LogitsDir:
+    """Precomputed per-frame logits ``<dir>/N.npy`` or ``N.npz`` (the array ``logits``, or the
+    only one), (H, W, K) float16 / float32 at the colour or the depth resolution, with the class
+    list in ``classes`` (default ``<dir>/classes.json`` or ``classes.txt``). The first frame is
+    checked when opened (K, size); every frame when read."""
+
+    def __init__(self, folder, seq: Sequence, classes=None):
+        self.folder = folder = Path(folder)
+        if not folder.is_dir():
+            raise ValueError(f"logits directory not found: {folder}")
+        if classes is None:
+            classes = next((folder / n for n in ("classes.json", "classes.txt") if (folder / n).exists()), None)
+            if classes is None:
+                raise ValueError(f"{folder} has no classes.json / classes.txt: pass the class list file with --classes")
+        self.class_names = read_class_list(classes)
+        self.sizes = {seq.color_size: "colour", seq.depth_size: "depth"}
+        self.get(seq.ids[0])
+
+    @property
+    def num_classes(self) -> int:
+        return len(self.class_names)
+
+    def get(self, index: int) -> np.ndarray:
+        """(H, W, K) float32 logits of frame ``index``."""
+        path = next((self.folder / f"{index}{s}" for s in (".npy", ".npz") if (self.folder / f"{index}{s}").exists()), None)
+        if path is None:
+            raise ValueError(f"no logits for frame {index}: expected {self.folder}/{index}.npy or .npz")
+        with (np.load(path) if path.suffix == ".npz" else nullcontext(np.load(path))) as data:
+            arr = data if isinstance(data, np.ndarray) else data["logits" if "logits" in data.files else data.files[0]]
+        if arr.ndim != 3 or arr.dtype not in (np.float16, np.float32):
+            raise ValueError(f"logits {path} must be (H, W, K) float16 / float32, got {arr.dtype} {arr.shape}")
+        if arr.shape[2] != self.num_classes:
+            raise ValueError(f"logits {path} have K = {arr.shape[2]} classes, the class list names {self.num_classes}")
+        size = (arr.shape[1], arr.shape[0])
+        if size not in self.sizes:
+            valid = " or ".join(f"{w}x{h} ({what})" for (w, h), what in self.sizes.items())
+            raise ValueError(f"logits {path} are {size[0]}x{size[1]} pixels; expected {valid}")
+        return arr.astype(np.float32, copy=False)
+
+
+
+def vertex_ground_truth(ply_path, class_names, cfg: SequenceConfig, seq_root=None) -> tuple[np.ndarray, np.ndarray]:
+    """(vertices (V, 3) float64 m, class per vertex (V,) int64 index into ``class_names``, -1
+    void) of a labelled PLY. Raw labels (``cfg.label_property``) map to names through
+    ``cfg.label_map``: a .json / .tsv / .csv file, ``nyu40`` (ScanNet's NYU40 ids), or "" =
+    ``<seq_root>/label_map.json`` when present, else ``nyu40``; names match ``class_names``
+    exactly, then by synonym (``common.ply_labels``). Raises ValueError when nothing maps."""
+    from common.ply_labels import NYU40_NAMES, class_ids_of, class_index, int_keyed, read_label_table, read_vertex_labels
+
+    vertices, raw = read_vertex_labels(ply_path, cfg.label_property)
+    source = cfg.label_map
+    if not source and seq_root is not None and (Path(seq_root) / "label_map.json").exists():
+        source = str(Path(seq_root) / "label_map.json")
+    if not source or source == "nyu40":
+        table, source = {i + 1: n for i, n in enumerate(NYU40_NAMES)}, "nyu40"
+    else:
+        table = int_keyed(read_label_table(source))
+    ids = class_ids_of(class_names)
+    values, inverse = np.unique(raw, return_inverse=True)
+    lut = np.array([c if (c := class_index(table.get(int(v)), ids)) is not None else VOID for v in values], np.int64)
+    classes = lut[inverse.ravel()] if len(values) else np.zeros(0, np.int64)
+    if not (classes != VOID).any():
+        raise ValueError(f"{ply_path}: none of its labels {values[:20].tolist()} maps to a class of "
+                         f"{', '.join(class_names)} through the label map {source}")
+    return vertices, classes

@@ -1,0 +1,288 @@
+"""Sequence readers: ``SequenceConfig``, ``SequenceFrame``, ``Sequence`` (one opened recording,
+``scannet`` or ``7scenes`` layout) and the per-layout generators ``read_scannet`` /
+``read_7scenes``. See ``mapping.sequences`` for the layouts and conventions."""
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterator, Literal
+
+import cv2
+import numpy as np
+
+from mapping import frame_geometry as fg
+
+LayoutName = Literal["scannet", "7scenes"]
+LAYOUT_NAMES: tuple[str, ...] = LayoutName.__args__  # type: ignore[attr-defined]
+SCANNET_EXPECTED = "color/N.jpg, depth/N.png, pose/N.txt, intrinsic/intrinsic_color.txt, intrinsic/intrinsic_depth.txt"
+SEVEN_EXPECTED = "frame-NNNNNN.color.png|jpg, frame-NNNNNN.depth.png, frame-NNNNNN.pose.txt, camera-intrinsics.txt"
+SEVEN_FRAME = re.compile(r"^frame-(\d+)\.depth\.png$")
+VOID = -1
+SEMANTIC_OFFSET = 1   # semantic PNGs store class id + 1 (0 = void) in uint16
+
+
+@dataclass
+class SequenceConfig:
+    """How a recorded sequence is read (YAML section ``sequence``)."""
+
+    depth_scale: float = 1000.0      # raw depth units per metre (ScanNet / 7-Scenes: millimetres -> 1000)
+    depth_trunc_m: float = 0.0       # depth beyond this is invalid, metres; 0 = no truncation (mapping.depth_max_m still applies)
+    invalid_depth_raw: int = 65535   # raw depth value that means invalid besides 0 (7-Scenes: 65535), raw units
+    frame_stride: int = 1            # use every N-th frame of the recording, frames
+    max_frames: int = 0              # use at most this many frames (after the stride); 0 = all, frames
+    label_distance_m: float = 0.05   # voxel ground truth: nearest labelled vertex within this distance, metres
+    label_map: str = ""              # raw PLY label -> class name (.json / .tsv / .csv); "" = <seq>/label_map.json if present, else NYU40 names
+    label_property: str = "label"    # integer vertex property of the labelled PLY holding the raw label
+    frame_label_map: str = ""        # raw id -> class name table (.tsv/.csv/.json) of ScanNet's label-filt/N.png; "" = label-filt not read
+
+    def __post_init__(self) -> None:
+        if not self.depth_scale > 0:
+            raise ValueError(f"sequence.depth_scale must be > 0, got {self.depth_scale}")
+        if self.depth_trunc_m < 0 or self.max_frames < 0:
+            raise ValueError("sequence.depth_trunc_m and sequence.max_frames must be >= 0")
+        if self.frame_stride < 1:
+            raise ValueError(f"sequence.frame_stride must be >= 1, got {self.frame_stride}")
+        if not self.label_distance_m > 0:
+            raise ValueError(f"sequence.label_distance_m must be > 0, got {self.label_distance_m}")
+
+
+@dataclass
+class SequenceFrame:
+    """One posed RGB-D frame. index: frame number in the recording; rgb (H, W, 3) uint8 at the
+    colour camera; depth (h, w) float32 metres (0 = invalid) at the depth camera; k_color /
+    k_depth (3, 3) float64 pixels; pose (4, 4) float64 camera-to-world, OpenCV axes (rigid);
+    semantic int64 class ids (-1 void) at the colour (H, W) or the depth (h, w) size, or None."""
+
+    index: int
+    rgb: np.ndarray
+    depth: np.ndarray
+    k_color: np.ndarray
+    k_depth: np.ndarray
+    pose: np.ndarray
+    semantic: np.ndarray | None = None
+
+
+def read_intrinsics(path: Path) -> np.ndarray:
+    """(3, 3) float64 K from a 3x3 or 4x4 text matrix."""
+    if not path.exists():
+        raise ValueError(f"missing intrinsics: {path} not found")
+    try:
+        m = np.loadtxt(path, dtype=np.float64, ndmin=2)
+    except ValueError as exc:
+        raise ValueError(f"unreadable intrinsics {path}: {exc}") from exc
+    if m.shape not in ((3, 3), (4, 4)):
+        raise ValueError(f"intrinsics {path} must be a 3x3 or 4x4 matrix, got shape {m.shape}")
+    try:
+        return fg.check_intrinsics(m[:3, :3])
+    except ValueError as exc:
+        raise ValueError(f"intrinsics {path}: {exc}") from exc
+
+
+def depth_from_raw(raw: np.ndarray, cfg: SequenceConfig) -> np.ndarray:
+    """(h, w) float32 metres of a raw uint16 depth image: raw / depth_scale; raw 0 and
+    ``invalid_depth_raw`` -> 0, beyond ``depth_trunc_m`` (when > 0) -> 0."""
+    depth = raw.astype(np.float32) * np.float32(1.0 / cfg.depth_scale)
+    bad = (raw == 0) | (raw == cfg.invalid_depth_raw)
+    if cfg.depth_trunc_m > 0:
+        bad |= depth > cfg.depth_trunc_m
+    depth[bad] = 0.0
+    return depth
+
+
+def _imread(path: Path, flags: int) -> np.ndarray:
+    img = cv2.imread(str(path), flags)
+    if img is None:
+        raise ValueError(f"cannot decode image {path}")
+    return img
+
+
+class Sequence:
+    """An opened (validated) recording: ``ids`` the frame numbers used (stride, max_frames,
+    valid pose), ``skipped`` those dropped for a non-finite pose; ``frames()`` yields
+    ``SequenceFrame`` one at a time. Every pose is checked when the sequence is opened."""
+
+    def __init__(self, root, layout: str, cfg: SequenceConfig | None = None):
+        self.root = root = Path(root)
+        self.cfg = cfg = cfg or SequenceConfig()
+        if layout not in LAYOUT_NAMES:
+            raise ValueError(f"unknown sequence layout {layout!r}; valid layouts: {', '.join(LAYOUT_NAMES)}")
+        if not root.is_dir():
+            raise ValueError(f"sequence directory not found: {root}")
+        self.layout = layout
+        ids, self._paths, self.k_color, self.k_depth = (_open_scannet if layout == "scannet" else _open_7scenes)(root)
+        ids = ids[::cfg.frame_stride]
+        ids = ids[:cfg.max_frames] if cfg.max_frames else ids
+        # every pose is read up front (small text files: ~0.1 ms each), so a non-rigid pose is
+        # reported before anything is written and the invalid ones are known
+        self._poses = {i: self._read_pose(i) for i in ids}
+        self.skipped = [i for i in ids if self._poses[i] is None]
+        self.ids = [i for i in ids if self._poses[i] is not None]
+        if not self.ids:
+            raise ValueError(f"{root}: no frames to read ({len(ids)} after frame_stride {cfg.frame_stride} / max_frames "
+                             f"{cfg.max_frames}, {len(self.skipped)} of them with an invalid pose)")
+        first = self.ids[0]
+        rgb = _imread(self._paths(first)["color"], cv2.IMREAD_COLOR)
+        depth = _imread(self._paths(first)["depth"], cv2.IMREAD_UNCHANGED)
+        if depth.ndim != 2 or depth.dtype != np.uint16:
+            raise ValueError(f"depth {self._paths(first)['depth']} must be a single-channel 16-bit PNG, "
+                             f"got {depth.dtype} with shape {depth.shape}")
+        self.color_size = (rgb.shape[1], rgb.shape[0])    # (W, H) pixels
+        self.depth_size = (depth.shape[1], depth.shape[0])
+        self._has_labels = {k: self._paths(first).get(k) is not None for k in ("semantic", "label_raw")}
+        self._label_lut: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+    @property
+    def has_semantic(self) -> bool:
+        """Whether frames carry class labels (``semantic/``, or ``label-filt/`` once mapped)."""
+        return self._has_labels["semantic"] or self._label_lut is not None
+
+    def use_class_names(self, class_names) -> None:
+        """Map ScanNet's ``label-filt/`` raw ids to indices of ``class_names`` through
+        ``cfg.frame_label_map`` (when both exist; ``semantic/`` frames take precedence)."""
+        from common.ply_labels import class_ids_of, class_index, int_keyed, read_label_table
+
+        if self._has_labels["semantic"] or not self._has_labels["label_raw"] or not self.cfg.frame_label_map:
+            return
+        table = int_keyed(read_label_table(self.cfg.frame_label_map))
+        ids = class_ids_of(class_names)
+        lut = np.full(max(table, default=0) + 1, VOID, np.int64)
+        for raw, name in table.items():
+            if raw >= 0 and (c := class_index(name, ids)) is not None:
+                lut[raw] = c
+        if not (lut != VOID).any():
+            raise ValueError(f"frame_label_map {self.cfg.frame_label_map}: no raw id maps to a class of "
+                             f"{', '.join(class_names)}")
+        self._label_lut = lut
+
+    @property
+    def name(self) -> str:
+        return self.root.name
+
+    def labelled_ply(self) -> Path | None:
+        """The ground-truth mesh in the sequence directory (``*_vh_clean_2.labels.ply``, else
+        ``*.labels.ply``), or None."""
+        for pattern in ("*_vh_clean_2.labels.ply", "*.labels.ply"):
+            found = sorted(self.root.glob(pattern))
+            if found:
+                return found[0]
+        return None
+
+    def _read_pose(self, index: int) -> np.ndarray | None:
+        """Rigid (4, 4) pose of frame ``index``; None when not finite; ValueError naming the
+        frame when unreadable or not rigid."""
+        path = self._paths(index)["pose"]
+        try:
+            pose = np.loadtxt(path, dtype=np.float64, ndmin=2)
+        except ValueError as exc:
+            raise ValueError(f"frame {index}: unreadable pose {path}: {exc}") from exc
+        if pose.shape != (4, 4):
+            raise ValueError(f"frame {index}: pose {path} must be 4x4, got shape {pose.shape}")
+        if not np.isfinite(pose).all():   # ScanNet: -inf rows where tracking failed
+            return None
+        try:
+            return fg.check_pose(pose)
+        except ValueError as exc:
+            raise ValueError(f"frame {index} ({path}): {exc}") from exc
+
+    def read(self, index: int) -> SequenceFrame:
+        """Frame ``index`` (one of ``ids``)."""
+        paths = self._paths(index)
+        pose = self._poses[index]
+        raw = _imread(paths["depth"], cv2.IMREAD_UNCHANGED)
+        if (raw.shape[1], raw.shape[0]) != self.depth_size:
+            raise ValueError(f"frame {index}: depth is {raw.shape[1]}x{raw.shape[0]}, the sequence's is "
+                             f"{self.depth_size[0]}x{self.depth_size[1]}")
+        depth = depth_from_raw(raw, self.cfg)
+        rgb = cv2.cvtColor(_imread(paths["color"], cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+        if (rgb.shape[1], rgb.shape[0]) != self.color_size:
+            raise ValueError(f"frame {index}: colour is {rgb.shape[1]}x{rgb.shape[0]}, the sequence's is "
+                             f"{self.color_size[0]}x{self.color_size[1]}")
+        sem = None
+        if paths.get("semantic") is not None:
+            sem = _imread(paths["semantic"], cv2.IMREAD_UNCHANGED).astype(np.int64) - SEMANTIC_OFFSET
+        elif self._label_lut is not None and paths.get("label_raw") is not None:
+            raw_ids = _imread(paths["label_raw"], cv2.IMREAD_UNCHANGED).astype(np.int64)
+            lut = self._label_lut
+            sem = np.where(raw_ids < len(lut), lut[np.minimum(raw_ids, len(lut) - 1)], VOID)
+        return SequenceFrame(index, rgb, depth, self.k_color, self.k_depth, pose, sem)
+
+    def frames(self) -> Iterator[SequenceFrame]:
+        """The frames of ``ids`` in order, decoded one at a time."""
+        for index in self.ids:
+            yield self.read(index)
+
+
+def _numeric_stems(folder: Path, suffix: str) -> set[int]:
+    return {int(p.stem) for p in folder.glob(f"*{suffix}") if p.stem.isdigit()} if folder.is_dir() else set()
+
+
+def _open_scannet(root: Path):
+    found = [d for d in ("color", "depth", "pose") if (root / d).is_dir()]
+    if not found:
+        hint = " (it looks like the 7scenes layout: pass --layout 7scenes)" if any(root.glob("frame-*.depth.png")) else ""
+        raise ValueError(f"{root} matches no scannet layout: expected {SCANNET_EXPECTED}{hint}")
+    for d in ("color", "depth", "pose"):
+        if d not in found:
+            raise ValueError(f"{root} is not a complete scannet export: {d}/ is missing (expected {SCANNET_EXPECTED})")
+    k_color = read_intrinsics(root / "intrinsic" / "intrinsic_color.txt")
+    k_depth = read_intrinsics(root / "intrinsic" / "intrinsic_depth.txt")
+    depth = _numeric_stems(root / "depth", ".png")
+    color = _numeric_stems(root / "color", ".jpg") or _numeric_stems(root / "color", ".png")
+    ext = ".jpg" if _numeric_stems(root / "color", ".jpg") else ".png"
+    pose = _numeric_stems(root / "pose", ".txt")
+    if not depth:
+        raise ValueError(f"{root}/depth holds no N.png frames (expected {SCANNET_EXPECTED})")
+    for name, have in (("color", color), ("pose", pose)):
+        missing = sorted(depth - have)
+        if missing:
+            raise ValueError(f"{root}: {len(missing)} depth frames have no {name} file, e.g. frame {missing[0]}")
+    sem_dir, raw_dir = root / "semantic", root / "label-filt"
+    sem, raw = _numeric_stems(sem_dir, ".png"), _numeric_stems(raw_dir, ".png")
+
+    def paths(i: int) -> dict:
+        return {"color": root / "color" / f"{i}{ext}", "depth": root / "depth" / f"{i}.png",
+                "pose": root / "pose" / f"{i}.txt", "semantic": sem_dir / f"{i}.png" if i in sem else None,
+                "label_raw": raw_dir / f"{i}.png" if i in raw else None}
+
+    return sorted(depth), paths, k_color, k_depth
+
+
+def _open_7scenes(root: Path):
+    ids = sorted(int(m.group(1)) for p in root.glob("frame-*.depth.png") if (m := SEVEN_FRAME.match(p.name)))
+    if not ids:
+        hint = " (it looks like the scannet layout: pass --layout scannet)" if (root / "depth").is_dir() else ""
+        raise ValueError(f"{root} matches no 7scenes layout: expected {SEVEN_EXPECTED}{hint}")
+    intr = next((p for p in (root / "camera-intrinsics.txt", root.parent / "camera-intrinsics.txt") if p.exists()),
+                root / "camera-intrinsics.txt")
+    k = read_intrinsics(intr)
+    width = len(re.match(r"frame-(\d+)", next(root.glob("frame-*.depth.png")).name).group(1))
+    name = (lambda i: f"frame-{i:0{width}d}")
+    ext = ".color.png" if (root / f"{name(ids[0])}.color.png").exists() else ".color.jpg"
+    for i in ids:
+        for kind, suffix in (("colour", ext), ("pose", ".pose.txt")):
+            if not (root / f"{name(i)}{suffix}").exists():
+                raise ValueError(f"{root}: frame {i} has no {kind} file {name(i)}{suffix} (expected {SEVEN_EXPECTED})")
+
+    def paths(i: int) -> dict:
+        return {"color": root / f"{name(i)}{ext}", "depth": root / f"{name(i)}.depth.png",
+                "pose": root / f"{name(i)}.pose.txt", "semantic": None, "label_raw": None}
+
+    return ids, paths, k, k.copy()
+
+
+def read_scannet(root, cfg: SequenceConfig | None = None) -> Iterator[SequenceFrame]:
+    """The frames of a ScanNet SensReader export, one at a time (validated on the first ``next``;
+    open a ``Sequence`` to validate first and to read ``skipped``)."""
+    yield from Sequence(root, "scannet", cfg).frames()
+
+
+def read_7scenes(root, cfg: SequenceConfig | None = None) -> Iterator[SequenceFrame]:
+    """The frames of a 7-Scenes / 3DMatch sequence folder, one at a time."""
+    yield from Sequence(root, "7scenes", cfg).frames()
+
+
+LAYOUTS = {"scannet": read_scannet, "7scenes": read_7scenes}   # layout name -> frame generator

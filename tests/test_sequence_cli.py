@@ -1,0 +1,152 @@
+"""`calnav export-sequence` / `calnav map` / `calnav calibrate-map --sequences` end to end on
+tiny generated recordings, the export round trip, bad input, and the bench section."""
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pytest
+
+from eval.cli import main
+from sequence_data import CLASSES, write_scannet
+
+ROUND_TRIP = ["--frames", "8", "--resolution", "64x48", "--max-edge", "0.1"]
+
+
+def _npz(path):
+    from common.npz import load_versioned_npz
+    from eval.sequence.map_cmd import MAP_FORMAT_VERSION
+
+    return load_versioned_npz(path, MAP_FORMAT_VERSION)
+
+
+def test_export_round_trip_matches_mapping_the_frames_in_memory(tmp_path):
+    """Exported frames read back through the ScanNet reader give the same fused map and metrics
+    as the rendered frames fused in memory (gt logits from the semantic frames, which do not
+    depend on the lossy JPEG colour; millimetre depth on both sides)."""
+    from agent.segmenters import make_segmenter
+    from eval.calibration.config import CalibrateMapConfig
+    from eval.calibration.record import HouseScan
+    from eval.calibration.study import scene_seed
+    from eval.config import load_config
+    from eval.sequence.export import densify, depth_to_mm
+    from eval.sequence.map_cmd import score
+    from mapping.config import MappingConfig
+    from mapping.ground_truth import nearest_vertex_labels
+    from mapping.sequences import SequenceConfig, depth_from_raw
+    from mapping.voxel_map import SemanticVoxelMap
+
+    exp, out = tmp_path / "exp", tmp_path / "map"
+    assert main(["export-sequence", *ROUND_TRIP, "--output", str(exp)]) == 0
+    assert main(["map", str(exp), "--layout", "scannet", "--segmenter", "gt", "--output", str(out)]) == 0
+    arrays, meta = _npz(out / "map.npz")
+    results = json.loads((out / "results.json").read_text())
+    assert meta["frames"] == 8 and results["frames"] == 8 and results["skipped_frames"] == []
+
+    scene_id = "house_val_0000"
+    cfg = load_config("configs/calibrate_map.yaml", ["env.resolution=64x48", "scan.frames=8"], cls=CalibrateMapConfig)
+    src = HouseScan(cfg, scene_id, scene_seed(scene_id, cfg.run.seed))
+    seg = make_segmenter("gt")
+    vmap = SemanticVoxelMap(len(CLASSES), MappingConfig(), class_names=CLASSES)
+    for rgb, depth, sem, poses in src.batches(4):
+        for i in range(len(rgb)):
+            d = depth_from_raw(depth_to_mm(depth[i]), SequenceConfig())
+            vmap.integrate(d, src.intrinsics, poses[i], seg.segment(rgb[i], d, semantic=sem[i]), rgb[i])
+    coords, probs = vmap.voxels()
+    np.testing.assert_array_equal(arrays["centres"], coords)
+    np.testing.assert_allclose(arrays["probs"], probs, atol=1e-6)
+    sc = src.scene
+    v, _, vc = densify(sc.vertices, sc.triangles, sc.tri_class, 0.1)
+    stats = score(probs, nearest_vertex_labels(coords, v.astype(np.float32), vc, SequenceConfig().label_distance_m),
+                  len(CLASSES))
+    for key in ("miou", "ece", "tl_ece", "mece", "brier"):
+        assert results[key] == pytest.approx(getattr(stats, key)(), abs=1e-6), key
+    assert 0.5 < results["miou"] <= 1.0 and results["labelled_voxels"] > 0.9 * results["voxels"]
+    assert (out / "map.ply").exists() and (out / "reliability.png").exists()
+
+
+def test_precomputed_logits_give_the_segmenters_map(tmp_path):
+    from agent.segmenters import make_segmenter
+    from mapping.sequences import Sequence
+
+    root = write_scannet(tmp_path / "seq", n=4, bad_pose=1)
+    seg = make_segmenter("gt")
+    logits = tmp_path / "logits"
+    logits.mkdir()
+    (logits / "classes.json").write_text(json.dumps(list(CLASSES)))
+    for f in Sequence(root, "scannet").frames():
+        np.save(logits / f"{f.index}.npy", seg.segment(f.rgb, f.depth, semantic=f.semantic))
+    a, b = tmp_path / "a", tmp_path / "b"
+    assert main(["map", str(root), "--layout", "scannet", "--segmenter", "gt", "--output", str(a)]) == 0
+    assert main(["map", str(root), "--layout", "scannet", "--logits", str(logits), "--output", str(b),
+                 "mapping.fusion=glfs"]) == 0
+    assert main(["map", str(root), "--layout", "scannet", "--logits", str(logits), "--output", str(a / "avg")]) == 0
+    (x, _), (y, _) = _npz(a / "map.npz"), _npz(a / "avg" / "map.npz")
+    np.testing.assert_array_equal(x["centres"], y["centres"])
+    np.testing.assert_allclose(x["probs"], y["probs"], atol=1e-6)
+    res = json.loads((b / "results.json").read_text())
+    assert res["fusion"] == "glfs" and res["skipped_frames"] == [1] and res["frames"] == 3
+
+
+def _fails(args, capsys, message: str, out) -> None:
+    assert main([*args, "--output", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert message in err and err.count("\n") == 1, err
+    assert not out.exists(), "nothing may be written on bad input"
+
+
+def test_bad_input_is_one_line_before_anything_is_written(tmp_path, capsys):
+    root = write_scannet(tmp_path / "seq", n=2)
+    out = tmp_path / "out"
+    (tmp_path / "empty").mkdir()
+    _fails(["map", str(tmp_path / "empty"), "--layout", "scannet", "--segmenter", "gt"], capsys,
+           "matches no scannet layout: expected color/N.jpg, depth/N.png, pose/N.txt", out)
+    _fails(["map", str(root), "--layout", "scannet"], capsys, "exactly one of --segmenter NAME and --logits DIR", out)
+    logits = tmp_path / "logits"
+    logits.mkdir()
+    (logits / "classes.txt").write_text("\n".join(CLASSES))
+    np.save(logits / "0.npy", np.zeros((30, 40, 5), np.float32))
+    _fails(["map", str(root), "--layout", "scannet", "--logits", str(logits)], capsys, "K = 5 classes", out)
+    np.save(logits / "0.npy", np.zeros((31, 40, len(CLASSES)), np.float32))
+    _fails(["map", str(root), "--layout", "scannet", "--logits", str(logits)], capsys, "are 40x31 pixels", out)
+    ply = tmp_path / "plain.ply"
+    ply.write_text("ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\n"
+                   "property float z\nend_header\n0 0 0\n")
+    _fails(["map", str(root), "--layout", "scannet", "--segmenter", "gt", "--labels-ply", str(ply)], capsys,
+           "no vertex property 'label'", out)
+    _fails(["map", str(root), "--layout", "scannet", "--segmenter", "gt", "mapping.fusion=nope"], capsys,
+           "valid choices", out)
+    (root / "intrinsic" / "intrinsic_color.txt").unlink()
+    _fails(["map", str(root), "--layout", "scannet", "--segmenter", "gt"], capsys, "missing intrinsics", out)
+    _fails(["export-sequence", "--scene", "house_nope_0000"], capsys, "unknown", out)
+
+
+def test_calibrate_map_runs_on_recorded_sequences(tmp_path):
+    for i, role in enumerate(("calib_train", "calib_val", "test")):
+        write_scannet(tmp_path / f"scene000{i}_00", n=4)
+    lst = tmp_path / "list.txt"
+    lst.write_text("# role  directory  [layout]\ncalib_train scene0000_00\ncalib_val scene0001_00 scannet\n"
+                   "test scene0002_00\n")
+    out = tmp_path / "cal"
+    assert main(["calibrate-map", "--quick", "--sequences", str(lst), "--output", str(out), "study.segmenters=[gt]",
+                 "study.strategies=[rbu,averaging,glfs]", "study.calibrations=[none,temperature_2d,temperature_3d]",
+                 "glfs.epochs=1"]) == 0
+    rows = list(csv.DictReader((out / "results.csv").open()))
+    assert {(r["strategy"], r["calibration"]) for r in rows} >= {("rbu", "none"), ("rbu", "temperature_3d"),
+                                                                  ("glfs", "learned")}
+    assert all(float(r["miou"]) > 0.5 and int(r["n_voxels"]) > 0 for r in rows)
+    assert (out / "scenes" / "gt" / "scene0002_00.cache.npz").exists()
+    bad = tmp_path / "bad.txt"
+    bad.write_text("train scene0000_00\n")
+    assert main(["calibrate-map", "--sequences", str(bad), "--output", str(tmp_path / "cal2")]) == 2
+
+
+def test_bench_sequence_section_figures(tmp_path):
+    from eval.bench.sequence import measure
+
+    root = write_scannet(tmp_path / "seq", n=4)
+    out = measure(root, "40x30")
+    for key in ("decode_ms_40x30", "segment_ms_40x30", "fusion_ms_40x30", "read_map_ms_40x30", "read_map_fps_40x30"):
+        assert out[f"sequence.{key}"] > 0
+    assert out["sequence.read_map_vs_parts"] > 0
