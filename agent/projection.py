@@ -29,6 +29,24 @@ def backproject(depth: np.ndarray, intrinsics: np.ndarray, pose: np.ndarray) -> 
     return world.astype(np.float32), pix
 
 
+def lattice_aligned_origin(centre_xy: np.ndarray, size_m: float, lattice_m: float | None) -> np.ndarray:
+    """Corner (2,) metres of a ``size_m`` square map centred on ``centre_xy`` (2,) metres,
+    moved by less than ``lattice_m`` so that cell edges fall half-way between the points of
+    the lattice ``lattice_m * Z^2`` (the voxel centres; None = no alignment, the exact centre).
+
+    Why: the fused map projects voxel centres (multiples of the voxel size) into cells. With a
+    corner on the lattice (an agent starting at the frame origin, as in Habitat's start frame)
+    every centre sits exactly on a cell edge and floating-point rounding sends whole voxel
+    columns to the neighbouring cell: one cell in ~3 stays empty and goal components break up.
+    Half a lattice step away from every edge (cell_m a multiple of lattice_m), no rounding can
+    move a centre across one.
+    """
+    corner = np.asarray(centre_xy, np.float64) - size_m / 2
+    if not lattice_m:
+        return corner
+    return (np.floor(corner / lattice_m) + 0.5) * lattice_m
+
+
 def cell_of(xy: np.ndarray, origin: np.ndarray, cell_m: float, n: int) -> tuple[np.ndarray, np.ndarray]:
     """Flat cell index (N,) int64 of world points xy (N, 2) metres, and an inside mask (N,)
     bool (points outside the n x n map get index 0 and inside False)."""
