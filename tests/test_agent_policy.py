@@ -54,3 +54,26 @@ def test_agent_finds_goal_in_small_house(small_setup):
         done = terminated or truncated
     assert info["success"], f"episode {index}: distance to goal {info['distance_to_goal']:.2f} m after {info['steps']} steps"
     assert info["steps"] < MAX_STEPS, info["steps"]
+
+
+def test_agent_reads_only_habitat_observations(small_setup):
+    """The same actions from Habitat's keys alone (+ semantic for gt) as from the full
+    observation: no decision depends on the privileged camera_pose / camera_intrinsics."""
+    from agent.policy import PeanutAgent
+    from envs.task import HABITAT_KEYS, SEMANTIC
+
+    cfg, env = small_setup
+    episodes = env.unwrapped.episodes
+    index = int(np.argmin([ep.geodesic_distance for ep in episodes]))
+    full, reduced = PeanutAgent(cfg), PeanutAgent(cfg)
+    keep = (*HABITAT_KEYS, SEMANTIC)
+    obs, _ = env.reset(options={"episode_index": index})
+    full.reset(obs)
+    reduced.reset({k: obs[k] for k in keep})
+    done, steps = False, 0
+    while not done:
+        action = full.act(obs)
+        assert reduced.act({k: obs[k] for k in keep}) == action, f"step {steps}"
+        obs, _, terminated, truncated, _ = env.step(action)
+        done, steps = terminated or truncated, steps + 1
+    assert steps > cfg.env.turn_angle_deg and full.info.mode == "stop"

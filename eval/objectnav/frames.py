@@ -50,6 +50,30 @@ class FrameVariant:
             raise ValueError(f"unknown frame base {self.base!r}; valid: {', '.join(FRAME_BASES)}")
 
 
+# The study's variants, by name (``calnav start-pose --variants``). Offsets and yaws are
+# arbitrary values, none a multiple of the 5 cm cell or of 90 degrees.
+VARIANTS: dict[str, FrameVariant] = {v.name: v for v in (
+    FrameVariant("world", "world"),                                      # the old privileged protocol's frame
+    FrameVariant("start"),                                               # Habitat's gps + compass
+    FrameVariant("start_offset", offset_m=(0.013, 0.027)),               # origin shifted by less than a cell
+    FrameVariant("start_offset_far", offset_m=(100.013, -100.013)),      # origin 141 m away
+    FrameVariant("start_rotated", offset_m=(3.217, -1.709), yaw_deg=23.0),  # a rotated, shifted frame
+    FrameVariant("world_offset_far", "world", offset_m=(100.013, -100.013)),
+    FrameVariant("house_yaw37", house_yaw_deg=37.0),                     # houses rotated: walls off the axes
+    FrameVariant("house_yaw118", house_yaw_deg=118.0),
+)}
+DEFAULT_VARIANTS = ("world", "start", "start_offset", "start_rotated", "house_yaw37")
+
+
+def parse_variants(spec: str) -> list[FrameVariant]:
+    """Comma-separated variant names -> variants (a clear error names the valid ones)."""
+    names = [n for n in spec.split(",") if n]
+    unknown = [n for n in names if n not in VARIANTS]
+    if unknown or not names:
+        raise ValueError(f"unknown start-pose variant {unknown[0] if unknown else spec!r}; valid: {', '.join(VARIANTS)}")
+    return [VARIANTS[n] for n in dict.fromkeys(names)]
+
+
 def rot2(theta: float) -> np.ndarray:
     """(2, 2) counter-clockwise rotation by theta rad."""
     c, s = math.cos(theta), math.sin(theta)
@@ -255,3 +279,21 @@ def lockstep_map_stats(cfg, index: int, variants: list[FrameVariant], steps: int
         if term or trunc:
             break
     return rows
+
+
+def main_start_pose(args) -> None:
+    """`calnav start-pose`: the PEANUT agent on ``--episodes`` under each ``--variants`` frame."""
+    from envs.episodes import load_split, parse_episode_range
+    from eval.config import load_config
+
+    variants = parse_variants(args.variants)           # every check before anything runs
+    cfg = load_config(args.config, list(args.overrides))
+    if cfg.run.agent != "peanut":
+        raise ValueError(f"start-pose runs the peanut agent (its maps live in the start frame), got run.agent={cfg.run.agent}")
+    indices = list(parse_episode_range(str(args.episodes), len(load_split(cfg.env.split, cfg.env))))
+    out = Path(args.output)
+    summary = run_frame_study(cfg, indices, variants, out, workers=args.workers)
+    print("| variant | Success | SPL | N |\n|---|---|---|---|")
+    for name, s in summary.items():
+        print(f"| {name} | {s['successes']}/{s['n']} | {s['spl']:.3f} | {s['n']} |")
+    print(f"results: {out}/summary.json, {out}/summary.csv, {out}/episodes.jsonl")
