@@ -14,7 +14,8 @@ A ``FrameVariant`` names how the agent's gps + compass are expressed and how the
 
 ``frame_obs`` does the change of frame on one observation; ``FrameWrapper`` applies it in a
 gymnasium env; ``run_frame_study`` runs episodes x variants in worker processes and writes
-``episodes.jsonl`` / ``summary.json`` / ``summary.csv``; ``lockstep_map_stats`` drives one
+``episodes.jsonl`` (a line per finished episode) / ``summary.json`` / ``summary.csv`` (Success
+as successes / N and mean SPL per variant); ``lockstep_map_stats`` drives one
 episode with the first variant's actions and records every variant's map statistics per step
 (the instrument that found the sensitive stage).
 """
@@ -210,12 +211,18 @@ def run_frame_study(cfg, indices: list[int], variants: list[FrameVariant], out: 
         jobs = [(asdict(v), i) for v in variants for i in indices]
         records = []
         bar = tqdm(total=len(jobs), disable=not progress, desc="frame study", unit="ep")
+        log = open(work / "episodes.jsonl", "w") if out else None   # one line per finished episode
         with ProcessPoolExecutor(max(1, workers), mp_context=mp.get_context("spawn"), initializer=_init,
                                  initargs=(to_dict(cfg), str(work))) as pool:
             for fut in as_completed([pool.submit(_run, *job) for job in jobs]):
                 records.append(fut.result())
+                if log:
+                    log.write(json.dumps(records[-1]) + "\n")
+                    log.flush()
                 bar.update(1)
         bar.close()
+        if log:
+            log.close()
     records.sort(key=lambda r: (names.index(r["variant"]), r["index"]))
     summary = {}
     for v in variants:
@@ -225,7 +232,6 @@ def run_frame_study(cfg, indices: list[int], variants: list[FrameVariant], out: 
                            "spl": float(np.mean([r["spl"] for r in rs])), "n": len(rs), **asdict(v)}
     if out:
         out = Path(out)
-        (out / "episodes.jsonl").write_text("".join(json.dumps(r) + "\n" for r in records))
         (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
         with open(out / "summary.csv", "w", newline="") as f:
             w = csv.writer(f)
@@ -287,6 +293,8 @@ def main_start_pose(args) -> None:
     from eval.config import load_config
 
     variants = parse_variants(args.variants)           # every check before anything runs
+    if args.workers < 1:
+        raise ValueError(f"--workers must be >= 1, got {args.workers}")
     cfg = load_config(args.config, list(args.overrides))
     if cfg.run.agent != "peanut":
         raise ValueError(f"start-pose runs the peanut agent (its maps live in the start frame), got run.agent={cfg.run.agent}")
