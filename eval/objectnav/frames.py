@@ -15,7 +15,7 @@ A ``FrameVariant`` names how the agent's gps + compass are expressed and how the
 ``frame_obs`` does the change of frame on one observation; ``FrameWrapper`` applies it in a
 gymnasium env; ``run_frame_study`` runs episodes x variants in worker processes and writes
 ``episodes.jsonl`` (a line per finished episode) / ``summary.json`` / ``summary.csv`` (Success
-as successes / N and mean SPL per variant); ``lockstep_map_stats`` drives one
+as successes / N and mean SPL per variant) / ``summary.png``; ``lockstep_map_stats`` drives one
 episode with the first variant's actions and records every variant's map statistics per step
 (the instrument that found the sensitive stage).
 """
@@ -191,7 +191,7 @@ def _run(variant_dict: dict, index: int) -> dict:
 def run_frame_study(cfg, indices: list[int], variants: list[FrameVariant], out: Path | None,
                     workers: int = 2, progress: bool = True) -> dict[str, dict]:
     """Run every (variant, episode) with the PEANUT agent of ``cfg``; returns variant name ->
-    {success, spl, n} (means). With ``out``: episodes.jsonl, summary.json, summary.csv."""
+    {success, spl, n} (means). With ``out``: episodes.jsonl, summary.json, summary.csv, summary.png."""
     from tqdm import tqdm
 
     from eval.config import to_dict
@@ -238,7 +238,29 @@ def run_frame_study(cfg, indices: list[int], variants: list[FrameVariant], out: 
             w.writerow(["variant", "successes", "n", "success", "spl"])
             for name, s in summary.items():
                 w.writerow([name, s["successes"], s["n"], f"{s['success']:.3f}", f"{s['spl']:.3f}"])
+        plot_summary(summary, out / "summary.png")
     return summary
+
+
+def plot_summary(summary: dict[str, dict], path: Path) -> None:
+    """Bar plot of Success and SPL per variant (summary from ``run_frame_study``)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = list(summary)
+    x = np.arange(len(names))
+    fig, ax = plt.subplots(figsize=(1.2 * len(names) + 2, 3.5))
+    ax.bar(x - 0.2, [summary[n]["success"] for n in names], 0.4, label="Success")
+    ax.bar(x + 0.2, [summary[n]["spl"] for n in names], 0.4, label="SPL")
+    ax.set_xticks(x, names, rotation=30, ha="right")
+    ax.set_ylim(0, 1)
+    ax.set_title(f"start-pose study, {summary[names[0]]['n']} episodes per variant")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
 
 
 # ---------------------------------------------------------------------------- the instrument
