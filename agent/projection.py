@@ -1,9 +1,11 @@
 """The 2D map's grid geometry: ground-plane projection of 3D points and fused voxels, cell
 indices, discs and dilation (pure numpy / OpenCV, no state).
 
-Conventions: world frame z-up, metres, floor at z = 0. A 2D map of ``n`` x ``n`` cells of edge
-``cell_m`` has its corner (cell (0, 0)'s lower-left) at world ``origin`` (2,) metres; arrays
-are indexed ``[row, col]`` = ``[y, x]``; flat cell index = row * n + col.
+Conventions: "world" below is the agent's map frame -- the episode-start frame of
+``agent.sensors`` (the simulator's world frame is never seen) -- z-up, metres, floor at z = 0.
+A 2D map of ``n`` x ``n`` cells of edge ``cell_m`` has its corner (cell (0, 0)'s lower-left) at
+world ``origin`` (2,) metres; arrays are indexed ``[row, col]`` = ``[y, x]``; flat cell index =
+row * n + col.
 """
 from __future__ import annotations
 

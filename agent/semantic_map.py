@@ -165,7 +165,7 @@ class SemanticMapModule:
         self.voxel_size_m = mapping_cfg.voxel_size_m
 
     def new_state(self, start_xy: np.ndarray) -> MapState:
-        """An empty map centred on ``start_xy`` (2,) world metres, with a fresh voxel map for
+        """An empty map centred on ``start_xy`` (2,) metres (the agent's frame), with a fresh voxel map for
         ``fused`` (none for ``ndf``)."""
         voxels = None
         if self.cfg.map_type == "fused":
