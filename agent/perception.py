@@ -1,6 +1,11 @@
 """Perception: subsample the frame to the mapping resolution and segment it (segmenter by name
 from ``agent.segmenters``). It keeps no map: fusing the segmentation into the 3D voxel map and
 projecting it to the 2D map is ``agent.semantic_map``'s job.
+
+It reads ``rgb`` and ``depth`` (de-normalised by ``agent.sensors.SensorModel``) and takes the
+intrinsics from the known sensor; the ``gt`` / ``noisy`` segmenters (simulated sensors, like
+Habitat's semantic sensor) also get ``semantic``, ``instance`` when present, and the
+simulator's ``camera_pose`` when present (``noisy`` anchors its errors in the world with it).
 """
 from __future__ import annotations
 
@@ -10,6 +15,8 @@ import numpy as np
 
 from agent.config import AgentConfig
 from agent.segmenters import make_segmenter
+from agent.sensors import SensorModel
+from envs.task import CAMERA_POSE, RGB, SEMANTIC, require_keys
 
 
 @dataclass
@@ -42,26 +49,28 @@ def subsample_intrinsics(k: np.ndarray, stride: int) -> np.ndarray:
 class Perception:
     """The segmenter, stateless across frames. ``observe(obs) -> Frame``."""
 
-    def __init__(self, cfg: AgentConfig, device: str = "cpu"):
+    def __init__(self, cfg: AgentConfig, sensors: SensorModel, device: str = "cpu"):
         self.cfg = cfg
+        self.sensors = sensors
         self.segmenter = make_segmenter(cfg.segmenter, cfg.segmenter_config, device)
         self.num_classes = self.segmenter.num_classes
         self.class_names: tuple[str, ...] = tuple(self.segmenter.class_names)
 
     def observe(self, obs: dict) -> Frame:
         """Subsample and segment one observation."""
-        depth = np.asarray(obs["depth"], np.float32)
-        depth = depth[..., 0] if depth.ndim == 3 else depth
+        depth = self.sensors.depth_m(obs)
         h, w = depth.shape
         s = subsample_stride(w, h, self.cfg.map_resolution)
         depth = np.ascontiguousarray(depth[::s, ::s])
-        rgb = np.ascontiguousarray(np.asarray(obs["rgb"])[::s, ::s])
-        k = subsample_intrinsics(obs["camera_intrinsics"], s)
+        rgb = np.ascontiguousarray(np.asarray(obs[RGB])[::s, ::s])
+        k = subsample_intrinsics(self.sensors.intrinsics, s)
         extra = {}
         if self.segmenter.needs_semantic:
-            extra["semantic"] = np.ascontiguousarray(np.asarray(obs["semantic"])[::s, ::s])
+            require_keys(obs, [SEMANTIC], f"the {self.segmenter.name!r} segmenter")
+            extra["semantic"] = np.ascontiguousarray(np.asarray(obs[SEMANTIC])[::s, ::s])
             if "instance" in obs:
                 extra["instance"] = np.ascontiguousarray(np.asarray(obs["instance"])[::s, ::s])
-            extra["pose"] = np.asarray(obs["camera_pose"], np.float64)
+            if CAMERA_POSE in obs:  # the simulated segmenter's input, never the agent's
+                extra["pose"] = np.asarray(obs[CAMERA_POSE], np.float64)
         logits = self.segmenter(rgb, depth, **extra)
         return Frame(depth, logits, logits.argmax(axis=-1), k, rgb)

@@ -3,9 +3,11 @@
 Per step: segment (``agent.perception``) -> fuse into the 3D map + project to the 2D map
 (``agent.semantic_map``) -> collision check (``agent.collision``) -> goal detection
 (``agent.goal_detection``) -> frontier exploration when no goal (``agent.exploration``) ->
-local planning (``agent.planner``). The agent reads only its observations: rgb, depth,
-objectgoal, camera_pose, camera_intrinsics (and ``semantic`` for the ``gt`` / ``noisy``
-segmenters, which are built from it). It never touches the simulator.
+local planning (``agent.planner``). The agent reads only Habitat's ObjectNav observations
+(``envs.task.HABITAT_KEYS``: rgb, depth, gps, compass, objectgoal; plus ``semantic`` for the
+``gt`` / ``noisy`` segmenters, which are built from it) and the task's sensor facts from its
+config (``agent.sensors``); its maps live in the episode-start frame. It never touches the
+simulator and no decision reads the privileged ``camera_pose`` / ``camera_intrinsics``.
 
 Each episode starts with a full turn in place (360 / turn angle TURN_LEFTs: free for SPL,
 which counts path length only) so the first frontier choice sees all around.
@@ -25,7 +27,8 @@ from agent.perception import Perception
 from agent.planner import Plan, Planner, heading_to
 from agent.projection import cell_of, dilate
 from agent.semantic_map import MapChannels, MapState, SemanticMapModule
-from envs.task import Action
+from agent.sensors import SensorModel
+from envs.task import OBJECTGOAL, Action
 
 PLAN_MARGIN_M = 1.0  # the planning window: explored bounding box + this margin (unknown = optimistic), metres
 
@@ -46,14 +49,16 @@ class StepInfo:
 
 class PeanutAgent:
     """``PeanutAgent(cfg, device)``: cfg provides ``.agent`` (AgentConfig), ``.mapping``
-    (MappingConfig) and ``.env.max_episode_steps`` / ``.env.turn_angle_deg`` (the task's step
-    limit and turn angle: task facts, not simulator state). ``reset(obs)``, ``act(obs) -> int``."""
+    (MappingConfig) and from ``.env`` the task facts max_episode_steps, turn_angle_deg and the
+    sensor's resolution, hfov_deg, camera_height_m, min/max_depth_m, normalize_depth (not
+    simulator state). ``reset(obs)``, ``act(obs) -> int``; obs holds Habitat's keys."""
 
     def __init__(self, cfg, device: str = "cpu"):
         self.cfg: AgentConfig = cfg.agent
         self.max_steps = int(cfg.env.max_episode_steps)
         self.spin_turns = int(round(360.0 / cfg.env.turn_angle_deg))
-        self.perception = Perception(self.cfg, device)
+        self.sensors = SensorModel.from_env_config(cfg.env)
+        self.perception = Perception(self.cfg, self.sensors, device)
         self.class_names = self.perception.class_names   # class names and ids come from the segmenter
         self.num_classes = len(self.class_names)
         self.map_module = SemanticMapModule(self.cfg, cfg.mapping, self.class_names)
@@ -64,14 +69,15 @@ class PeanutAgent:
 
     # ------------------------------------------------------------------ episode
     def reset(self, obs: dict) -> None:
-        pose = np.asarray(obs["camera_pose"], np.float64)
-        self.goal_id = int(np.asarray(obs["objectgoal"]).reshape(-1)[0])
+        self.sensors.check(obs)
+        xy, _ = self.sensors.xy_yaw(obs)
+        self.goal_id = int(np.asarray(obs[OBJECTGOAL]).reshape(-1)[0])
         self.goal_name = self.class_names[self.goal_id]
-        self.state = self.map_module.new_state(pose[:2, 3])
+        self.state = self.map_module.new_state(xy)
         self.collisions.reset()
         self.steps = 0
         self.last_action: int | None = None
-        self.prev_xy = pose[:2, 3].copy()
+        self.prev_xy = xy.copy()
         self.ltg: tuple[int, int] | None = None
         self.ltg_age = 0
         self.frontiers: np.ndarray | None = None
@@ -82,15 +88,10 @@ class PeanutAgent:
         self.path: list[tuple[int, int]] = []
         self.window: tuple[slice, slice] | None = None
 
-    @staticmethod
-    def pose_xy_yaw(pose: np.ndarray) -> tuple[np.ndarray, float]:
-        """Agent position (2,) m and heading (rad, from world +x, counter-clockwise) from the
-        camera pose (the camera's optical axis is its third column)."""
-        return pose[:2, 3].copy(), math.atan2(pose[1, 2], pose[0, 2])
-
     def act(self, obs: dict) -> int:
-        pose = np.asarray(obs["camera_pose"], np.float64)
-        xy, yaw = self.pose_xy_yaw(pose)
+        self.sensors.check(obs)
+        xy, yaw = self.sensors.xy_yaw(obs)
+        pose = self.sensors.pose(obs)
         if self.last_action is not None:
             collided = is_collision(self.prev_xy, xy, self.last_action, self.cfg.collision_min_move_m)
             if collided:

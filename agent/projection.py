@@ -1,9 +1,11 @@
 """The 2D map's grid geometry: ground-plane projection of 3D points and fused voxels, cell
 indices, discs and dilation (pure numpy / OpenCV, no state).
 
-Conventions: world frame z-up, metres, floor at z = 0. A 2D map of ``n`` x ``n`` cells of edge
-``cell_m`` has its corner (cell (0, 0)'s lower-left) at world ``origin`` (2,) metres; arrays
-are indexed ``[row, col]`` = ``[y, x]``; flat cell index = row * n + col.
+Conventions: "world" below is the agent's map frame -- the episode-start frame of
+``agent.sensors`` (the simulator's world frame is never seen) -- z-up, metres, floor at z = 0.
+A 2D map of ``n`` x ``n`` cells of edge ``cell_m`` has its corner (cell (0, 0)'s lower-left) at
+world ``origin`` (2,) metres; arrays are indexed ``[row, col]`` = ``[y, x]``; flat cell index =
+row * n + col.
 """
 from __future__ import annotations
 
@@ -27,6 +29,24 @@ def backproject(depth: np.ndarray, intrinsics: np.ndarray, pose: np.ndarray) -> 
     cam = np.stack([x, y, z], axis=1)
     world = cam @ pose[:3, :3].T + pose[:3, 3]
     return world.astype(np.float32), pix
+
+
+def lattice_aligned_origin(centre_xy: np.ndarray, size_m: float, lattice_m: float | None) -> np.ndarray:
+    """Corner (2,) metres of a ``size_m`` square map centred on ``centre_xy`` (2,) metres,
+    moved by less than ``lattice_m`` so that cell edges fall half-way between the points of
+    the lattice ``lattice_m * Z^2`` (the voxel centres; None = no alignment, the exact centre).
+
+    Why: the fused map projects voxel centres (multiples of the voxel size) into cells. With a
+    corner on the lattice (an agent starting at the frame origin, as in Habitat's start frame)
+    every centre sits exactly on a cell edge and floating-point rounding sends whole voxel
+    columns to the neighbouring cell: one cell in ~3 stays empty and goal components break up.
+    Half a lattice step away from every edge (cell_m a multiple of lattice_m), no rounding can
+    move a centre across one.
+    """
+    corner = np.asarray(centre_xy, np.float64) - size_m / 2
+    if not lattice_m:
+        return corner
+    return (np.floor(corner / lattice_m) + 0.5) * lattice_m
 
 
 def cell_of(xy: np.ndarray, origin: np.ndarray, cell_m: float, n: int) -> tuple[np.ndarray, np.ndarray]:

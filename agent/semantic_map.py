@@ -4,8 +4,11 @@ home-robot style. This file owns fusion (the frame's logits into the voxel map, 
 strategy ``mapping.fusion`` and its scaling / GLFS parameters / sample weighting from the
 mapping config) and the ground projection; the grid geometry is ``agent.projection``.
 
-The 2D map is ``n`` x ``n`` cells of ``cfg.cell_m`` centred on the start position, in world
-coordinates (the agent knows its camera pose). Channels (``MapChannels``) are bool (n, n)
+The 2D map is ``n`` x ``n`` cells of ``cfg.cell_m`` centred (within a voxel) on the start
+position, in the agent's frame (the episode-start frame, ``agent.sensors``); its cell edges
+lie half a voxel away from the voxel centres (``projection.lattice_aligned_origin``) so the
+fused projection cannot alias whatever the start pose (``cell_m`` should be a multiple of
+``mapping.voxel_size_m``; otherwise cells get unequal numbers of voxel columns). Channels (``MapChannels``) are bool (n, n)
 layers; ``MapState.semantic`` (K, n, n) float32 is the confidence that class l is at a cell.
 
 Per frame (``update``), with the segmented frame at the mapping resolution
@@ -105,9 +108,11 @@ class MapState:
 
     @classmethod
     def empty(cls, start_xy: np.ndarray, cfg: AgentConfig, num_classes: int,
-              voxels: SemanticVoxelMap | None = None) -> "MapState":
+              voxels: SemanticVoxelMap | None = None, lattice_m: float | None = None) -> "MapState":
+        """An empty map around ``start_xy`` (2,) metres; lattice_m: the voxel size whose
+        centres must keep off the cell edges (``projection.lattice_aligned_origin``)."""
         n = cfg.map_cells
-        origin = np.asarray(start_xy, np.float64) - cfg.map_size_m / 2
+        origin = pj.lattice_aligned_origin(start_xy, cfg.map_size_m, lattice_m)
         return cls(origin, np.zeros((NUM_CHANNELS, n, n), bool), np.zeros((num_classes, n, n), np.float32),
                    np.zeros((num_classes, n * n), np.float32), np.zeros((num_classes, n * n), np.int32),
                    voxels=voxels)
@@ -160,12 +165,12 @@ class SemanticMapModule:
         self.voxel_size_m = mapping_cfg.voxel_size_m
 
     def new_state(self, start_xy: np.ndarray) -> MapState:
-        """An empty map centred on ``start_xy`` (2,) world metres, with a fresh voxel map for
+        """An empty map centred on ``start_xy`` (2,) metres (the agent's frame), with a fresh voxel map for
         ``fused`` (none for ``ndf``)."""
         voxels = None
         if self.cfg.map_type == "fused":
             voxels = SemanticVoxelMap(self.num_classes, self.mapping_cfg, class_names=self.class_names)
-        return MapState.empty(start_xy, self.cfg, self.num_classes, voxels)
+        return MapState.empty(start_xy, self.cfg, self.num_classes, voxels, lattice_m=self.voxel_size_m)
 
     def update(self, state: MapState, frame: Frame, pose: np.ndarray) -> None:
         """Fuse (when ``state.voxels``) and project one frame; pose (4, 4) world-from-camera."""

@@ -1,11 +1,13 @@
 """The gymnasium ObjectNav environment (``calnav/ObjectNav-v0``), Habitat's task spec.
 
-Observations (a Dict space): ``rgb`` (H,W,3) uint8; ``depth`` (H,W,1) float32 metres (0 =
-invalid); ``semantic`` (H,W) int16 ground-truth class ids (-1 void; omitted when
-``semantic_sensor`` is off); ``gps`` (2,) float32 (forward, right) metres relative to the start
-pose; ``compass`` (1,) float32 radians relative to the start heading (ccw positive);
+Observations (a Dict space, the contract ``envs.task.observation_specs``): ``rgb`` (H,W,3)
+uint8; ``depth`` (H,W,1) float32 metres (0 = invalid), or Habitat's normalised depth in [0, 1]
+with ``normalize_depth``; ``semantic`` (H,W) int16 ground-truth class ids (-1 void; omitted
+when ``semantic_sensor`` is off); ``gps`` (2,) float32 (forward, right) metres relative to the
+start pose; ``compass`` (1,) float32 radians relative to the start heading (ccw positive);
 ``objectgoal`` (1,) int64 goal category id; ``camera_pose`` (4,4) float64 world-from-camera
-(OpenCV axes); ``camera_intrinsics`` (3,3) float64.
+(OpenCV axes) and ``camera_intrinsics`` (3,3) float64: privileged, for debugging and the
+simulated segmenters only (Habitat gives neither).
 
 ``info`` carries habitat-lab's metrics at every step: ``distance_to_goal``, ``success``,
 ``spl``, ``softspl`` (plus ``episode_id``, ``steps``, ``collisions``, ``path_length``).
@@ -28,7 +30,8 @@ from envs.config import EnvConfig
 from envs.episodes import ObjectNavEpisode, goal_mask, load_split
 from envs.measures import TaskState, objectnav_measurements
 from envs.semantics import GOAL_CATEGORIES, NUM_CLASSES
-from envs.task import Action, check_action, num_actions
+from envs.task import (CAMERA_INTRINSICS, CAMERA_POSE, COMPASS, DEPTH, GPS, OBJECTGOAL, RGB, SEMANTIC, Action,
+                       check_action, normalize_depth_m, num_actions, observation_specs, xy_yaw_to_gps_compass)
 
 SLACK_REWARD = -0.01
 SUCCESS_REWARD = 2.5
@@ -73,18 +76,9 @@ class ObjectNavEnv(gym.Env):
         cfg = self.config
         w, h = cfg.resolution
         self.camera = Camera.from_config(cfg)
-        obs = {
-            "rgb": spaces.Box(0, 255, (h, w, 3), np.uint8),
-            "depth": spaces.Box(0.0, cfg.max_depth_m, (h, w, 1), np.float32),
-            "gps": spaces.Box(-np.inf, np.inf, (2,), np.float32),
-            "compass": spaces.Box(-np.pi, np.pi, (1,), np.float32),
-            "objectgoal": spaces.Box(0, len(GOAL_CATEGORIES) - 1, (1,), np.int64),
-            "camera_pose": spaces.Box(-np.inf, np.inf, (4, 4), np.float64),
-            "camera_intrinsics": spaces.Box(0.0, np.inf, (3, 3), np.float64),
-        }
-        if cfg.semantic_sensor:
-            obs["semantic"] = spaces.Box(-1, NUM_CLASSES - 1, (h, w), np.int16)
-        self.observation_space = spaces.Dict(obs)
+        specs = observation_specs(w, h, len(GOAL_CATEGORIES), NUM_CLASSES, cfg.max_depth_m, cfg.normalize_depth,
+                                  cfg.semantic_sensor)
+        self.observation_space = spaces.Dict({k: spaces.Box(s.low, s.high, s.shape, s.dtype) for k, s in specs.items()})
         self.action_space = spaces.Discrete(num_actions(cfg.enable_look))
 
     # ------------------------------------------------------------ scene state
@@ -211,22 +205,22 @@ class ObjectNavEnv(gym.Env):
         pose = self.camera_pose()
         frame = self.renderer.render(pose, rng=self._noise_rng)
         ep = self.episode
-        delta = self.position - ep.start_position
-        c, s = math.cos(ep.start_yaw), math.sin(ep.start_yaw)
-        # habitat-lab's EpisodicGPSSensor: (forward, right) in the start pose's frame
-        gps = np.array([c * delta[0] + s * delta[1], s * delta[0] - c * delta[1]], dtype=np.float32)
-        compass = (self.yaw - ep.start_yaw + math.pi) % (2 * math.pi) - math.pi
+        cfg = self.config
+        gps, compass = xy_yaw_to_gps_compass(self.position, self.yaw, ep.start_position, ep.start_yaw)
+        depth = frame.depth.astype(np.float32)
+        if cfg.normalize_depth:
+            depth = normalize_depth_m(depth, cfg.min_depth_m, cfg.max_depth_m)
         obs = {
-            "rgb": frame.rgb,
-            "depth": frame.depth[..., None].astype(np.float32),
-            "gps": gps,
-            "compass": np.array([compass], dtype=np.float32),
-            "objectgoal": np.array([ep.goal_id], dtype=np.int64),
-            "camera_pose": pose.astype(np.float64),
-            "camera_intrinsics": self.camera.intrinsics.astype(np.float64),
+            RGB: frame.rgb,
+            DEPTH: depth[..., None],
+            GPS: gps,
+            COMPASS: compass,
+            OBJECTGOAL: np.array([ep.goal_id], dtype=np.int64),
+            CAMERA_POSE: pose.astype(np.float64),
+            CAMERA_INTRINSICS: self.camera.intrinsics.astype(np.float64),
         }
-        if self.config.semantic_sensor:
-            obs["semantic"] = frame.semantic.astype(np.int16)
+        if cfg.semantic_sensor:
+            obs[SEMANTIC] = frame.semantic.astype(np.int16)
         return obs
 
     def _info(self) -> dict:

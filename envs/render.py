@@ -30,6 +30,7 @@ import numpy as np
 import open3d as o3d
 
 from envs.scene import Scene, Texture
+from envs.task import camera_pose, pinhole_intrinsics  # noqa: F401  (camera_pose re-exported: the contract owns it)
 
 # --- lighting: a fixed directional "sun" baked per triangle (faces are flat, so n.l is a
 # per-triangle constant). |n.l| so back faces (e.g. a wall seen from behind) still shade.
@@ -105,9 +106,7 @@ class Camera:
     @property
     def intrinsics(self) -> np.ndarray:
         """(3, 3) float64 K, OpenCV pixel-centre convention (cx = (W - 1) / 2)."""
-        f = self.focal
-        return np.array([[f, 0.0, (self.width - 1) / 2.0], [0.0, f, (self.height - 1) / 2.0],
-                         [0.0, 0.0, 1.0]])
+        return pinhole_intrinsics(self.width, self.height, self.hfov_deg)
 
     @property
     def o3d_intrinsics(self) -> np.ndarray:
@@ -116,24 +115,6 @@ class Camera:
         k[0, 2] += 0.5
         k[1, 2] += 0.5
         return k
-
-
-def camera_pose(xy, yaw: float, height: float, pitch: float = 0.0) -> np.ndarray:
-    """(4, 4) float64 world-from-camera pose, OpenCV camera axes.
-
-    xy: (2,) world position, metres; yaw: heading counter-clockwise from +x about +z, radians;
-    height: world z of the camera centre, metres (the camera height above the floor when
-    floor_z = 0); pitch: radians, positive looks up. yaw = pitch = 0 gives forward (1, 0, 0),
-    right (0, -1, 0), down (0, 0, -1).
-    """
-    cy, sy, cp, sp = np.cos(yaw), np.sin(yaw), np.cos(pitch), np.sin(pitch)
-    forward = np.array([cp * cy, cp * sy, sp])
-    right = np.array([sy, -cy, 0.0])
-    down = np.cross(forward, right)
-    pose = np.eye(4)
-    pose[:3, 0], pose[:3, 1], pose[:3, 2] = right, down, forward
-    pose[:3, 3] = (float(xy[0]), float(xy[1]), float(height))
-    return pose
 
 
 def look_at_pose(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:

@@ -39,6 +39,15 @@ def build_parser() -> argparse.ArgumentParser:
                    help="cross product of comma-separated overrides (KEY=a,b), one subdirectory of --output "
                         "each, then comparison.md/.csv/.png")
 
+    p = sub.add_parser("start-pose", help="the peanut agent under frame changes and rotated houses "
+                                          "(is it equally good whatever the start pose?)")
+    _add_config_args(p, "configs/objectnav.yaml")
+    p.add_argument("--episodes", default="0:14", help="N (first N) or A:B (a range) of the split's episodes")
+    p.add_argument("--variants", default="world,start,start_offset,start_rotated,house_yaw37",
+                   help="comma-separated variants (eval.objectnav.frames.VARIANTS)")
+    p.add_argument("--workers", type=int, default=2, help="worker processes")
+    p.add_argument("--output", default="runs/start_pose", help="results directory")
+
     p = sub.add_parser("view-episode", help="top-down map PNG and a frame strip of one episode")
     _add_config_args(p, "configs/objectnav.yaml")
     p.add_argument("--episode", type=int, default=0, help="episode index within the split")
@@ -137,6 +146,7 @@ def build_parser() -> argparse.ArgumentParser:
 # command -> (module, function taking the parsed args); imported on use so `--help` stays fast
 COMMANDS: dict[str, tuple[str, str]] = {
     "objectnav": ("eval.objectnav.run", "main_objectnav"),
+    "start-pose": ("eval.objectnav.frames", "main_start_pose"),
     "view-episode": ("eval.objectnav.view_episode", "main_view_episode"),
     "bench": ("eval.bench.run", "main_bench"),
     "train-segmenter": ("eval.segmenter.train", "main_train_segmenter"),

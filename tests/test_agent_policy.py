@@ -6,6 +6,7 @@ import pytest
 from eval.config import ConfigError, load_config
 
 MAX_STEPS = 200          # the test episode is short: a few metres
+NDF_STEPS = 40           # steps of the NDF / uncertainty-aware observation check
 
 
 def test_agent_config_keys_and_validation():
@@ -54,3 +55,52 @@ def test_agent_finds_goal_in_small_house(small_setup):
         done = terminated or truncated
     assert info["success"], f"episode {index}: distance to goal {info['distance_to_goal']:.2f} m after {info['steps']} steps"
     assert info["steps"] < MAX_STEPS, info["steps"]
+
+
+def test_agent_reads_only_habitat_observations(small_setup):
+    """The same actions from Habitat's keys alone (+ semantic for gt) as from the full
+    observation: no decision depends on the privileged camera_pose / camera_intrinsics."""
+    from agent.policy import PeanutAgent
+    from envs.task import HABITAT_KEYS, SEMANTIC
+
+    cfg, env = small_setup
+    episodes = env.unwrapped.episodes
+    index = int(np.argmin([ep.geodesic_distance for ep in episodes]))
+    full, reduced = PeanutAgent(cfg), PeanutAgent(cfg)
+    keep = (*HABITAT_KEYS, SEMANTIC)
+    obs, _ = env.reset(options={"episode_index": index})
+    full.reset(obs)
+    reduced.reset({k: obs[k] for k in keep})
+    done, steps = False, 0
+    while not done:
+        action = full.act(obs)
+        assert reduced.act({k: obs[k] for k in keep}) == action, f"step {steps}"
+        obs, _, terminated, truncated, _ = env.step(action)
+        done, steps = terminated or truncated, steps + 1
+    assert steps > cfg.env.turn_angle_deg and full.info.mode == "stop"
+
+
+def test_ndf_uncertainty_aware_agent_and_video_panel_on_habitat_observations(small_setup):
+    """The NDF baseline with the uncertainty-aware variant also reads only Habitat's keys, and
+    the video panel draws from such an agent (first NDF_STEPS steps)."""
+    import dataclasses
+
+    from agent.policy import PeanutAgent
+    from agent.visualize import render_panel
+    from envs.task import HABITAT_KEYS, SEMANTIC
+
+    cfg, env = small_setup
+    cfg = dataclasses.replace(cfg, agent=dataclasses.replace(cfg.agent, map_type="ndf", uncertainty_aware=True))
+    full, reduced = PeanutAgent(cfg), PeanutAgent(cfg)
+    keep = (*HABITAT_KEYS, SEMANTIC)
+    obs, _ = env.reset(options={"episode_index": 0})
+    full.reset(obs)
+    reduced.reset({k: obs[k] for k in keep})
+    for step in range(NDF_STEPS):
+        action = full.act(obs)
+        assert reduced.act({k: obs[k] for k in keep}) == action, f"step {step}"
+        obs, _, terminated, truncated, _ = env.step(action)
+        if terminated or truncated:
+            break
+    panel = render_panel(reduced)
+    assert panel.ndim == 3 and panel.shape[2] == 3 and panel.std() > 0

@@ -85,7 +85,7 @@ def draw_episode(env, path_xy: np.ndarray, frames: list[dict], out_dir: Path) ->
         o = frames[k]
         axes[0, j].imshow(o["rgb"])
         axes[0, j].set_title(f"step {k}")
-        axes[1, j].imshow(o["depth"][..., 0], cmap="viridis", vmin=0, vmax=e.config.max_depth_m)
+        axes[1, j].imshow(o["depth"][..., 0], cmap="viridis", vmin=0, vmax=1.0 if e.config.normalize_depth else e.config.max_depth_m)
         axes[2, j].imshow(colorize(o["semantic"]) if "semantic" in o else np.zeros_like(o["rgb"]))
         for a in axes[:, j]:
             a.axis("off")

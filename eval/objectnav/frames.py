@@ -1,0 +1,329 @@
+"""Start-pose study: is the agent equally good whatever frame its poses come in and whatever
+the house's orientation? (issue 14: the agent maps in the episode-start frame that Habitat's
+gps + compass give, so nothing may depend on where that frame's origin and axes fall.)
+
+A ``FrameVariant`` names how the agent's gps + compass are expressed and how the house lies:
+
+- ``base``: ``start`` (Habitat's: origin at the start, x along the start heading) or
+  ``world`` (the simulator's world frame: the old privileged protocol's poses);
+- then the frame is rotated by ``yaw_deg`` and its origin shifted by ``offset_m`` (x, y):
+  the agent sees gps / compass of the pose ``R(yaw) p + offset`` (a rigid change of frame,
+  so the episode itself is unchanged);
+- ``house_yaw_deg``: the house mesh, the start poses and the goals are rotated about the
+  world origin (walls no longer axis-aligned in the world; ``rotated_setup``).
+
+``frame_obs`` does the change of frame on one observation; ``FrameWrapper`` applies it in a
+gymnasium env; ``run_frame_study`` runs episodes x variants in worker processes and writes
+``episodes.jsonl`` (a line per finished episode) / ``summary.json`` / ``summary.csv`` (Success
+as successes / N and mean SPL per variant) / ``summary.png``; ``lockstep_map_stats`` drives one
+episode with the first variant's actions and records every variant's map statistics per step
+(the instrument that found the sensitive stage).
+"""
+from __future__ import annotations
+
+import csv
+import json
+import math
+import multiprocessing as mp
+import tempfile
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+FRAME_BASES = ("start", "world")
+
+
+@dataclass(frozen=True)
+class FrameVariant:
+    """How the agent's poses are expressed (see module docstring). offset_m (x, y) metres;
+    yaw_deg / house_yaw_deg degrees, counter-clockwise."""
+
+    name: str
+    base: str = "start"
+    offset_m: tuple[float, float] = (0.0, 0.0)
+    yaw_deg: float = 0.0
+    house_yaw_deg: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.base not in FRAME_BASES:
+            raise ValueError(f"unknown frame base {self.base!r}; valid: {', '.join(FRAME_BASES)}")
+
+
+# The study's variants, by name (``calnav start-pose --variants``). Offsets and yaws are
+# arbitrary values, none a multiple of the 5 cm cell or of 90 degrees.
+VARIANTS: dict[str, FrameVariant] = {v.name: v for v in (
+    FrameVariant("world", "world"),                                      # the old privileged protocol's frame
+    FrameVariant("start"),                                               # Habitat's gps + compass
+    FrameVariant("start_offset", offset_m=(0.013, 0.027)),               # origin shifted by less than a cell
+    FrameVariant("start_offset_far", offset_m=(100.013, -100.013)),      # origin 141 m away
+    FrameVariant("start_rotated", offset_m=(3.217, -1.709), yaw_deg=23.0),  # a rotated, shifted frame
+    FrameVariant("world_offset_far", "world", offset_m=(100.013, -100.013)),
+    FrameVariant("house_yaw37", house_yaw_deg=37.0),                     # houses rotated: walls off the axes
+    FrameVariant("house_yaw118", house_yaw_deg=118.0),
+)}
+DEFAULT_VARIANTS = ("world", "start", "start_offset", "start_rotated", "house_yaw37")
+
+
+def parse_variants(spec: str) -> list[FrameVariant]:
+    """Comma-separated variant names -> variants (a clear error names the valid ones)."""
+    names = [n for n in spec.split(",") if n]
+    unknown = [n for n in names if n not in VARIANTS]
+    if unknown or not names:
+        raise ValueError(f"unknown start-pose variant {unknown[0] if unknown else spec!r}; valid: {', '.join(VARIANTS)}")
+    return [VARIANTS[n] for n in dict.fromkeys(names)]
+
+
+def rot2(theta: float) -> np.ndarray:
+    """(2, 2) counter-clockwise rotation by theta rad."""
+    c, s = math.cos(theta), math.sin(theta)
+    return np.array([[c, -s], [s, c]])
+
+
+def frame_obs(obs: dict, variant: FrameVariant, start_xy, start_yaw: float) -> dict:
+    """A copy of ``obs`` whose gps / compass express the agent's pose in ``variant``'s frame.
+    start_xy (2,) metres / start_yaw rad: the episode's world start pose (for base ``world``)."""
+    from envs.task import COMPASS, GPS, gps_compass_to_xy_yaw, wrap_angle
+
+    xy, yaw = gps_compass_to_xy_yaw(obs[GPS], obs[COMPASS])
+    if variant.base == "world":
+        xy, yaw = np.asarray(start_xy, np.float64) + rot2(start_yaw) @ xy, yaw + start_yaw
+    theta = math.radians(variant.yaw_deg)
+    xy = rot2(theta) @ xy + np.asarray(variant.offset_m, np.float64)
+    out = dict(obs)
+    out[GPS] = np.array([xy[0], -xy[1]], np.float32)
+    out[COMPASS] = np.array([wrap_angle(yaw + theta)], np.float32)
+    return out
+
+
+def _frame_wrapper_class():
+    import gymnasium as gym
+
+    class FrameWrapper(gym.ObservationWrapper):
+        """Expresses gps / compass in a ``FrameVariant``'s frame (the episode is unchanged)."""
+
+        def __init__(self, env, variant: FrameVariant):
+            super().__init__(env)
+            self.variant = variant
+
+        def observation(self, obs):
+            ep = self.env.unwrapped.episode
+            return frame_obs(obs, self.variant, ep.start_position, ep.start_yaw)
+
+    return FrameWrapper
+
+
+def rotate_scene(scene, yaw_rad: float):
+    """The scene rotated by yaw_rad about the world z axis (through x = y = 0). Its axis-aligned
+    ``rooms`` no longer describe it and are dropped."""
+    r = np.eye(3)
+    r[:2, :2] = rot2(yaw_rad)
+    v = (np.asarray(scene.vertices, np.float64) @ r.T).astype(np.float32)
+    return replace(scene, vertices=v, rooms=[], meta={**scene.meta, "rotated_deg": math.degrees(yaw_rad)})
+
+
+def rotate_episode(ep, yaw_rad: float):
+    """The episode with its start pose and goals rotated like ``rotate_scene``."""
+    r2 = rot2(yaw_rad)
+    r3 = np.eye(3)
+    r3[:2, :2] = r2
+    goals = [replace(g, position=r3 @ np.asarray(g.position, np.float64),
+                     view_points=np.asarray(g.view_points, np.float64) @ r2.T) for g in ep.goals]
+    return replace(ep, start_position=r2 @ np.asarray(ep.start_position, np.float64),
+                   start_yaw=(ep.start_yaw + yaw_rad) % (2 * math.pi), goals=goals)
+
+
+def rotated_setup(env_cfg, episodes: list, yaw_deg: float, scene_dir: Path):
+    """(env config reading the rotated houses from ``scene_dir``, rotated episodes): every
+    scene of ``episodes`` is rotated by yaw_deg and saved as ``scene_dir/<scene_id>.npz``."""
+    from envs.scenes import load_scene
+
+    yaw = math.radians(yaw_deg)
+    scene_dir.mkdir(parents=True, exist_ok=True)
+    for sid in sorted({ep.scene_id for ep in episodes}):
+        path = scene_dir / f"{sid}.npz"
+        if not path.exists():
+            rotate_scene(load_scene(sid, env_cfg.dataset), yaw).save(path)
+    cfg = replace(env_cfg, dataset=replace(env_cfg.dataset, scene_dir=str(scene_dir)))
+    return cfg, [rotate_episode(ep, yaw) for ep in episodes]
+
+
+def make_env(cfg, variant: FrameVariant, work_dir: Path):
+    """The gym env of ``cfg.env``'s split for ``variant`` (rotated houses under work_dir)."""
+    import gymnasium as gym
+
+    import envs  # noqa: F401  (registers the env)
+    from envs.episodes import load_split
+
+    env_cfg, episodes = cfg.env, load_split(cfg.env.split, cfg.env, progress=False)
+    if variant.house_yaw_deg:
+        env_cfg, episodes = rotated_setup(env_cfg, episodes, variant.house_yaw_deg,
+                                          work_dir / f"houses_{variant.house_yaw_deg:g}deg")
+    env = gym.make("calnav/ObjectNav-v0", split=env_cfg.split, config=env_cfg, episodes=episodes)
+    return _frame_wrapper_class()(env, variant)
+
+
+# ---------------------------------------------------------------------------- episodes x variants
+_worker: dict = {}
+
+
+def _init(cfg_dict: dict, work_dir: str) -> None:
+    from eval.config import Config, build_dataclass
+
+    _worker.update(cfg=build_dataclass(Config, cfg_dict), work_dir=Path(work_dir), envs={})
+
+
+def _run(variant_dict: dict, index: int) -> dict:
+    from agent.policy import PeanutAgent
+    from eval.objectnav.run import run_one_episode
+
+    variant = FrameVariant(**{**variant_dict, "offset_m": tuple(variant_dict["offset_m"])})
+    cfg = _worker["cfg"]
+    if variant.name not in _worker["envs"]:
+        _worker["envs"][variant.name] = (make_env(cfg, variant, _worker["work_dir"]), PeanutAgent(cfg, cfg.run.device))
+    env, agent = _worker["envs"][variant.name]
+    rec = run_one_episode(env, agent, index)
+    return {"variant": variant.name, **{k: rec[k] for k in ("index", "episode_id", "success", "spl", "steps",
+                                                             "stop_reason", "distance_to_goal")}}
+
+
+def run_frame_study(cfg, indices: list[int], variants: list[FrameVariant], out: Path | None,
+                    workers: int = 2, progress: bool = True) -> dict[str, dict]:
+    """Run every (variant, episode) with the PEANUT agent of ``cfg``; returns variant name ->
+    {success, spl, n} (means). With ``out``: episodes.jsonl, summary.json, summary.csv, summary.png."""
+    from tqdm import tqdm
+
+    from eval.config import to_dict
+
+    names = [v.name for v in variants]
+    if len(set(names)) != len(names):
+        raise ValueError(f"frame variants need distinct names, got {names}")
+    with tempfile.TemporaryDirectory(prefix="calnav_frames_") as tmp:
+        work = Path(out) if out else Path(tmp)
+        work.mkdir(parents=True, exist_ok=True)
+        for v in variants:   # write rotated houses once, before the workers start
+            if v.house_yaw_deg:
+                from envs.episodes import load_split
+
+                rotated_setup(cfg.env, load_split(cfg.env.split, cfg.env, progress=False), v.house_yaw_deg,
+                              work / f"houses_{v.house_yaw_deg:g}deg")
+        jobs = [(asdict(v), i) for v in variants for i in indices]
+        records = []
+        bar = tqdm(total=len(jobs), disable=not progress, desc="frame study", unit="ep")
+        log = open(work / "episodes.jsonl", "w") if out else None   # one line per finished episode
+        with ProcessPoolExecutor(max(1, workers), mp_context=mp.get_context("spawn"), initializer=_init,
+                                 initargs=(to_dict(cfg), str(work))) as pool:
+            for fut in as_completed([pool.submit(_run, *job) for job in jobs]):
+                records.append(fut.result())
+                if log:
+                    log.write(json.dumps(records[-1]) + "\n")
+                    log.flush()
+                bar.update(1)
+        bar.close()
+        if log:
+            log.close()
+    records.sort(key=lambda r: (names.index(r["variant"]), r["index"]))
+    summary = {}
+    for v in variants:
+        rs = [r for r in records if r["variant"] == v.name]
+        summary[v.name] = {"success": float(np.mean([r["success"] for r in rs])),
+                           "successes": int(sum(r["success"] for r in rs)),
+                           "spl": float(np.mean([r["spl"] for r in rs])), "n": len(rs), **asdict(v)}
+    if out:
+        out = Path(out)
+        (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+        with open(out / "summary.csv", "w", newline="") as f:
+            w = csv.writer(f)
+            w.writerow(["variant", "successes", "n", "success", "spl"])
+            for name, s in summary.items():
+                w.writerow([name, s["successes"], s["n"], f"{s['success']:.3f}", f"{s['spl']:.3f}"])
+        plot_summary(summary, out / "summary.png")
+    return summary
+
+
+def plot_summary(summary: dict[str, dict], path: Path) -> None:
+    """Bar plot of Success and SPL per variant (summary from ``run_frame_study``)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = list(summary)
+    x = np.arange(len(names))
+    fig, ax = plt.subplots(figsize=(1.2 * len(names) + 2, 3.5))
+    ax.bar(x - 0.2, [summary[n]["success"] for n in names], 0.4, label="Success")
+    ax.bar(x + 0.2, [summary[n]["spl"] for n in names], 0.4, label="SPL")
+    ax.set_xticks(x, names, rotation=30, ha="right")
+    ax.set_ylim(0, 1)
+    ax.set_title(f"start-pose study, {summary[names[0]]['n']} episodes per variant")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+# ---------------------------------------------------------------------------- the instrument
+def map_stats(agent) -> dict[str, float]:
+    """Frame-independent statistics of an agent's maps after a step: cell counts of each 2D
+    channel, of goal-class cells with any vote and above the goal threshold, the detected goal
+    component's area, and the decision mode."""
+    from agent.semantic_map import MapChannels
+
+    st, cfg = agent.state, agent.cfg
+    goal = st.semantic[agent.goal_id]
+    det = agent.info.detection if agent.info is not None else None
+    return {**{f"{c.name.lower()}_cells": int(st.channels[c].sum()) for c in MapChannels},
+            "goal_cells": int((goal > 0).sum()), "goal_above_threshold": int((goal >= cfg.goal_threshold).sum()),
+            "semantic_cells": int((st.counts.sum(axis=0) > 0).sum()),
+            "goal_area": int(det.area) if det is not None and det.found else 0,
+            "mode": agent.info.mode if agent.info is not None else ""}
+
+
+def lockstep_map_stats(cfg, index: int, variants: list[FrameVariant], steps: int) -> list[dict]:
+    """Drive episode ``index`` with the first variant's agent; every variant's agent sees the
+    same frames (its own gps / compass frame) and maps them. Returns one row per step and
+    variant: {step, variant, action, **map_stats}. House rotations are not supported here
+    (they change the frames themselves)."""
+    import gymnasium as gym
+
+    import envs  # noqa: F401
+    from agent.policy import PeanutAgent
+
+    if any(v.house_yaw_deg for v in variants):
+        raise ValueError("lockstep_map_stats compares frames of one house: house_yaw_deg must be 0")
+    env = gym.make("calnav/ObjectNav-v0", split=cfg.env.split, config=cfg.env).unwrapped
+    obs, _ = env.reset(options={"episode_index": index})
+    ep = env.episode
+    agents = [PeanutAgent(cfg) for _ in variants]
+    for a, v in zip(agents, variants):
+        a.reset(frame_obs(obs, v, ep.start_position, ep.start_yaw))
+    rows = []
+    for step in range(steps):
+        actions = [a.act(frame_obs(obs, v, ep.start_position, ep.start_yaw)) for a, v in zip(agents, variants)]
+        rows += [{"step": step, "variant": v.name, "action": act, **map_stats(a)}
+                 for a, v, act in zip(agents, variants, actions)]
+        obs, _, term, trunc, _ = env.step(actions[0])
+        if term or trunc:
+            break
+    return rows
+
+
+def main_start_pose(args) -> None:
+    """`calnav start-pose`: the PEANUT agent on ``--episodes`` under each ``--variants`` frame."""
+    from envs.episodes import load_split, parse_episode_range
+    from eval.config import load_config
+
+    variants = parse_variants(args.variants)           # every check before anything runs
+    if args.workers < 1:
+        raise ValueError(f"--workers must be >= 1, got {args.workers}")
+    cfg = load_config(args.config, list(args.overrides))
+    if cfg.run.agent != "peanut":
+        raise ValueError(f"start-pose runs the peanut agent (its maps live in the start frame), got run.agent={cfg.run.agent}")
+    indices = list(parse_episode_range(str(args.episodes), len(load_split(cfg.env.split, cfg.env))))
+    out = Path(args.output)
+    summary = run_frame_study(cfg, indices, variants, out, workers=args.workers)
+    print("| variant | Success | SPL | N |\n|---|---|---|---|")
+    for name, s in summary.items():
+        print(f"| {name} | {s['successes']}/{s['n']} | {s['spl']:.3f} | {s['n']} |")
+    print(f"results: {out}/summary.json, {out}/summary.csv, {out}/episodes.jsonl")
