@@ -33,6 +33,7 @@ class EnvConfig:
     camera_height_m: float = 0.88             # camera height above the floor, metres
     min_depth_m: float = 0.5                  # depth below this is invalid (0), metres
     max_depth_m: float = 5.0                  # depth above this is invalid (0), metres
+    normalize_depth: bool = False             # Habitat's normalize_depth: emit (d - min) / (max - min) in [0, 1] instead of metres
     rgb_noise_std: float = 0.0                # Gaussian RGB noise, std in uint8 levels
     depth_noise_std: float = 0.0              # Gaussian depth noise, std in metres per metre of depth
     semantic_sensor: bool = True              # emit ground-truth semantics in observations

@@ -8,14 +8,15 @@ directory, habitat-lab's loader turns each episode's ``scene_id`` into
 ``<split_dir>/<scene_id>``, and ``CalnavSim-v0`` finds the houses' description next to it.
 
 Which settings come from where (``env_overrides_from_habitat``): habitat-lab's config owns
-what it has a key for -- the sensor (resolution, hfov, camera height, depth range, semantic
-sensor on / off), the agent (radius, height), the motion (forward step, turn and tilt angles,
+what it has a key for -- the sensor (resolution, hfov, camera height, depth range and
+normalisation, semantic sensor on / off), the agent (radius, height), the motion (forward step, turn and tilt angles,
 look actions on / off), the step limit, the success distance and the split; calnav's ``env``
 section owns the rest (the houses: ``env.dataset.*``; the navigation grid; noise).
 """
 from __future__ import annotations
 
 import json
+import os
 from dataclasses import asdict, replace
 from pathlib import Path
 
@@ -29,7 +30,7 @@ AGENT = "main_agent"                     # habitat-lab's single-agent name
 HABITAT_CONFIG = str(Path(__file__).resolve().parents[1] / "configs" / "habitat_objectnav.yaml")  # the default
 # EnvConfig keys that habitat-lab's config sets (a calnav override of one of them is refused)
 HABITAT_OWNED: tuple[str, ...] = (
-    "split", "resolution", "hfov_deg", "camera_height_m", "min_depth_m", "max_depth_m", "semantic_sensor",
+    "split", "resolution", "hfov_deg", "camera_height_m", "min_depth_m", "max_depth_m", "normalize_depth", "semantic_sensor",
     "forward_step_m", "turn_angle_deg", "tilt_angle_deg", "enable_look", "agent_radius_m", "agent_height_m",
     "max_episode_steps", "success_distance_m")
 SENSOR_TYPES = {"rgb": "HabitatSimRGBSensor", "depth": "HabitatSimDepthSensor",
@@ -72,7 +73,8 @@ def env_overrides_from_sim(sim_cfg) -> dict:
            "forward_step_m": float(sim_cfg.forward_step_size), "turn_angle_deg": float(sim_cfg.turn_angle),
            "agent_radius_m": float(agent.radius), "agent_height_m": float(agent.height)}
     if "depth" in sensors:
-        out.update(min_depth_m=float(sensors["depth"].min_depth), max_depth_m=float(sensors["depth"].max_depth))
+        d = sensors["depth"]
+        out.update(min_depth_m=float(d.min_depth), max_depth_m=float(d.max_depth), normalize_depth=bool(d.normalize_depth))
     return out
 
 
@@ -111,7 +113,7 @@ def prepare_habitat_dataset(env_cfg: EnvConfig, progress: bool = True) -> Path:
     text = json.dumps({"format": DESCRIPTOR_FORMAT, "version": DESCRIPTOR_VERSION, "env": asdict(env_cfg)},
                       indent=1, sort_keys=True)
     if not path.exists() or path.read_text() != text:
-        tmp = path.with_name(f"{path.name}.tmp")
+        tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")
         tmp.write_text(text)
         tmp.replace(path)
     return root
