@@ -137,3 +137,14 @@ def test_objectnav_multirun_dirs_resume_and_comparison(tmp_path, capsys):
     before = {s: (out / s / "episodes.jsonl").read_text() for s in subdirs}
     assert main(args) == 0
     assert before == {s: (out / s / "episodes.jsonl").read_text() for s in subdirs}
+
+
+def test_habitat_benchmark_names_the_install_when_habitat_lab_is_missing(tmp_path, capsys):
+    import importlib.util
+
+    if importlib.util.find_spec("habitat") is not None:
+        pytest.skip("habitat-lab is installed here: tests/test_habitat.py covers habitat-benchmark")
+    assert main(["habitat-benchmark", "--output", str(tmp_path / "h"), "env.dataset.val_scenes=2"]) == 2
+    err = capsys.readouterr().err
+    assert "habitat-lab is not installed" in err and "make habitat-setup" in err and 'pip install -e ".[habitat]"' in err
+    assert not (tmp_path / "h").exists()
