@@ -3,7 +3,6 @@
 ``CalnavSim-v0`` agree with calnav's env; ``calnav habitat-benchmark`` agrees with
 ``calnav objectnav``; bad input. Needs habitat-lab (``.venv-habitat``, ``make test`` runs it).
 """
-import importlib.util
 import json
 import math
 import os
@@ -11,11 +10,9 @@ import os
 import numpy as np
 import pytest
 
-if importlib.util.find_spec("habitat") is None:
-    if os.environ.get("CALNAV_REQUIRE_HABITAT") == "1":  # `make test`'s habitat run: never skip
-        raise RuntimeError("CALNAV_REQUIRE_HABITAT=1 but habitat-lab is not importable in this Python")
-    pytest.skip("habitat-lab is not installed here (make test runs these in .venv-habitat)",
-                allow_module_level=True)
+from conftest import require_habitat
+
+require_habitat()
 
 from envs.task import Action  # noqa: E402
 from eval.cli import main  # noqa: E402
