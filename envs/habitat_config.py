@@ -164,10 +164,13 @@ def habitat_config(env_base: EnvConfig | None = None, overrides: list[str] | Non
     from hydra.errors import HydraException
     from omegaconf.errors import OmegaConfBaseException
 
-    if not Path(config_path).exists():
+    path = Path(config_path)
+    if not path.exists() and (Path(HABITAT_CONFIG).parent / path.name).exists():
+        path = Path(HABITAT_CONFIG).parent / path.name  # a file of calnav's configs/, from any directory
+    if not path.exists():
         raise FileNotFoundError(f"habitat config {config_path} not found")
     try:
-        cfg = habitat.get_config(str(config_path), overrides=list(overrides or []))
+        cfg = habitat.get_config(str(path), overrides=list(overrides or []))
     except (HydraException, OmegaConfBaseException) as exc:
         first = str(exc).strip().splitlines()[0]
         raise ValueError(f"bad habitat config override: {first} (habitat keys: habitat.simulator.*, "
