@@ -6,6 +6,7 @@
 import json
 import math
 import os
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -85,7 +86,8 @@ def _pair(setup, index):
     hcfg, env_cfg, calnav = setup
     henv = _habitat_env(hcfg)
     henv.episodes = [henv.episodes[index]]
-    cenv = gym.make("calnav/ObjectNav-v0", split="val", config=env_cfg).unwrapped
+    # calnav's env in metres (habitat-lab's config normalises depth; _compare maps it back)
+    cenv = gym.make("calnav/ObjectNav-v0", split="val", config=replace(env_cfg, normalize_depth=False)).unwrapped
     return henv, cenv
 
 
