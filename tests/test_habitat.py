@@ -58,6 +58,23 @@ def test_env_config_follows_the_habitat_config(setup):
     assert env.enable_look and not env.semantic_sensor and env.dataset.val_scenes == 2
 
 
+@pytest.mark.parametrize("name", ["habitat_objectnav.yaml", "habitat_objectnav_semantic.yaml"])
+def test_shipped_habitat_configs_compose(name):
+    """Each extends habitat-lab's HM3D ObjectNav benchmark config: its values, calnav's simulator."""
+    from common.habitat_import import import_habitat
+    from envs.habitat_config import HABITAT_CONFIG
+
+    cfg = import_habitat().get_config(HABITAT_CONFIG.replace("habitat_objectnav.yaml", name)).habitat
+    sensors = cfg.simulator.agents.main_agent.sim_sensors
+    assert cfg.simulator.type == "CalnavSim-v0" and cfg.task.type == "ObjectNav-v1"
+    assert cfg.simulator.turn_angle == 30 and cfg.environment.max_episode_steps == 500
+    assert sensors.rgb_sensor.width == 640 and sensors.depth_sensor.max_depth == 5.0
+    assert ("semantic_sensor" in sensors) == name.endswith("_semantic.yaml")
+    if "semantic_sensor" in sensors:
+        assert (sensors.semantic_sensor.width, sensors.semantic_sensor.hfov) == (640, 79)
+    assert cfg.task.actions.look_up.type == "CalnavLookUpAction"
+
+
 def test_episode_files_load_with_objectnav_dataset_v1(setup):
     from habitat.datasets.object_nav.object_nav_dataset import ObjectNavDatasetV1
 
