@@ -239,31 +239,6 @@ class CalnavSim(Simulator):
         sim_obs = {"rgb": frame.rgb, "depth": frame.depth, "semantic": frame.semantic}
         return self._sensor_suite.get_observations(sim_obs)
 
-    def get_observations_at(self, position=None, rotation=None, keep_agent_at_new_pose: bool = False):
-        """Observations at a Habitat-frame pose (the current one when None)."""
-        saved = (self.position, self.yaw)
-        if position is not None:
-            self.position = _xy(position)
-        if rotation is not None:
-            q = rotation if isinstance(rotation, quaternion.quaternion) else quaternion.quaternion(
-                rotation[3], *rotation[:3])
-            self.yaw = habitat_quaternion_to_yaw([q.x, q.y, q.z, q.w])
-        obs = self.get_sensor_observations()
-        if not keep_agent_at_new_pose:
-            self.position, self.yaw = saved
-        return obs
-
-    def is_navigable(self, point) -> bool:
-        return bool(self.navgrid.is_navigable(_xy(point)))
-
-    @property
-    def up_vector(self) -> np.ndarray:
-        return np.array([0.0, 1.0, 0.0])
-
-    @property
-    def forward_vector(self) -> np.ndarray:
-        return -np.array([0.0, 0.0, 1.0])
-
 
 def _xy(p) -> np.ndarray:
     """Habitat y-up point(s) (..., 3) -> calnav world xy (..., 2) float64."""
