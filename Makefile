@@ -5,10 +5,16 @@ PY     := $(VENV)/bin/python
 # The CPU build of torch that these machines carry locally; override to use another build.
 TORCH_SPEC ?= torch==2.13.0
 STAMP  := $(VENV)/.calnav-installed
+# habitat-lab pins numpy==1.26.4 (the main venv has numpy 2), so its interop runs in its own venv
+HABITAT_VENV  ?= .venv-habitat
+HPY           := $(HABITAT_VENV)/bin/python
+HABITAT_STAMP := $(HABITAT_VENV)/.calnav-installed
 
-.PHONY: setup demo test test-full bench study clean-cache
+.PHONY: setup habitat-setup demo test test-full bench study clean-cache
 
 setup: $(STAMP)
+
+habitat-setup: $(HABITAT_STAMP)
 
 $(STAMP): pyproject.toml
 	@bash .ci/system-deps.sh
@@ -18,14 +24,26 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install -q -e ".[test]"
 	@touch $(STAMP)
 
+# habitat-lab + calnav's [habitat] extra (numpy 1.26.4, OpenCV < 5); habitat-sim is not needed
+$(HABITAT_STAMP): pyproject.toml
+	@bash .ci/system-deps.sh
+	@test -x $(HPY) || $(PYTHON) -m venv $(HABITAT_VENV)
+	$(HPY) -m pip install -q --upgrade pip
+	$(HPY) -m pip show -q torch >/dev/null 2>&1 || $(HPY) -m pip install -q "$(TORCH_SPEC)"
+	$(HPY) -m pip install -q -e ".[test,habitat]"
+	@touch $(HABITAT_STAMP)
+
 demo: $(STAMP)
 	$(VENV)/bin/calnav demo
 
-test: $(STAMP)
+# the main suite, then the habitat-lab interop tests (marker habitat) for real in .venv-habitat
+test: $(STAMP) $(HABITAT_STAMP)
 	$(PY) -m pytest -q -ra
+	CALNAV_REQUIRE_HABITAT=1 $(HPY) -m pytest -q -ra -m habitat
 
-test-full: $(STAMP)
+test-full: $(STAMP) $(HABITAT_STAMP)
 	CALNAV_FULL_TESTS=1 $(PY) -m pytest -q -ra
+	CALNAV_REQUIRE_HABITAT=1 CALNAV_FULL_TESTS=1 $(HPY) -m pytest -q -ra -m habitat
 
 bench: $(STAMP)
 	$(VENV)/bin/calnav bench --output bench.json

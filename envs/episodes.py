@@ -14,7 +14,10 @@ default val split), with uniform heading. Like habitat-lab's generators, a start
 On disk (habitat-lab's ObjectNav layout, gzip JSON): ``<split>/<split>.json.gz`` holds the
 category maps, ``<split>/content/<scene_id>.json.gz`` the episodes and ``goals_by_category``.
 Positions are written in Habitat's y-up frame (x_h, y_h, z_h) = (x, z, -y) and rotations as
-[x, y, z, w] quaternions about +y_h; calnav's z-up frame is restored on load.
+[x, y, z, w] quaternions about +y_h; calnav's z-up frame is restored on load. Each view point
+carries the ``iou`` key that habitat-lab's ``ObjectViewLocation`` requires, as null: calnav
+does not compute the object-in-view IoU (no measure reads it); files cached before the key
+existed get it added on load (``load_split``), nothing else in them changes.
 """
 from __future__ import annotations
 
@@ -40,6 +43,7 @@ SURFACE_SAMPLE_SPACING_M = 0.03   # spacing of object surface samples for footpr
 VISIBILITY_TARGETS = 48           # object surface points tested for visibility per view point
 MAX_START_TRIES = 200             # start-pose draws per episode before giving up
 START_DISTANCE_POWER = 1.0        # start cells are drawn with probability ∝ geodesic^power
+VIEW_POINT_IOU = None             # habitat-lab's ObjectViewLocation.iou: not computed by calnav
 
 
 @dataclass
@@ -131,10 +135,16 @@ def find_goal_objects(scene: Scene, navgrid, raycasting_scene, env_cfg: EnvConfi
 
 def goal_mask(navgrid, goals: list[GoalObject]) -> np.ndarray:
     """(H, W) bool: the view-point cells of all given goal instances."""
+    return view_point_mask(navgrid, np.concatenate([g.view_points for g in goals]))
+
+
+def view_point_mask(navgrid, points_xy: np.ndarray) -> np.ndarray:
+    """(H, W) bool: the cells of view points ``points_xy`` ((N, 2) world xy, metres); points
+    off the grid mark nothing."""
     mask = np.zeros(navgrid.navigable.shape, dtype=bool)
-    for g in goals:
-        rc = navgrid.to_cell(g.view_points)
-        mask[rc[:, 0], rc[:, 1]] = True
+    rc = navgrid.to_cell(np.asarray(points_xy, np.float64).reshape(-1, 2))
+    inside = navgrid.in_grid(rc)
+    mask[rc[inside, 0], rc[inside, 1]] = True
     return mask
 
 
@@ -211,8 +221,8 @@ def episodes_to_habitat(episodes: list[ObjectNavEpisode]) -> dict:
             goals_by_category[key] = [{
                 "object_id": g.object_id, "object_category": g.object_category,
                 "position": [float(g.position[0]), float(g.position[2]), float(-g.position[1])],
-                "view_points": [{"agent_state": {"position": _to_habitat(v),
-                                                 "rotation": [0.0, 0.0, 0.0, 1.0]}} for v in g.view_points],
+                "view_points": [{"agent_state": {"position": _to_habitat(v), "rotation": [0.0, 0.0, 0.0, 1.0]},
+                                 "iou": VIEW_POINT_IOU} for v in g.view_points],
             } for g in ep.goals]
         out.append({
             "episode_id": ep.episode_id, "scene_id": ep.scene_id,
@@ -271,6 +281,8 @@ def read_episode_file(path: Path) -> list[ObjectNavEpisode]:
     """The episodes of one habitat-lab content file (``<split>/content/<scene>.json.gz``);
     ValueError naming the file and the missing / malformed entry when it is damaged."""
     data = read_json_gz(path)
+    if add_view_point_iou(data):   # a file cached before calnav wrote ``iou``: upgraded in place
+        write_json_gz(path, data)
     try:
         return episodes_from_habitat(data)
     except KeyError as exc:
@@ -336,6 +348,19 @@ def load_split(split: str, env_cfg: EnvConfig, progress: bool = True) -> list[Ob
             "category_to_scene_annotation_category_id": {c: i for i, c in enumerate(GOAL_CATEGORIES)},
         })
     return [ep for sid in scene_ids for ep in cached[sid]]
+
+
+def add_view_point_iou(data: dict) -> bool:
+    """Give every view point of a content file (dict, edited in place) the ``iou`` key that
+    habitat-lab requires (files written before calnav wrote it); True when something changed."""
+    changed = False
+    for goals in data.get("goals_by_category", {}).values():
+        for g in goals:
+            for v in g["view_points"]:
+                if "iou" not in v:
+                    v["iou"] = VIEW_POINT_IOU
+                    changed = True
+    return changed
 
 
 def parse_episode_range(spec: str, n_total: int) -> range:

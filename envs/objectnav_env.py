@@ -19,7 +19,6 @@ reduction in DistanceToGoal, -0.01 per step, +2.5 on success.
 """
 from __future__ import annotations
 
-import math
 from dataclasses import replace
 
 import gymnasium as gym
@@ -29,13 +28,13 @@ from gymnasium import spaces
 from envs.config import EnvConfig
 from envs.episodes import ObjectNavEpisode, goal_mask, load_split
 from envs.measures import TaskState, objectnav_measurements
+from envs.motion import apply_action
 from envs.semantics import GOAL_CATEGORIES, NUM_CLASSES
 from envs.task import (CAMERA_INTRINSICS, CAMERA_POSE, COMPASS, DEPTH, GPS, OBJECTGOAL, RGB, SEMANTIC, Action,
                        check_action, normalize_depth_m, num_actions, observation_specs, xy_yaw_to_gps_compass)
 
 SLACK_REWARD = -0.01
 SUCCESS_REWARD = 2.5
-MAX_PITCH_RAD = math.radians(90)
 RESET_OPTIONS = ("episode_index", "episode_id")  # keys reset(options=...) understands
 
 
@@ -163,17 +162,9 @@ class ObjectNavEnv(gym.Env):
         a = check_action(action, self.config.enable_look)
         cfg = self.config
         d_before = self._measurements["distance_to_goal"].metric
-        if a == Action.MOVE_FORWARD:
-            self.position, moved = self.navgrid.move_forward(self.position, self.yaw, cfg.forward_step_m)
-            self.collisions += int(not moved)
-        elif a == Action.TURN_LEFT:
-            self.yaw = (self.yaw + math.radians(cfg.turn_angle_deg)) % (2 * math.pi)
-        elif a == Action.TURN_RIGHT:
-            self.yaw = (self.yaw - math.radians(cfg.turn_angle_deg)) % (2 * math.pi)
-        elif a == Action.LOOK_UP:
-            self.pitch = min(self.pitch + math.radians(cfg.tilt_angle_deg), MAX_PITCH_RAD)
-        elif a == Action.LOOK_DOWN:
-            self.pitch = max(self.pitch - math.radians(cfg.tilt_angle_deg), -MAX_PITCH_RAD)
+        self.position, self.yaw, self.pitch, collided = apply_action(self.navgrid, cfg, self.position, self.yaw,
+                                                                     self.pitch, a)
+        self.collisions += int(collided)
         self.steps += 1
         self._task.position = self.position.copy()
         self._task.stop_called = a == Action.STOP

@@ -48,6 +48,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--workers", type=int, default=2, help="worker processes")
     p.add_argument("--output", default="runs/start_pose", help="results directory")
 
+    p = sub.add_parser("habitat-benchmark", help="run an agent through habitat-lab's habitat.Benchmark on calnav "
+                                                 "houses (needs habitat-lab: make habitat-setup)")
+    _add_config_args(p, "configs/objectnav.yaml")
+    p.add_argument("--habitat-config", default="configs/habitat_objectnav.yaml",
+                   help="habitat-lab config (task, sensors, split); habitat.* overrides apply to it")
+    p.add_argument("--agent", default=None, metavar="NAME",
+                   help="shorthand for run.agent=NAME (default: the config's, peanut)")
+    p.add_argument("--episodes", default="10", help="N (first N) or A:B (a range) of the split's episodes")
+    p.add_argument("--output", default=None, help="results directory (default: run.output_dir)")
+    p.add_argument("--force", action="store_true", help="discard results of a different config in --output")
+
     p = sub.add_parser("view-episode", help="top-down map PNG and a frame strip of one episode")
     _add_config_args(p, "configs/objectnav.yaml")
     p.add_argument("--episode", type=int, default=0, help="episode index within the split")
@@ -147,6 +158,7 @@ def build_parser() -> argparse.ArgumentParser:
 COMMANDS: dict[str, tuple[str, str]] = {
     "objectnav": ("eval.objectnav.run", "main_objectnav"),
     "start-pose": ("eval.objectnav.frames", "main_start_pose"),
+    "habitat-benchmark": ("eval.habitat.run", "main_habitat_benchmark"),
     "view-episode": ("eval.objectnav.view_episode", "main_view_episode"),
     "bench": ("eval.bench.run", "main_bench"),
     "train-segmenter": ("eval.segmenter.train", "main_train_segmenter"),

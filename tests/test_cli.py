@@ -151,3 +151,14 @@ def test_overrides_on_both_sides_of_an_option_are_accepted():
     assert args.episodes == "0:2" and args.force
     args = parse_args(["compare", "r1", "--output", "o", "r2"])
     assert args.runs == ["r1", "r2"] and args.output == "o"
+
+
+def test_habitat_benchmark_names_the_install_when_habitat_lab_is_missing(tmp_path, capsys):
+    import importlib.util
+
+    if importlib.util.find_spec("habitat") is not None:
+        pytest.skip("habitat-lab is installed here: tests/test_habitat.py covers habitat-benchmark")
+    assert main(["habitat-benchmark", "--output", str(tmp_path / "h"), "env.dataset.val_scenes=2"]) == 2
+    err = capsys.readouterr().err
+    assert "habitat-lab is not installed" in err and "make habitat-setup" in err and 'pip install -e ".[habitat]"' in err
+    assert not (tmp_path / "h").exists()

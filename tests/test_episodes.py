@@ -168,3 +168,25 @@ def test_damaged_episode_file_is_named(tmp_path):
     path.write_bytes(b"\x1f\x8b\x08\x00")   # a gzip header, then nothing
     with pytest.raises(ValueError, match=r"episode file .*given.json.gz"):
         read_episode_file(path)
+
+
+def test_old_episode_files_get_the_iou_key_and_nothing_else_changes(small_env_config):
+    """habitat-lab's ObjectViewLocation needs ``iou`` on every view point: files cached before
+    calnav wrote it get it on load, and the episodes read back the same."""
+    from envs.episodes import read_json_gz, write_json_gz
+
+    cfg = small_env_config
+    before = load_split("val", cfg, progress=False)
+    path = split_dir("val", cfg) / "content" / "house_val_0000.json.gz"
+    data = read_json_gz(path)
+    vps = [v for gs in data["goals_by_category"].values() for g in gs for v in g["view_points"]]
+    assert vps and all(v["iou"] is None for v in vps)
+    for v in vps:
+        del v["iou"]
+    write_json_gz(path, data)
+    after = load_split("val", cfg, progress=False)
+    fixed = read_json_gz(path)
+    assert all("iou" in v for gs in fixed["goals_by_category"].values() for g in gs for v in g["view_points"])
+    for a, b in zip(before, after):
+        assert a.episode_id == b.episode_id and a.start_yaw == b.start_yaw
+        assert np.array_equal(a.start_position, b.start_position)

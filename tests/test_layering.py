@@ -113,3 +113,25 @@ def test_no_import_cycles(sources):
 
     for mod in sorted(graph):
         visit(mod, [mod])
+
+
+# habitat-lab (numpy 1.26 only, its own venv) is imported by these modules and no others, so
+# `import envs` / `import agent` / the CLI never need it
+HABITAT_MODULES = {"common.habitat_import", "envs.habitat_sim_backend", "envs.habitat_config", "agent.habitat_agent",
+                   "eval.habitat.agents", "eval.habitat.recording", "eval.habitat.run"}
+
+
+def test_only_the_habitat_modules_import_habitat(sources):
+    users = {mod for pkg in PACKAGES for mod, deps in sources[pkg].items()
+             if any(_top(d) in ("habitat", "habitat_sim") for d in deps)}
+    assert users and users <= HABITAT_MODULES, sorted(users - HABITAT_MODULES)
+
+
+def test_importing_the_packages_does_not_import_habitat():
+    import subprocess
+    import sys
+
+    code = ("import sys, envs, envs.objectnav_env, agent.policy, eval.cli, eval.habitat.run; "
+            "print(sorted(m for m in sys.modules if m.split('.')[0] in ('habitat', 'habitat_sim')))")
+    out = subprocess.run([sys.executable, "-c", code], cwd=REPO_ROOT, capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"

@@ -1,0 +1,70 @@
+"""calnav's PEANUT-like agent as a ``habitat.Agent``, for habitat-lab's ``habitat.Benchmark`` /
+``habitat.Env`` -- on calnav houses (``CalnavSim-v0``) or on habitat-sim with HM3D.
+
+``HabitatPeanutAgent(cfg)``: cfg is calnav's ``Config`` (``agent.*``: segmenter, map type,
+fusion + GLFS parameters in ``mapping.*``, thresholds -- as ``calnav objectnav``) whose ``env``
+section states the task's sensor facts; build it from the habitat config with
+``envs.habitat_config.env_config_from_habitat(habitat_cfg, cfg.env)`` (which needs no
+simulator). What crosses the boundary, and how:
+
+- ``reset()`` takes no observations in habitat-lab; ``PeanutAgent.reset(obs)`` needs the first
+  ones (goal category, start pose), so it is deferred to the first ``act``;
+- observations are passed through: the agent reads Habitat's keys (``envs.task.HABITAT_KEYS``:
+  rgb (H, W, 3) uint8, depth (H, W, 1), gps (2,), compass (1,), objectgoal (1,)); only
+  ``semantic`` (for the gt / noisy segmenters) changes shape, habitat's (H, W, 1) -> (H, W);
+- depth: habitat-lab normalises it by default (``normalize_depth``: (d - min) / (max - min),
+  clipped to [0, 1]); ``env.normalize_depth`` / ``env.min_depth_m`` / ``env.max_depth_m``
+  (from the depth sensor config) let the agent map it back to metres, 0 and 1 read as invalid;
+- pose: the agent's map lives in the episode-start frame; gps (forward, right) and compass
+  (ccw) give position and heading in it (``envs.task.gps_compass_to_xy_yaw``), the camera
+  height ``env.camera_height_m`` comes from the sensor position;
+- intrinsics: a pinhole of ``env.resolution`` and ``env.hfov_deg`` (the sensor config);
+- actions: calnav's ids are habitat-lab's ObjectNav action order; the agent returns the action
+  *name* (``stop``, ``move_forward``, ``turn_left``, ``turn_right``, ``look_up``,
+  ``look_down``), which habitat-lab resolves whatever order a config lists them in.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from agent.policy import PeanutAgent
+from common.habitat_import import import_habitat
+from envs.task import HABITAT_KEYS, SEMANTIC, Action
+
+habitat = import_habitat()
+
+
+def habitat_action(action: int) -> str:
+    """calnav action id -> habitat-lab's task action name (``Action.MOVE_FORWARD`` ->
+    ``move_forward``)."""
+    return Action(int(action)).name.lower()
+
+
+def from_habitat_observations(observations) -> dict:
+    """Habitat observations -> the agent's: Habitat's keys as they are, ``semantic`` (H, W, 1)
+    -> (H, W) when present; other keys (sensors the agent does not read) are dropped."""
+    obs = {k: observations[k] for k in HABITAT_KEYS if k in observations}
+    if SEMANTIC in observations:
+        sem = np.asarray(observations[SEMANTIC])
+        obs[SEMANTIC] = sem[..., 0] if sem.ndim == 3 else sem
+    return obs
+
+
+class HabitatPeanutAgent(habitat.Agent):
+    """``PeanutAgent`` behind habitat-lab's ``Agent`` interface (see the module docstring)."""
+
+    def __init__(self, cfg, device: str = "cpu"):
+        self.agent = PeanutAgent(cfg, device)
+        self._needs_reset = True
+
+    def reset(self) -> None:
+        """Start a new episode; the agent's own reset waits for the first observations."""
+        self._needs_reset = True
+
+    def act(self, observations) -> dict:
+        """habitat-lab's action dict ``{"action": name}`` for these observations."""
+        obs = from_habitat_observations(observations)
+        if self._needs_reset:
+            self.agent.reset(obs)
+            self._needs_reset = False
+        return {"action": habitat_action(self.agent.act(obs))}

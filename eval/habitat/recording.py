@@ -1,0 +1,88 @@
+"""What ``calnav habitat-benchmark`` puts around habitat-lab's benchmark loop: an env wrapper
+that records each episode's result, and a ``habitat.Benchmark`` on an already built env."""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+from common.habitat_import import import_habitat
+
+habitat = import_habitat()
+
+# habitat-lab measure uuid -> calnav results key
+METRIC_KEYS = {"success": "success", "spl": "spl", "soft_spl": "softspl", "distance_to_goal": "distance_to_goal"}
+
+
+class EnvBenchmark(habitat.Benchmark):
+    """``habitat.Benchmark`` on an already built env (its ``__init__`` composes a config from a
+    path, without overrides); ``evaluate`` is habitat-lab's ``local_evaluate`` unchanged."""
+
+    def __init__(self, env):  # deliberately no super().__init__: the env exists already
+        self._eval_remote = False
+        self._env = env
+
+
+class RecordingEnv:
+    """A ``habitat.Env`` as ``Benchmark.local_evaluate`` uses it (reset, step, episode_over,
+    get_metrics, episodes), recording one result per episode when its metrics are read (once
+    per episode, right after it ends). Collisions and path length come from the simulator."""
+
+    def __init__(self, env, index_of: dict[tuple[str, str], int], on_record):
+        self.env, self.index_of, self.on_record = env, index_of, on_record
+
+    @property
+    def episodes(self):
+        return self.env.episodes
+
+    @property
+    def episode_over(self) -> bool:
+        return self.env.episode_over
+
+    def reset(self):
+        obs = self.env.reset()
+        self._t0, self._steps, self._collisions, self._path = time.perf_counter(), 0, 0, 0.0
+        self._prev = self.env.sim.position.copy()
+        self._stopped = False
+        return obs
+
+    def step(self, action):
+        obs = self.env.step(action)
+        sim = self.env.sim
+        self._steps += 1
+        self._collisions += int(sim.previous_step_collided)
+        self._path += float(np.linalg.norm(sim.position - self._prev))
+        self._prev = sim.position.copy()
+        self._stopped = bool(getattr(self.env.task, "is_stop_called", False))
+        return obs
+
+    def get_metrics(self) -> dict:
+        m = self.env.get_metrics()
+        ep = self.env.current_episode
+        scene = Path(ep.scene_id).name
+        self.on_record({
+            "index": self.index_of[(scene, ep.episode_id)], "episode_id": f"{scene}:{int(ep.episode_id):03d}",
+            "scene": scene, "category": ep.object_category,
+            **{ours: float(m[theirs]) for theirs, ours in METRIC_KEYS.items()},
+            "geodesic_distance": float(ep.info["geodesic_distance"]), "steps": self._steps,
+            "path_length": self._path, "collisions": self._collisions,
+            "stop_reason": "stop" if self._stopped else "max_steps",
+            "wall_time_s": round(time.perf_counter() - self._t0, 3), "status": "ok",
+        })
+        return m
+
+
+def episode_index(episodes) -> dict[tuple[str, str], int]:
+    """(scene id, habitat episode id) -> calnav episode index. habitat-lab numbers each content
+    file's episodes 0, 1, ... (``ObjectNavDatasetV1.from_json``), calnav lists them per scene in
+    file order, so the k-th episode of a scene is habitat's episode ``str(k)``."""
+    seen: dict[str, int] = {}
+    out = {}
+    for i, ep in enumerate(episodes):
+        k = seen.get(ep.scene_id, 0)
+        out[(ep.scene_id, str(k))] = i
+        seen[ep.scene_id] = k + 1
+    return out
+
+

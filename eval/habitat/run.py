@@ -1,0 +1,129 @@
+"""`calnav habitat-benchmark`: run an agent through habitat-lab's ``habitat.Benchmark`` on calnav
+houses and write ``calnav objectnav``'s results files.
+
+Config: two layers. ``--habitat-config`` (default ``configs/habitat_objectnav.yaml``, which
+extends habitat-lab's ``benchmark/nav/objectnav/objectnav_hm3d.yaml``) with ``habitat.*``
+overrides sets the task, sensors, agent body and split; ``--config`` (default
+``configs/objectnav.yaml``) with the other overrides sets the agent (``run.agent``,
+``agent.*``, ``mapping.*``) and the houses (``env.dataset.*``, navigation grid). An ``env.*``
+override of a key the habitat config owns (``envs.habitat_config.HABITAT_OWNED``) is refused.
+
+The episode loop is habitat-lab's own (``Benchmark.local_evaluate``); a thin wrapper around
+its ``habitat.Env`` records each episode's metrics when the benchmark reads them.
+Output directory: ``config.yaml`` (calnav config, ``env`` as the habitat config sets it),
+``habitat_config.yaml`` (the composed habitat-lab config), ``episodes.jsonl``,
+``summary.json``, ``plots/`` -- the records and summary of ``calnav objectnav`` (habitat-lab's
+``soft_spl`` is written as ``softspl``). Rerunning into the same directory skips finished
+episodes; a directory holding another config is refused unless ``--force``.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from eval.config import ConfigError, load_config
+from eval.objectnav.run import agent_overrides, load_records, prepare_output, repair_records
+from eval.stats import format_metrics_table, summarize
+
+HABITAT_PREFIX = "habitat."
+HABITAT_CONFIG_FILE = "habitat_config.yaml"
+
+
+def split_overrides(overrides: list[str]) -> tuple[list[str], list[str]]:
+    """(habitat.* overrides, calnav overrides); a calnav ``env.<habitat-owned key>`` is an error."""
+    from envs.habitat_config import HABITAT_OWNED
+
+    hab = [o for o in overrides if o.startswith(HABITAT_PREFIX)]
+    own = [o for o in overrides if not o.startswith(HABITAT_PREFIX)]
+    for o in own:
+        key = o.split("=", 1)[0]
+        if key.startswith("env.") and key[len("env."):] in HABITAT_OWNED:
+            raise ConfigError(f"{key} is set by the habitat config in habitat-benchmark; override the habitat key "
+                              f"instead (e.g. habitat.simulator.turn_angle=..., habitat.dataset.split=...); "
+                              f"habitat-owned env keys: {', '.join(HABITAT_OWNED)}")
+    return hab, own
+
+
+def _check_habitat_dir(out: Path, text: str, force: bool) -> None:
+    path = out / HABITAT_CONFIG_FILE
+    if path.exists() and path.read_text() != text:
+        if not force:
+            raise ConfigError(f"{out} holds results of a different habitat config ({path}); "
+                              "use another --output, or --force to discard them")
+        (out / "episodes.jsonl").unlink(missing_ok=True)
+
+
+def run_habitat_benchmark(cfg, habitat_cfg, indices: list[int], out: Path, force: bool = False,
+                          progress: bool = True, plots: bool = True) -> dict:
+    """Run (or resume) ``indices`` of the habitat config's split with agent ``cfg.run.agent``
+    through ``habitat.Benchmark``; returns the summary dict (also in ``out/summary.json``)."""
+    import envs.habitat_sim_backend  # noqa: F401  (registers CalnavSim-v0)
+    from omegaconf import OmegaConf
+
+    from envs.episodes import load_split
+    from eval.habitat.agents import habitat, make_habitat_agent
+    from eval.habitat.recording import EnvBenchmark, RecordingEnv, episode_index
+
+    habitat_text = OmegaConf.to_yaml(habitat_cfg, resolve=True)
+    _check_habitat_dir(out, habitat_text, force)
+    prepare_output(out, cfg, force)
+    (out / HABITAT_CONFIG_FILE).write_text(habitat_text)
+    results_path = out / "episodes.jsonl"
+    repair_records(results_path)
+    done = {r["index"] for r in load_records(results_path) if "index" in r}
+    todo = [i for i in indices if i not in done]
+    records = [r for r in load_records(results_path) if r.get("index") in set(indices)]
+    agent_name = cfg.run.agent
+    if todo:
+        calnav_eps = load_split(cfg.env.split, cfg.env, progress=progress)
+        index_of = episode_index(calnav_eps)
+        env = habitat.Env(config=habitat_cfg)
+        by_index = {index_of[(Path(e.scene_id).name, e.episode_id)]: e for e in env.episodes}
+        env.episodes = [by_index[i] for i in todo]
+        agent = make_habitat_agent(agent_name, env, cfg)
+        with open(results_path, "a") as f:
+            def record(rec: dict) -> None:
+                f.write(json.dumps(rec) + "\n")
+                f.flush()
+                records.append(rec)
+
+            bench = EnvBenchmark(RecordingEnv(env, index_of, record))
+            try:  # finished episodes are on disk already; an error stops the run (rerun resumes)
+                bench.evaluate(agent, num_episodes=len(todo))
+            finally:
+                env.close()
+    summary = summarize(records)
+    summary["agent"] = agent_name
+    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    if plots and records:
+        from eval.objectnav.report import plot_run
+
+        plot_run(summary, out, title=f"{agent_name} (habitat-lab)")
+    return summary
+
+
+def load_configs(args, overrides: list[str]):
+    """(calnav Config, habitat config) from the parsed args; one-line errors on bad keys."""
+    from envs.habitat_config import habitat_config
+
+    hab, own = split_overrides(list(overrides))
+    cfg = load_config(args.config, agent_overrides(args, own))
+    habitat_cfg, env = habitat_config(cfg.env, hab, config_path=args.habitat_config)
+    cfg.env = env
+    return cfg, habitat_cfg
+
+
+def main_habitat_benchmark(args) -> None:
+    from common.habitat_import import HabitatMissing
+    from envs.episodes import load_split, parse_episode_range
+
+    try:
+        cfg, habitat_cfg = load_configs(args, args.overrides)
+    except HabitatMissing as exc:
+        raise ConfigError(str(exc)) from None
+    episodes = load_split(cfg.env.split, cfg.env)
+    indices = list(parse_episode_range(str(args.episodes), len(episodes)))
+    out = Path(args.output or cfg.run.output_dir)
+    summary = run_habitat_benchmark(cfg, habitat_cfg, indices, out, force=args.force)
+    print(format_metrics_table([(f"{summary['agent']} (habitat-lab)", summary)], first_header="Agent"))
+    print(f"results: {out}/episodes.jsonl, {out}/summary.json, {out}/plots/")

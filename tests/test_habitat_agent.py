@@ -1,0 +1,112 @@
+"""The calnav agent as a ``habitat.Agent`` (``agent/habitat_agent.py``): action names, the
+observation conversion against calnav's env, and a run through ``habitat.Benchmark``.
+
+Needs habitat-lab (``.venv-habitat``) and issue 14 part 1 (PeanutAgent reading only Habitat's
+observation keys: ``agent.sensors``, ``envs.task.HABITAT_KEYS``); without part 1 the module is
+skipped, saying so.
+"""
+import importlib.util
+import json
+
+import numpy as np
+import pytest
+
+from conftest import require_habitat
+
+require_habitat()
+if importlib.util.find_spec("agent.sensors") is None:
+    pytest.skip("needs issue 14 part 1 (PeanutAgent reads Habitat's keys: agent.sensors, envs.task.HABITAT_KEYS)",
+                allow_module_level=True)
+
+from envs.task import Action, depth_to_metres  # noqa: E402
+from eval.cli import main  # noqa: E402
+from eval.config import load_config  # noqa: E402
+
+pytestmark = pytest.mark.habitat
+
+W, H = 64, 48
+SENSORS = "habitat.simulator.agents.main_agent.sim_sensors"
+HABITAT_SMALL = [f"{SENSORS}.{s}.{k}={v}" for s in ("rgb_sensor", "depth_sensor", "semantic_sensor")
+                 for k, v in (("width", W), ("height", H))]
+CALNAV_SMALL = ["env.dataset.val_scenes=2", "env.dataset.episodes_per_scene=3"]
+SEMANTIC_CONFIG = "configs/habitat_objectnav_semantic.yaml"
+
+
+@pytest.fixture(scope="module")
+def setup():
+    from envs.habitat_config import HABITAT_CONFIG, habitat_config
+
+    base = load_config(None, CALNAV_SMALL).env
+    path = HABITAT_CONFIG.replace("habitat_objectnav.yaml", "habitat_objectnav_semantic.yaml")
+    return habitat_config(base, HABITAT_SMALL, config_path=path, progress=False)
+
+
+def test_action_names_are_the_habitat_tasks(setup):
+    from agent.habitat_agent import habitat_action
+
+    hcfg, _ = setup
+    task_actions = list(hcfg.habitat.task.actions)
+    for a in Action:
+        assert task_actions[int(a)] == habitat_action(a)  # same id, same name
+
+
+def test_converted_observations_are_calnavs(setup):
+    """Along a scripted walk, the wrapper's view of habitat-lab's observations equals calnav's
+    env (with Habitat's depth normalisation): rgb, semantic, goal and metric depth exactly,
+    gps / compass to 1e-5."""
+    import gymnasium as gym
+
+    import envs  # noqa: F401
+    import envs.habitat_sim_backend  # noqa: F401
+    from agent.habitat_agent import from_habitat_observations, habitat
+    from envs.task import HABITAT_KEYS, SEMANTIC
+
+    hcfg, env_cfg = setup
+    assert env_cfg.normalize_depth and env_cfg.semantic_sensor
+    henv = habitat.Env(config=hcfg)
+    henv.episodes = [henv.episodes[2]]
+    cenv = gym.make("calnav/ObjectNav-v0", split="val", config=env_cfg).unwrapped
+    cobs, _ = cenv.reset(options={"episode_index": 2})
+    hobs = henv.reset()
+    lo, hi = env_cfg.min_depth_m, env_cfg.max_depth_m
+    for a in [None] + [Action.TURN_LEFT] * 3 + [Action.MOVE_FORWARD] * 6 + [Action.TURN_RIGHT] * 2:
+        if a is not None:
+            cobs, *_ = cenv.step(int(a))
+            hobs = henv.step(a.name.lower())
+        obs = from_habitat_observations(hobs)
+        assert set(obs) == {*HABITAT_KEYS, SEMANTIC}
+        for k in ("rgb", "objectgoal", SEMANTIC):
+            assert np.array_equal(obs[k], cobs[k]), k
+        assert np.array_equal(depth_to_metres(obs["depth"], True, lo, hi), depth_to_metres(cobs["depth"], True, lo, hi))
+        assert np.allclose(obs["gps"], cobs["gps"], atol=1e-5) and np.allclose(obs["compass"], cobs["compass"], atol=1e-5)
+    henv.close()
+
+
+def test_reset_waits_for_the_first_observations(setup):
+    from agent.habitat_agent import HabitatPeanutAgent
+
+    hcfg, env_cfg = setup
+    cfg = load_config(None, ["agent.segmenter=gt"])
+    cfg.env = env_cfg
+    agent = HabitatPeanutAgent(cfg)
+    agent.reset()
+    assert agent.agent.state is None  # nothing known before the first observations
+    obs = {"rgb": np.zeros((H, W, 3), np.uint8), "depth": np.zeros((H, W, 1), np.float32),
+           "gps": np.zeros(2, np.float32), "compass": np.zeros(1, np.float32), "objectgoal": np.array([2]),
+           "semantic": -np.ones((H, W, 1), np.int32)}
+    assert agent.act(obs) == {"action": "turn_left"}  # the opening spin
+    assert agent.agent.goal_id == 2 and agent.agent.steps == 1
+    agent.reset()
+    agent.act({**obs, "objectgoal": np.array([4])})
+    assert agent.agent.goal_id == 4 and agent.agent.steps == 1  # a fresh episode
+
+
+def test_peanut_runs_through_habitat_benchmark(tmp_path, capsys):
+    out = tmp_path / "hab"
+    assert main(["habitat-benchmark", "--habitat-config", SEMANTIC_CONFIG, "--agent", "peanut", "--episodes", "0:2",
+                 "--output", str(out), "agent.segmenter=gt", "run.workers=1", *CALNAV_SMALL, *HABITAT_SMALL]) == 0
+    assert "peanut (habitat-lab)" in capsys.readouterr().out
+    records = [json.loads(line) for line in (out / "episodes.jsonl").read_text().splitlines()]
+    assert sorted(r["index"] for r in records) == [0, 1] and all(r["status"] == "ok" for r in records)
+    assert all(r["steps"] > 12 for r in records)  # the opening spin (12 turns) and then some
+    assert sum(r["success"] for r in records) >= 1
