@@ -18,11 +18,11 @@ episodes; a directory holding another config is refused unless ``--force``.
 """
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 from eval.config import ConfigError, load_config
-from eval.objectnav.run import agent_overrides, load_records, prepare_output, repair_records
+from eval.objectnav.run import RUN_RESULTS, agent_overrides, check_not_all_failed, crashed
+from eval.results_dir import ResultsDir, writing
 from eval.stats import format_metrics_table, summarize
 
 HABITAT_PREFIX = "habitat."
@@ -44,19 +44,26 @@ def split_overrides(overrides: list[str]) -> tuple[list[str], list[str]]:
     return hab, own
 
 
-def _check_habitat_dir(out: Path, text: str, force: bool) -> None:
+def _check_habitat_config(out: Path, text: str, force: bool) -> None:
+    """Refuse (unless ``force``, which discards the run's results) a directory whose saved
+    habitat config differs from ``text``; calnav's own config is ResultsDir's check."""
     path = out / HABITAT_CONFIG_FILE
     if path.exists() and path.read_text() != text:
         if not force:
             raise ConfigError(f"{out} holds results of a different habitat config ({path}); "
                               "use another --output, or --force to discard them")
-        (out / "episodes.jsonl").unlink(missing_ok=True)
+        for name in RUN_RESULTS:
+            target = out / name
+            if target.is_file():
+                target.unlink()
 
 
 def run_habitat_benchmark(cfg, habitat_cfg, indices: list[int], out: Path, force: bool = False,
                           progress: bool = True, plots: bool = True) -> dict:
     """Run (or resume) ``indices`` of the habitat config's split with agent ``cfg.run.agent``
-    through ``habitat.Benchmark``; returns the summary dict (also in ``out/summary.json``)."""
+    through ``habitat.Benchmark``; returns the summary dict (also in ``out/summary.json``).
+    The directory is owned by ``eval.results_dir`` as ``calnav objectnav``'s is (lock, config
+    check, records file with crashed episodes retried)."""
     import envs.habitat_sim_backend  # noqa: F401  (registers CalnavSim-v0)
     from omegaconf import OmegaConf
 
@@ -65,40 +72,43 @@ def run_habitat_benchmark(cfg, habitat_cfg, indices: list[int], out: Path, force
     from eval.habitat.recording import EnvBenchmark, RecordingEnv, episode_index
 
     habitat_text = OmegaConf.to_yaml(habitat_cfg, resolve=True)
-    _check_habitat_dir(out, habitat_text, force)
-    prepare_output(out, cfg, force)
-    (out / HABITAT_CONFIG_FILE).write_text(habitat_text)
-    results_path = out / "episodes.jsonl"
-    repair_records(results_path)
-    done = {r["index"] for r in load_records(results_path) if "index" in r}
-    todo = [i for i in indices if i not in done]
-    records = [r for r in load_records(results_path) if r.get("index") in set(indices)]
     agent_name = cfg.run.agent
-    if todo:
-        calnav_eps = load_split(cfg.env.split, cfg.env, progress=progress)
-        index_of = episode_index(calnav_eps)
-        env = habitat.Env(config=habitat_cfg)
-        by_index = {index_of[(Path(e.scene_id).name, e.episode_id)]: e for e in env.episodes}
-        env.episodes = [by_index[i] for i in todo]
-        agent = make_habitat_agent(agent_name, env, cfg)
-        with open(results_path, "a") as f:
-            def record(rec: dict) -> None:
-                f.write(json.dumps(rec) + "\n")
-                f.flush()
-                records.append(rec)
+    with ResultsDir(out, cfg, force=force, discard=RUN_RESULTS) as results:
+        _check_habitat_config(out, habitat_text, force)
+        results.write_text(HABITAT_CONFIG_FILE, habitat_text)
+        records_file = results.records()
+        resumed = records_file.resume(retry=crashed, indices=indices)
+        wanted = set(indices)
+        records = {i: r for i, r in resumed.records.items() if i in wanted}
+        todo = [i for i in indices if i not in records]
+        if todo:
+            calnav_eps = load_split(cfg.env.split, cfg.env, progress=progress)
+            index_of = episode_index(calnav_eps)
+            env = habitat.Env(config=habitat_cfg)
+            by_index = {index_of[(Path(e.scene_id).name, e.episode_id)]: e for e in env.episodes}
+            env.episodes = [by_index[i] for i in todo]
+            agent = make_habitat_agent(agent_name, env, cfg)
+            with records_file:
+                def record(rec: dict) -> None:
+                    records_file.append(rec)
+                    records[rec["index"]] = rec
 
-            bench = EnvBenchmark(RecordingEnv(env, index_of, record))
-            try:  # finished episodes are on disk already; an error stops the run (rerun resumes)
-                bench.evaluate(agent, num_episodes=len(todo))
-            finally:
-                env.close()
-    summary = summarize(records)
-    summary["agent"] = agent_name
-    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
-    if plots and records:
-        from eval.objectnav.report import plot_run
+                bench = EnvBenchmark(RecordingEnv(env, index_of, record))
+                try:  # finished episodes are on disk already; an error stops the run (rerun resumes)
+                    bench.evaluate(agent, num_episodes=len(todo))
+                finally:
+                    env.close()
+        ordered = [records[i] for i in indices if i in records]
+        summary = summarize(ordered)
+        summary["agent"] = agent_name
+        summary["duplicates"] = resumed.duplicates
+        results.write_json("summary.json", summary)
+        if plots and ordered:
+            from eval.objectnav.report import plot_run
 
-        plot_run(summary, out, title=f"{agent_name} (habitat-lab)")
+            with writing(out / "plots"):
+                plot_run(summary, out, title=f"{agent_name} (habitat-lab)")
+    check_not_all_failed(ordered)
     return summary
 
 

@@ -92,7 +92,7 @@ def _worker_run(index: int) -> dict:
                 "traceback": traceback.format_exc(limit=5)}
 
 
-def _crashed(record: dict) -> bool:
+def crashed(record: dict) -> bool:
     """A record to retry on resume: the episode crashed (``status != "ok"``)."""
     return record.get("status", "ok") != "ok"
 
@@ -101,7 +101,7 @@ def check_not_all_failed(records: list[dict]) -> None:
     """Raise AllEpisodesFailed (with the first error) when every one of ``records`` crashed: a
     table of zeros from a broken setup (e.g. an unreadable ``mapping.glfs_params``) must not
     look like a result."""
-    if records and all(_crashed(r) for r in records):
+    if records and all(crashed(r) for r in records):
         first = min(records, key=lambda r: r["index"])
         raise AllEpisodesFailed(f"all {len(records)} episodes failed; first error (episode {first['index']}): "
                                 f"{first.get('error', 'unknown error')}")
@@ -122,7 +122,7 @@ def run_objectnav(cfg: Config, indices: list[int], out: Path, force: bool = Fals
     with ResultsDir(out, cfg, force=force, discard=RUN_RESULTS) as results:
         records_file = results.records()
         # crashed episodes of this range are dropped from the file, so they run again
-        resumed = records_file.resume(retry=_crashed, indices=indices)
+        resumed = records_file.resume(retry=crashed, indices=indices)
         wanted = set(indices)
         records = {i: r for i, r in resumed.records.items() if i in wanted}
         todo = [i for i in indices if i not in records]
@@ -138,7 +138,7 @@ def run_objectnav(cfg: Config, indices: list[int], out: Path, force: bool = Fals
             s = summarize(list(records.values()))
             bar.set_postfix(Success=f"{s['success']:.3f}", SPL=f"{s['spl']:.3f}")
             bar.update(1)
-            if _crashed(rec):
+            if crashed(rec):
                 tqdm.write(f"episode {rec['index']} failed: {rec.get('error')}")
 
         with records_file:
