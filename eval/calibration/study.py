@@ -28,7 +28,7 @@ import numpy as np
 import torch
 
 from eval.calibration.config import CalibrateMapConfig
-from eval.calibration.record import ROLES, load_role, record_scene, role_scene_ids
+from eval.calibration.record import ROLES, load_role, record_houses, role_scene_ids
 from eval.config import ConfigError, dump_yaml, load_config
 from mapping import metrics
 from mapping.calibration.fit import MapObjective, fit_temperature_2d, fit_temperature_3d, fit_vector_3d
@@ -206,9 +206,8 @@ def run_calibrate_map(cfg: CalibrateMapConfig, out: Path, force: bool = False, p
         if not ids[role]:
             raise ValueError(f"no {role} houses (check study.*_scenes and env.dataset.scene_dir)")
     segs = {n: make_segmenter(n, device=cfg.run.device) for n in cfg.study.segmenters}
-    houses = [sid for role in ROLES for sid in ids[role]]
-    for sid in tqdm(houses, desc="record scans", unit="house", disable=not progress):
-        record_scene(cfg, sid, segs, out, scene_seed(sid, cfg.run.seed))
+    houses = {sid: scene_seed(sid, cfg.run.seed) for role in ROLES for sid in ids[role]}
+    record_houses(cfg, houses, tuple(segs), out, progress)
     rows, all_stats = [], {}
     for name in cfg.study.segmenters:
         fits = fit_segmenter(cfg, out, name, ids, progress)
@@ -239,8 +238,6 @@ def main_calibrate_map(args) -> None:
 
 def main_fit_glfs(args) -> None:
     """Record the calibration-train / -validation scans of one segmenter and train GLFS."""
-    from tqdm import tqdm
-
     from agent.segmenters import make_segmenter
 
     cfg = load_config(args.config, [*args.overrides, f"study.segmenters=[{args.segmenter}]", "study.strategies=[glfs]"],
@@ -248,9 +245,9 @@ def main_fit_glfs(args) -> None:
     work = Path(args.work_dir or cfg.run.output_dir)
     _check_output(work, dump_yaml(cfg), force=False)
     ids = role_scene_ids(cfg)
-    segs = {args.segmenter: make_segmenter(args.segmenter, device=cfg.run.device)}
-    for sid in tqdm(ids["calib_train"] + ids["calib_val"], desc="record scans", unit="house"):
-        record_scene(cfg, sid, segs, work, scene_seed(sid, cfg.run.seed))
+    make_segmenter(args.segmenter, device=cfg.run.device)  # a bad name or weights file fails here, before any work
+    houses = {sid: scene_seed(sid, cfg.run.seed) for sid in ids["calib_train"] + ids["calib_val"]}
+    record_houses(cfg, houses, (args.segmenter,), work)
     fits = fit_segmenter(cfg, work, args.segmenter, ids)
     params = GLFSParams.load(fits.glfs_path)
     dest = params.save(args.output)
