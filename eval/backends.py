@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import multiprocessing as mp
 import os
+import sys
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from typing import Any, Callable, Iterable, Iterator
 
@@ -94,27 +95,26 @@ class RayBackend:
         if not items:
             return
         ray = self._init()
-        remote = ray.remote(max_retries=RAY_TASK_RETRIES, retry_exceptions=False)(_call_on_node)
+        remote = ray.remote(max_retries=RAY_TASK_RETRIES, retry_exceptions=False)(fn)
         cap = self.workers if self.workers > 0 else len(items)
         queue = list(reversed(items))
         pending: dict = {}
         while queue or pending:
             while queue and len(pending) < cap:
                 item = queue.pop()
-                pending[remote.remote(fn, item)] = item
+                pending[remote.remote(item)] = item
             done, _ = ray.wait(list(pending), num_returns=1)
             for ref in done:
-                result, node = ray.get(ref)
-                if isinstance(result, dict):
-                    result["ray_node"] = node   # where it ran (a record field; metrics ignore it)
-                yield pending.pop(ref), result
+                yield pending.pop(ref), ray.get(ref)
 
 
-def _call_on_node(fn: Callable[[Any], Any], item: Any) -> tuple[Any, str]:
-    """``fn(item)`` and the id of the Ray node it ran on (runs inside a Ray task)."""
-    import ray
-
-    return fn(item), ray.get_runtime_context().get_node_id()
+def ray_node_id() -> str | None:
+    """The id of the Ray node this process runs on, or None outside a Ray worker (no import:
+    only a process that already runs Ray has it loaded)."""
+    ray = sys.modules.get("ray")
+    if ray is None or not ray.is_initialized():
+        return None
+    return ray.get_runtime_context().get_node_id()
 
 
 # run.backend -> constructor from the run config (eval.config.BackendName lists the same names)

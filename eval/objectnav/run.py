@@ -106,12 +106,18 @@ def _warm_env_agent(cfg_dict: dict, agent_name: str):
 def run_episode_task(task: EpisodeTask) -> dict:
     """Run one task in this process (any backend); a crash becomes an error record so the run
     keeps going."""
+    from eval.backends import ray_node_id
+
     try:
         env, agent = _warm_env_agent(task.cfg_dict, task.agent)
-        return run_one_episode(env, agent, task.index, task.video_dir)
+        record = run_one_episode(env, agent, task.index, task.video_dir)
     except Exception as exc:  # report the episode, keep the run going
-        return {"index": task.index, "status": "error", "error": f"{type(exc).__name__}: {exc}",
-                "traceback": traceback.format_exc(limit=5)}
+        record = {"index": task.index, "status": "error", "error": f"{type(exc).__name__}: {exc}",
+                  "traceback": traceback.format_exc(limit=5)}
+    node = ray_node_id()
+    if node is not None:
+        record["ray_node"] = node  # where it ran (run.backend=ray); metrics ignore it
+    return record
 
 
 def load_records(path: Path) -> list[dict]:
