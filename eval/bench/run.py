@@ -11,7 +11,7 @@ import time
 from pathlib import Path
 from typing import Callable
 
-from eval.bench import agent, env, fusion, segmenter
+from eval.bench import agent, backends, env, fusion, segmenter
 from eval.bench.context import BenchContext
 
 SECTIONS: dict[str, Callable[[BenchContext], dict[str, float]]] = {
@@ -19,6 +19,7 @@ SECTIONS: dict[str, Callable[[BenchContext], dict[str, float]]] = {
     "fusion": fusion.run,
     "segmenter": segmenter.run,
     "agent": agent.run,
+    "backends": backends.run,
 }
 
 
