@@ -82,6 +82,8 @@ def load_yaml_text(text: str, source: str) -> Any:
 # choice without importing any agent.
 AgentName = Literal["peanut", "oracle"]
 AGENT_NAMES: tuple[str, ...] = AgentName.__args__  # type: ignore[attr-defined]
+# Names of ``eval.backends.BACKENDS`` (a test keeps the two in step).
+BackendName = Literal["local", "ray"]
 
 
 @dataclass
@@ -90,7 +92,9 @@ class RunConfig:
 
     agent: AgentName = "peanut"   # agent that runs the episodes: peanut (semantic map, agent.*) | oracle (shortest path)
     seed: int = 0                 # master random seed
-    workers: int = 0              # parallel worker processes; 0 = all cores
+    workers: int = 0              # parallel worker processes; 0 = all cores (backend ray: 0 = no cap on tasks in flight)
+    backend: BackendName = "local"  # where work items run (eval.backends): local (this machine's cores) | ray
+    ray_address: str = ""         # backend ray: "" = start a local Ray instance; "auto" or "ray://host:port" = join a cluster
     output_dir: str = "runs/latest"  # where results, plots and videos go
     device: str = "cpu"           # torch device for learned models ("cpu", "cuda", "cuda:1")
 

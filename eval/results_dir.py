@@ -42,7 +42,7 @@ from common.atomic import write_text_atomic
 
 # Dotted config keys that do not change results: a rerun with other values may resume the same
 # directory, and `calnav compare` never makes them columns.
-NEUTRAL_KEYS: tuple[str, ...] = ("run.workers", "run.output_dir")
+NEUTRAL_KEYS: tuple[str, ...] = ("run.workers", "run.output_dir", "run.backend", "run.ray_address")
 LOCK_NAME = ".lock"
 CONFIG_NAME = "config.yaml"
 RECORDS_NAME = "episodes.jsonl"

@@ -11,7 +11,7 @@ import time
 from pathlib import Path
 from typing import Callable
 
-from eval.bench import agent, env, fusion, segmenter, sequence, start_pose
+from eval.bench import agent, backends, env, fusion, segmenter, sequence, start_pose
 from eval.bench.context import BenchContext
 
 SECTIONS: dict[str, Callable[[BenchContext], dict[str, float]]] = {
@@ -21,6 +21,7 @@ SECTIONS: dict[str, Callable[[BenchContext], dict[str, float]]] = {
     "agent": agent.run,
     "sequence": sequence.run,
     "start_pose": start_pose.run,
+    "backends": backends.run,
 }
 
 

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from common.atomic import atomic_path
+from common.atomic import atomic_path, write_bytes_atomic
 from eval.calibration.config import CalibrateMapConfig
 from mapping.calibration.obs_cache import ObsCache
 
@@ -162,3 +162,67 @@ def load_role(out_dir: Path, segmenter: str, scene_ids: list[str]) -> tuple[list
             logits.append(d["logits"].astype(np.float32))
             labels.append(d["labels"].astype(np.int64))
     return caches, np.concatenate(logits), np.concatenate(labels)
+
+
+@dataclasses.dataclass
+class RecordTask:
+    """One house to record on a backend worker: the study config (plain dict), the house, the
+    segmenters still missing its files, and the scan seed."""
+
+    cfg_dict: dict
+    scene_id: str
+    segmenters: tuple[str, ...]
+    seed: int
+
+
+_segmenter_cache: dict = {}   # per worker process: (name, device) -> Segmenter, built once
+
+
+def record_task(task: RecordTask) -> dict[str, bytes]:
+    """Record one house in a temporary directory on whichever worker runs it and return its
+    files as {path relative to the study directory: bytes}, so the driver writes them and
+    workers on other nodes need no shared disk."""
+    import tempfile
+
+    from agent.segmenters import make_segmenter
+    from eval.config import build_dataclass
+
+    cfg = build_dataclass(CalibrateMapConfig, task.cfg_dict)
+    segs = {}
+    for name in task.segmenters:
+        key = (name, cfg.run.device)
+        if key not in _segmenter_cache:
+            _segmenter_cache[key] = make_segmenter(name, device=cfg.run.device)
+        segs[name] = _segmenter_cache[key]
+    with tempfile.TemporaryDirectory(prefix="calnav-record-") as tmp:
+        record_scene(cfg, task.scene_id, segs, Path(tmp), task.seed)
+        return {str(p.relative_to(tmp)): p.read_bytes() for name in task.segmenters
+                for p in scene_files(Path(tmp), name, task.scene_id)}
+
+
+def record_houses(cfg: CalibrateMapConfig, scene_seeds: dict[str, int], segmenters: tuple[str, ...],
+                  out_dir: Path, progress: bool = True) -> None:
+    """Record every house of ``scene_seeds`` ({scene id: scan seed}) that lacks a segmenter's
+    files, as tasks on the ``run.backend`` backend (houses are the slow stage); each house's
+    files are written as it arrives (pixels first, the cache last: its presence marks the
+    house done), so a killed study resumes."""
+    from tqdm import tqdm
+
+    from eval.backends import make_backend
+    from eval.config import to_dict
+
+    backend = make_backend(cfg.run)
+    cfg_dict, tasks = to_dict(cfg), []
+    for sid, seed in scene_seeds.items():
+        missing = tuple(n for n in segmenters if not all(p.exists() for p in scene_files(out_dir, n, sid)))
+        if missing:
+            tasks.append(RecordTask(cfg_dict, sid, missing, seed))
+    bar = tqdm(total=len(scene_seeds), initial=len(scene_seeds) - len(tasks), desc="record scans", unit="house",
+               disable=not progress)
+    for _, files in backend.map_unordered(record_task, tasks):
+        for rel in sorted(files, key=lambda r: r.endswith(".cache.npz")):  # the cache last
+            dest = out_dir / rel
+            dest.parent.mkdir(parents=True, exist_ok=True)
+            write_bytes_atomic(dest, files[rel])
+        bar.update(1)
+    bar.close()

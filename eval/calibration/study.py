@@ -27,8 +27,9 @@ import numpy as np
 import torch
 
 from common.atomic import atomic_path, write_json_atomic
+from eval.backends import check_backend
 from eval.calibration.config import CalibrateMapConfig
-from eval.calibration.record import ROLES, load_role, record_scene, role_scene_ids
+from eval.calibration.record import ROLES, load_role, record_houses, role_scene_ids
 from eval.config import load_config
 from eval.results_dir import ResultsDir, writing
 from eval.preflight import check_command
@@ -197,11 +198,11 @@ def run_calibrate_map(cfg: CalibrateMapConfig, out: Path, force: bool = False, p
 
     ids = role_scene_ids(cfg)
     _check_roles(ids)
+    check_backend(cfg.run.backend, cfg.run.ray_address)
     segs = {n: make_segmenter(n, device=cfg.run.device) for n in cfg.study.segmenters}
-    houses = [sid for role in ROLES for sid in ids[role]]
+    houses = {sid: scene_seed(sid, cfg.run.seed) for role in ROLES for sid in ids[role]}
     with ResultsDir(out, cfg, force=force, discard=STUDY_RESULTS, files=("results.csv",)):
-        for sid in tqdm(houses, desc="record scans", unit="house", disable=not progress):
-            record_scene(cfg, sid, segs, out, scene_seed(sid, cfg.run.seed))
+        record_houses(cfg, houses, tuple(segs), out, progress)
         rows, all_stats = [], {}
         for name in cfg.study.segmenters:
             fits = fit_segmenter(cfg, out, name, ids, progress)
@@ -237,8 +238,6 @@ def main_calibrate_map(args) -> None:
 def main_fit_glfs(args) -> None:
     """Record the calibration-train / -validation scans of one segmenter and train GLFS."""
     check_command(args, "fit-glfs")  # every file the config names, before anything is written
-    from tqdm import tqdm
-
     from agent.segmenters import make_segmenter
 
     cfg = load_config(args.config, [*args.overrides, f"study.segmenters=[{args.segmenter}]", "study.strategies=[glfs]"],
@@ -246,10 +245,11 @@ def main_fit_glfs(args) -> None:
     work = Path(args.work_dir or cfg.run.output_dir)
     ids = role_scene_ids(cfg)
     _check_roles(ids, ("calib_train", "calib_val"))
-    segs = {args.segmenter: make_segmenter(args.segmenter, device=cfg.run.device)}
+    make_segmenter(args.segmenter, device=cfg.run.device)  # a bad name or weights file fails here, before any work
+    check_backend(cfg.run.backend, cfg.run.ray_address)
+    houses = {sid: scene_seed(sid, cfg.run.seed) for sid in ids["calib_train"] + ids["calib_val"]}
     with ResultsDir(work, cfg, discard=STUDY_RESULTS, files=(), option="--work-dir"):
-        for sid in tqdm(ids["calib_train"] + ids["calib_val"], desc="record scans", unit="house"):
-            record_scene(cfg, sid, segs, work, scene_seed(sid, cfg.run.seed))
+        record_houses(cfg, houses, (args.segmenter,), work)
         fits = fit_segmenter(cfg, work, args.segmenter, ids)
         params = GLFSParams.load(fits.glfs_path)
     with writing(args.output):

@@ -17,17 +17,17 @@ and writes ``comparison.md`` / ``.csv`` / ``.png`` (``eval.objectnav.report``).
 """
 from __future__ import annotations
 
-import multiprocessing as mp
-import os
+import json
 import re
 import time
 import traceback
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from contextlib import ExitStack
+from dataclasses import dataclass
 from pathlib import Path
 
 from eval.config import Config, build_dataclass, load_config, to_dict
-from eval.results_dir import RECORDS_NAME, AllEpisodesFailed, ResultsDir, writing
 from eval.preflight import check_command
+from eval.results_dir import RECORDS_NAME, AllEpisodesFailed, ResultsDir, writing
 from eval.stats import format_metrics_table, summarize
 
 # What --force deletes from a directory that holds another config's results.
@@ -70,26 +70,52 @@ def run_one_episode(env, agent, index: int, video_dir: Path | None = None) -> di
     }
 
 
-def _worker_init(cfg_dict: dict, agent_name: str, video_dir: str | None = None,
-                 video_indices: tuple[int, ...] = ()) -> None:
+@dataclass
+class EpisodeTask:
+    """One episode to run: the job's resolved config (plain dict, picklable), its agent, the
+    episode index within the split, and the video directory if this episode gets a video."""
+
+    job: int
+    cfg_dict: dict
+    agent: str
+    index: int
+    video_dir: str | None = None
+
+
+def _warm_env_agent(cfg_dict: dict, agent_name: str):
+    """This process's env and agent for a config, built once and reused while tasks keep the
+    same config (a pool or Ray worker stays warm, as an episode loop would)."""
     import gymnasium as gym
 
     import envs  # noqa: F401  (registers the env)
     from eval.objectnav.agents import make_agent
 
-    cfg = build_dataclass(Config, cfg_dict)
-    env = gym.make("calnav/ObjectNav-v0", split=cfg.env.split, config=cfg.env)
-    _worker_state.update(env=env, agent=make_agent(agent_name, env, cfg), video_dir=video_dir,
-                         video_indices=set(video_indices))
+    key = json.dumps([cfg_dict, agent_name], sort_keys=True)
+    if _worker_state.get("key") != key:
+        if "env" in _worker_state:
+            _worker_state["env"].close()
+        _worker_state.clear()
+        cfg = build_dataclass(Config, cfg_dict)
+        env = gym.make("calnav/ObjectNav-v0", split=cfg.env.split, config=cfg.env)
+        _worker_state.update(key=key, env=env, agent=make_agent(agent_name, env, cfg))
+    return _worker_state["env"], _worker_state["agent"]
 
 
-def _worker_run(index: int) -> dict:
+def run_episode_task(task: EpisodeTask) -> dict:
+    """Run one task in this process (any backend); a crash becomes an error record so the run
+    keeps going."""
+    from eval.backends import ray_node_id
+
     try:
-        video = _worker_state["video_dir"] if index in _worker_state["video_indices"] else None
-        return run_one_episode(_worker_state["env"], _worker_state["agent"], index, video)
+        env, agent = _warm_env_agent(task.cfg_dict, task.agent)
+        record = run_one_episode(env, agent, task.index, task.video_dir)
     except Exception as exc:  # report the episode, keep the run going
-        return {"index": index, "status": "error", "error": f"{type(exc).__name__}: {exc}",
-                "traceback": traceback.format_exc(limit=5)}
+        record = {"index": task.index, "status": "error", "error": f"{type(exc).__name__}: {exc}",
+                  "traceback": traceback.format_exc(limit=5)}
+    node = ray_node_id()
+    if node is not None:
+        record["ray_node"] = node  # where it ran (run.backend=ray); metrics ignore it
+    return record
 
 
 def crashed(record: dict) -> bool:
@@ -107,64 +133,90 @@ def check_not_all_failed(records: list[dict]) -> None:
                                 f"{first.get('error', 'unknown error')}")
 
 
+@dataclass
+class EpisodeJob:
+    """One results directory: a config, the episode indices it should hold, where it goes, and
+    how many of its first episodes get a video."""
+
+    cfg: Config
+    indices: list[int]
+    out: Path
+    video: int = 0
+
+
 def run_objectnav(cfg: Config, indices: list[int], out: Path, force: bool = False,
                   progress: bool = True, video: int = 0, plots: bool = True) -> dict:
     """Run (or resume) ``indices`` of ``cfg.env.split`` with agent ``cfg.run.agent``; returns the
     summary dict. ``video``: write videos of the first ``video`` indices (those still to run);
     ``plots``: write plots/. The agent is part of the saved config, so resuming a directory
     with another agent is refused like any other config change."""
+    return run_jobs([EpisodeJob(cfg, list(indices), Path(out), video)], force, progress, plots)[0]
+
+
+def run_jobs(jobs: list[EpisodeJob], force: bool = False, progress: bool = True, plots: bool = True) -> list[dict]:
+    """Run (or resume) several results directories at once: every job's missing episodes are
+    submitted together to the backend of the jobs' ``run`` section (``run.backend``; all jobs
+    must share it), so a multirun or a tuning grid keeps every worker busy. Each record is
+    appended to its own job's ``episodes.jsonl`` as it arrives; returns the jobs' summaries
+    (also written as ``summary.json``), in job order. Raises ``AllEpisodesFailed`` when every
+    episode of a job crashed (after all records and summaries are written)."""
     from tqdm import tqdm
 
-    agent_name = cfg.run.agent
-    if video and agent_name not in VIDEO_AGENTS:
-        raise ValueError(f"--video draws the agent's semantic map; agent {agent_name!r} has none "
-                         f"(agents with videos: {', '.join(VIDEO_AGENTS)})")
-    with ResultsDir(out, cfg, force=force, discard=RUN_RESULTS) as results:
-        records_file = results.records()
-        # crashed episodes of this range are dropped from the file, so they run again
-        resumed = records_file.resume(retry=crashed, indices=indices)
-        wanted = set(indices)
-        records = {i: r for i, r in resumed.records.items() if i in wanted}
-        todo = [i for i in indices if i not in records]
-        workers = cfg.run.workers or os.cpu_count() or 1
-        workers = max(1, min(workers, len(todo)))
-        init_args = (to_dict(cfg), agent_name, str(out / "videos"), tuple(indices[:max(0, video)]))
-        bar = tqdm(total=len(indices), initial=len(indices) - len(todo), disable=not progress,
-                   desc=f"objectnav[{agent_name}]", unit="ep")
+    from eval.backends import make_backend
 
-        def finish(rec: dict) -> None:
-            records_file.append(rec)
-            records[rec["index"]] = rec
-            s = summarize(list(records.values()))
+    run_cfg = jobs[0].cfg.run
+    for job in jobs:  # every check before anything is written
+        if (job.cfg.run.backend, job.cfg.run.ray_address) != (run_cfg.backend, run_cfg.ray_address):
+            raise ValueError("run.backend / run.ray_address must be the same for every configuration of one run")
+        if job.video and job.cfg.run.agent not in VIDEO_AGENTS:
+            raise ValueError(f"--video draws the agent's semantic map; agent {job.cfg.run.agent!r} has none "
+                             f"(agents with videos: {', '.join(VIDEO_AGENTS)})")
+    backend = make_backend(run_cfg)
+    with ExitStack() as stack:
+        dirs, files, records, duplicates, tasks = [], [], [], [], []
+        for j, job in enumerate(jobs):
+            results = stack.enter_context(ResultsDir(job.out, job.cfg, force=force, discard=RUN_RESULTS))
+            records_file = results.records()
+            # crashed episodes of this range are dropped from the file, so they run again
+            resumed = records_file.resume(retry=crashed, indices=job.indices)
+            wanted = set(job.indices)
+            done = {i: r for i, r in resumed.records.items() if i in wanted}
+            dirs.append(results)
+            files.append(stack.enter_context(records_file))
+            records.append(done)
+            duplicates.append(resumed.duplicates)
+            cfg_dict, videos = to_dict(job.cfg), set(job.indices[:max(0, job.video)])
+            tasks += [EpisodeTask(j, cfg_dict, job.cfg.run.agent, i, str(job.out / "videos") if i in videos else None)
+                      for i in job.indices if i not in done]
+        total = sum(len(job.indices) for job in jobs)
+        name = jobs[0].cfg.run.agent if len(jobs) == 1 else f"{len(jobs)} configs"
+        bar = stack.enter_context(tqdm(total=total, initial=total - len(tasks), disable=not progress,
+                                       desc=f"objectnav[{name}]", unit="ep"))
+        for task, rec in backend.map_unordered(run_episode_task, tasks):
+            files[task.job].append(rec)
+            records[task.job][rec["index"]] = rec
+            s = summarize(list(records[task.job].values()))
             bar.set_postfix(Success=f"{s['success']:.3f}", SPL=f"{s['spl']:.3f}")
             bar.update(1)
             if crashed(rec):
-                tqdm.write(f"episode {rec['index']} failed: {rec.get('error')}")
+                tqdm.write(f"{jobs[task.job].out}: episode {rec['index']} failed: {rec.get('error')}")
+        summaries, ordered_all = [], []
+        for job, results, recs, dup in zip(jobs, dirs, records, duplicates):
+            ordered = [recs[i] for i in job.indices if i in recs]
+            summary = summarize(ordered)
+            summary["agent"] = job.cfg.run.agent
+            summary["duplicates"] = dup  # found (and dropped) in the records file
+            results.write_json("summary.json", summary)
+            if plots and ordered:
+                from eval.objectnav.report import plot_run
 
-        with records_file:
-            if workers == 1 and todo:
-                _worker_init(*init_args)
-                for i in todo:
-                    finish(_worker_run(i))
-            elif todo:
-                ctx = mp.get_context("spawn")  # Open3D's thread pools do not survive fork()
-                with ProcessPoolExecutor(workers, mp_context=ctx, initializer=_worker_init,
-                                         initargs=init_args) as pool:
-                    for fut in as_completed([pool.submit(_worker_run, i) for i in todo]):
-                        finish(fut.result())
-        bar.close()
-        ordered = [records[i] for i in indices if i in records]
-        summary = summarize(ordered)
-        summary["agent"] = agent_name
-        summary["duplicates"] = resumed.duplicates  # found (and dropped) in the records file
-        results.write_json("summary.json", summary)
-        if plots and ordered:
-            from eval.objectnav.report import plot_run
-
-            with writing(out / "plots"):
-                plot_run(summary, out, title=agent_name)
-    check_not_all_failed(ordered)
-    return summary
+                with writing(job.out / "plots"):
+                    plot_run(summary, job.out, title=job.cfg.run.agent)
+            summaries.append(summary)
+            ordered_all.append(ordered)
+    for ordered in ordered_all:
+        check_not_all_failed(ordered)
+    return summaries
 
 
 def agent_overrides(args, overrides: list[str]) -> list[str]:
@@ -173,17 +225,15 @@ def agent_overrides(args, overrides: list[str]) -> list[str]:
     return [*overrides, f"run.agent={agent}"] if agent else list(overrides)
 
 
-def _run_from_args(args, overrides: list[str], out: Path | None) -> tuple[dict, Path]:
-    """Load the config with ``overrides`` (and --agent), resolve --episodes, run into ``out``
-    (default: run.output_dir); returns (summary, output directory)."""
+def _job_from_args(args, overrides: list[str], out: Path | None) -> EpisodeJob:
+    """Load the config with ``overrides`` (and --agent) and resolve --episodes into a job
+    writing to ``out`` (default: run.output_dir)."""
     from envs.episodes import load_split, parse_episode_range
 
     cfg = load_config(args.config, agent_overrides(args, overrides))
     episodes = load_split(cfg.env.split, cfg.env)
     indices = list(parse_episode_range(str(args.episodes), len(episodes)))
-    out = Path(out or cfg.run.output_dir)
-    summary = run_objectnav(cfg, indices, out, force=args.force, video=getattr(args, "video", 0))
-    return summary, out
+    return EpisodeJob(cfg, indices, Path(out or cfg.run.output_dir), getattr(args, "video", 0))
 
 
 def main_objectnav(args) -> None:
@@ -193,25 +243,22 @@ def main_objectnav(args) -> None:
     if getattr(args, "video", 0) < 0:
         raise ValueError(f"--video must be >= 0, got {args.video}")
     if not getattr(args, "multirun", False):
-        summary, out = _run_from_args(args, args.overrides, args.output)
+        job = _job_from_args(args, args.overrides, args.output)
+        summary = run_jobs([job], force=args.force)[0]
         print(format_metrics_table([(summary["agent"], summary)], first_header="Agent"))
-        print(f"results: {out}/episodes.jsonl, {out}/summary.json, {out}/plots/")
+        print(f"results: {job.out}/episodes.jsonl, {job.out}/summary.json, {job.out}/plots/")
         return
     from eval.objectnav.report import combo_dirname, combo_values, varied_keys, write_comparison
 
     combos = expand_multirun(list(args.overrides))
     keys = varied_keys(list(args.overrides))
-    for combo in combos:  # validate every combination before running any
-        load_config(args.config, agent_overrides(args, combo))
-    root = Path(args.output or load_config(args.config, combos[0]).run.output_dir)
-    rows = []
+    root = Path(args.output or load_config(args.config, agent_overrides(args, combos[0])).run.output_dir)
+    values = [combo_values(combo, keys) for combo in combos]
+    # every combination is loaded (validated) before any runs; then all their episodes run at once
+    jobs = [_job_from_args(args, combo, root / combo_dirname(v)) for combo, v in zip(combos, values)]
     with ResultsDir(root, files=()):  # one multirun per root: its comparison covers its own runs
-        for combo in combos:
-            values = combo_values(combo, keys)
-            print(f"== {combo_dirname(values)}")
-            summary, _ = _run_from_args(args, combo, root / combo_dirname(values))
-            rows.append((values, summary))
+        summaries = run_jobs(jobs, force=args.force)
         with writing(root / "comparison.md"):
-            table = write_comparison(keys, rows, root)
+            table = write_comparison(keys, list(zip(values, summaries)), root)
     print(table)
     print(f"results: {root}/<combination>/, {root}/comparison.md, {root}/comparison.csv, {root}/comparison.png")

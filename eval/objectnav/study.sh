@@ -6,7 +6,9 @@
 # own), the control that tells the agent's share of that gain from the calibration's.
 # Every step is resumable: rerun the script to continue after an interruption.
 #   usage: eval/objectnav/study.sh   (env: OUT, TUNE, EVAL, THRESHOLDS, THRESHOLDS_<segmenter>,
-#                                     SEGMENTERS, CALNAV)
+#                                     SEGMENTERS, CALNAV, RUN)
+# RUN: extra `run.*` overrides for every command, e.g. RUN="run.backend=ray run.ray_address=auto"
+# to run every tuning grid and evaluation as Ray tasks on a cluster (see README, "Scaling out").
 set -euo pipefail
 OUT=${OUT:-runs/study}
 TUNE=${TUNE:-0:100}            # tuning episodes (val), an A:B range
@@ -20,7 +22,9 @@ SEGMENTERS=${SEGMENTERS:-learned_rgb gt}
 CALNAV=${CALNAV:-.venv/bin/calnav}
 # 160x120 = the mapping resolution the agent subsamples 640x480 to, and the segmenters' training
 # resolution: same information, 1.6x faster episodes (README, "ObjectNav comparison").
-COMMON=(env.resolution=160x120)
+# shellcheck disable=SC2206
+RUN=(${RUN:-})
+COMMON=(env.resolution=160x120 "${RUN[@]}")
 
 map_overrides() {  # $1 segmenter, $2 map -> overrides selecting the map
   case $2 in
@@ -39,10 +43,10 @@ for seg in $SEGMENTERS; do
     $CALNAV tune --episodes "$TUNE" --thresholds "$thresholds" --extend 2 --min-areas 4 --metric spl \
       --output "$tune_dir" "${COMMON[@]}" agent.segmenter="$seg" $(map_overrides "$seg" "$map")
     $CALNAV objectnav --agent peanut --config "$tune_dir/best.yaml" --episodes "$EVAL" \
-      --output "$OUT/eval/$seg/$map"
+      --output "$OUT/eval/$seg/$map" "${RUN[@]}"
   done
   for map in glfs rbu; do
     $CALNAV objectnav --agent peanut --config "$OUT/tune/$seg/$map/best.yaml" --episodes "$EVAL" \
-      --output "$OUT/eval/$seg/${map}_uncertainty" agent.uncertainty_aware=true
+      --output "$OUT/eval/$seg/${map}_uncertainty" agent.uncertainty_aware=true "${RUN[@]}"
   done
 done

@@ -155,7 +155,7 @@ def run_tune(config_path: str | None, overrides: list[str], episodes: str, thres
     Returns (rows, best row); every row holds the tune.csv columns."""
     from envs.episodes import load_split, parse_episode_range
 
-    from eval.objectnav.run import run_objectnav
+    from eval.objectnav.run import EpisodeJob, run_jobs
 
     if metric not in TUNE_METRICS:
         raise ConfigError(f"unknown tuning metric {metric!r}; valid: {', '.join(TUNE_METRICS)}")
@@ -175,21 +175,24 @@ def run_tune(config_path: str | None, overrides: list[str], episodes: str, thres
     out = Path(out)
     rows: list[dict] = []
 
-    def run_threshold(t: float) -> None:
-        for a in areas:
+    def run_thresholds(thresholds: list[float]) -> None:
+        """Every (threshold, min area) point of ``thresholds`` as one batch of jobs, so all
+        their episodes are in flight together (a cluster stays busy)."""
+        points = [(t, a) for t in thresholds for a in areas]
+        jobs = []
+        for t, a in points:
             cfg = load_config(config_path, overrides + [f"agent.goal_threshold={t}",
                                                         f"agent.goal_min_area_cells={a}"])
             if progress:
                 print(f"tune: goal_threshold={t:g} goal_min_area_cells={a} -> {out / point_name(t, a)}")
-            summary = run_objectnav(cfg, list(indices), out / point_name(t, a),
-                                    force=force, progress=progress)
+            jobs.append(EpisodeJob(cfg, list(indices), out / point_name(t, a)))
+        for (t, a), summary in zip(points, run_jobs(jobs, force=force, progress=progress)):
             rows.append(summary_row(t, a, summary))
 
     # the root holds no config of its own (each grid point checks its own): a lock only, so two
     # tunes into one --output cannot interleave their grids and tune.csv
     with ResultsDir(out, files=("tune.csv", "best.yaml")) as root:
-        for t in ts:
-            run_threshold(t)
+        run_thresholds(ts)
         for _ in range(extend):
             scores: dict[float, float] = {}
             for r in rows:
@@ -198,7 +201,7 @@ def run_tune(config_path: str | None, overrides: list[str], episodes: str, thres
             if nxt is None or nxt in ts:
                 break
             ts = sorted(ts + [nxt])
-            run_threshold(nxt)
+            run_thresholds([nxt])
         rows.sort(key=lambda r: (r["threshold"], r["min_area"]))
         root.write_text("tune.csv", csv_text(rows))
         best = select_best(rows, metric)

@@ -1,0 +1,132 @@
+"""Execution backends: where an experiment's independent work items run (``run.backend``).
+
+A backend maps a picklable top-level function over items and yields ``(item, result)`` pairs
+as they finish, in completion order, so the driver can write each result as it arrives:
+
+    backend = make_backend(cfg.run)
+    for item, result in backend.map_unordered(fn, items):
+        ...
+
+| ``run.backend`` | where items run | workers |
+|---|---|---|
+| ``local`` | this machine: in-process for 1 worker, else a spawn ``ProcessPoolExecutor`` | ``run.workers`` (0 = all cores) |
+| ``ray`` | Ray tasks on a local Ray instance (``run.ray_address: ""``) or a cluster (``auto``, ``ray://host:port``) | the cluster's CPUs; ``run.workers`` > 0 caps the tasks in flight |
+
+Functions keep expensive per-process state (an env and an agent) in module-level caches, so a
+pool worker or a Ray worker process stays warm across items (Ray reuses worker processes for
+tasks of the same function). Ray retries a task whose worker process or node died
+(``RAY_TASK_RETRIES``), so a lost node costs only its in-flight items; exceptions inside ``fn``
+are not retried (the functions here return error records instead of raising).
+
+Workers on other nodes do not read the driver's cache directory: scenes and episodes are
+generated deterministically from their seeds in each node's own ``$CALNAV_CACHE`` (default
+``~/.cache/calnav``), so every node sees the same houses. Each node needs calnav installed
+(``pip install -e ".[ray]"``), as for any Ray application.
+"""
+from __future__ import annotations
+
+import multiprocessing as mp
+import os
+import sys
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from typing import Any, Callable, Iterable, Iterator
+
+RAY_EXTRA_HINT = 'run.backend=ray needs Ray: pip install -e ".[ray]" (make test installs it into .venv)'
+RAY_TASK_RETRIES = 3          # re-runs of a task whose worker process or node died
+# Environment the Ray workers need from the driver (Ray does not forward the driver's environment).
+FORWARDED_ENV = ("CALNAV_CACHE", "OMP_WAIT_POLICY", "PYTHONPATH")
+
+
+def check_backend(name: str, address: str = "") -> None:
+    """Raise ValueError naming the choices (or the install command) before anything runs."""
+    if name not in BACKENDS:
+        raise ValueError(f"unknown run.backend {name!r}; valid choices: {', '.join(BACKENDS)}")
+    if name == "ray":
+        try:
+            import ray  # noqa: F401
+        except ImportError:
+            raise ValueError(RAY_EXTRA_HINT) from None
+    elif address:
+        raise ValueError(f"run.ray_address={address!r} is only used with run.backend=ray")
+
+
+class LocalBackend:
+    """This machine's cores: in-process for one worker, a spawn process pool otherwise
+    (Open3D's thread pools do not survive fork())."""
+
+    def __init__(self, workers: int = 0):
+        self.workers = workers or os.cpu_count() or 1
+
+    def map_unordered(self, fn: Callable[[Any], Any], items: Iterable) -> Iterator[tuple[Any, Any]]:
+        items = list(items)
+        workers = max(1, min(self.workers, len(items)))
+        if not items:
+            return
+        if workers == 1:
+            for item in items:
+                yield item, fn(item)
+            return
+        with ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn")) as pool:
+            pending = {pool.submit(fn, item): item for item in items}
+            while pending:
+                done, _ = wait(pending, return_when=FIRST_COMPLETED)
+                for fut in done:
+                    yield pending.pop(fut), fut.result()
+
+
+class RayBackend:
+    """Ray tasks; joins ``address`` ("" = start a local instance, "auto", "ray://host:port")."""
+
+    def __init__(self, address: str = "", workers: int = 0):
+        check_backend("ray")
+        self.address, self.workers = address, workers
+
+    def _init(self):
+        import ray
+
+        if not ray.is_initialized():
+            env = {k: os.environ[k] for k in FORWARDED_ENV if k in os.environ}
+            ray.init(address=self.address or None, runtime_env={"env_vars": env} if env else None,
+                     include_dashboard=False, log_to_driver=False, configure_logging=False)
+        return ray
+
+    def map_unordered(self, fn: Callable[[Any], Any], items: Iterable) -> Iterator[tuple[Any, Any]]:
+        items = list(items)
+        if not items:
+            return
+        ray = self._init()
+        remote = ray.remote(max_retries=RAY_TASK_RETRIES, retry_exceptions=False)(fn)
+        cap = self.workers if self.workers > 0 else len(items)
+        queue = list(reversed(items))
+        pending: dict = {}
+        while queue or pending:
+            while queue and len(pending) < cap:
+                item = queue.pop()
+                pending[remote.remote(item)] = item
+            done, _ = ray.wait(list(pending), num_returns=1)
+            for ref in done:
+                yield pending.pop(ref), ray.get(ref)
+
+
+def ray_node_id() -> str | None:
+    """The id of the Ray node this process runs on, or None outside a Ray worker (no import:
+    only a process that already runs Ray has it loaded)."""
+    ray = sys.modules.get("ray")
+    if ray is None or not ray.is_initialized():
+        return None
+    return ray.get_runtime_context().get_node_id()
+
+
+# run.backend -> constructor from the run config (eval.config.BackendName lists the same names)
+BACKENDS: dict[str, Callable[[Any], "LocalBackend | RayBackend"]] = {
+    "local": lambda run: LocalBackend(run.workers),
+    "ray": lambda run: RayBackend(run.ray_address, run.workers),
+}
+BACKEND_NAMES: tuple[str, ...] = tuple(BACKENDS)
+
+
+def make_backend(run_cfg) -> LocalBackend | RayBackend:
+    """The backend of a ``RunConfig`` (``backend``, ``ray_address``, ``workers``); raises
+    ValueError naming the choices, or the install command, before anything runs."""
+    check_backend(run_cfg.backend, run_cfg.ray_address)
+    return BACKENDS[run_cfg.backend](run_cfg)

@@ -1,0 +1,190 @@
+"""Execution backends (eval.backends): the local pool and Ray give the same per-episode records,
+a multirun fans all its configurations out at once, a killed Ray worker or driver costs only
+in-flight episodes, and a two-node Ray cluster runs episodes on both nodes."""
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+import typing
+from pathlib import Path
+
+import pytest
+
+from eval.backends import BACKENDS, LocalBackend, check_backend
+from eval.cli import main
+from eval.config import BackendName, load_config
+from eval.objectnav.run import EpisodeJob, run_jobs
+
+ray = pytest.importorskip("ray", reason="the ray extra is installed by `make test`")
+
+SMALL = ["env.resolution=64x48", "env.dataset.val_scenes=2", "env.dataset.episodes_per_scene=3"]
+PEANUT_GT = ["agent.segmenter=gt", "agent.map_resolution=64x48", "env.max_episode_steps=60"]
+REPO = Path(__file__).resolve().parents[1]
+METRICS = ("success", "spl", "softspl", "distance_to_goal", "steps", "path_length", "collisions", "stop_reason")
+
+
+@pytest.fixture(scope="module")
+def local_ray():
+    """A small local Ray instance (2 CPUs) for this module; workers import this checkout."""
+    env = {k: os.environ[k] for k in ("CALNAV_CACHE", "OMP_WAIT_POLICY") if k in os.environ}
+    env["PYTHONPATH"] = os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")]).rstrip(os.pathsep)
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, runtime_env={"env_vars": env})
+    yield
+    ray.shutdown()
+
+
+def load_records(path) -> list[dict]:
+    """Every valid record line of a records file, duplicates included (so "exactly once" is
+    checked on the file itself, not on read_records' de-duplicated view)."""
+    out = []
+    for line in Path(path).read_text().splitlines():
+        try:
+            rec = json.loads(line)
+        except json.JSONDecodeError:
+            continue  # a torn line of a killed driver
+        if isinstance(rec, dict) and "index" in rec:
+            out.append(rec)
+    return out
+
+
+def _metrics(records: list[dict]) -> dict[int, tuple]:
+    return {r["index"]: tuple(r[k] for k in METRICS) for r in records}
+
+
+def test_backend_names_match_the_config_choices():
+    assert set(BACKENDS) == set(typing.get_args(BackendName)) == {"local", "ray"}
+    with pytest.raises(ValueError, match="valid choices: local, ray"):
+        check_backend("slurm")
+    with pytest.raises(ValueError, match="only used with run.backend=ray"):
+        check_backend("local", "auto")
+
+
+def test_missing_ray_names_the_install_command(monkeypatch):
+    monkeypatch.setitem(sys.modules, "ray", None)  # import ray -> ImportError
+    with pytest.raises(ValueError, match=r'pip install -e "\.\[ray\]"'):
+        check_backend("ray")
+
+
+def test_local_and_ray_map_the_same_results(local_ray):
+    from eval.backends import RayBackend
+
+    from envs.semantics import CLASS_NAMES, class_id   # a plain function importable on every worker
+
+    local = dict(LocalBackend(workers=2).map_unordered(class_id, CLASS_NAMES))
+    remote = dict(RayBackend(workers=2).map_unordered(class_id, CLASS_NAMES))
+    assert local == remote == {name: i for i, name in enumerate(CLASS_NAMES)}
+
+
+def test_ray_objectnav_matches_the_local_pool_per_episode(local_ray, tmp_path):
+    def cmd(out, *extra):
+        return ["objectnav", "--episodes", "0:4", "--output", str(tmp_path / out), *SMALL, *PEANUT_GT, *extra]
+
+    assert main(cmd("local", "run.workers=2")) == 0
+    assert main(cmd("ray", "run.backend=ray")) == 0
+    local = load_records(tmp_path / "local" / "episodes.jsonl")
+    remote = load_records(tmp_path / "ray" / "episodes.jsonl")
+    assert _metrics(local) == _metrics(remote) and len(remote) == 4
+    assert all("ray_node" in r for r in remote)          # where each episode ran is recorded
+    # the backend is not a result: the local directory resumes (nothing to do) under ray
+    assert main(cmd("local", "run.backend=ray")) == 0
+    assert len(load_records(tmp_path / "local" / "episodes.jsonl")) == 4
+
+
+def test_multirun_submits_every_configuration_at_once(tmp_path, monkeypatch):
+    calls = []
+
+    class Recording(LocalBackend):
+        def map_unordered(self, fn, items):
+            items = list(items)
+            calls.append(sorted({(t.job, t.index) for t in items}))
+            yield from super().map_unordered(fn, items)
+
+    monkeypatch.setitem(BACKENDS, "local", lambda run: Recording(1))
+    jobs = [EpisodeJob(load_config(None, [*SMALL, "run.agent=oracle", f"env.max_episode_steps={n}"]), [0, 1],
+                       tmp_path / str(n)) for n in (200, 300)]
+    summaries = run_jobs(jobs, progress=False, plots=False)
+    assert calls == [[(0, 0), (0, 1), (1, 0), (1, 1)]]   # one batch holding both configurations
+    assert [s["count"] for s in summaries] == [2, 2]
+    assert all(len(load_records(j.out / "episodes.jsonl")) == 2 for j in jobs)
+
+
+def _ray_worker_pids() -> set[int]:
+    out = subprocess.run(["ps", "-eo", "pid,args"], capture_output=True, text=True).stdout
+    return {int(line.split()[0]) for line in out.splitlines()[1:] if "ray::run_episode_task" in line}
+
+
+N_KILL = 6   # episodes of the killed-worker run (all of SMALL's 2 val houses x 3)
+
+
+def test_a_killed_ray_worker_costs_only_its_episode(local_ray, tmp_path):
+    out = tmp_path / "killed"
+    cfg = load_config(None, [*SMALL, *PEANUT_GT, "run.backend=ray"])
+    done = threading.Event()
+    result = {}
+
+    def run():
+        result["summary"] = run_jobs([EpisodeJob(cfg, list(range(N_KILL)), out)], progress=False, plots=False)[0]
+        done.set()
+
+    t = threading.Thread(target=run)
+    t.start()
+    killed = None
+    deadline = time.time() + 120
+    while not done.is_set() and time.time() < deadline and killed is None:
+        pids = _ray_worker_pids()
+        if pids:
+            killed = min(pids)
+            os.kill(killed, signal.SIGKILL)   # a worker lost mid-episode
+        time.sleep(0.05)
+    t.join(timeout=300)
+    assert killed is not None, "no busy Ray worker seen to kill"
+    assert done.is_set(), "the run did not finish after the worker was killed"
+    records = load_records(out / "episodes.jsonl")
+    assert sorted(r["index"] for r in records) == list(range(N_KILL))      # every episode exactly once
+    assert all(r["status"] == "ok" for r in records) and result["summary"]["count"] == N_KILL
+
+
+def test_a_killed_ray_driver_resumes_without_duplicates(tmp_path):
+    out = tmp_path / "driver"
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    cmd = [sys.executable, "-c", "import sys; from eval.cli import main; sys.exit(main(sys.argv[1:]))",
+           "objectnav", "--agent", "oracle", "--episodes", "0:6", "--output", str(out), *SMALL,
+           "run.backend=ray", "run.workers=1"]
+    proc = subprocess.Popen(cmd, env=env, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                            start_new_session=True)
+    path = out / "episodes.jsonl"
+    deadline = time.time() + 180
+    while time.time() < deadline and not (path.exists() and path.read_text().count("\n") >= 2):
+        time.sleep(0.2)
+    os.killpg(proc.pid, signal.SIGKILL)   # the driver (and the Ray instance it started) die
+    proc.wait()
+    first = len(load_records(path))
+    assert 2 <= first < 6
+    assert subprocess.run(cmd, env=env, cwd=REPO, capture_output=True).returncode == 0
+    records = load_records(path)
+    assert sorted(r["index"] for r in records) == list(range(6))
+
+
+def test_calibration_houses_recorded_on_ray_match_local_bytes(local_ray, tmp_path):
+    """calibrate-map's slow stage as Ray tasks: the files the driver writes from the workers'
+    bytes hold the same arrays as the local backend's (npz bytes differ only by zip times)."""
+    import numpy as np
+
+    from eval.calibration.config import CalibrateMapConfig
+    from eval.calibration.record import record_houses, scene_files
+
+    tiny = ["study.segmenters=[learned_rgb]", "study.calib_train_scenes=1", "study.calib_val_scenes=1",
+            "study.test_scenes=1", "scan.frames=12"]
+    houses = {"house_test_0000": 12}
+    files = {}
+    for backend in ("local", "ray"):
+        cfg = load_config(None, [*tiny, f"run.backend={backend}", "run.workers=2"], cls=CalibrateMapConfig)
+        record_houses(cfg, houses, ("learned_rgb",), tmp_path / backend, progress=False)
+        files[backend] = [dict(np.load(p)) for sid in houses
+                          for p in scene_files(tmp_path / backend, "learned_rgb", sid)]
+    assert len(files["local"]) == len(files["ray"]) == 2
+    for a, b in zip(files["local"], files["ray"]):
+        assert a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)
