@@ -16,10 +16,10 @@ section owns the rest (the houses: ``env.dataset.*``; the navigation grid; noise
 from __future__ import annotations
 
 import json
-import os
 from dataclasses import asdict, replace
 from pathlib import Path
 
+from common.atomic import write_text_atomic
 from envs.config import DatasetConfig, EnvConfig
 from envs.episodes import dataset_key, load_split, split_dir
 
@@ -113,9 +113,7 @@ def prepare_habitat_dataset(env_cfg: EnvConfig, progress: bool = True) -> Path:
     text = json.dumps({"format": DESCRIPTOR_FORMAT, "version": DESCRIPTOR_VERSION, "env": asdict(env_cfg)},
                       indent=1, sort_keys=True)
     if not path.exists() or path.read_text() != text:
-        tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")
-        tmp.write_text(text)
-        tmp.replace(path)
+        write_text_atomic(path, text)
     return root
 
 
