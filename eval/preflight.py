@@ -11,7 +11,8 @@ Checked per config, by the loaders that own the data:
 - ``mapping.glfs_params`` when set: readable, finite, valid, and for the segmenter's classes
   (``mapping.glfs.GLFSParams.load``);
 - ``env.dataset.scene_dir`` when set: a directory holding scenes for the split(s) the run
-  uses (``envs.scenes.split_scene_ids``).
+  uses (``envs.scenes.split_scene_ids``);
+- ``run.backend``: a known backend, and for ``ray`` an importable Ray (``eval.backends``).
 
 Each command calls ``check_command(args, COMMAND)`` once, first thing in its main; it loads
 every config the command will run (all multirun combinations) exactly as the command does.
@@ -29,7 +30,10 @@ def check_run_resources(cfg: Any) -> None:
     """Validate the files ``cfg`` (a ``Config`` or ``CalibrateMapConfig``) names; raises
     ValueError / FileNotFoundError naming the file and what is wrong with it."""
     from agent.segmenters import check_segmenter
+    from eval.backends import check_backend
     from mapping.glfs import GLFSParams
+
+    check_backend(cfg.run.backend, cfg.run.ray_address)   # run.backend=ray without Ray: the install command
 
     if isinstance(cfg, Config):
         names = check_segmenter(cfg.agent.segmenter, cfg.agent.segmenter_config, cfg.run.device)

@@ -188,3 +188,12 @@ def test_calibration_houses_recorded_on_ray_match_local_bytes(local_ray, tmp_pat
     assert len(files["local"]) == len(files["ray"]) == 2
     for a, b in zip(files["local"], files["ray"]):
         assert a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)
+
+
+def test_ray_backend_without_ray_fails_before_anything_is_written(tmp_path, monkeypatch, capsys):
+    monkeypatch.setitem(sys.modules, "ray", None)  # import ray -> ImportError
+    out = tmp_path / "r"
+    assert main(["objectnav", "--agent", "oracle", "--episodes", "0:1", "--output", str(out), *SMALL,
+                 "run.backend=ray"]) == 2
+    assert 'pip install -e ".[ray]"' in capsys.readouterr().err
+    assert not out.exists()
