@@ -18,7 +18,6 @@ from eval.cli import main
 from eval.config import BackendName, load_config
 from eval.objectnav.run import EpisodeJob, run_jobs
 
-ray = pytest.importorskip("ray", reason="the ray extra is installed by `make test`")
 
 SMALL = ["env.resolution=64x48", "env.dataset.val_scenes=2", "env.dataset.episodes_per_scene=3"]
 PEANUT_GT = ["agent.segmenter=gt", "agent.map_resolution=64x48", "env.max_episode_steps=60"]
@@ -29,6 +28,7 @@ METRICS = ("success", "spl", "softspl", "distance_to_goal", "steps", "path_lengt
 @pytest.fixture(scope="module")
 def local_ray():
     """A small local Ray instance (2 CPUs) for this module; workers import this checkout."""
+    ray = pytest.importorskip("ray", reason="the ray extra is installed by `make test`")
     env = {k: os.environ[k] for k in ("CALNAV_CACHE", "OMP_WAIT_POLICY") if k in os.environ}
     env["PYTHONPATH"] = os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")]).rstrip(os.pathsep)
     ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, runtime_env={"env_vars": env})
@@ -148,6 +148,7 @@ def test_a_killed_ray_worker_costs_only_its_episode(local_ray, tmp_path):
 
 
 def test_a_killed_ray_driver_resumes_without_duplicates(tmp_path):
+    pytest.importorskip("ray", reason="the ray extra is installed by `make test`")
     out = tmp_path / "driver"
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     cmd = [sys.executable, "-c", "import sys; from eval.cli import main; sys.exit(main(sys.argv[1:]))",

@@ -11,8 +11,6 @@ from pathlib import Path
 
 import pytest
 
-pytest.importorskip("ray", reason="the ray extra is installed by `make test`")
-
 pytestmark = pytest.mark.e2e
 
 REPO = Path(__file__).resolve().parents[1]
@@ -27,6 +25,7 @@ def _free_port() -> int:
 
 
 def test_two_node_ray_cluster_runs_episodes_on_both_nodes(tmp_path):
+    pytest.importorskip("ray", reason="the ray extra is installed by `make test`")
     ray_bin = str(Path(sys.executable).with_name("ray"))
     port = _free_port()
     address = f"127.0.0.1:{port}"
