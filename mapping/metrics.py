@@ -160,6 +160,14 @@ class CalibrationStats:
         k = np.arange(self.num_classes)
         return self.count[:, k, k]
 
+    def error_bins(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Per confidence bin: correct (n_bins,) int64 and wrong (n_bins,) int64 sample counts, and
+        the wrong samples' confidence sums (n_bins,) float64 (error-vs-confidence plots)."""
+        correct = self._correct().sum(axis=1)
+        k = np.arange(self.num_classes)
+        wrong_conf = self.conf_sum.sum(axis=(1, 2)) - self.conf_sum[:, k, k].sum(axis=1)
+        return correct, self.count.sum(axis=(1, 2)) - correct, wrong_conf
+
     def accuracy(self) -> float:
         n = self.n
         return float(self._correct().sum() / n) if n else float("nan")

@@ -243,3 +243,11 @@ def test_authors_miou_streams_and_rejects_bad_options():
     bad[3] = np.nan
     with pytest.raises(ValueError, match="ignored"):
         M.CalibrationStats(3).update(bad, LABELS_V, ignore_index=-1, count_ignored=True)
+
+
+def test_error_bins_hand_computed():
+    # case A: bins 9 (correct, .9), 8 (wrong, .8), 7 (correct, .7), 6 (correct, .6)
+    correct, wrong, wrong_conf = M.CalibrationStats(2).update(PROBS_A, LABELS_A).error_bins()
+    np.testing.assert_array_equal(correct, [0, 0, 0, 0, 0, 0, 1, 1, 0, 1])
+    np.testing.assert_array_equal(wrong, [0, 0, 0, 0, 0, 0, 0, 0, 1, 0])
+    assert wrong_conf[8] == pytest.approx(0.8) and wrong_conf.sum() == pytest.approx(0.8)
