@@ -23,7 +23,6 @@ the variant (GLFS with untrained identity parameters is naive averaging, already
 """
 from __future__ import annotations
 
-import dataclasses
 import json
 import shutil
 import zlib
@@ -88,12 +87,12 @@ class Fits:
 
     def temperature(self, strategy: str, calibration: str):
         """The logit temperature (float or (K,) list) a (strategy, calibration) row uses."""
+        if strategy == "glfs":             # calibration names the GLFS variant
+            return GLFSParams.load(self.glfs_path(calibration)).tau.tolist()
         if calibration == "none":
             return 1.0
         if calibration == "temperature_2d":
             return self.data["temperature_2d"]["temperature"]
-        if strategy == "glfs":
-            return GLFSParams.load(self.glfs_path(calibration)).tau.tolist()
         return self.data[f"{calibration}/{strategy}"]["temperature"]
 
 
