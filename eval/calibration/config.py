@@ -28,11 +28,15 @@ class GLFSVariant:
 
 def default_glfs_variants() -> list[GLFSVariant]:
     """calnav's rule, the authors' rule, the constrained rule, an unweighted NLL, the constrained
-    rule from the geometric mean (G = 1), the authors' set-up."""
+    rule from the geometric mean (G = 1), both with 10x smaller steps, the authors' set-up."""
     return [GLFSVariant("learned", {}), GLFSVariant("val_miou", {"selection": "val_miou"}),
             GLFSVariant("constrained", {"selection": "constrained"}),
             GLFSVariant("unweighted", {"class_weighting": "none", "selection": "constrained"}),
             GLFSVariant("geo_constrained", {"init_g": 1.0, "selection": "constrained", "val_per_epoch": 3}),
+            GLFSVariant("constrained_slow", {"selection": "constrained", "lr": 0.005, "val_per_epoch": 3,
+                                             "patience": 6}),
+            GLFSVariant("geo_constrained_slow", {"init_g": 1.0, "selection": "constrained", "lr": 0.005,
+                                                 "val_per_epoch": 3, "patience": 6}),
             GLFSVariant("authors", {"learn_gates": False, "init_g": 0.0, "init_eps": 0.0, "init_tau": 0.4,
                                     "selection": "val_miou", "patience": 5, "val_per_epoch": 3, "grad_clip": 1.0})]
 
