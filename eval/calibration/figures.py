@@ -131,9 +131,9 @@ def plot_qualitative(views: list[dict], class_names, path: Path, title: str, lab
             a2.set_xlabel(f"wrong {100 * s['error_rate']:.0f}%: conf {s['conf_wrong']:.2f}\n"
                           f"(correct: {s['conf_correct']:.2f})", fontsize=7)
             if r == 0:
-                a0.set_title(f"{name}: class", fontsize=8)
-                a1.set_title(f"{name}: confidence", fontsize=8)
-                a2.set_title(f"{name}: errors by conf.", fontsize=8)
+                a0.set_title(f"{name}\nclass", fontsize=8)
+                a1.set_title(f"{name}\nconfidence", fontsize=8)
+                a2.set_title(f"{name}\nerrors, coloured by conf.", fontsize=8)
     for ax in axes.flat:
         ax.set_xticks([])
         ax.set_yticks([])
