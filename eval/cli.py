@@ -128,6 +128,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--segmenter", required=True, help="segmenter whose observations GLFS is fitted to")
     p.add_argument("--output", required=True, help="GLFS parameter file (.json / .npz) for mapping.glfs_params")
     p.add_argument("--work-dir", default=None, help="where scans are kept (default: run.output_dir)")
+    p.add_argument("--variant", default=None,
+                   help="GLFS variant of study.glfs_variants to train (default: the first, 'learned' = the glfs section)")
 
     p = sub.add_parser("tune", help="grid-search agent.goal_threshold x agent.goal_min_area_cells (peanut agent); "
                                     "tune.csv + best.yaml")

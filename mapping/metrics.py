@@ -25,8 +25,12 @@ conf = their mean top-label confidence, N = samples after ``ignore_index``):
   (N_c of them); classes absent from the labels are skipped
 - Brier  = mean over samples of sum_k (probs[k] - onehot(label)[k])^2  (0 .. 2)
 - IoU_c  = TP / (TP + FP + FN) on the argmax; mIoU = mean over classes present in the
-  *labels* (the paper's convention; ``present="either"`` also counts classes that are only
-  predicted, each with IoU 0). Ties in the argmax go to the lowest class id.
+  *labels* (calnav's convention, ``convention="calnav"``; ``present="either"`` also counts
+  classes that are only predicted, each with IoU 0). Ties in the argmax go to the lowest class id.
+- The authors' released mIoU (``convention="authors"``): void samples (``ignore_index``) that
+  are predicted as class c count as false positives of c, IoU_c = TP / (TP + FP + FN + V_c);
+  the classes in ``exclude`` (their class 0, ScanNet's "unannotated") are left out; the mean
+  runs over the classes present in the labels OR the predictions (void samples' included).
 
 Memory: the metrics accumulate a (n_bins, K, K) table of counts and confidence sums (and a
 Brier sum) with ``np.bincount`` in chunks of ``CHUNK_ROWS`` rows, so 10^7 pixels need no
@@ -44,6 +48,8 @@ DEFAULT_BINS = 10          # the paper's bin count
 CHUNK_ROWS = 1 << 16       # rows processed per pass (temporaries ~CHUNK_ROWS * K * 8 B = 9 MiB at K = 18)
 SUM_TOLERANCE = 1e-2       # |row sum - 1| allowed (fp16 softmax outputs sum to 1 within ~1e-3)
 PRESENT_CHOICES = ("labels", "either")
+MIOU_CONVENTIONS = ("calnav", "authors")
+AUTHORS_EXCLUDED_CLASSES = (0,)   # the authors' class 0 (ScanNet "unannotated") is left out of their mean
 
 
 @dataclass(frozen=True, eq=False)
@@ -85,7 +91,9 @@ class CalibrationStats:
 
     num_classes: K. n_bins: confidence bins. ``update`` adds samples; the metric methods read
     the totals (NaN when no sample has been added). Tables: ``count`` (n_bins, K_pred, K_true)
-    int64 and ``conf_sum`` (same shape) float64 sums of top-label confidence; ``brier_sum``.
+    int64 and ``conf_sum`` (same shape) float64 sums of top-label confidence; ``brier_sum``;
+    ``void_pred`` (K,) int64 argmax counts of the ignored (void) samples, filled only by
+    ``update(..., count_ignored=True)`` (the authors' mIoU counts them as false positives).
     """
 
     def __init__(self, num_classes: int, n_bins: int = DEFAULT_BINS):
@@ -98,6 +106,7 @@ class CalibrationStats:
         self.count = np.zeros(shape, dtype=np.int64)
         self.conf_sum = np.zeros(shape, dtype=np.float64)
         self.brier_sum = 0.0
+        self.void_pred = np.zeros(self.num_classes, dtype=np.int64)
 
     @property
     def n(self) -> int:
@@ -105,9 +114,11 @@ class CalibrationStats:
         return int(self.count.sum())
 
     # ------------------------------------------------------------------ accumulate
-    def update(self, probs: np.ndarray, labels: np.ndarray, ignore_index: int | None = None) -> "CalibrationStats":
+    def update(self, probs: np.ndarray, labels: np.ndarray, ignore_index: int | None = None,
+               count_ignored: bool = False) -> "CalibrationStats":
         """Add samples: probs (N, K) float, labels (N,) int; rows whose label equals
-        ``ignore_index`` are skipped. Raises ValueError on bad shapes, NaN / out-of-range
+        ``ignore_index`` are skipped (with ``count_ignored``, their argmax is added to
+        ``void_pred``; such rows must then be finite). Raises ValueError on bad shapes, NaN / out-of-range
         probabilities or labels outside [0, K). Returns self."""
         probs, labels = _check_inputs(probs, labels, self.num_classes)
         k, nb = self.num_classes, self.n_bins
@@ -118,6 +129,11 @@ class CalibrationStats:
             if ignore_index is not None:
                 keep = y != ignore_index
                 if not keep.all():
+                    if count_ignored:
+                        void = p[~keep]
+                        if not np.isfinite(void).all():
+                            raise ValueError("probs of ignored (void) samples contain NaN or inf")
+                        self.void_pred += np.bincount(void.argmax(axis=1), minlength=k)
                     p, y = p[keep], y[keep]
             if len(y) == 0:
                 continue
@@ -143,6 +159,14 @@ class CalibrationStats:
         """(n_bins, K) correct predictions per bin and class (pred == label == k)."""
         k = np.arange(self.num_classes)
         return self.count[:, k, k]
+
+    def error_bins(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Per confidence bin: correct (n_bins,) int64 and wrong (n_bins,) int64 sample counts, and
+        the wrong samples' confidence sums (n_bins,) float64 (error-vs-confidence plots)."""
+        correct = self._correct().sum(axis=1)
+        k = np.arange(self.num_classes)
+        wrong_conf = self.conf_sum.sum(axis=(1, 2)) - self.conf_sum[:, k, k].sum(axis=1)
+        return correct, self.count.sum(axis=(1, 2)) - correct, wrong_conf
 
     def accuracy(self) -> float:
         n = self.n
@@ -189,14 +213,29 @@ class CalibrationStats:
         with np.errstate(invalid="ignore", divide="ignore"):
             return np.where(keep, tp / np.maximum(union, 1.0), np.nan)
 
-    def miou(self, classes: Iterable[int] | None = None, present: str = "labels") -> float:
-        """Mean IoU over present classes, optionally only those in ``classes`` (ids)."""
-        iou = self.per_class_iou(present)
+    def per_class_iou_authors(self, exclude: Iterable[int] = AUTHORS_EXCLUDED_CLASSES) -> np.ndarray:
+        """(K,) float64 IoU per class in the authors' convention (module docstring): void
+        predictions are false positives; NaN for excluded classes and classes neither labelled
+        nor predicted."""
+        conf = self.confusion().astype(np.float64)
+        tp = np.diag(conf)
+        predicted = conf.sum(axis=1) + self.void_pred
+        union = predicted + conf.sum(axis=0) - tp
+        keep = union > 0
+        ids = _class_ids(exclude, self.num_classes, "exclude")
+        keep[ids] = False
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(keep, tp / np.maximum(union, 1.0), np.nan)
+
+    def miou(self, classes: Iterable[int] | None = None, present: str = "labels", convention: str = "calnav",
+             exclude: Iterable[int] = AUTHORS_EXCLUDED_CLASSES) -> float:
+        """Mean IoU over present classes, optionally only those in ``classes`` (ids).
+        ``convention``: ``calnav`` (``present`` applies) or ``authors`` (``exclude`` applies)."""
+        if convention not in MIOU_CONVENTIONS:
+            raise ValueError(f"convention must be one of {', '.join(MIOU_CONVENTIONS)}, got {convention!r}")
+        iou = self.per_class_iou(present) if convention == "calnav" else self.per_class_iou_authors(exclude)
         if classes is not None:
-            ids = np.asarray(list(classes), dtype=np.int64)
-            if ids.size and (ids.min() < 0 or ids.max() >= self.num_classes):
-                raise ValueError(f"classes must be ids in [0, {self.num_classes}), got {ids.tolist()}")
-            iou = iou[ids]
+            iou = iou[_class_ids(classes, self.num_classes, "classes")]
         return float(np.nanmean(iou)) if np.isfinite(iou).any() else float("nan")
 
     def reliability(self) -> ReliabilityTable:
@@ -217,6 +256,14 @@ class CalibrationStats:
         """All scalar metrics in one dict."""
         return {"accuracy": self.accuracy(), "miou": self.miou(), "ece": self.ece(), "tl_ece": self.tl_ece(),
                 "mece": self.mece(), "brier": self.brier(), "n": float(self.n)}
+
+
+def _class_ids(ids: Iterable[int], num_classes: int, what: str) -> np.ndarray:
+    """Class ids as an int64 array, checked to lie in [0, K)."""
+    out = np.asarray(list(ids), dtype=np.int64)
+    if out.size and (out.min() < 0 or out.max() >= num_classes):
+        raise ValueError(f"{what} must be class ids in [0, {num_classes}), got {out.tolist()}")
+    return out
 
 
 def _ratio(num: np.ndarray, den: np.ndarray) -> np.ndarray:
@@ -259,9 +306,9 @@ def _check_chunk(p: np.ndarray, y: np.ndarray, k: int) -> None:
         raise ValueError(f"labels must be class ids in [0, {k}) (or ignore_index), found {bad.tolist()}")
 
 
-def _stats(probs, labels, n_bins: int, ignore_index: int | None) -> CalibrationStats:
+def _stats(probs, labels, n_bins: int, ignore_index: int | None, count_ignored: bool = False) -> CalibrationStats:
     probs, labels = _check_inputs(probs, labels)
-    stats = CalibrationStats(probs.shape[1], n_bins).update(probs, labels, ignore_index)
+    stats = CalibrationStats(probs.shape[1], n_bins).update(probs, labels, ignore_index, count_ignored)
     if stats.n == 0:
         raise ValueError("no samples left to score (empty input, or every label is ignore_index)")
     return stats
@@ -300,9 +347,15 @@ def per_class_iou(probs, labels, n_bins: int = DEFAULT_BINS, ignore_index: int |
 
 
 def miou(probs, labels, n_bins: int = DEFAULT_BINS, ignore_index: int | None = None,
-         classes: Iterable[int] | None = None, present: str = "labels") -> float:
-    """Mean IoU over present classes (optionally restricted to ``classes``; n_bins unused)."""
-    return _stats(probs, labels, n_bins, ignore_index).miou(classes, present)
+         classes: Iterable[int] | None = None, present: str = "labels", convention: str = "calnav",
+         exclude: Iterable[int] = AUTHORS_EXCLUDED_CLASSES) -> float:
+    """Mean IoU over present classes (optionally restricted to ``classes``; n_bins unused).
+    ``convention="authors"``: the authors' release (module docstring); samples labelled
+    ``ignore_index`` are then void false positives of their predicted class."""
+    if convention not in MIOU_CONVENTIONS:
+        raise ValueError(f"convention must be one of {', '.join(MIOU_CONVENTIONS)}, got {convention!r}")
+    return _stats(probs, labels, n_bins, ignore_index, count_ignored=convention == "authors").miou(
+        classes, present, convention, exclude)
 
 
 def reliability(probs, labels, n_bins: int = DEFAULT_BINS, ignore_index: int | None = None) -> ReliabilityTable:

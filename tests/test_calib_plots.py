@@ -105,3 +105,57 @@ def test_plot_calibration_vs_accuracy(tmp_path):
         warnings.simplefilter("error")
         out = P.plot_calibration_vs_accuracy(rows, tmp_path / "a" / "b" / "fig4.png", title="Fig. 4")
     _check_png(out)
+
+
+def _rows():
+    """Two segmenters: fixed rows (best mIoU 0.70 = averaging/none) and three GLFS variants."""
+    rows = []
+    for seg in ("a", "b"):
+        rows += [{"segmenter": seg, "strategy": "rbu", "calibration": "none", "miou": 0.69, "mece": 0.20},
+                 {"segmenter": seg, "strategy": "averaging", "calibration": "none", "miou": 0.70, "mece": 0.10},
+                 {"segmenter": seg, "strategy": "averaging", "calibration": "vector_3d", "miou": 0.60, "mece": 0.04},
+                 {"segmenter": seg, "strategy": "glfs", "calibration": "learned", "miou": 0.66, "mece": 0.05},
+                 {"segmenter": seg, "strategy": "glfs", "calibration": "constrained", "miou": 0.6955, "mece": 0.08},
+                 {"segmenter": seg, "strategy": "glfs", "calibration": "val_miou", "miou": 0.6990, "mece": 0.09}]
+    rows[-2] = dict(rows[-2], miou=0.694)      # segmenter b: constrained is 0.6 points below -> out
+    return rows
+
+
+def test_glfs_pick_rule_hand_computed():
+    from eval.calibration.report import glfs_pick
+
+    picks = glfs_pick(_rows())
+    # a: within 0.5 points of 0.70 -> constrained (0.6955) and val_miou (0.699); lowest mECE: constrained
+    assert picks["a"]["best_fixed"] == "averaging/none" and picks["a"]["variants_within"] == ["constrained", "val_miou"]
+    assert picks["a"]["pick"] == "constrained" and picks["a"]["lowest_mece_within"] == "glfs/constrained"
+    # b: constrained at 0.694 is 0.6 points below -> only val_miou
+    assert picks["b"]["pick"] == "val_miou" and picks["b"]["lowest_mece_within_value"] == pytest.approx(0.09)
+    nothing = [r for r in _rows() if r["segmenter"] == "a" and r["calibration"] != "constrained"
+               and r["calibration"] != "val_miou"]
+    assert glfs_pick(nothing)["a"]["pick"] is None
+
+
+def test_glfs_tradeoff_and_error_plots(tmp_path):
+    hist = {"val_mece": [0.1, 0.08, 0.07], "val_miou": [0.7, 0.69, 0.68], "best_check": 1}
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        out = P.plot_glfs_tradeoff(_rows(), {"a": {"learned": hist}}, tmp_path / "t.png")
+        stats = M.CalibrationStats(2).update(PROBS[:4], LABELS[:4])
+        correct, wrong, wconf = stats.error_bins()
+        edges = np.linspace(0, 1, 11)
+        out2 = P.plot_error_vs_confidence({"rbu": (edges, correct, wrong, float(wconf.sum() / wrong.sum())),
+                                           "glfs": (edges, correct, np.zeros(10, int), NAN)}, tmp_path / "e.png")
+    _check_png(out)
+    _check_png(out2)
+
+
+def test_tau_curve_minima_and_files(tmp_path):
+    from eval.calibration.tau_curve import curve_minima, write_tau_curves
+
+    # minima: index 1 (0.2 < 0.5, 0.3), the plateau 4-5 once (at 4), and the right end (0.05 < 0.4)
+    assert curve_minima([1, 2, 3, 4, 5, 6, 7, 8], [0.5, 0.2, 0.3, 0.35, 0.1, 0.1, 0.4, 0.05]) == [1, 4, 7]
+    assert curve_minima([1, 2, 3], [0.3, 0.3, 0.3]) == [0]       # flat (histogram): one plateau
+    curves = {"seg": {"temperature": [0.01, 1.0, 300.0], "rbu": {"mece": [0.3, 0.1, 0.2], "miou": [0.5, 0.5, 0.4]}}}
+    paths = write_tau_curves(tmp_path, curves, {"seg": {"rbu": 1.0}})
+    assert (tmp_path / "tau_curve.csv").read_text().splitlines()[2] == "seg,rbu,1,0.100000,0.500000"
+    _check_png(paths[1])

@@ -19,7 +19,10 @@ TINY = [
     "study.segmenters=[learned_rgb]", "study.strategies=[rbu,histogram,glfs]",
     "study.calib_train_scenes=1", "study.calib_val_scenes=1", "study.test_scenes=1", f"scan.frames={FRAMES}",
     "study.fit_max_voxels=3000", "study.grid_points=7", "study.refine_iters=3", "study.vector_sweeps=1",
-    "study.vector_refine_iters=2", "study.glfs_max_voxels=5000", "glfs.epochs=2",
+    "study.vector_refine_iters=2", "study.glfs_max_voxels=5000", "glfs.epochs=2", "study.tau_curve_points=5",
+    "study.figure_views=1", "study.figure_resolution=64x48",
+    "study.glfs_variants=[{name: learned, overrides: {}}, {name: authors, overrides: {learn_gates: false, "
+    "init_tau: 0.4, selection: val_miou, val_per_epoch: 2}}]",
 ]
 
 
@@ -30,26 +33,43 @@ def test_calibrate_map_writes_results_resumes_and_refuses_another_config(tmp_pat
     assert "temperature_3d" in printed and "learned" in printed
     with open(out / "results.csv") as f:
         reader = csv.DictReader(f)
-        assert reader.fieldnames == ["segmenter", "strategy", "calibration", "miou", "ece", "tl_ece", "mece", "brier",
-                                     "pixel_mece", "n_voxels"]
+        assert reader.fieldnames == ["segmenter", "strategy", "calibration", "miou", "miou_authors", "ece", "tl_ece",
+                                     "mece", "brier", "pixel_mece", "n_voxels"]
         rows = list(reader)
     assert [(r["strategy"], r["calibration"]) for r in rows] == [
         ("rbu", "none"), ("rbu", "temperature_2d"), ("rbu", "temperature_3d"), ("rbu", "vector_3d"),
         ("histogram", "none"), ("histogram", "temperature_2d"), ("histogram", "temperature_3d"),
-        ("histogram", "vector_3d"), ("glfs", "learned")]
+        ("histogram", "vector_3d"), ("glfs", "learned"), ("glfs", "authors")]
     for r in rows:
-        for key in ("miou", "ece", "tl_ece", "mece", "pixel_mece"):
+        for key in ("miou", "miou_authors", "ece", "tl_ece", "mece", "pixel_mece"):
             assert 0.0 <= float(r[key]) <= 1.0, (key, r)
         assert 0.0 <= float(r["brier"]) <= 2.0 and int(r["n_voxels"]) > 1000
     # a scalar temperature cannot move histogram votes: identical maps
     hist = {r["calibration"]: r for r in rows if r["strategy"] == "histogram"}
     assert hist["none"]["mece"] == hist["temperature_3d"]["mece"]
-    assert "## learned_rgb" in (out / "results.md").read_text()
-    for png in ("calibration_vs_accuracy.png", "reliability_learned_rgb.png", "reliability_classes_learned_rgb.png"):
-        assert (out / png).stat().st_size > 10_000
+    # void voxels predicted as a class are extra false positives in the authors' convention
+    assert all(float(r["miou_authors"]) <= float(r["miou"]) + 0.05 for r in rows)
+    md = (out / "results.md").read_text()
+    assert "## learned_rgb" in md and "## GLFS pick" in md
+    pick = json.loads((out / "glfs_pick.json").read_text())["learned_rgb"]
+    assert pick["best_fixed"].split("/")[0] in ("rbu", "histogram") and pick["pick"] in (None, "learned", "authors")
+    for png in ("calibration_vs_accuracy.png", "reliability_learned_rgb.png", "reliability_classes_learned_rgb.png",
+                "glfs_tradeoff.png", "error_vs_confidence_learned_rgb.png", "tau_curve.png",
+                "qualitative_learned_rgb.png"):
+        assert (out / png).stat().st_size > 10_000, png
+    with open(out / "tau_curve.csv") as f:
+        curve = list(csv.DictReader(f))
+    assert len(curve) == 2 * 5 and {r["strategy"] for r in curve} == {"rbu", "histogram"}
+    assert float(curve[0]["temperature"]) == pytest.approx(0.01) and float(curve[4]["temperature"]) == pytest.approx(300)
+    qual = json.loads((out / "qualitative_learned_rgb.json").read_text())
+    assert len(qual["views"]) == 1 and {"RBU", "GLFS"} <= set(qual["views"][0])
+    assert qual["views"][0]["RBU"]["pixels"] > 0
     fits = json.loads((out / "fits" / "learned_rgb" / "fits.json").read_text())
-    assert {"temperature_2d", "temperature_3d/rbu", "vector_3d/rbu", "glfs"} <= set(fits)
+    assert {"temperature_2d", "temperature_3d/rbu", "vector_3d/rbu", "glfs/learned", "glfs/authors",
+            "tau_curve"} <= set(fits)
     assert len(fits["vector_3d/rbu"]["temperature"]) == 18
+    authors = fits["glfs/authors"]
+    assert authors["g"] == 0.0 and authors["eps"] == 0.0 and len(authors["val_miou"]) == 1 + 2 * 2
 
     # resume: nothing is recomputed, the table is the same
     stamps = {p: p.stat().st_mtime_ns for p in out.rglob("*.npz")}
@@ -71,14 +91,20 @@ def test_fit_glfs_writes_params_a_map_can_use(tmp_path):
 
     dest = tmp_path / "glfs_rgb.json"
     assert main(["fit-glfs", "--segmenter", "learned_rgb", "--output", str(dest), "--work-dir", str(tmp_path / "w"),
-                 *TINY]) == 0
+                 "--variant", "authors", *TINY]) == 0
     params = GLFSParams.load(dest)
     assert params.class_names == default_class_names() and math.isfinite(params.g) and np.all(params.tau > 0)
     vmap = SemanticVoxelMap(18, MappingConfig(fusion="glfs", glfs_params=str(dest)), class_names=default_class_names())
     np.testing.assert_allclose(vmap.glfs_params.tau, params.tau)
+    assert params.g == 0.0 and params.eps == 0.0          # the authors' fixed gates
+    assert main(["fit-glfs", "--segmenter", "learned_rgb", "--output", str(dest), "--variant", "nope", *TINY]) == 2
 
 
 def test_calibrate_map_bad_config(capsys):
     assert main(["calibrate-map", "study.calibrations=[none,platt]"]) == 2
     err = capsys.readouterr().err
     assert "unknown calibration 'platt'" in err and "temperature_3d" in err
+    assert main(["calibrate-map", "study.glfs_variants=[{name: x, overrides: {selection: best}}]"]) == 2
+    assert "unknown selection 'best'; valid: val_loss, val_miou, constrained" in capsys.readouterr().err
+    assert main(["calibrate-map", "study.glfs_variants=[{name: x, overrides: {lr: 0.1, gates: 1}}]"]) == 2
+    assert "unknown config key 'study.glfs_variants.x.overrides.gates'" in capsys.readouterr().err

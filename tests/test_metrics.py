@@ -201,3 +201,53 @@ def test_dece_approaches_ece_as_temperatures_vanish():
     value.backward()
     assert torch.isfinite(pt.grad).all() and pt.grad.abs().sum() > 0
     assert abs(float(dece(p, y)) - hard_ece) < 0.05
+
+
+# Case V (K = 3, void = -1): the authors' mIoU convention against calnav's.
+#   s0 [.7 .2 .1] label 0   pred 0 correct
+#   s1 [.1 .8 .1] label 1   pred 1 correct
+#   s2 [.6 .3 .1] label 1   pred 0 wrong: FP of 0, FN of 1
+#   s3 [.1 .2 .7] void      pred 2: a void false positive of 2 (authors only)
+#   s4 [.2 .7 .1] void      pred 1: a void false positive of 1 (authors only)
+# calnav (void dropped, classes in the labels {0, 1}): IoU_0 = 1 / (1 + 1) = 1/2,
+#   IoU_1 = 1 / (1 + 1) = 1/2 -> 1/2.
+# authors (class 0 excluded, classes labelled or predicted {1, 2}): IoU_1 = 1 / (1 + 0 + 1 + 1) = 1/3,
+#   IoU_2 = 0 / (0 + 0 + 0 + 1) = 0 -> 1/6; with nothing excluded IoU_0 = 1/2 joins: 5/18.
+PROBS_V = np.array([[0.7, 0.2, 0.1], [0.1, 0.8, 0.1], [0.6, 0.3, 0.1], [0.1, 0.2, 0.7], [0.2, 0.7, 0.1]])
+LABELS_V = np.array([0, 1, 1, -1, -1])
+
+
+def test_authors_miou_convention_hand_computed():
+    assert M.miou(PROBS_V, LABELS_V, ignore_index=-1) == pytest.approx(0.5)
+    assert M.miou(PROBS_V, LABELS_V, ignore_index=-1, present="either") == pytest.approx(0.5)
+    assert M.miou(PROBS_V, LABELS_V, ignore_index=-1, convention="authors") == pytest.approx(1 / 6)
+    assert M.miou(PROBS_V, LABELS_V, ignore_index=-1, convention="authors", exclude=()) == pytest.approx(5 / 18)
+    stats = M.CalibrationStats(3).update(PROBS_V, LABELS_V, ignore_index=-1, count_ignored=True)
+    np.testing.assert_array_equal(stats.void_pred, [0, 1, 1])
+    np.testing.assert_allclose(stats.per_class_iou_authors(), [np.nan, 1 / 3, 0.0])
+    # the calibration metrics never see void samples, counted or not
+    plain = M.CalibrationStats(3).update(PROBS_V, LABELS_V, ignore_index=-1)
+    assert plain.mece() == stats.mece() and plain.n == stats.n == 3
+    assert plain.void_pred.sum() == 0
+
+
+def test_authors_miou_streams_and_rejects_bad_options():
+    a = M.CalibrationStats(3).update(PROBS_V[:3], LABELS_V[:3], ignore_index=-1, count_ignored=True)
+    a.update(PROBS_V[3:], LABELS_V[3:], ignore_index=-1, count_ignored=True)
+    assert a.miou(convention="authors") == pytest.approx(1 / 6)
+    with pytest.raises(ValueError, match="convention must be one of calnav, authors"):
+        M.miou(PROBS_V, LABELS_V, ignore_index=-1, convention="paper")
+    with pytest.raises(ValueError, match="exclude must be class ids"):
+        a.miou(convention="authors", exclude=[3])
+    bad = PROBS_V.copy()
+    bad[3] = np.nan
+    with pytest.raises(ValueError, match="ignored"):
+        M.CalibrationStats(3).update(bad, LABELS_V, ignore_index=-1, count_ignored=True)
+
+
+def test_error_bins_hand_computed():
+    # case A: bins 9 (correct, .9), 8 (wrong, .8), 7 (correct, .7), 6 (correct, .6)
+    correct, wrong, wrong_conf = M.CalibrationStats(2).update(PROBS_A, LABELS_A).error_bins()
+    np.testing.assert_array_equal(correct, [0, 0, 0, 0, 0, 0, 1, 1, 0, 1])
+    np.testing.assert_array_equal(wrong, [0, 0, 0, 0, 0, 0, 0, 0, 1, 0])
+    assert wrong_conf[8] == pytest.approx(0.8) and wrong_conf.sum() == pytest.approx(0.8)

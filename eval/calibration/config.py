@@ -4,11 +4,12 @@ strategies and calibration methods are compared, and how the fits run."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 from agent.config import SegmenterName
 from envs.config import EnvConfig
 from envs.trajectories import ScanConfig
-from eval.config import RunConfig
+from eval.config import RunConfig, build_dataclass, to_dict
 from mapping.config import FUSION_NAMES, MappingConfig
 from mapping.calibration.glfs_train import GLFSTrainConfig
 from mapping.sequences import SequenceConfig
@@ -16,6 +17,31 @@ from eval.sequence.config import SequenceSetConfig
 
 CALIBRATIONS: tuple[str, ...] = ("none", "temperature_2d", "temperature_3d", "vector_3d")
 LEARNED_SEGMENTERS: tuple[str, ...] = ("learned_rgb", "learned_rgbd")
+TAU_CURVE_RANGE = (0.01, 300.0)   # the mECE-vs-temperature curve's span (authors' RBU optimum: 80-131)
+
+
+@dataclass
+class GLFSVariant:
+    """One GLFS row of the study: ``name`` (the row's calibration label and file name) and
+    ``overrides`` of the ``glfs:`` section (GLFSTrainConfig keys)."""
+
+    name: str
+    overrides: dict[str, Any] = field(default_factory=dict)
+
+
+def default_glfs_variants() -> list[GLFSVariant]:
+    """calnav's rule, the authors' rule, the constrained rule, an unweighted NLL, the constrained
+    rule from the geometric mean (G = 1), both with 10x smaller steps, the authors' set-up."""
+    return [GLFSVariant("learned", {}), GLFSVariant("val_miou", {"selection": "val_miou"}),
+            GLFSVariant("constrained", {"selection": "constrained"}),
+            GLFSVariant("unweighted", {"class_weighting": "none", "selection": "constrained"}),
+            GLFSVariant("geo_constrained", {"init_g": 1.0, "selection": "constrained", "val_per_epoch": 3}),
+            GLFSVariant("constrained_slow", {"selection": "constrained", "lr": 0.005, "val_per_epoch": 3,
+                                             "patience": 6}),
+            GLFSVariant("geo_constrained_slow", {"init_g": 1.0, "selection": "constrained", "lr": 0.005,
+                                                 "val_per_epoch": 3, "patience": 6}),
+            GLFSVariant("authors", {"learn_gates": False, "init_g": 0.0, "init_eps": 0.0, "init_tau": 0.4,
+                                    "selection": "val_miou", "patience": 5, "val_per_epoch": 3, "grad_clip": 1.0})]
 
 
 @dataclass
@@ -39,6 +65,12 @@ class StudyConfig:
     vector_sweeps: int = 2           # 3D vector scaling: coordinate-descent sweeps over the classes
     vector_refine_iters: int = 6     # 3D vector scaling: golden-section iterations per class and sweep
     glfs_max_voxels: int = 200000    # GLFS training voxels (random subset of calibration-train), count
+    glfs_variants: list[GLFSVariant] = field(default_factory=default_glfs_variants)  # GLFS rows: name + glfs overrides
+    tau_curve_points: int = 41       # mECE-vs-temperature curve: log-spaced temperatures over TAU_CURVE_RANGE, points
+    figure_scene: int = 0            # qualitative figures: index of the test house, count from 0
+    figure_views: int = 3            # qualitative figures: camera views rendered, count
+    figure_resolution: tuple[int, int] = (320, 240)  # qualitative figures: rendered view WxH, pixels
+    authors_miou_exclude: list[int] = field(default_factory=list)  # class ids left out of the authors'-convention mIoU
 
     def __post_init__(self) -> None:
         for name in self.strategies:
@@ -53,6 +85,19 @@ class StudyConfig:
             raise ValueError("study.calib_train_scenes, calib_val_scenes and test_scenes must be >= 1")
         if min(self.cache_cap, self.pixels_per_frame, self.fit_max_voxels, self.glfs_max_voxels) < 1:
             raise ValueError("study.cache_cap, pixels_per_frame, fit_max_voxels and glfs_max_voxels must be >= 1")
+        if "glfs" in self.strategies and not self.glfs_variants:
+            raise ValueError("study.glfs_variants must name at least one variant when glfs is compared")
+        names = [v.name for v in self.glfs_variants]
+        for n in names:
+            if not n.replace("_", "").isalnum():
+                raise ValueError(f"study.glfs_variants: name {n!r} must be letters, digits and _ (it names files)")
+        if len(set(names)) != len(names):
+            raise ValueError(f"study.glfs_variants: names must be unique, got {names}")
+        if self.tau_curve_points < 3 or self.figure_views < 1 or min(self.figure_resolution) < 8:
+            raise ValueError("study.tau_curve_points must be >= 3, figure_views >= 1, figure_resolution >= 8x8")
+        if self.figure_scene < 0 or self.figure_scene >= self.test_scenes:
+            raise ValueError(f"study.figure_scene must index a test house, in [0, {self.test_scenes}), "
+                             f"got {self.figure_scene}")
 
 
 @dataclass
@@ -67,3 +112,15 @@ class CalibrateMapConfig:
     glfs: GLFSTrainConfig = field(default_factory=GLFSTrainConfig)
     sequences: SequenceSetConfig = field(default_factory=SequenceSetConfig)  # recorded sequences instead of houses
     sequence: SequenceConfig = field(default_factory=SequenceConfig)      # how recorded sequences are read
+
+    def __post_init__(self) -> None:
+        self.glfs_configs()    # a bad variant is refused at load time, before anything is written
+
+    def glfs_configs(self) -> dict[str, GLFSTrainConfig]:
+        """{variant name: the ``glfs`` section with the variant's overrides}."""
+        base = to_dict(self.glfs)
+        out = {}
+        for v in self.study.glfs_variants:
+            out[v.name] = build_dataclass(GLFSTrainConfig, {**base, **v.overrides},
+                                          prefix=f"study.glfs_variants.{v.name}.overrides")
+        return out

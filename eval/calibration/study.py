@@ -6,16 +6,20 @@ Stages (each writes its results before the next starts; a rerun skips finished w
    every segmenter, keep the voxel observation caches and a pixel sample
    (``eval.calibration.record``): ``<out>/scenes/<segmenter>/<scene>.{cache,pixels}.npz``.
 2. fit     -- per segmenter, on calibration-train houses: 2D temperature (pixel NLL), 3D
-   temperature and 3D vector scaling per strategy (voxel mECE of the fused map), and GLFS
-   (early-stopped on calibration-validation houses): ``<out>/fits/<segmenter>/``.
+   temperature and 3D vector scaling per strategy (voxel mECE of the fused map), the
+   mECE-vs-temperature curve of every fixed strategy (``eval.calibration.tau_curve``), and one
+   GLFS per ``study.glfs_variants`` entry (model selection on calibration-validation houses):
+   ``<out>/fits/<segmenter>/``.
 3. score   -- per segmenter and test house, the calibration statistics of every
-   (strategy, calibration) map: ``<out>/scores/<segmenter>/<scene>.npz``.
-4. report  -- ``results.csv``, ``results.md``, calibration-vs-accuracy and reliability plots
-   (``eval.calibration.report``).
+   (strategy, calibration) map, and the predictions on void voxels (the authors' mIoU):
+   ``<out>/scores/<segmenter>/<scene>.npz``.
+4. report  -- ``results.csv``, ``results.md``, calibration-vs-accuracy, GLFS trade-off,
+   reliability and error-vs-confidence plots (``eval.calibration.report``), and the
+   qualitative RBU-vs-GLFS views of one test house (``eval.calibration.figures``).
 
 Rows: every strategy x calibration method (``none``, ``temperature_2d``, ``temperature_3d``,
-``vector_3d``) for the fixed strategies; GLFS appears once, with calibration ``learned`` (GLFS
-with untrained identity parameters is naive averaging, already a row).
+``vector_3d``) for the fixed strategies; GLFS once per variant, the calibration column naming
+the variant (GLFS with untrained identity parameters is naive averaging, already a row).
 """
 from __future__ import annotations
 
@@ -28,9 +32,9 @@ import torch
 
 from common.atomic import atomic_path, write_json_atomic
 from eval.backends import check_backend
-from eval.calibration.config import CalibrateMapConfig
+from eval.calibration.config import CalibrateMapConfig, GLFSVariant
 from eval.calibration.record import ROLES, load_role, record_houses, role_scene_ids
-from eval.config import load_config
+from eval.config import ConfigError, load_config
 from eval.results_dir import ResultsDir, writing
 from eval.preflight import check_command
 from mapping import metrics
@@ -43,14 +47,16 @@ QUICK_OVERRIDES = (   # --quick: a <= 5 minute smoke run of the whole pipeline o
     "study.calib_train_scenes=3", "study.calib_val_scenes=1", "study.test_scenes=3", "scan.frames=200",
     "study.fit_max_voxels=8000", "study.grid_points=11", "study.refine_iters=5", "study.vector_sweeps=1",
     "study.vector_refine_iters=3", "study.glfs_max_voxels=20000", "glfs.epochs=4", "glfs.patience=2",
+    "study.tau_curve_points=13",
 )
+VOID = -1   # label of void voxels in the observation caches
 
 
 def methods(cfg: CalibrateMapConfig) -> list[tuple[str, str]]:
     """(strategy, calibration) pairs of the study, in table order."""
     out = []
     for s in cfg.study.strategies:
-        out += [(s, "learned")] if s == "glfs" else [(s, c) for c in cfg.study.calibrations]
+        out += [(s, v.name) for v in cfg.study.glfs_variants] if s == "glfs" else [(s, c) for c in cfg.study.calibrations]
     return out
 
 
@@ -62,7 +68,7 @@ def scene_seed(scene_id: str, base: int) -> int:
 # ------------------------------------------------------------------------------- fit
 class Fits:
     """The fitted parameters of one segmenter, saved as they are produced (``fits.json`` +
-    ``glfs.json``) so an interrupted run resumes after the last finished fit."""
+    ``glfs_<variant>.json``) so an interrupted run resumes after the last finished fit."""
 
     def __init__(self, folder: Path):
         self.folder = folder
@@ -76,24 +82,25 @@ class Fits:
         self.data[key] = value
         write_json_atomic(self.path, self.data, indent=1)
 
-    @property
-    def glfs_path(self) -> Path:
-        return self.folder / "glfs.json"
+    def glfs_path(self, variant: str) -> Path:
+        return self.folder / f"glfs_{variant}.json"
 
     def temperature(self, strategy: str, calibration: str):
         """The logit temperature (float or (K,) list) a (strategy, calibration) row uses."""
+        if strategy == "glfs":             # calibration names the GLFS variant
+            return GLFSParams.load(self.glfs_path(calibration)).tau.tolist()
         if calibration == "none":
             return 1.0
         if calibration == "temperature_2d":
             return self.data["temperature_2d"]["temperature"]
-        if calibration == "learned":
-            return GLFSParams.load(self.glfs_path).tau.tolist()
         return self.data[f"{calibration}/{strategy}"]["temperature"]
 
 
 def fit_segmenter(cfg: CalibrateMapConfig, out: Path, segmenter: str, ids: dict[str, list[str]],
                   progress: bool = True) -> Fits:
     from tqdm import tqdm
+
+    from eval.calibration.tau_curve import temperature_curve
 
     st = cfg.study
     fits = Fits(out / "fits" / segmenter)
@@ -118,43 +125,61 @@ def fit_segmenter(cfg: CalibrateMapConfig, out: Path, segmenter: str, ids: dict[
             fits.put(f"{c}/{s}", {"temperature": t, "mece_fit": r.objective, "mece_tau1": MapObjective(flat, s)(1.0),
                                   "evaluations": r.evaluations, "flat": r.flat, "voxels": flat.num_voxels})
         del flat
-    if "glfs" in st.strategies and not fits.glfs_path.exists():
-        train = FlatObservations.from_caches(caches, max_voxels=st.glfs_max_voxels, seed=cfg.run.seed)
-        val = FlatObservations.from_caches(load_role(out, segmenter, ids["calib_val"])[0],
-                                           max_voxels=st.glfs_max_voxels, seed=cfg.run.seed)
-        params, hist = train_glfs(train, val, cfg.glfs, class_names=caches[0].class_names, progress=progress)
-        fits.put("glfs", {"train_loss": hist.train_loss, "val_loss": hist.val_loss, "best_epoch": hist.best_epoch,
-                          "stopped_early": hist.stopped_early, "g": params.g, "eps": params.eps,
-                          "train_voxels": train.num_voxels, "val_voxels": val.num_voxels})
-        params.save(fits.glfs_path)
+    if fixed and fits.get("tau_curve") is None:
+        flat = FlatObservations.from_caches(caches, max_voxels=st.fit_max_voxels, seed=cfg.run.seed)
+        fits.put("tau_curve", temperature_curve(flat, fixed, st.tau_curve_points, progress=progress))
+        del flat
+    if "glfs" in st.strategies:
+        fit_glfs_variants(cfg, out, segmenter, ids, fits, caches, st.glfs_variants, progress)
     return fits
+
+
+def fit_glfs_variants(cfg: CalibrateMapConfig, out: Path, segmenter: str, ids: dict[str, list[str]], fits: Fits,
+                      caches: list, variants: list[GLFSVariant], progress: bool = True) -> None:
+    """Train every GLFS variant without a saved parameter file (train / validation voxels are
+    loaded once and shared)."""
+    st, configs = cfg.study, cfg.glfs_configs()
+    todo = [v for v in variants if not fits.glfs_path(v.name).exists()]
+    if not todo:
+        return
+    train = FlatObservations.from_caches(caches, max_voxels=st.glfs_max_voxels, seed=cfg.run.seed)
+    val = FlatObservations.from_caches(load_role(out, segmenter, ids["calib_val"])[0],
+                                       max_voxels=st.glfs_max_voxels, seed=cfg.run.seed)
+    for v in todo:
+        params, hist = train_glfs(train, val, configs[v.name], class_names=caches[0].class_names, progress=progress)
+        fits.put(f"glfs/{v.name}", {**hist.to_dict(), "g": params.g, "eps": params.eps,
+                                    "train_voxels": train.num_voxels, "val_voxels": val.num_voxels})
+        params.save(fits.glfs_path(v.name))
+
 
 
 # ----------------------------------------------------------------------------- score
 def _stats_arrays(stats: metrics.CalibrationStats) -> dict[str, np.ndarray]:
-    return {"count": stats.count, "conf_sum": stats.conf_sum, "brier_sum": np.array(stats.brier_sum)}
+    return {"count": stats.count, "conf_sum": stats.conf_sum, "brier_sum": np.array(stats.brier_sum),
+            "void_pred": stats.void_pred}
 
 
 def score_scene(cfg: CalibrateMapConfig, out: Path, segmenter: str, scene_id: str, fits: Fits) -> Path:
-    """Calibration statistics of every (strategy, calibration) map of one test house."""
+    """Calibration statistics of every (strategy, calibration) map of one test house (labelled
+    voxels), with each map's argmax counts on the void voxels (``void_pred``)."""
     path = out / "scores" / segmenter / f"{scene_id}.npz"
     if path.exists():
         return path
     caches, _, _ = load_role(out, segmenter, [scene_id])
-    flat = FlatObservations.from_caches(caches)
+    flat = FlatObservations.from_caches(caches, ignore_index=VOID, keep_void=True)
     labels = flat.labels.numpy()
     arrays = {}
     for strategy, calibration in methods(cfg):
         with torch.no_grad():
             if strategy == "glfs":
-                probs = GLFSModel.from_params(GLFSParams.load(fits.glfs_path))(flat).numpy()
+                probs = GLFSModel.from_params(GLFSParams.load(fits.glfs_path(calibration)))(flat).numpy()
             else:
                 probs = MapObjective(flat, strategy).probs(np.asarray(fits.temperature(strategy, calibration), np.float32))
-        stats = metrics.CalibrationStats(flat.num_classes).update(probs, labels)
+        stats = metrics.CalibrationStats(flat.num_classes).update(probs, labels, ignore_index=VOID, count_ignored=True)
         for k, v in _stats_arrays(stats).items():
             arrays[f"{strategy}/{calibration}/{k}"] = v
     with atomic_path(path) as tmp:
-        np.savez_compressed(tmp, n_voxels=np.array(flat.num_voxels), **arrays)
+        np.savez_compressed(tmp, n_voxels=np.array(int((labels != VOID).sum())), **arrays)
     return path
 
 
@@ -170,6 +195,7 @@ def merged_stats(cfg: CalibrateMapConfig, paths: list[Path], num_classes: int
                 st.count += d[f"{s}/{c}/count"]
                 st.conf_sum += d[f"{s}/{c}/conf_sum"]
                 st.brier_sum += float(d[f"{s}/{c}/brier_sum"])
+                st.void_pred += d[f"{s}/{c}/void_pred"]
     return out, n_voxels
 
 
@@ -195,6 +221,7 @@ def run_calibrate_map(cfg: CalibrateMapConfig, out: Path, force: bool = False, p
 
     from agent.segmenters import make_segmenter
     from eval.calibration.report import write_report
+    from eval.calibration.tau_curve import write_tau_curves
 
     ids = role_scene_ids(cfg)
     _check_roles(ids)
@@ -203,22 +230,45 @@ def run_calibrate_map(cfg: CalibrateMapConfig, out: Path, force: bool = False, p
     houses = {sid: scene_seed(sid, cfg.run.seed) for role in ROLES for sid in ids[role]}
     with ResultsDir(out, cfg, force=force, discard=STUDY_RESULTS, files=("results.csv",)):
         record_houses(cfg, houses, tuple(segs), out, progress)
-        rows, all_stats = [], {}
+        rows, all_stats, histories, curves, fitted = [], {}, {}, {}, {}
         for name in cfg.study.segmenters:
             fits = fit_segmenter(cfg, out, name, ids, progress)
-            paths = [score_scene(cfg, out, name, sid, fits) for sid in
-                     tqdm(ids["test"], desc=f"score test maps ({name})", unit="house", disable=not progress)]
+            paths = [score_scene(cfg, out, name, sid, fits)
+                     for sid in tqdm(ids["test"], desc=f"score test maps ({name})", unit="house", disable=not progress)]
             k = segs[name].num_classes
             stats, n_vox = merged_stats(cfg, paths, k)
             _, pix_logits, pix_labels = load_role(out, name, ids["test"])
             for (s, c), st in stats.items():
-                rows.append({"segmenter": name, "strategy": s, "calibration": c, "miou": st.miou(), "ece": st.ece(),
-                             "tl_ece": st.tl_ece(), "mece": st.mece(), "brier": st.brier(),
-                             "pixel_mece": pixel_mece(pix_logits, pix_labels, fits.temperature(s, c)),
-                             "n_voxels": n_vox})
+                rows.append({"segmenter": name, "strategy": s, "calibration": c, "miou": st.miou(),
+                             "miou_authors": st.miou(convention="authors", exclude=cfg.study.authors_miou_exclude),
+                             "ece": st.ece(), "tl_ece": st.tl_ece(), "mece": st.mece(), "brier": st.brier(),
+                             "pixel_mece": pixel_mece(pix_logits, pix_labels, fits.temperature(s, c)), "n_voxels": n_vox})
             all_stats[name] = stats
-            write_report(out, rows, all_stats, segs[name].class_names)
+            histories[name] = {v.name: fits.get(f"glfs/{v.name}") for v in cfg.study.glfs_variants
+                               if fits.get(f"glfs/{v.name}")}
+            if fits.get("tau_curve"):
+                curves[name] = fits.get("tau_curve")
+                fitted[name] = {s: fits.get(f"temperature_3d/{s}")["temperature"] for s in cfg.study.strategies
+                                if fits.get(f"temperature_3d/{s}")}
+            picks = write_report(out, rows, all_stats, segs[name].class_names, histories)
+            write_tau_curves(out, curves, fitted)
+            # the example views render the house mesh from the scan's poses: calnav houses only
+            if "glfs" in cfg.study.strategies and not cfg.sequences.list:
+                variant = picks.get(name, {}).get("pick") or cfg.study.glfs_variants[0].name
+                qualitative(cfg, out, name, segs[name], ids["test"][cfg.study.figure_scene], fits, variant)
     return rows
+
+
+def qualitative(cfg: CalibrateMapConfig, out: Path, segmenter: str, seg, scene_id: str, fits: Fits,
+                variant: str) -> None:
+    """The RBU-vs-GLFS views of one test house (skipped when already written for ``variant``)."""
+    from eval.calibration.figures import write_qualitative
+
+    done = out / f"qualitative_{segmenter}.json"
+    if done.exists() and json.loads(done.read_text()).get("glfs_variant") == variant:
+        return
+    write_qualitative(cfg, out, segmenter, seg, scene_id, scene_seed(scene_id, cfg.run.seed),
+                      GLFSParams.load(fits.glfs_path(variant)), variant)
 
 
 def main_calibrate_map(args) -> None:
@@ -236,12 +286,17 @@ def main_calibrate_map(args) -> None:
 
 
 def main_fit_glfs(args) -> None:
-    """Record the calibration-train / -validation scans of one segmenter and train GLFS."""
+    """Record the calibration-train / -validation scans of one segmenter and train one GLFS
+    variant (``--variant``, default the first of ``study.glfs_variants``)."""
     check_command(args, "fit-glfs")  # every file the config names, before anything is written
     from agent.segmenters import make_segmenter
 
     cfg = load_config(args.config, [*args.overrides, f"study.segmenters=[{args.segmenter}]", "study.strategies=[glfs]"],
                       cls=CalibrateMapConfig)
+    variants = {v.name: v for v in cfg.study.glfs_variants}
+    name = args.variant or cfg.study.glfs_variants[0].name
+    if name not in variants:
+        raise ConfigError(f"unknown GLFS variant {name!r}; valid (study.glfs_variants): {', '.join(variants)}")
     work = Path(args.work_dir or cfg.run.output_dir)
     ids = role_scene_ids(cfg)
     _check_roles(ids, ("calib_train", "calib_val"))
@@ -250,8 +305,10 @@ def main_fit_glfs(args) -> None:
     houses = {sid: scene_seed(sid, cfg.run.seed) for sid in ids["calib_train"] + ids["calib_val"]}
     with ResultsDir(work, cfg, discard=STUDY_RESULTS, files=(), option="--work-dir"):
         record_houses(cfg, houses, (args.segmenter,), work)
-        fits = fit_segmenter(cfg, work, args.segmenter, ids)
-        params = GLFSParams.load(fits.glfs_path)
+        fits = Fits(work / "fits" / args.segmenter)
+        caches = load_role(work, args.segmenter, ids["calib_train"])[0]
+        fit_glfs_variants(cfg, work, args.segmenter, ids, fits, caches, [variants[name]])
+        params = GLFSParams.load(fits.glfs_path(name))
     with writing(args.output):
         dest = params.save(args.output)
     print(f"GLFS parameters: tau mean {params.tau.mean():.3f}, G {params.g:.3f}, eps {params.eps:.3f} -> {dest}")

@@ -27,7 +27,8 @@ def csr_select(offsets: np.ndarray, ids: np.ndarray) -> tuple[np.ndarray, np.nda
 class FlatObservations:
     """logits (n, K) float32; voxel (n,) int64 index of each observation's voxel, sorted;
     distance_m (n,) metres; angle_deg (n,) degrees; weight (n,) per-observation weight given
-    while mapping (ones if none); labels (N,) int64 ground-truth class per voxel (>= 0)."""
+    while mapping (ones if none); labels (N,) int64 ground-truth class per voxel (>= 0, or the void
+    label for void voxels when built with ``keep_void``)."""
 
     logits: torch.Tensor
     voxel: torch.Tensor
@@ -49,9 +50,11 @@ class FlatObservations:
 
     @classmethod
     def from_caches(cls, caches: Iterable[ObsCache], max_voxels: int | None = None, seed: int = 0,
-                    ignore_index: int = -1) -> "FlatObservations":
+                    ignore_index: int = -1, keep_void: bool = False) -> "FlatObservations":
         """All labelled voxels (label != ``ignore_index``) of ``caches`` (each must have labels,
-        see ``ObsCache.label_from_mesh``); with ``max_voxels``, a seeded uniform subset of them."""
+        see ``ObsCache.label_from_mesh``); with ``max_voxels``, a seeded uniform subset of them.
+        ``keep_void``: void voxels too, labelled ``ignore_index`` (for metrics that score the
+        predictions on void, e.g. the authors' mIoU; never for training)."""
         parts, k = [], None
         for i, cache in enumerate(caches):
             if cache.labels is None:
@@ -61,7 +64,7 @@ class FlatObservations:
             k = cache.num_classes
             csr = cache._require()
             labels = cache.labels
-            keep = np.flatnonzero(labels != ignore_index)
+            keep = np.arange(len(labels)) if keep_void else np.flatnonzero(labels != ignore_index)
             off = csr["offsets"]
             keep = keep[off[keep + 1] > off[keep]]
             counts, obs = csr_select(off, keep)
@@ -69,24 +72,25 @@ class FlatObservations:
                 logits=csr["logits"][obs], counts=counts, labels=labels[keep],
                 distance=csr["distance"][obs], angle=csr["angle"][obs],
                 weight=csr["weight"][obs] if "weight" in csr else np.ones(len(obs), np.float32)))
-        if not parts or sum(len(p["labels"]) for p in parts) == 0:
+        if not parts or sum(int((p["labels"] != ignore_index).sum()) for p in parts) == 0:
             raise ValueError("no labelled voxel observations: the caches are empty or every voxel is void")
         cat = {name: np.concatenate([p[name] for p in parts]) for name in parts[0]}
-        flat = cls._build(cat, k)
+        flat = cls._build(cat, k, ignore_index if keep_void else None)
         if max_voxels is not None and flat.num_voxels > max_voxels:
             ids = np.sort(np.random.default_rng(seed).choice(flat.num_voxels, max_voxels, replace=False))
             flat = flat.subset(ids)
         return flat
 
     @classmethod
-    def _build(cls, cat: dict[str, np.ndarray], k: int) -> "FlatObservations":
+    def _build(cls, cat: dict[str, np.ndarray], k: int, void: int | None = None) -> "FlatObservations":
         voxel = np.repeat(np.arange(len(cat["counts"])), cat["counts"])
         t = lambda a, dt: torch.from_numpy(np.ascontiguousarray(a)).to(dt)  # noqa: E731
         logits = t(cat["logits"], torch.float32)
         if not bool(torch.isfinite(logits).all()):
             raise ValueError("observation logits contain NaN or inf")
         labels = t(cat["labels"], torch.int64)
-        if len(labels) and (int(labels.min()) < 0 or int(labels.max()) >= k):
+        real = labels[labels != void] if void is not None else labels
+        if len(real) and (int(real.min()) < 0 or int(real.max()) >= k):
             raise ValueError(f"voxel labels must be class ids in [0, {k}) (void excluded)")
         return cls(logits, t(voxel, torch.int64), t(cat["distance"], torch.float32), t(cat["angle"], torch.float32),
                    t(cat["weight"], torch.float32), labels)

@@ -7,11 +7,18 @@ gates). Unlike the authors' release, which fixed G = eps = 0, calnav learns the 
 Loss per mini-batch of voxels (all their cached observations fused with ``fuse_flat``):
 class-weighted NLL of the fused probabilities (weights (1 / ln(1.02 + frequency)), normalised to
 mean 1, the authors' inverse-log-frequency weighting) + ``eta`` * mDECE (Bohdal et al.; t_a =
-100, t_b = 0.01). Adam. tau is optimised as log tau (positive by construction); M is clipped at
-0 after every step. Early stopping: after each epoch the loss on calibration-*validation*
-voxels is computed, the best parameters are kept, and training stops after ``patience`` epochs
-without improvement. (The authors stopped on validation mIoU; the validation loss is used here
-because it scores calibration and accuracy together, which is what the parameters are for.)
+100, t_b = 0.01). The NLL's class weighting is a choice (``class_weighting``: the authors'
+``log_inverse_frequency`` or ``none``). Adam, optional gradient-norm clipping (authors: 1).
+tau is optimised as log tau (positive by construction; initial value ``init_tau``, authors 0.4);
+M is clipped at 0 after every step. Fixed gates (the authors' release: G = eps = 0) are
+``learn_gates: false`` with ``init_g = init_eps = 0``.
+
+Model selection (``mapping.calibration.selection``): ``val_per_epoch`` times per epoch (authors:
+3) the fused calibration-*validation* voxels are scored (loss, hard mIoU, hard mECE); the rule
+``selection`` decides which checkpoint is kept (``val_loss``: lowest loss, calnav's default;
+``val_miou``: highest mIoU, the authors'; ``constrained``: lowest mECE among checkpoints within
+``miou_tolerance_points`` of the initial parameters' mIoU) and stops training after
+``patience`` checks without improvement.
 """
 from __future__ import annotations
 
@@ -20,13 +27,17 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from mapping import metrics
 from mapping.calibration.flat_obs import FlatObservations
+from mapping.calibration.selection import SELECTION_RULES, CheckpointSelector, ValidationScore
 from mapping.fusion import fuse_flat
 from mapping.glfs import GLFSParams
 from mapping.calibration.metrics_torch import mdece
 from mapping.weighting import ANGLE_EDGES_DEG, DISTANCE_EDGES_M, WeightingParams, sample_weights
 
 PROB_FLOOR = 1e-6   # log(max(p, floor)) in the NLL: a hard zero probability must not give inf
+CLASS_WEIGHTINGS: tuple[str, ...] = ("log_inverse_frequency", "none")
+LOG_TAU_LIMIT = 6.0  # |log tau| <= 6: tau in [0.0025, 403]
 
 
 @dataclass
@@ -35,10 +46,16 @@ class GLFSTrainConfig:
     batch_voxels: int = 4096       # voxels per mini-batch (with all their observations)
     lr: float = 0.05               # Adam learning rate (log tau, M and the gates)
     eta: float = 0.5               # weight of mDECE in the loss (authors: 0.5)
-    patience: int = 4              # epochs without validation improvement before stopping
-    learn_gates: bool = True       # learn G and eps (False: keep them at their initial values)
+    patience: int = 4              # validation checks without improvement before stopping
+    learn_gates: bool = True       # learn G and eps (False: keep them at their initial values; authors: fixed 0)
     init_g: float = 0.0            # initial G (authors' fixed value)
     init_eps: float = 0.0          # initial eps (authors' fixed value)
+    init_tau: float = 1.0          # initial per-class temperature (authors: 0.4)
+    selection: str = "val_loss"    # kept checkpoint / early stopping: val_loss | val_miou (authors) | constrained
+    miou_tolerance_points: float = 0.5  # constrained: admissible validation mIoU loss vs the initial params, mIoU points
+    class_weighting: str = "log_inverse_frequency"  # NLL class weights: log_inverse_frequency (authors) | none
+    val_per_epoch: int = 1         # validation checks per epoch (authors: 3)
+    grad_clip: float = 0.0         # gradient-norm clip per step (0 = none; authors: 1)
     seed: int = 0                  # mini-batch order
     distance_edges: tuple[float, ...] = DISTANCE_EDGES_M    # LUT distance bin edges, metres
     angle_edges_deg: tuple[float, ...] = ANGLE_EDGES_DEG     # LUT incidence-angle bin edges, degrees
@@ -50,12 +67,27 @@ class GLFSTrainConfig:
             raise ValueError(f"glfs training: need lr > 0 and eta >= 0, got {self.lr}, {self.eta}")
         if not (0 <= self.init_g <= 1 and 0 <= self.init_eps <= 1):
             raise ValueError("glfs training: init_g and init_eps must be in [0, 1]")
+        if not np.exp(-LOG_TAU_LIMIT) <= self.init_tau <= np.exp(LOG_TAU_LIMIT):
+            raise ValueError(f"glfs training: init_tau must be in [{np.exp(-LOG_TAU_LIMIT):.4g}, "
+                             f"{np.exp(LOG_TAU_LIMIT):.4g}], got {self.init_tau}")
+        if self.selection not in SELECTION_RULES:
+            raise ValueError(f"glfs training: unknown selection {self.selection!r}; valid: {', '.join(SELECTION_RULES)}")
+        if self.class_weighting not in CLASS_WEIGHTINGS:
+            raise ValueError(f"glfs training: unknown class_weighting {self.class_weighting!r}; "
+                             f"valid: {', '.join(CLASS_WEIGHTINGS)}")
+        if self.val_per_epoch < 1 or not self.miou_tolerance_points >= 0 or not self.grad_clip >= 0:
+            raise ValueError("glfs training: need val_per_epoch >= 1, miou_tolerance_points >= 0 and grad_clip >= 0")
 
 
-def class_weights(frequency: np.ndarray) -> torch.Tensor:
-    """(K,) inverse-log-frequency weights 1 / ln(1.02 + f), normalised to mean 1 over present classes."""
-    w = 1.0 / np.log(1.02 + np.asarray(frequency, dtype=np.float64))
+def class_weights(frequency: np.ndarray, weighting: str = "log_inverse_frequency") -> torch.Tensor:
+    """(K,) NLL class weights, 0 for absent classes: ``log_inverse_frequency`` 1 / ln(1.02 + f)
+    normalised to mean 1 over present classes, or ``none`` (1 for every present class)."""
+    if weighting not in CLASS_WEIGHTINGS:
+        raise ValueError(f"unknown class weighting {weighting!r}; valid: {', '.join(CLASS_WEIGHTINGS)}")
     present = np.asarray(frequency) > 0
+    if weighting == "none":
+        return torch.as_tensor(present, dtype=torch.float32)
+    w = 1.0 / np.log(1.02 + np.asarray(frequency, dtype=np.float64))
     w = w / w[present].mean() if present.any() else w
     return torch.as_tensor(np.where(present, w, 0.0), dtype=torch.float32)
 
@@ -67,7 +99,7 @@ class GLFSModel(torch.nn.Module):
         super().__init__()
         n_d, n_a = len(cfg.distance_edges) - 1, len(cfg.angle_edges_deg) - 1
         self.cfg = cfg
-        self.log_tau = torch.nn.Parameter(torch.zeros(num_classes))
+        self.log_tau = torch.nn.Parameter(torch.full((num_classes,), float(np.log(cfg.init_tau))))
         self.M = torch.nn.Parameter(torch.ones(num_classes, n_d, n_a))
         self.g = torch.nn.Parameter(torch.tensor(float(cfg.init_g)), requires_grad=cfg.learn_gates)
         self.eps = torch.nn.Parameter(torch.tensor(float(cfg.init_eps)), requires_grad=cfg.learn_gates)
@@ -99,7 +131,7 @@ class GLFSModel(torch.nn.Module):
         self.M.clamp_(min=0.0)
         self.g.clamp_(0.0, 1.0)
         self.eps.clamp_(0.0, 1.0)
-        self.log_tau.clamp_(-6.0, 6.0)
+        self.log_tau.clamp_(-LOG_TAU_LIMIT, LOG_TAU_LIMIT)
 
     def params(self, class_names: tuple[str, ...] = ()) -> GLFSParams:
         return GLFSParams(tau=self.log_tau.detach().exp().numpy(), g=float(self.g.detach()), eps=float(self.eps.detach()),
@@ -115,16 +147,47 @@ def glfs_loss(probs: torch.Tensor, labels: torch.Tensor, weights: torch.Tensor, 
 
 @dataclass
 class TrainHistory:
+    """Per-epoch mean training loss; per validation check (the first: the initial parameters)
+    its fractional epoch, loss, hard mIoU and hard mECE; the kept check and whether patience
+    ran out."""
+
     train_loss: list[float] = field(default_factory=list)
+    val_epoch: list[float] = field(default_factory=list)
     val_loss: list[float] = field(default_factory=list)
-    best_epoch: int = -1
+    val_miou: list[float] = field(default_factory=list)
+    val_mece: list[float] = field(default_factory=list)
+    best_check: int = 0
     stopped_early: bool = False
+
+    @property
+    def best_epoch(self) -> float:
+        """Fractional epoch of the kept checkpoint (0 = the initial parameters)."""
+        return self.val_epoch[self.best_check]
+
+    def to_dict(self) -> dict:
+        return {"train_loss": self.train_loss, "val_epoch": self.val_epoch, "val_loss": self.val_loss,
+                "val_miou": self.val_miou, "val_mece": self.val_mece, "best_check": self.best_check,
+                "best_epoch": self.best_epoch, "stopped_early": self.stopped_early}
+
+
+@torch.no_grad()
+def validation_score(model: GLFSModel, val: FlatObservations, weights: torch.Tensor, eta: float) -> ValidationScore:
+    """Loss, hard mIoU (calnav's convention) and hard mECE of the map fused from ``val``."""
+    probs = model(val)
+    stats = metrics.CalibrationStats(val.num_classes).update(probs.numpy(), val.labels.numpy())
+    return ValidationScore(float(glfs_loss(probs, val.labels, weights, eta)), stats.miou(), stats.mece())
+
+
+def _check_points(n_batches: int, per_epoch: int) -> set[int]:
+    """Batch indices (0-based) after which an epoch of ``n_batches`` is validated: ``per_epoch``
+    evenly spaced points, the last one at the epoch's end."""
+    return {max(int(round(n_batches * (i + 1) / per_epoch)) - 1, 0) for i in range(per_epoch)}
 
 
 def train_glfs(train: FlatObservations, val: FlatObservations, cfg: GLFSTrainConfig | None = None,
                class_names: tuple[str, ...] = (), progress: bool = True) -> tuple[GLFSParams, TrainHistory]:
-    """Fit theta on ``train`` voxels with early stopping on ``val`` voxels; returns the best
-    parameters (by validation loss) and the loss history. Seeded by ``cfg.seed``."""
+    """Fit theta on ``train`` voxels, validating on ``val`` voxels ``cfg.val_per_epoch`` times an
+    epoch; returns the parameters kept by ``cfg.selection`` and the history. Seeded by ``cfg.seed``."""
     from tqdm import tqdm
 
     cfg = cfg or GLFSTrainConfig()
@@ -135,37 +198,48 @@ def train_glfs(train: FlatObservations, val: FlatObservations, cfg: GLFSTrainCon
     torch.manual_seed(cfg.seed)
     rng = np.random.default_rng(cfg.seed)
     model = GLFSModel(train.num_classes, cfg)
-    weights = class_weights(train.class_frequency())
-    opt = torch.optim.Adam([p for p in model.parameters() if p.requires_grad], lr=cfg.lr)
+    weights = class_weights(train.class_frequency(), cfg.class_weighting)
+    trainable = [p for p in model.parameters() if p.requires_grad]
+    opt = torch.optim.Adam(trainable, lr=cfg.lr)
+    selector = CheckpointSelector(cfg.selection, cfg.patience, cfg.miou_tolerance_points)
     hist = TrainHistory()
-    with torch.no_grad():
-        best_val = float(glfs_loss(model(val), val.labels, weights, cfg.eta))
-    best_state = {k: v.clone() for k, v in model.state_dict().items()}
-    hist.val_loss.append(best_val)
-    stale = 0
+
+    def check(epoch: float) -> None:
+        s = validation_score(model, val, weights, cfg.eta)
+        hist.val_epoch.append(epoch)
+        hist.val_loss.append(s.loss)
+        hist.val_miou.append(s.miou)
+        hist.val_mece.append(s.mece)
+        if selector.update(s):
+            nonlocal best_state
+            best_state = {k: t.clone() for k, t in model.state_dict().items()}
+
+    best_state: dict = {}
+    check(0.0)
+    n_batches = -(-train.num_voxels // cfg.batch_voxels)
+    checks = _check_points(n_batches, cfg.val_per_epoch)
     bar = tqdm(range(cfg.epochs), desc="train glfs", unit="epoch", disable=not progress)
     for epoch in bar:
         losses = []
-        for batch in train.batches(cfg.batch_voxels, rng):
+        for b, batch in enumerate(train.batches(cfg.batch_voxels, rng)):
             opt.zero_grad()
             loss = glfs_loss(model(batch), batch.labels, weights, cfg.eta)
             loss.backward()
+            if cfg.grad_clip > 0:
+                torch.nn.utils.clip_grad_norm_(trainable, cfg.grad_clip)
             opt.step()
             model.project()
             losses.append(float(loss.detach()))
-        with torch.no_grad():
-            v = float(glfs_loss(model(val), val.labels, weights, cfg.eta))
+            if b in checks:
+                check(epoch + (b + 1) / n_batches)
+                if selector.stop:
+                    break
         hist.train_loss.append(float(np.mean(losses)))
-        hist.val_loss.append(v)
-        bar.set_postfix(train=f"{hist.train_loss[-1]:.4f}", val=f"{v:.4f}", g=f"{float(model.g.detach()):.2f}",
-                        eps=f"{float(model.eps.detach()):.2f}")
-        if v < best_val - 1e-5:
-            best_val, stale, hist.best_epoch = v, 0, epoch
-            best_state = {k: t.clone() for k, t in model.state_dict().items()}
-        else:
-            stale += 1
-            if stale >= cfg.patience:
-                hist.stopped_early = True
-                break
+        bar.set_postfix(train=f"{hist.train_loss[-1]:.4f}", val=f"{hist.val_loss[-1]:.4f}",
+                        miou=f"{hist.val_miou[-1]:.3f}", mece=f"{hist.val_mece[-1]:.3f}")
+        if selector.stop:
+            hist.stopped_early = True
+            break
+    hist.best_check = selector.best_index
     model.load_state_dict(best_state)
     return model.params(tuple(class_names)), hist
