@@ -188,7 +188,8 @@ class SemanticVoxelMap(MapReadouts):
         intr = fg.check_intrinsics(intrinsics, depth.shape[1], depth.shape[0])
         pose = fg.check_pose(pose)
         depth = fg.clean_depth(depth, cfg.depth_min_m, cfg.depth_max_m)
-        fg.check_observed_logits(logits, depth)
+        with single_threaded_torch():   # one reduction: extra torch threads only contend with Open3D's
+            fg.check_observed_logits(logits, depth)
         if not depth.any():  # nothing valid to integrate (Open3D would raise)
             self.frames_integrated += 1
             return
