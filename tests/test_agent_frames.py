@@ -76,3 +76,24 @@ def test_rotated_house_is_the_same_house(small_cfg, tmp_path):
     assert np.mean(np.abs(ob["depth"] - oa["depth"]) < 0.01) > 0.98       # the same view
     assert np.mean(ob["semantic"] == oa["semantic"]) > 0.98
     assert ib["distance_to_goal"] == pytest.approx(ia["distance_to_goal"], abs=0.25)   # grid rasterised anew
+
+
+def test_start_pose_cli_writes_its_results_directory_and_refuses_another_config(tmp_path, capsys):
+    """`calnav start-pose` runs on the shared backend and its output is a results directory
+    (config check, --force, atomic summaries), like every other command's."""
+    import json
+
+    from eval.cli import main
+
+    out = tmp_path / "sp"
+    tiny = ["env.resolution=64x48", "agent.map_resolution=64x48", "agent.segmenter=gt", "env.max_episode_steps=30",
+            "env.dataset.val_scenes=1", "env.dataset.episodes_per_scene=2"]
+    args = ["start-pose", "--episodes", "1", "--variants", "world,start", "--workers", "1", "--output", str(out)]
+    assert main([*args, *tiny]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert set(summary) == {"world", "start"} and all(s["n"] == 1 for s in summary.values())
+    assert (out / "summary.csv").read_text().startswith("variant,successes,n,success,spl")
+    assert len((out / "episodes.jsonl").read_text().splitlines()) == 2
+    assert main([*args, *tiny, "env.max_episode_steps=20"]) == 2
+    assert "different config" in capsys.readouterr().err
+    assert main([*args, "--force", *tiny, "env.max_episode_steps=20"]) == 0

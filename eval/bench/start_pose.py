@@ -24,10 +24,10 @@ def run(ctx) -> dict[str, float]:
     from eval.config import load_config
     from eval.objectnav.frames import DEFAULT_VARIANTS, VARIANTS, run_frame_study
 
-    cfg = load_config(None, OVERRIDES)
+    cfg = load_config(None, [*OVERRIDES, "run.workers=2"])
     n = QUICK_EPISODES if ctx.quick else EPISODES
     summary = run_frame_study(cfg, list(range(n)), [VARIANTS[v] for v in DEFAULT_VARIANTS], out=None,
-                              workers=2, progress=False)
+                              progress=False)
     success = {name: s["success"] for name, s in summary.items()}
     return {**{f"start_pose.success_{k}": v for k, v in success.items()},
             "start_pose.max_success_gap": max(success.values()) - min(success.values())}

@@ -13,20 +13,21 @@ A ``FrameVariant`` names how the agent's gps + compass are expressed and how the
   world origin (walls no longer axis-aligned in the world; ``rotated_setup``).
 
 ``frame_obs`` does the change of frame on one observation; ``FrameWrapper`` applies it in a
-gymnasium env; ``run_frame_study`` runs episodes x variants in worker processes and writes
-``episodes.jsonl`` (a line per finished episode) / ``summary.json`` / ``summary.csv`` (Success
-as successes / N and mean SPL per variant) / ``summary.png``; ``lockstep_map_stats`` drives one
+gymnasium env; ``run_frame_study`` runs episodes x variants as tasks on the ``run.backend``
+backend (``eval.backends``: the local pool or Ray) and, in a results directory owned by
+``eval.results_dir`` (lock, config check, atomic writes), writes ``episodes.jsonl`` (a line per
+finished episode of this run) / ``summary.json`` / ``summary.csv`` (Success as successes / N and
+mean SPL per variant) / ``summary.png``; ``lockstep_map_stats`` drives one
 episode with the first variant's actions and records every variant's map statistics per step
 (the instrument that found the sensitive stage).
 """
 from __future__ import annotations
 
 import csv
+import io
 import json
 import math
-import multiprocessing as mp
 import tempfile
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
@@ -165,80 +166,93 @@ def make_env(cfg, variant: FrameVariant, work_dir: Path):
 
 
 # ---------------------------------------------------------------------------- episodes x variants
-_worker: dict = {}
+FRAME_RESULTS = ("episodes.jsonl", "summary.json", "summary.csv", "summary.png")  # what --force discards
+_worker: dict = {}   # per process: (config, work dir, variant) -> (env, agent), built once
 
 
-def _init(cfg_dict: dict, work_dir: str) -> None:
-    from eval.config import Config, build_dataclass
+@dataclass
+class FrameTask:
+    """One (variant, episode) of the study: the config (plain dict), where rotated houses are,
+    the variant (as a dict: picklable for any backend) and the episode index."""
 
-    _worker.update(cfg=build_dataclass(Config, cfg_dict), work_dir=Path(work_dir), envs={})
+    cfg_dict: dict
+    work_dir: str
+    variant: dict
+    index: int
 
 
-def _run(variant_dict: dict, index: int) -> dict:
+def run_frame_task(task: FrameTask) -> dict:
+    """Run one task in this process (any backend); the env and agent of its variant stay warm."""
     from agent.policy import PeanutAgent
+    from eval.config import Config, build_dataclass
     from eval.objectnav.run import run_one_episode
 
-    variant = FrameVariant(**{**variant_dict, "offset_m": tuple(variant_dict["offset_m"])})
-    cfg = _worker["cfg"]
-    if variant.name not in _worker["envs"]:
-        _worker["envs"][variant.name] = (make_env(cfg, variant, _worker["work_dir"]), PeanutAgent(cfg, cfg.run.device))
-    env, agent = _worker["envs"][variant.name]
-    rec = run_one_episode(env, agent, index)
+    variant = FrameVariant(**{**task.variant, "offset_m": tuple(task.variant["offset_m"])})
+    key = json.dumps([task.cfg_dict, task.work_dir, task.variant], sort_keys=True)
+    if key not in _worker:
+        cfg = build_dataclass(Config, task.cfg_dict)
+        _worker[key] = (make_env(cfg, variant, Path(task.work_dir)), PeanutAgent(cfg, cfg.run.device))
+    env, agent = _worker[key]
+    rec = run_one_episode(env, agent, task.index)
     return {"variant": variant.name, **{k: rec[k] for k in ("index", "episode_id", "success", "spl", "steps",
                                                              "stop_reason", "distance_to_goal")}}
 
 
 def run_frame_study(cfg, indices: list[int], variants: list[FrameVariant], out: Path | None,
-                    workers: int = 2, progress: bool = True) -> dict[str, dict]:
-    """Run every (variant, episode) with the PEANUT agent of ``cfg``; returns variant name ->
-    {success, spl, n} (means). With ``out``: episodes.jsonl, summary.json, summary.csv, summary.png."""
+                    progress: bool = True, force: bool = False) -> dict[str, dict]:
+    """Run every (variant, episode) with the PEANUT agent of ``cfg`` on ``cfg.run``'s backend;
+    returns variant name -> {success, spl, n} (means). With ``out`` (a results directory: a
+    different config there is refused unless ``force``): episodes.jsonl, summary.json,
+    summary.csv, summary.png."""
+    from contextlib import ExitStack
+
     from tqdm import tqdm
 
+    from eval.backends import make_backend
     from eval.config import to_dict
+    from eval.results_dir import ResultsDir, writing
 
     names = [v.name for v in variants]
     if len(set(names)) != len(names):
         raise ValueError(f"frame variants need distinct names, got {names}")
-    with tempfile.TemporaryDirectory(prefix="calnav_frames_") as tmp:
-        work = Path(out) if out else Path(tmp)
-        work.mkdir(parents=True, exist_ok=True)
+    backend = make_backend(cfg.run)      # checked before anything is written
+    with ExitStack() as stack:
+        results = stack.enter_context(ResultsDir(out, cfg, force=force, discard=FRAME_RESULTS)) if out else None
+        work = Path(out) if out else Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="calnav_frames_")))
         for v in variants:   # write rotated houses once, before the workers start
             if v.house_yaw_deg:
                 from envs.episodes import load_split
 
                 rotated_setup(cfg.env, load_split(cfg.env.split, cfg.env, progress=False), v.house_yaw_deg,
                               work / f"houses_{v.house_yaw_deg:g}deg")
-        jobs = [(asdict(v), i) for v in variants for i in indices]
+        cfg_dict = to_dict(cfg)
+        tasks = [FrameTask(cfg_dict, str(work), asdict(v), i) for v in variants for i in indices]
         records = []
-        bar = tqdm(total=len(jobs), disable=not progress, desc="frame study", unit="ep")
-        log = open(work / "episodes.jsonl", "w") if out else None   # one line per finished episode
-        with ProcessPoolExecutor(max(1, workers), mp_context=mp.get_context("spawn"), initializer=_init,
-                                 initargs=(to_dict(cfg), str(work))) as pool:
-            for fut in as_completed([pool.submit(_run, *job) for job in jobs]):
-                records.append(fut.result())
-                if log:
-                    log.write(json.dumps(records[-1]) + "\n")
-                    log.flush()
-                bar.update(1)
-        bar.close()
-        if log:
-            log.close()
-    records.sort(key=lambda r: (names.index(r["variant"]), r["index"]))
-    summary = {}
-    for v in variants:
-        rs = [r for r in records if r["variant"] == v.name]
-        summary[v.name] = {"success": float(np.mean([r["success"] for r in rs])),
-                           "successes": int(sum(r["success"] for r in rs)),
-                           "spl": float(np.mean([r["spl"] for r in rs])), "n": len(rs), **asdict(v)}
-    if out:
-        out = Path(out)
-        (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
-        with open(out / "summary.csv", "w", newline="") as f:
-            w = csv.writer(f)
+        log = stack.enter_context(open(work / "episodes.jsonl", "w")) if out else None  # a line per finished episode
+        bar = stack.enter_context(tqdm(total=len(tasks), disable=not progress, desc="frame study", unit="ep"))
+        for _, rec in backend.map_unordered(run_frame_task, tasks):
+            records.append(rec)
+            if log:
+                log.write(json.dumps(rec) + "\n")
+                log.flush()
+            bar.update(1)
+        records.sort(key=lambda r: (names.index(r["variant"]), r["index"]))
+        summary = {}
+        for v in variants:
+            rs = [r for r in records if r["variant"] == v.name]
+            summary[v.name] = {"success": float(np.mean([r["success"] for r in rs])),
+                               "successes": int(sum(r["success"] for r in rs)),
+                               "spl": float(np.mean([r["spl"] for r in rs])), "n": len(rs), **asdict(v)}
+        if results is not None:
+            results.write_json("summary.json", summary)
+            buf = io.StringIO(newline="")
+            w = csv.writer(buf)
             w.writerow(["variant", "successes", "n", "success", "spl"])
             for name, s in summary.items():
                 w.writerow([name, s["successes"], s["n"], f"{s['success']:.3f}", f"{s['spl']:.3f}"])
-        plot_summary(summary, out / "summary.png")
+            results.write_text("summary.csv", buf.getvalue())
+            with writing(Path(out) / "summary.png"):
+                plot_summary(summary, Path(out) / "summary.png")
     return summary
 
 
@@ -317,12 +331,12 @@ def main_start_pose(args) -> None:
     variants = parse_variants(args.variants)           # every check before anything runs
     if args.workers < 1:
         raise ValueError(f"--workers must be >= 1, got {args.workers}")
-    cfg = load_config(args.config, list(args.overrides))
+    cfg = load_config(args.config, [f"run.workers={args.workers}", *args.overrides])
     if cfg.run.agent != "peanut":
         raise ValueError(f"start-pose runs the peanut agent (its maps live in the start frame), got run.agent={cfg.run.agent}")
     indices = list(parse_episode_range(str(args.episodes), len(load_split(cfg.env.split, cfg.env))))
     out = Path(args.output)
-    summary = run_frame_study(cfg, indices, variants, out, workers=args.workers)
+    summary = run_frame_study(cfg, indices, variants, out, force=args.force)
     print("| variant | Success | SPL | N |\n|---|---|---|---|")
     for name, s in summary.items():
         print(f"| {name} | {s['successes']}/{s['n']} | {s['spl']:.3f} | {s['n']} |")
