@@ -36,6 +36,7 @@ from common.atomic import atomic_path
 from envs.config import EnvConfig
 from envs.scene import Scene, cache_dir, sample_surface
 from envs.semantics import GOAL_CATEGORIES
+from envs.task import yaw_to_habitat_quaternion  # noqa: F401 (re-exported: the episode files' convention)
 
 GENERATOR_VERSION = 3  # 2: walls block in the nav grid; 3: starts weighted by distance^1
 TRIVIAL_REJECT_PROB = 0.98        # habitat-lab's rejection rate for near-straight episodes
@@ -59,16 +60,22 @@ class GoalObject:
 
 @dataclass
 class ObjectNavEpisode:
-    """start_position: (2,) world xy metres; start_yaw: radians, counter-clockwise from +x."""
+    """start_position: (2,) world xy metres; start_rotation: Habitat [x, y, z, w] start
+    quaternion, kept as the episode file stores it (habitat-lab's GPS / compass read these very
+    numbers); ``start_yaw``: the same heading in radians, counter-clockwise from +x."""
 
     episode_id: str
     scene_id: str
     start_position: np.ndarray
-    start_yaw: float
+    start_rotation: list[float]
     object_category: str
     geodesic_distance: float
     euclidean_distance: float
     goals: list[GoalObject] = field(default_factory=list)
+
+    @property
+    def start_yaw(self) -> float:
+        return habitat_quaternion_to_yaw(self.start_rotation)
 
     @property
     def goal_id(self) -> int:
@@ -184,7 +191,8 @@ def generate_scene_episodes(scene_id: str, scene: Scene, navgrid, raycasting_sce
                 continue
             episodes.append(ObjectNavEpisode(
                 episode_id=f"{scene_id}:{len(episodes):03d}", scene_id=scene_id,
-                start_position=free_xy[i].astype(np.float64), start_yaw=float(rng.uniform(0, 2 * np.pi)),
+                start_position=free_xy[i].astype(np.float64),
+                start_rotation=yaw_to_habitat_quaternion(float(rng.uniform(0, 2 * np.pi))),
                 object_category=str(category), geodesic_distance=geodesic, euclidean_distance=euclid,
                 goals=goals_by_category[category]))
             break
@@ -198,12 +206,6 @@ def _to_habitat(xy, z: float = 0.0) -> list[float]:
 
 def _from_habitat(p) -> np.ndarray:
     return np.array([p[0], -p[2]], dtype=np.float64)
-
-
-def yaw_to_habitat_quaternion(yaw: float) -> list[float]:
-    """calnav yaw (ccw from +x about +z) -> Habitat [x, y, z, w] rotation about +y (forward -z)."""
-    theta = yaw - math.pi / 2
-    return [0.0, math.sin(theta / 2), 0.0, math.cos(theta / 2)]
 
 
 def habitat_quaternion_to_yaw(q) -> float:
@@ -227,7 +229,7 @@ def episodes_to_habitat(episodes: list[ObjectNavEpisode]) -> dict:
         out.append({
             "episode_id": ep.episode_id, "scene_id": ep.scene_id,
             "start_position": _to_habitat(ep.start_position),
-            "start_rotation": yaw_to_habitat_quaternion(ep.start_yaw),
+            "start_rotation": [float(c) for c in ep.start_rotation],
             "object_category": ep.object_category,
             "info": {"geodesic_distance": ep.geodesic_distance, "euclidean_distance": ep.euclidean_distance},
             "goals": [],
@@ -251,7 +253,7 @@ def episodes_from_habitat(data: dict) -> list[ObjectNavEpisode]:
         episodes.append(ObjectNavEpisode(
             episode_id=str(e["episode_id"]), scene_id=e["scene_id"],
             start_position=_from_habitat(e["start_position"]),
-            start_yaw=habitat_quaternion_to_yaw(e["start_rotation"]),
+            start_rotation=[float(c) for c in e["start_rotation"]],
             object_category=e["object_category"],
             geodesic_distance=float(e["info"]["geodesic_distance"]),
             euclidean_distance=float(e["info"].get("euclidean_distance", float("nan"))),

@@ -197,7 +197,7 @@ class ObjectNavEnv(gym.Env):
         frame = self.renderer.render(pose, rng=self._noise_rng)
         ep = self.episode
         cfg = self.config
-        gps, compass = xy_yaw_to_gps_compass(self.position, self.yaw, ep.start_position, ep.start_yaw)
+        gps, compass = xy_yaw_to_gps_compass(self.position, self.yaw, ep.start_position, ep.start_rotation)
         depth = frame.depth.astype(np.float32)
         if cfg.normalize_depth:
             depth = normalize_depth_m(depth, cfg.min_depth_m, cfg.max_depth_m)

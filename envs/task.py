@@ -15,7 +15,7 @@ habitat-lab's ObjectNav task gives -- plus ``SEMANTIC`` for ground-truth-based s
 - ``gps`` (2,) float32 (forward, right) metres from the start position in the start pose's frame
   (habitat-lab's EpisodicGPSSensor, dimensionality 2);
 - ``compass`` (1,) float32 radians, heading relative to the start heading, counter-clockwise
-  positive, wrapped to [-pi, pi);
+  positive, in [-pi, pi] (habitat-lab's EpisodicCompassSensor, an atan2);
 - ``objectgoal`` (1,) int64 goal category id.
 
 ``camera_pose`` / ``camera_intrinsics`` (``DEBUG_KEYS``: privileged world-frame pose, Habitat
@@ -118,15 +118,53 @@ def wrap_angle(a: float) -> float:
     return (a + math.pi) % (2 * math.pi) - math.pi
 
 
-def xy_yaw_to_gps_compass(xy, yaw: float, start_xy, start_yaw: float) -> tuple[np.ndarray, np.ndarray]:
+# Quaternions (w, x, y, z) with numpy-quaternion's arithmetic, term for term (Hamilton product
+# in its order, inverse = conjugate / squared norm): habitat-lab's GPS and compass sensors compute
+# with it, and calnav repeats the very operations so that its gps / compass equal habitat-lab's
+# bit for bit. A 1e-7 difference in a pose is enough to move a map cell and, later, an action.
+Quat = tuple[float, float, float, float]
+
+
+def _qmul(a: Quat, b: Quat) -> Quat:
+    aw, ax, ay, az = a
+    bw, bx, by, bz = b
+    return (aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw)
+
+
+def _qinv(q: Quat) -> Quat:
+    w, x, y, z = q
+    n = w * w + x * x + y * y + z * z
+    return (w / n, -x / n, -y / n, -z / n)
+
+
+def _qrotate(q: Quat, v) -> tuple[float, float, float]:
+    """habitat-lab's ``quaternion_rotate_vector``: the vector part of q * (0, v) * q^-1."""
+    return _qmul(_qmul(q, (0.0, float(v[0]), float(v[1]), float(v[2]))), _qinv(q))[1:]
+
+
+def yaw_to_habitat_quaternion(yaw: float) -> list[float]:
+    """calnav yaw (rad, ccw from +x about +z) -> Habitat [x, y, z, w] rotation about +y (forward -z)."""
+    theta = yaw - math.pi / 2
+    return [0.0, math.sin(theta / 2), 0.0, math.cos(theta / 2)]
+
+
+def xy_yaw_to_gps_compass(xy, yaw: float, start_xy, start_rotation) -> tuple[np.ndarray, np.ndarray]:
     """Habitat's EpisodicGPSSensor (2D) and EpisodicCompassSensor of an agent at world ``xy``
     (2,) metres heading ``yaw`` rad (ccw from world +x), for an episode that started at
-    ``start_xy`` heading ``start_yaw``. Returns gps (2,) float32 (forward, right) metres and
-    compass (1,) float32 rad."""
-    dx, dy = float(xy[0]) - float(start_xy[0]), float(xy[1]) - float(start_xy[1])
-    c, s = math.cos(start_yaw), math.sin(start_yaw)
-    gps = np.array([c * dx + s * dy, s * dx - c * dy], dtype=np.float32)
-    return gps, np.array([wrap_angle(yaw - start_yaw)], dtype=np.float32)
+    ``start_xy`` with Habitat start quaternion ``start_rotation`` [x, y, z, w] (as stored in the
+    episode file). Returns gps (2,) float32 (forward, right) metres and compass (1,) float32 rad.
+
+    Computed exactly as habitat-lab does (its start position in float32, numpy-quaternion's
+    arithmetic, Habitat's y-up frame in which calnav (x, y) is (x, ., -y)), so the values are
+    bit-identical to habitat-lab's on the same episode (``tests/test_habitat_agent.py``)."""
+    sx, sy, sz, sw = (float(c) for c in start_rotation)
+    start = (sw, sx, sy, sz)
+    origin = np.array([start_xy[0], 0.0, -start_xy[1]], np.float32)
+    p = _qrotate(_qinv(start), np.array([xy[0], 0.0, -xy[1]], np.float64) - origin)
+    x, y, z, w = yaw_to_habitat_quaternion(yaw)
+    h = _qrotate(_qmul(_qinv((w, x, y, z)), start), (0.0, 0.0, -1.0))
+    return np.array([-p[2], p[0]], np.float32), np.array([np.arctan2(h[0], -h[2])], np.float32)
 
 
 def gps_compass_to_xy_yaw(gps, compass) -> tuple[np.ndarray, float]:

@@ -10,22 +10,35 @@ import envs
 from agent.sensors import SensorModel
 from envs.render import Camera
 from envs.task import (CAMERA_POSE, DEPTH, HABITAT_KEYS, camera_pose, depth_to_metres, gps_compass_to_xy_yaw,
-                       normalize_depth_m, observation_specs, pinhole_intrinsics, xy_yaw_to_gps_compass)
+                       normalize_depth_m, observation_specs, pinhole_intrinsics, xy_yaw_to_gps_compass,
+                       yaw_to_habitat_quaternion)
 
 
 def test_gps_compass_hand_computed():
+    q = yaw_to_habitat_quaternion
     # start at (1, 2) facing +y; +y is forward, +x is to the right
-    gps, compass = xy_yaw_to_gps_compass((1.0, 3.0), math.pi / 2, (1.0, 2.0), math.pi / 2)
+    gps, compass = xy_yaw_to_gps_compass((1.0, 3.0), math.pi / 2, (1.0, 2.0), q(math.pi / 2))
     np.testing.assert_allclose(gps, [1.0, 0.0], atol=1e-6)
     assert compass[0] == pytest.approx(0.0)
-    gps, compass = xy_yaw_to_gps_compass((0.0, 2.0), math.pi, (1.0, 2.0), math.pi / 2)
+    gps, compass = xy_yaw_to_gps_compass((0.0, 2.0), math.pi, (1.0, 2.0), q(math.pi / 2))
     np.testing.assert_allclose(gps, [0.0, -1.0], atol=1e-6)     # one metre to the left
     assert compass[0] == pytest.approx(math.pi / 2)
     xy, yaw = gps_compass_to_xy_yaw(gps, compass)              # start frame: x forward, y left
     np.testing.assert_allclose(xy, [0.0, 1.0], atol=1e-6)
     assert yaw == pytest.approx(math.pi / 2)
-    _, compass = xy_yaw_to_gps_compass((0, 0), -0.1, (0, 0), 2 * math.pi - 0.2)  # wraps to [-pi, pi)
+    _, compass = xy_yaw_to_gps_compass((0, 0), -0.1, (0, 0), q(2 * math.pi - 0.2))  # wraps into [-pi, pi]
     assert compass[0] == pytest.approx(0.1, abs=1e-6)
+    # facing backwards: habitat-lab's atan2 gives +-pi; either is the same heading
+    _, compass = xy_yaw_to_gps_compass((0, 0), 0.3 + math.pi, (0, 0), q(0.3))
+    assert abs(compass[0]) == pytest.approx(math.pi)
+
+
+def test_gps_takes_the_start_position_in_float32():
+    """As habitat-lab's EpisodicGPSSensor: the start position is rounded to float32 before the
+    difference, so an agent standing exactly at a start of 10.1 m reads 10.1 - float32(10.1)."""
+    start = (10.1, 0.0)
+    gps, _ = xy_yaw_to_gps_compass(start, 0.0, start, yaw_to_habitat_quaternion(0.0))
+    assert gps[0] == np.float32(10.1 - float(np.float32(10.1))) != 0.0 and abs(gps[1]) < 1e-15
 
 
 def test_pinhole_intrinsics_and_camera_pose_hand_computed():

@@ -126,13 +126,15 @@ def rotate_scene(scene, yaw_rad: float):
 
 def rotate_episode(ep, yaw_rad: float):
     """The episode with its start pose and goals rotated like ``rotate_scene``."""
+    from envs.task import yaw_to_habitat_quaternion
+
     r2 = rot2(yaw_rad)
     r3 = np.eye(3)
     r3[:2, :2] = r2
     goals = [replace(g, position=r3 @ np.asarray(g.position, np.float64),
                      view_points=np.asarray(g.view_points, np.float64) @ r2.T) for g in ep.goals]
     return replace(ep, start_position=r2 @ np.asarray(ep.start_position, np.float64),
-                   start_yaw=(ep.start_yaw + yaw_rad) % (2 * math.pi), goals=goals)
+                   start_rotation=yaw_to_habitat_quaternion((ep.start_yaw + yaw_rad) % (2 * math.pi)), goals=goals)
 
 
 def rotated_setup(env_cfg, episodes: list, yaw_deg: float, scene_dir: Path):
