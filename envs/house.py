@@ -11,7 +11,8 @@ one ``np.random.default_rng(seed)``. Layout:
    must fit a bed) the cells with the longest short side, other kinds shuffled.
 3. Doorways join rooms sharing a long enough wall: a random spanning tree (corridor edges
    first, bathroom edges last, so bathrooms tend to be leaves) plus a few extra doors. Some
-   doorways carry an open door leaf (class ``door``) swung ~90 degrees into one room.
+   doorways carry an open door leaf (class ``door``) swung ~90 degrees into one room (its
+   geometry, and the zones in front of doorways kept free, in ``envs.doors``).
 4. Each room builds its own half-thickness wall slabs (so its walls have its own paint),
    holes where doorways are, a lintel above each; a floor (+z face) and a ceiling (-z face)
    cover the cell, so doorway thresholds have floor and every view ray hits something.
@@ -28,9 +29,10 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from envs.furniture_parts import METAL, WOOD, colour
+from envs.doors import Doorway, add_door_leaf, door_zones, leaf_pose, overlap
+from envs.furniture_parts import colour
 from envs.furnish import ROOM_RECIPES, emit_group, find_pose
-from envs.primitives import MeshBuilder, box_mesh
+from envs.primitives import MeshBuilder
 from envs.scene import Room, Scene, Texture
 
 GENERATOR_VERSION = 1  # bump when generated houses change for a given (seed, spec): invalidates caches
@@ -47,10 +49,6 @@ _FLOORS = {
 }
 _WALL_PAINT = ((236, 232, 222), (222, 210, 190), (200, 215, 225), (205, 220, 200), (210, 210, 210), (235, 220, 215))
 _CEILING = ((240, 240, 236), (232, 232, 228))
-LEAF_GAP_M = 0.01        # clearance around a door leaf in its frame, metres
-HANDLE_INSET_M = 0.08    # door handle distance from the leaf's free edge, metres
-HANDLE_Z_M = 1.0         # door handle height, metres
-HANDLE_SIZE_M = (0.03, 0.1, 0.03)   # door handle box (along the leaf, through it, height), metres
 
 
 @dataclass(frozen=True)
@@ -112,24 +110,6 @@ class _Cell:
     @property
     def area(self) -> float:
         return (self.x1 - self.x0) * (self.y1 - self.y0)
-
-
-@dataclass
-class Doorway:
-    """An opening between cells ``a`` and ``b`` in the wall plane ``axis`` = ``coord`` (metres);
-    it spans ``[lo, hi]`` along the wall and ``[0, height]`` in z. ``leaf_room`` is the cell a
-    door leaf swings into (None: no leaf), hinged at ``lo`` if ``hinge_lo`` else at ``hi``."""
-
-    a: int
-    b: int
-    axis: str
-    coord: float
-    lo: float
-    hi: float
-    height: float
-    leaf_room: int | None = None
-    hinge_lo: bool = True
-    open_deg: float = 90.0
 
 
 # ------------------------------------------------------------------------------ layout
@@ -238,14 +218,14 @@ def _choose_leaves(doors: list[Doorway], cells: list[_Cell], rng: np.random.Gene
     def try_leaf(d: Doorway) -> bool:
         for k in rng.permutation(4):   # (room, hinge side) options in random order
             d.leaf_room, d.hinge_lo = (d.a, d.b)[k // 2], bool(k % 2)
-            rect, room = _leaf_pose(d, cells, spec)[-1], _interior(cells[d.leaf_room], spec.wall_thickness_m)
+            rect, room = leaf_pose(d, cells, spec)[-1], _interior(cells[d.leaf_room], spec.wall_thickness_m)
             inside = room.xmin <= rect[0] and rect[2] <= room.xmax and room.ymin <= rect[1] and rect[3] <= room.ymax
             # across the room from the leaf, a walkable gap must remain (narrow hallways)
             across = (room.xmax - rect[2], rect[0] - room.xmin) if d.axis == "x" else (room.ymax - rect[3], rect[1] - room.ymin)
             inside = inside and max(across) >= spec.walk_gap_m
-            zones = _door_zones([o for o in doors if o is not d], cells, d.leaf_room, spec)
+            zones = door_zones([o for o in doors if o is not d], cells, d.leaf_room, spec)
             grown = rect + spec.walk_gap_m * np.array([-1, -1, 1, 1])   # two leaves could seal a corner
-            if inside and not any(_overlap(rect, z) for z in zones) and not any(_overlap(grown, o) for o in taken):
+            if inside and not any(overlap(rect, z) for z in zones) and not any(overlap(grown, o) for o in taken):
                 taken.append(rect)
                 return True
         d.leaf_room = None
@@ -255,11 +235,6 @@ def _choose_leaves(doors: list[Doorway], cells: list[_Cell], rng: np.random.Gene
     placed = [try_leaf(d) for d, w in zip(doors, wanted) if w]
     if not any(placed):   # the house must show the door class
         any(try_leaf(d) for d in doors)
-
-
-def _overlap(a: np.ndarray, b: np.ndarray) -> bool:
-    """Whether two (x0, y0, x1, y1) rectangles share interior area."""
-    return a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]
 
 
 # --------------------------------------------------------------------------- structure
@@ -301,57 +276,14 @@ def _build_room_shell(b: MeshBuilder, ci: int, cells: list[_Cell], doors: list[D
             b.add_box(center, size, "wall", wall_inst, paint, wall_tex, faces="-z -y +y +x -x" if za > 0 else "-y +y +x -x")
 
 
-def _door_frame(d: Doorway, cells: list[_Cell], room: int, t: float):
-    """(to_world, sign): maps (n, u) = (depth into ``room`` from its wall face, along-wall) to world xy."""
-    c = cells[room]
-    sign = 1.0 if np.isclose(c.x0 if d.axis == "x" else c.y0, d.coord) else -1.0
-    def to_world(n, u):
-        w = d.coord + sign * (t / 2 + np.asarray(n))
-        return (w, np.asarray(u)) if d.axis == "x" else (np.asarray(u), w)
-    return to_world, sign
-
-
-def _leaf_pose(d: Doorway, cells: list[_Cell], spec: HouseSpec):
-    """Open leaf of doorway ``d``: centre (x, y), yaw, length, handle (x, y) and footprint rect, metres."""
-    to_world, sign = _door_frame(d, cells, d.leaf_room, spec.wall_thickness_m)
-    th, length = spec.door_leaf_thickness_m, d.hi - d.lo - LEAF_GAP_M
-    ang, s = np.deg2rad(d.open_deg), (1.0 if d.hinge_lo else -1.0)
-    dir_n, dir_u = np.sin(ang), s * np.cos(ang)   # leaf direction from its hinge in the (n, u) frame;
-    hinge_n, hinge_u = th / 2, (d.lo if d.hinge_lo else d.hi) - s * th / 2   # past 90 deg it turns off the passage
-    centre = to_world(hinge_n + dir_n * length / 2, hinge_u + dir_u * length / 2)
-    handle = to_world(hinge_n + dir_n * (length - HANDLE_INSET_M), hinge_u + dir_u * (length - HANDLE_INSET_M))
-    dx, dy = (sign * dir_n, dir_u) if d.axis == "x" else (dir_u, sign * dir_n)
-    yaw = float(np.arctan2(dy, dx))
-    corners = box_mesh((*centre, 0.0), (length, th, 0.0), yaw)[0][:4, :2]
-    return centre, yaw, length, handle, np.concatenate([corners.min(0), corners.max(0)])
-
-
-def _add_door_leaf(b: MeshBuilder, d: Doorway, cells: list[_Cell], rng: np.random.Generator, spec: HouseSpec) -> None:
-    (x, y), yaw, length, (hx, hy), _ = _leaf_pose(d, cells, spec)
-    th, height, inst = spec.door_leaf_thickness_m, d.height - 2 * LEAF_GAP_M, b.new_instance()
-    b.add_box((x, y, LEAF_GAP_M + height / 2), (length, th, height), "door", inst, colour(rng, WOOD), Texture.GRAIN, yaw=yaw)
-    b.add_box((hx, hy, HANDLE_Z_M), HANDLE_SIZE_M, "door", inst, colour(rng, METAL), yaw=yaw)
-
-
-def _door_zones(doors: list[Doorway], cells: list[_Cell], room: int, spec: HouseSpec) -> list[np.ndarray]:
-    """Rectangles (x0, y0, x1, y1) in front of the room's doorways that furniture must leave free."""
-    zones = []
-    for d in (d for d in doors if room in (d.a, d.b)):
-        to_world, _ = _door_frame(d, cells, room, spec.wall_thickness_m)
-        xs, ys = to_world(np.array([0.0, spec.door_clearance_m]),
-                          np.array([d.lo - spec.door_zone_side_m, d.hi + spec.door_zone_side_m]))
-        zones.append(np.array([min(xs), min(ys), max(xs), max(ys)]))
-    return zones
-
-
 def _furnish(b: MeshBuilder, rooms: list[Room], cells: list[_Cell], doors: list[Doorway], rng: np.random.Generator,
              spec: HouseSpec) -> list[dict]:
     """Place each room's recipe items in order; returns one meta record per object instance."""
     objects = []
     for ri, room in enumerate(rooms):
         # Door leaves are obstacles (kept >= walk gap away); the rest of a doorway's zone stays free.
-        obstacles = [_leaf_pose(d, cells, spec)[-1] for d in doors if d.leaf_room == ri]
-        zones = _door_zones(doors, cells, ri, spec)
+        obstacles = [leaf_pose(d, cells, spec)[-1] for d in doors if d.leaf_room == ri]
+        zones = door_zones(doors, cells, ri, spec)
         for item in ROOM_RECIPES[room.kind]:
             if rng.random() >= item.prob:
                 continue
@@ -393,7 +325,7 @@ def generate_house(seed: int, spec: HouseSpec | None = None) -> Scene:
         _build_room_shell(b, ci, cells, doors, footprint, wall_h, rng, spec)
     for d in doors:
         if d.leaf_room is not None:
-            _add_door_leaf(b, d, cells, rng, spec)
+            add_door_leaf(b, d, cells, rng, spec)
     rooms = [_interior(c, t) for c in cells]
     b.rooms = rooms
     objects = _furnish(b, rooms, cells, doors, rng, spec)

@@ -1,8 +1,6 @@
 """Procedural houses: determinism, layout bounds, closed rooms, furniture priors and placement."""
 from __future__ import annotations
 
-import time
-
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -204,12 +202,9 @@ def test_reachability_check_can_fail():
     assert min(room_area) == 0.0 or share < 0.95
 
 
-def test_budget_and_speed(houses):
+def test_triangle_budget(houses):
+    # generation time is a bench figure (`calnav bench --only env`: env.house_gen_ms), not a unit test
     assert max(len(s.triangles) for s in houses) < 30_000
-    t0 = time.perf_counter()
-    for seed in (500, 501, 502):
-        generate_house(seed)
-    assert (time.perf_counter() - t0) / 3 < 1.0
 
 
 def test_spec_digest_and_impossible_spec():

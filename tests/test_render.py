@@ -221,7 +221,7 @@ def test_bench_env_section_runs():
     res = bench_env.run(Ctx(quick=True))
     expected = {"env.render_ms_640x480", "env.raycast_ms_640x480", "env.render_ratio_640x480",
                 "env.render_ms_160x120", "env.steps_per_s_640x480", "env.steps_per_s_160x120",
-                "env.navgrid_build_ms", "env.geodesic_field_ms", "env.scene_triangles"}
+                "env.navgrid_build_ms", "env.geodesic_field_ms", "env.scene_triangles", "env.house_gen_ms"}
     assert expected <= set(res)
     assert all(np.isfinite(v) and v > 0 for v in res.values())
     assert res["env.scene_triangles"] == len(box_room_scene().triangles)

@@ -10,6 +10,8 @@ Figures (all measured in this run, on ``ctx.scene``, along ``ctx.poses``):
 - env.navgrid_build_ms: ``NavGrid.build`` (ray casting scene, down rays, erosion,
   components) plus its geodesic graph. env.geodesic_field_ms: one uncached single-goal field.
 - env.scene_triangles: triangle count of the scene.
+- env.house_gen_ms: median ``generate_house`` of a procedural house (seeds 500-502, default spec),
+  ms: episodes and caches regenerate houses, so this is a cost users pay.
 """
 from __future__ import annotations
 
@@ -78,6 +80,10 @@ def run(ctx: BenchContext) -> dict[str, float]:
             out["env.render_ratio_640x480"] = render_ms / cast_ms
         out[f"env.steps_per_s_{w}x{h}"] = 1e3 / _step_ms(ctx, r, n)
 
+    from envs.house import generate_house
+
+    seeds = iter(range(500, 600))
+    out["env.house_gen_ms"] = timeit_ms(lambda: generate_house(next(seeds)), repeats=1 if ctx.quick else 3, warmup=0)
     out["env.navgrid_build_ms"] = timeit_ms(lambda: NavGrid.build(scene, cfg).graph,
                                             repeats=1 if ctx.quick else 3, warmup=0)
     grid = ctx.navgrid
