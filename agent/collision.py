@@ -1,8 +1,8 @@
 """Collision handling: detect a blocked forward move, mark the cells ahead as obstacles, and
-an untrap routine after repeated blocks.
+an escape routine when stuck (repeated blocks, or no progress: the policy's watchdog).
 
-``collision_cells`` is the pure part (geometry); ``CollisionTracker`` holds the state
-(previous position, consecutive blocks, queued untrap actions).
+``collision_points`` / ``is_collision`` are the pure part (geometry); ``CollisionTracker``
+holds the state (blocks since the last move, the running escape).
 """
 from __future__ import annotations
 
@@ -32,28 +32,73 @@ def is_collision(prev_xy: np.ndarray, xy: np.ndarray, last_action: int, min_move
 
 
 class CollisionTracker:
-    """Consecutive-collision count and the untrap routine (alternating turn direction:
-    turn, turn, forward, forward, ... for ``untrap_steps`` actions)."""
+    """Blocked forward moves and the escape routine.
+
+    ``blocked`` counts forward moves blocked since the last one that moved (turns in between do
+    not reset it: a planner that turns, hits, turns back and hits again is stuck all the same).
+    At ``untrap_after`` blocks, or when the policy reports no progress (``force``), an escape
+    starts: turn one step (alternating the direction from one escape to the next), try forward,
+    and repeat until a forward step moves -- one more forward then ends it -- or until
+    ``untrap_steps`` actions are spent (a full circle of headings takes 2 x 360 / turn angle).
+    Every heading tried is either taken or marked blocked by the policy's collision marks, so
+    an escape cannot repeat itself.
+    """
 
     def __init__(self, cfg: AgentConfig):
         self.cfg = cfg
         self.reset()
 
     def reset(self) -> None:
-        self.consecutive = 0
+        self.blocked = 0
         self.routines = 0
-        self.queue: list[int] = []
+        self.escaping = False
+        self.budget = 0
+        self.after_move = False    # the escape's last forward moved: one more forward, then done
+        self.last: int | None = None
 
-    def observe(self, collided: bool) -> None:
-        """Record the outcome of the last action; queue an untrap routine when stuck."""
-        self.consecutive = self.consecutive + 1 if collided else 0
-        if self.consecutive >= self.cfg.untrap_after and not self.queue:
-            turn = Action.TURN_LEFT if self.routines % 2 == 0 else Action.TURN_RIGHT
-            pattern = [int(turn), int(turn), int(Action.MOVE_FORWARD), int(Action.MOVE_FORWARD)]
-            self.queue = [pattern[i % len(pattern)] for i in range(self.cfg.untrap_steps)]
-            self.routines += 1
-            self.consecutive = 0
+    def observe(self, collided: bool, moved: bool | None = None) -> None:
+        """Record the outcome of the last action (``collided``: a blocked forward; ``moved``: a
+        forward that moved, default ``not collided`` for a forward); start an escape when stuck."""
+        forward = self.last == Action.MOVE_FORWARD
+        moved = (forward and not collided) if moved is None else moved
+        if collided:
+            self.blocked += 1
+        elif moved:
+            self.blocked = 0
+        if self.escaping and forward:
+            if moved and self.after_move:
+                self._end()
+            else:
+                self.after_move = bool(moved)
+        if not self.escaping and self.blocked >= self.cfg.untrap_after:
+            self.force()
+
+    def force(self) -> None:
+        """Start an escape now (the policy saw no progress), unless one is running."""
+        if self.escaping:
+            return
+        self.escaping, self.budget, self.after_move = True, self.cfg.untrap_steps, False
+        self.turn = int(Action.TURN_LEFT if self.routines % 2 == 0 else Action.TURN_RIGHT)
+        self.routines += 1
+        self.blocked = 0
+
+    def _end(self) -> None:
+        self.escaping, self.after_move = False, False
 
     def next_action(self) -> int | None:
-        """The next untrap action, or None when no routine is running."""
-        return self.queue.pop(0) if self.queue else None
+        """The escape's next action, or None when no escape is running."""
+        if not self.escaping:
+            return None
+        if self.budget <= 0:
+            self._end()
+            return None
+        self.budget -= 1
+        if self.after_move or self.last == self.turn:
+            action = int(Action.MOVE_FORWARD)
+        else:
+            action = self.turn
+        return action
+
+    def record(self, action: int) -> None:
+        """The action the agent finally took (so the next ``observe`` knows what it was)."""
+        self.last = int(action)

@@ -62,8 +62,12 @@ class AgentConfig:
     collision_min_move_m: float = 0.2   # a forward step travelling less than this is a collision, metres
     collision_mark_length_m: float = 0.3  # obstacle strip marked ahead of a collision, metres
     collision_mark_width_m: float = 0.3   # its width, metres
-    untrap_after: int = 4               # consecutive collisions before the untrap routine
-    untrap_steps: int = 6               # actions of one untrap routine (turns + forwards)
+    untrap_after: int = 4               # blocked forward moves (since the last one that moved) before an escape, moves
+    untrap_steps: int = 24              # most actions of one escape (turn + try forward per heading: 2 x 360 / turn angle), actions
+    stuck_steps: int = 30               # no progress over this many steps (spin excluded) starts an escape, steps
+    stuck_radius_m: float = 0.3         # "no progress": every position of those steps within this of the current one, metres
+    loop_steps: int = 120               # going round in circles for this many steps defers the goal it heads for, steps
+    loop_radius_m: float = 1.5          # "round in circles": every position of those steps within this, metres
     # --- uncertainty-aware variant (off by default) ---------------------------------------------
     uncertainty_aware: bool = False     # verify uncertain detections before STOP
     uncertain_low: float = 0.3          # goal confidence band [uncertain_low, goal_threshold) counts as a candidate
@@ -79,7 +83,10 @@ class AgentConfig:
         for key in ("goal_threshold", "uncertain_low", "ndf_pixel_threshold"):
             if not 0 <= getattr(self, key) <= 1:
                 raise ValueError(f"agent.{key} must be in [0, 1], got {getattr(self, key)}")
-        for key in ("ring_cells", "replan_steps", "untrap_after", "untrap_steps", "free_ray_samples"):
+        for key in ("stuck_radius_m", "loop_radius_m"):
+            if not 0 < getattr(self, key) < 100:
+                raise ValueError(f"agent.{key} must be in (0, 100) metres, got {getattr(self, key)}")
+        for key in ("ring_cells", "replan_steps", "untrap_after", "untrap_steps", "free_ray_samples", "stuck_steps", "loop_steps"):
             if getattr(self, key) < 1:
                 raise ValueError(f"agent.{key} must be >= 1, got {getattr(self, key)}")
         w, h = self.map_resolution

@@ -15,6 +15,7 @@ which counts path length only) so the first frontier choice sees all around.
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -35,7 +36,7 @@ PLAN_MARGIN_M = 1.0  # the planning window: explored bounding box + this margin 
 
 @dataclass
 class StepInfo:
-    """What the agent decided and why (for visualisation): mode is one of 'spin', 'untrap',
+    """What the agent decided and why (for visualisation): mode is one of 'spin', 'untrap' (the escape),
     'goal', 'verify', 'explore', 'stop'. detection / plan / long_term_goal are in window
     coordinates (``window`` = (row slice, col slice) of the map), frontiers in map coordinates."""
 
@@ -83,10 +84,14 @@ class PeanutAgent:
         self.frontiers: np.ndarray | None = None
         self.excluded = np.zeros((self.state.size,) * 2, bool)  # unreachable frontier cells
         self.rejected = np.zeros_like(self.excluded)             # goal candidates verified as wrong
+        self.deferred = np.zeros_like(self.excluded)             # goal components the agent looped near
+        self.deferred_until = 0                                  # ... ignored until this step
         self.info = None
         self.frame = None
         self.path: list[tuple[int, int]] = []
         self.window: tuple[slice, slice] | None = None
+        self.recent: deque[np.ndarray] = deque(maxlen=self.cfg.stuck_steps)   # positions for the watchdog
+        self.loop: deque[np.ndarray] = deque(maxlen=self.cfg.loop_steps)      # ... and for the loop check
 
     def act(self, obs: dict) -> int:
         self.sensors.check(obs)
@@ -98,8 +103,10 @@ class PeanutAgent:
                 self._mark_collision(xy, yaw)
             routines = self.collisions.routines
             self.collisions.observe(collided)
+            self._watch_progress(xy)
             if self.collisions.routines > routines and self.ltg is not None:
                 self._exclude_around(self.ltg)  # stuck on the way to this frontier: give it up
+                self.ltg = None
         frame = self.frame = self.perception.observe(obs)
         self.map_module.update(self.state, frame, pose)
         self.steps += 1
@@ -109,7 +116,41 @@ class PeanutAgent:
         else:
             action = self._decide(xy, yaw)
         self.last_action, self.prev_xy = action, xy
+        self.collisions.record(action)
         return action
+
+    def _watch_progress(self, xy: np.ndarray) -> None:
+        """The no-progress watchdog, after the opening spin: if every position of the last
+        ``stuck_steps`` steps lies within ``stuck_radius_m`` of this one, whatever the agent is
+        doing is not working (a planner alternating between two blocked headings): escape. If
+        every position of the last ``loop_steps`` lies within ``loop_radius_m``, the agent is
+        going round in circles: escape, give up the long-term goal and defer the goal component
+        it was heading for (``loop_steps`` steps). Both are bounded: the agent never repeats
+        the same thing for more than ``loop_steps`` steps."""
+        if self.steps < self.spin_turns:
+            return
+        self.recent.append(xy.copy())
+        self.loop.append(xy.copy())
+        if self.collisions.escaping:
+            return
+        if len(self.recent) == self.recent.maxlen and max(math.dist(p, xy) for p in self.recent) < self.cfg.stuck_radius_m:
+            self.collisions.force()
+            self.recent.clear()
+        elif len(self.loop) == self.loop.maxlen and max(math.dist(p, xy) for p in self.loop) < self.cfg.loop_radius_m:
+            # moving, but round in circles: the goal (or frontier) it keeps heading for cannot be
+            # reached the way the map suggests (a hole in a wall, a gap the simulator blocks).
+            # Leave it for loop_steps and explore: other views usually reveal the real way.
+            if self.info is not None and self.info.detection is not None and self.info.window is not None \
+                    and self.info.mode in ("goal", "verify"):
+                self.deferred[:] = False
+                self.deferred[self.info.window] |= self.info.detection.mask
+                self.deferred_until = self.steps + self.cfg.loop_steps
+            if self.ltg is not None:
+                self._exclude_around(self.ltg)
+                self.ltg = None
+            self.collisions.force()
+            self.loop.clear()
+            self.recent.clear()
 
     # ------------------------------------------------------------------ decisions
     def _mark_collision(self, xy: np.ndarray, yaw: float) -> None:
@@ -133,6 +174,8 @@ class PeanutAgent:
         agent_rc = (r - win[0].start, c - win[1].start)
         conf = st.semantic[self.goal_id][win]
         rejected = self.rejected[win]
+        if self.steps < self.deferred_until:
+            rejected = rejected | self.deferred[win]
         det = detect_goal(conf, cfg.goal_threshold, cfg.goal_min_area_cells, exclude=rejected)
         free = ~dilate(st.obstacles(win), cfg.agent_radius_m / cfg.cell_m)  # unknown cells are optimistic
         if det.found:

@@ -5,7 +5,12 @@ import math
 from dataclasses import dataclass, field
 from typing import Literal
 
+from envs.scanning.config import ScanningConfig
+
 SplitName = Literal["train", "val", "test"]
+# Scene styles (``envs.scenes.STYLES``; a test keeps them equal): the procedural house as built,
+# or a scan of it (rendered RGB-D with sensor noise, TSDF-fused, labelled from the clean house).
+StyleName = Literal["clean", "scanned"]
 # Fields of view (degrees, exclusive) the semantic map accepts (``mapping.frame_geometry``
 # MIN_FOV_DEG / MAX_FOV_DEG; a test keeps them equal): a camera outside them would be refused
 # by the map in the middle of a run.
@@ -26,6 +31,16 @@ class DatasetConfig:
     max_geodesic_m: float = 30.0     # longest allowed start-to-goal geodesic distance, metres
     min_euclid_ratio: float = 1.05   # reject a fraction of "trivial" episodes whose geodesic/euclid ratio is below this
     scene_dir: str = ""              # directory of user scenes (*.npz / *.ply); "" = procedural houses
+    style: StyleName = "clean"       # procedural houses as built (clean) or reconstructed from a simulated scan (scanned)
+    scanning: ScanningConfig = field(default_factory=ScanningConfig)  # scan settings (style scanned only)
+
+    def __post_init__(self) -> None:
+        if self.style not in ("clean", "scanned"):
+            raise ValueError(f"unknown dataset.style {self.style!r}; valid choices: clean, scanned")
+        if self.style == "scanned" and self.scene_dir:
+            raise ValueError(f"dataset.style=scanned scans calnav's procedural houses, but dataset.scene_dir "
+                             f"{self.scene_dir!r} holds user scenes, which already are scans: use style=clean "
+                             "(the scenes load as they are)")
 
 
 @dataclass

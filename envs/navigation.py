@@ -24,6 +24,14 @@ FIELD_CACHE_SIZE = 8        # geodesic fields kept per NavGrid (LRU)
 MOVE_SAMPLE_FRACTION = 0.5  # move_forward checks the segment every this many cells
 OBSTACLE_SAMPLE_FRACTION = 0.5  # obstacle surfaces are sampled every this many cells
 OBSTACLE_SEED = 0           # surface sampling is random but fixed: the grid is deterministic
+def closed_solids(scene: Scene) -> bool:
+    """Whether the scene is built of closed, outward-facing solids (``envs.primitives``: the
+    procedural houses), so that face orientation tells inside from outside. Scans (calnav's
+    scanned houses, labelled PLYs) say ``meta["closed_solids"] = False``: open surfaces whose
+    normals are unreliable where the surface is thin or noisy."""
+    return bool(scene.meta.get("closed_solids", True))
+
+
 def _free_floor(scene: Scene, rc, origin: np.ndarray, shape: tuple[int, int], cell: float,
                 agent_height: float, floor_id: int) -> np.ndarray:
     """(H, W) bool: every sub-sampled point of the cell has bare floor under the agent.
@@ -34,7 +42,9 @@ def _free_floor(scene: Scene, rc, origin: np.ndarray, shape: tuple[int, int], ce
     face. The up ray catches points inside closed solids taller than the agent (walls,
     wardrobes): there the down ray starts inside the solid and may report the floor that
     coincides with the solid's bottom face. Assumes outward-facing (counter-clockwise)
-    triangles on closed solids, as ``envs.primitives`` builds them.
+    triangles on closed solids, as ``envs.primitives`` builds them. Scans (``closed_solids``
+    False) have no inside: there any up hit above the agent's top is fine, whatever its facing
+    (the underside of a scanned door lintel is a noisy sheet with normals of both signs).
     """
     import open3d as o3d
 
@@ -46,6 +56,7 @@ def _free_floor(scene: Scene, rc, origin: np.ndarray, shape: tuple[int, int], ce
     z_top = scene.floor_z + agent_height - RAY_START_BELOW_TOP_M
     z_low = scene.floor_z + FLOOR_TOL_M
     tri_class = np.append(scene.tri_class, np.int16(-1))  # extra row for misses
+    closed = closed_solids(scene)
     ok = np.empty((len(ys), len(xs)), dtype=bool)
     rows_per_chunk = max(1, CAST_CHUNK_RAYS // (2 * len(xs)))
     for r0 in range(0, len(ys), rows_per_chunk):
@@ -60,7 +71,8 @@ def _free_floor(scene: Scene, rc, origin: np.ndarray, shape: tuple[int, int], ce
         nz = hit["primitive_normals"].numpy()[..., 2]
         prim = np.minimum(hit["primitive_ids"].numpy(), len(scene.triangles)).astype(np.intp)
         down_ok = (tri_class[prim[0]] == floor_id) & (np.abs(z_top - t[0] - scene.floor_z) < FLOOR_TOL_M) & (nz[0] > 0)
-        up_ok = np.isinf(t[1]) | ((z_low + t[1] >= z_top) & (nz[1] < 0))
+        above = z_low + t[1] >= z_top
+        up_ok = np.isinf(t[1]) | ((above & (nz[1] < 0)) if closed else above)
         ok[r0:r0 + len(yy)] = down_ok & up_ok
     return ok.reshape(h, s, w, s).all(axis=(1, 3))
 

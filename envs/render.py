@@ -198,7 +198,10 @@ class Renderer:
         v = scene.vertices.astype(np.float64)[scene.triangles]
         n = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
         n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
-        shade = AMBIENT + DIFFUSE * np.abs(n @ LIGHT_DIR)
+        # scans carry their lighting in their colours (meta "lighting": "baked"): shading them
+        # again would darken every surface that faces away from calnav's sun twice
+        baked = scene.meta.get("lighting") == "baked"
+        shade = np.ones(f) if baked else AMBIENT + DIFFUSE * np.abs(n @ LIGHT_DIR)
         lit = np.zeros((f + 1, 4), dtype=np.uint8)  # RGBA8; the miss row stays black
         lit[:f, :3] = np.round(scene.tri_albedo * shade[:, None]).clip(0, 255)
         # One uint32 per triangle: numpy's take has a fast path for 4-byte items (3-byte or

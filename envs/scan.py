@@ -16,6 +16,10 @@ raw labels to calnav classes:
   (The label-table reading and name matching live in ``common.ply_labels``, shared with the
   map evaluation of recorded sequences.)
 
+A scan's colours already hold its lighting: a PLY with colours is marked
+``meta["lighting"] = "baked"`` (the renderer does not shade it again), and every PLY
+``meta["closed_solids"] = False`` (open surfaces: ``envs.navigation.closed_solids``).
+
 Per-vertex labels become per-face by majority vote of the face's vertices (ties: the first
 vertex). The mesh is rotated to z-up (``up_axis="y"``) and shifted so that its floor lies at
 z = 0 (a low percentile of floor-class vertex heights; all vertices when nothing is floor).
@@ -90,7 +94,7 @@ def _faces(ply, path: Path) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(tris, dtype=np.int64), np.asarray(owner)
 
 
-def _per_face(vertex_values: np.ndarray, tris: np.ndarray) -> np.ndarray:
+def per_face_majority(vertex_values: np.ndarray, tris: np.ndarray) -> np.ndarray:
     """Majority vote of a triangle's three vertex values (all differ: the first vertex's)."""
     a, b, c = (vertex_values[tris[:, k]] for k in range(3))
     return np.where((a == b) | (a == c), a, np.where(b == c, b, a))
@@ -146,7 +150,7 @@ def load_labelled_ply(path, label_map=None, label_property: str = "label", up_ax
         if prop in fnames:
             return np.asarray(fdata[prop]).astype(np.int64)[owner]
         if prop in vnames:
-            return _per_face(np.asarray(vdata[prop]).astype(np.int64), tris)
+            return per_face_majority(np.asarray(vdata[prop]).astype(np.int64), tris)
         return None
 
     raw = per_face_prop(label_property)
@@ -167,6 +171,7 @@ def load_labelled_ply(path, label_map=None, label_property: str = "label", up_ax
     floor_z = float(np.percentile(floor_vz, FLOOR_PERCENTILE))
     verts[:, 2] -= floor_z
 
+    coloured = all(p in vnames for p in ("red", "green", "blue")) or all(p in fnames for p in ("red", "green", "blue"))
     if all(p in vnames for p in ("red", "green", "blue")):
         vcol = np.stack([vdata[c] for c in ("red", "green", "blue")], axis=1).astype(np.float64)
         vcol = vcol * 255.0 if vcol.max() <= 1.0 and vdata["red"].dtype.kind == "f" else vcol
@@ -187,6 +192,7 @@ def load_labelled_ply(path, label_map=None, label_property: str = "label", up_ax
     return Scene(
         name=name or path.stem, vertices=verts, triangles=tris, tri_class=tri_class, tri_instance=inst,
         tri_albedo=np.clip(np.round(albedo), 0, 255), tri_texture=np.full(len(tris), Texture.PLAIN),
-        floor_z=0.0, meta={"source": str(path), "up_axis": up_axis, "floor_offset_m": floor_z,
+        floor_z=0.0, meta={"source": str(path), "closed_solids": False, **({"lighting": "baked"} if coloured else {}),
+                           "up_axis": up_axis, "floor_offset_m": floor_z,
                            "label_property": label_property, "instance_source": inst_prop or "components"},
     )

@@ -23,10 +23,18 @@ User scenes (``DatasetConfig.scene_dir`` set)
     mapping or ``{"label_map": {...}, "up_axis": "y", "label_property": "label"}``; with
     neither, raw labels must already be calnav class ids. Converted PLYs are cached too.
 
+Scanned houses (``DatasetConfig.style == "scanned"``)
+    The same ids and seeds; the scene is the procedural house scanned and reconstructed by
+    ``envs.scanning`` (seeded by the house seed), cached at
+    ``cache_dir()/scenes/<id>_scan_<key>.npz``, ``key`` a hash of the house key, the
+    ``ScanningConfig`` and ``SCANNER_VERSION``. User scenes are scans already: the style is
+    refused with a ``scene_dir``.
+
 Loaded scenes are kept in a small in-process LRU (``LRU_SIZE``); treat them as read-only.
 """
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import re
@@ -41,10 +49,12 @@ from envs.scan import load_labelled_ply
 from envs.scene import Scene, SceneError, cache_dir
 
 SPLITS = ("train", "val", "test", "calib")
+STYLES = ("clean", "scanned")               # DatasetConfig.style choices (envs.config.StyleName)
 SPLIT_RANK = {"calib": 0, "train": 1, "val": 2, "test": 3}  # seed block of each split
 SPLIT_BLOCK = 1_000_000                     # seeds per split block (max scenes per split)
 BASE_SEED_STRIDE = 4 * SPLIT_BLOCK          # seed distance between consecutive base seeds
 LRU_SIZE = 4                                # scenes kept in memory
+PLY_CONVERSION_VERSION = 2                  # converted-PLY cache key (2: meta closed_solids = False)
 USER_SEED_MODULUS = 2 ** 31                 # user-scene generation seeds lie in [0, this)
 _ID_RE = re.compile(r"^house_(train|val|test|calib)_(\d+)$")
 _lru: OrderedDict[tuple, Scene] = OrderedDict()
@@ -156,7 +166,7 @@ def _load_user_scene(path: Path) -> Scene:
         return Scene.load(path)
     settings = _ply_settings(path)
     st = path.stat()
-    key = hashlib.sha1(json.dumps([str(path.resolve()), st.st_mtime_ns, st.st_size, settings],
+    key = hashlib.sha1(json.dumps([PLY_CONVERSION_VERSION, str(path.resolve()), st.st_mtime_ns, st.st_size, settings],
                                   sort_keys=True, default=str).encode()).hexdigest()[:12]
     cached = cache_dir() / "scenes" / f"user_{path.stem}_{key}.npz"
     if cached.exists():
@@ -190,6 +200,18 @@ def scene_cache_path(scene_id: str, dataset_cfg: DatasetConfig | None = None, sp
     return cache_dir() / "scenes" / f"{scene_id}_{key}.npz"
 
 
+def scanned_cache_path(scene_id: str, dataset_cfg: DatasetConfig | None = None,
+                       spec: HouseSpec | None = None) -> Path:
+    """Where the scanned version of the procedural scene ``scene_id`` is (or will be) cached."""
+    from envs.scanning.config import SCANNER_VERSION
+
+    cfg = dataset_cfg or DatasetConfig()
+    clean = scene_cache_path(scene_id, cfg, spec)
+    scan = json.dumps([SCANNER_VERSION, cfg.scanning.digest_items()], sort_keys=True, default=list)
+    key = hashlib.sha1(f"{clean.stem}:{scan}".encode()).hexdigest()[:12]
+    return cache_dir() / "scenes" / f"{scene_id}_scan_{key}.npz"
+
+
 def _save_atomic(scene: Scene, path: Path) -> None:
     """Save under a unique temporary name, then rename: concurrent workers never see half a file."""
     try:
@@ -199,10 +221,17 @@ def _save_atomic(scene: Scene, path: Path) -> None:
         warnings.warn(f"could not cache scene at {path}: {exc}")
 
 
-def load_scene(scene_id: str, dataset_cfg: DatasetConfig | None = None, spec: HouseSpec | None = None) -> Scene:
-    """The scene ``scene_id``: a procedural house (generated once, then read from the cache) or,
-    when ``dataset_cfg.scene_dir`` is set, a user scene file. ValueError names the valid ids."""
+def load_scene(scene_id: str, dataset_cfg: DatasetConfig | None = None, spec: HouseSpec | None = None,
+               style: str | None = None) -> Scene:
+    """The scene ``scene_id``: a procedural house (generated once, then read from the cache; with
+    ``dataset_cfg.style == "scanned"`` its scan, see the module docstring) or, when
+    ``dataset_cfg.scene_dir`` is set, a user scene file. ``style`` ("clean" | "scanned")
+    overrides ``dataset_cfg.style``. ValueError names the valid ids and styles."""
     cfg, spec = dataset_cfg or DatasetConfig(), spec or HouseSpec()
+    if style is not None:
+        if style not in STYLES:
+            raise ValueError(f"unknown scene style {style!r}; valid styles: {', '.join(STYLES)}")
+        cfg = dataclasses.replace(cfg, style=style)   # its checks refuse a scanned user scene_dir
     if cfg.scene_dir:
         files = _user_files(cfg.scene_dir, None)
         if scene_id not in files:
@@ -218,9 +247,14 @@ def load_scene(scene_id: str, dataset_cfg: DatasetConfig | None = None, spec: Ho
             raise ValueError(f"scene id {scene_id!r} is outside the {split} split; valid ids: "
                              f"{procedural_scene_id(split, 0)} .. {procedural_scene_id(split, max(count - 1, 0))} "
                              f"(dataset.{split}_scenes = {count})")
-        path = scene_cache_path(scene_id, cfg, spec)
-        key = ("house", str(path))
-        loader = lambda: _load_procedural(scene_id, path, scene_seed(scene_id, cfg.seed), spec)  # noqa: E731
+        seed = scene_seed(scene_id, cfg.seed)
+        clean_path = scene_cache_path(scene_id, cfg, spec)
+        key = ("house", str(clean_path))
+        loader = lambda: _load_procedural(scene_id, clean_path, seed, spec)  # noqa: E731
+        if cfg.style == "scanned":
+            clean_loader, scan_path = loader, scanned_cache_path(scene_id, cfg, spec)
+            key = ("scanned", str(scan_path))
+            loader = lambda: _load_scanned(scan_path, clean_loader, seed, cfg)  # noqa: E731
     if key in _lru:
         _lru.move_to_end(key)
         return _lru[key]
@@ -240,6 +274,21 @@ def _load_procedural(scene_id: str, path: Path, seed: int, spec: HouseSpec) -> S
     scene = generate_house(seed, spec)
     scene.name = scene_id
     scene.meta["scene_id"] = scene_id
+    path.parent.mkdir(parents=True, exist_ok=True)
+    _save_atomic(scene, path)
+    return scene
+
+
+def _load_scanned(path: Path, clean_loader, seed: int, cfg: DatasetConfig) -> Scene:
+    """The cached scan at ``path``, or scan the clean house (``clean_loader()``) and cache it."""
+    from envs.scanning.scanner import scan_house
+
+    if path.exists():
+        try:
+            return Scene.load(path)
+        except SceneError:
+            pass   # corrupt cache entry: scan again
+    scene = scan_house(clean_loader(), cfg.scanning, seed)
     path.parent.mkdir(parents=True, exist_ok=True)
     _save_atomic(scene, path)
     return scene

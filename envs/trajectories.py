@@ -10,7 +10,8 @@ operator pauses now and then (``pause_prob`` per frame; the pause repeats the po
 geometric number of frames with a few millimetres of hand jitter). Repeated, near-identical
 frames are exactly what makes Recursive Bayesian Updating over-count evidence.
 
-The scan cycles through new tours until ``frames`` poses exist. Everything is seeded.
+The scan cycles through new tours until ``frames`` poses exist (or ends after ``tours`` tours).
+Everything is seeded.
 """
 from __future__ import annotations
 
@@ -34,6 +35,8 @@ class ScanConfig:
     jitter_deg: float = 0.5         # hand jitter of heading and pitch, degrees (std)
     pitch_deg: float = 0.0          # mean camera pitch, degrees (positive looks up)
     pitch_std_deg: float = 4.0      # slow pitch wander while scanning, degrees (std)
+    stop_spacing_m: float = 0.0     # look-around stops this far apart over the free floor, metres (0 = one per room centre)
+    tours: int = 0                  # tours of all stops, then the scan ends (0 = tour again until `frames`), tours
 
     def __post_init__(self) -> None:
         if self.frames < 1:
@@ -43,17 +46,28 @@ class ScanConfig:
                 raise ValueError(f"scan.{name} must be > 0, got {getattr(self, name)}")
         if not 0 <= self.pause_prob < 1:
             raise ValueError(f"scan.pause_prob must be in [0, 1), got {self.pause_prob}")
-        if min(self.extra_turns_mean, self.jitter_m, self.jitter_deg, self.pitch_std_deg) < 0:
-            raise ValueError("scan.extra_turns_mean, jitter_m, jitter_deg and pitch_std_deg must be >= 0")
+        if not min(self.extra_turns_mean, self.jitter_m, self.jitter_deg, self.pitch_std_deg, self.stop_spacing_m) >= 0:
+            raise ValueError("scan.extra_turns_mean, jitter_m, jitter_deg, pitch_std_deg and stop_spacing_m must be >= 0")
+        if not 0 <= self.tours <= 1000:
+            raise ValueError(f"scan.tours must be in [0, 1000], got {self.tours}")
 
 
-def _stops(scene, navgrid, rng: np.random.Generator, n_fallback: int = 6) -> np.ndarray:
+def _stops(scene, navgrid, rng: np.random.Generator, n_fallback: int = 6, spacing_m: float = 0.0) -> np.ndarray:
     """(n, 2) navigable world points to visit: the free cell nearest each room centre, or
-    farthest-point samples of the free floor when the scene has no rooms."""
+    farthest-point samples of the free floor when the scene has no rooms; with ``spacing_m`` > 0
+    farthest-point samples until every free cell is within ``spacing_m`` of a stop (a thorough
+    scan: every part of the floor is seen from close by)."""
     free = np.argwhere(navgrid.navigable)
     if len(free) == 0:
         raise ValueError(f"scene {scene.name!r} has no navigable floor to scan")
     free_xy = navgrid.to_world(free)
+    if spacing_m > 0:
+        picks = [int(rng.integers(len(free_xy)))]
+        d = np.linalg.norm(free_xy - free_xy[picks[0]], axis=1)
+        while d.max() > spacing_m:
+            picks.append(int(np.argmax(d)))
+            d = np.minimum(d, np.linalg.norm(free_xy - free_xy[picks[-1]], axis=1))
+        return free_xy[picks]
     if scene.rooms:
         centres = np.array([[(r.xmin + r.xmax) / 2, (r.ymin + r.ymax) / 2] for r in scene.rooms])
         idx = [int(np.argmin(np.linalg.norm(free_xy - c, axis=1))) for c in centres]
@@ -117,12 +131,14 @@ def scan_poses(scene, navgrid, env_cfg, cfg: ScanConfig | None = None, seed: int
     """
     cfg = cfg or ScanConfig()
     rng = np.random.default_rng(seed)
-    stops = _stops(scene, navgrid, rng)
+    stops = _stops(scene, navgrid, rng, spacing_m=cfg.stop_spacing_m)
     rec = _Recorder(cfg, float(scene.floor_z) + env_cfg.camera_height_m, rng)
     turn = math.radians(cfg.max_turn_deg)
     xy = stops[int(rng.integers(len(stops)))].copy()
     yaw = float(rng.uniform(-math.pi, math.pi))
-    while not rec.full:
+    tours = 0
+    while not rec.full and (cfg.tours == 0 or tours < cfg.tours):
+        tours += 1
         for target in _tour(stops, xy, rng):
             if rec.full:
                 break
@@ -148,4 +164,6 @@ def scan_poses(scene, navgrid, env_cfg, cfg: ScanConfig | None = None, seed: int
                     break
                 yaw += direction * turn
                 rec.add(xy, yaw)
+    if not rec.poses:
+        raise ValueError(f"scene {scene.name!r}: no scan stop is reachable from another")
     return np.stack(rec.poses[: cfg.frames])

@@ -9,7 +9,7 @@ as they finish, in completion order, so the driver can write each result as it a
 
 | ``run.backend`` | where items run | workers |
 |---|---|---|
-| ``local`` | this machine: in-process for 1 worker, else a spawn ``ProcessPoolExecutor`` | ``run.workers`` (0 = all cores) |
+| ``local`` | this machine: in-process for 1 worker, else a spawn ``ProcessPoolExecutor`` whose workers die with the driver (kill -9 included) | ``run.workers`` (0 = all cores) |
 | ``ray`` | Ray tasks on a local Ray instance (``run.ray_address: ""``) or a cluster (``auto``, ``ray://host:port``) | the cluster's CPUs; ``run.workers`` > 0 caps the tasks in flight |
 
 Functions keep expensive per-process state (an env and an agent) in module-level caches, so a
@@ -50,6 +50,26 @@ def check_backend(name: str, address: str = "") -> None:
         raise ValueError(f"run.ray_address={address!r} is only used with run.backend=ray")
 
 
+PR_SET_PDEATHSIG = 1   # prctl(2) option: the signal a process gets when its parent dies (Linux)
+
+
+def die_with_parent() -> None:
+    """Pool-worker initializer: on Linux, ask the kernel to SIGKILL this process when its
+    parent (the driver) dies, even by kill -9, so no worker outlives its run. Elsewhere a
+    no-op (the pool's own shutdown still stops workers on a normal exit)."""
+    if not sys.platform.startswith("linux"):
+        return
+    import ctypes
+    import signal
+
+    try:
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
+    except OSError:
+        pass   # no libc.so.6 (an unusual Linux): workers then stop only with a normal shutdown
+    if os.getppid() == 1:   # the driver died before the request took effect
+        os._exit(1)
+
+
 class LocalBackend:
     """This machine's cores: in-process for one worker, a spawn process pool otherwise
     (Open3D's thread pools do not survive fork())."""
@@ -66,7 +86,7 @@ class LocalBackend:
             for item in items:
                 yield item, fn(item)
             return
-        with ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn")) as pool:
+        with ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"), initializer=die_with_parent) as pool:
             pending = {pool.submit(fn, item): item for item in items}
             while pending:
                 done, _ = wait(pending, return_when=FIRST_COMPLETED)

@@ -67,6 +67,14 @@ def build_parser() -> argparse.ArgumentParser:
                    help="agent whose path is drawn: oracle (default; the shortest path) or peanut")
     p.add_argument("--output", default="runs/view", help="output directory")
 
+    p = sub.add_parser("scan-houses", help="scan (and cache) the houses of splits for env.dataset.style=scanned; "
+                                           "how scan-like they are (quality.csv / quality.md)")
+    _add_config_args(p, "configs/objectnav.yaml")
+    p.add_argument("--splits", default="val", help="comma-separated splits: train, val, test, calib (default: val)")
+    p.add_argument("--houses", type=int, default=None, metavar="N", help="only the first N houses of each split")
+    p.add_argument("--output", default="runs/scan_quality", help="results directory")
+    p.add_argument("--force", action="store_true", help="discard results of a different config in --output")
+
     p = sub.add_parser("bench", help="speed/memory figures as a flat JSON of name -> number")
     p.add_argument("--output", default="bench.json", help="JSON output path")
     p.add_argument("--only", default="", help="comma-separated sections (default: all)")
@@ -163,6 +171,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "start-pose": ("eval.objectnav.frames", "main_start_pose"),
     "habitat-benchmark": ("eval.habitat.run", "main_habitat_benchmark"),
     "view-episode": ("eval.objectnav.view_episode", "main_view_episode"),
+    "scan-houses": ("eval.scanning.run", "main_scan_houses"),
     "bench": ("eval.bench.run", "main_bench"),
     "train-segmenter": ("eval.segmenter.train", "main_train_segmenter"),
     "eval-segmenter": ("eval.segmenter.evaluate", "main_eval_segmenter"),

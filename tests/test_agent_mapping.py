@@ -129,13 +129,60 @@ def test_collision_marking_and_untrap():
     assert is_collision(np.zeros(2), np.array([0.05, 0.0]), int(Action.MOVE_FORWARD), 0.2)
     assert not is_collision(np.zeros(2), np.array([0.25, 0.0]), int(Action.MOVE_FORWARD), 0.2)
     assert not is_collision(np.zeros(2), np.zeros(2), int(Action.TURN_LEFT), 0.2)
+
+
+def _blocked(tracker: CollisionTracker, action: int, collided: bool) -> None:
+    tracker.record(action)
+    tracker.observe(collided)
+
+
+def test_blocks_count_across_turns_and_start_an_escape():
+    """A planner that turns between blocked forwards is stuck all the same: the blocks since
+    the last move count, turns do not reset them."""
+    cfg = AgentConfig()
     tracker = CollisionTracker(cfg)
     for _ in range(cfg.untrap_after - 1):
-        tracker.observe(True)
-    assert tracker.next_action() is None
-    tracker.observe(True)
-    acts = [tracker.next_action() for _ in range(cfg.untrap_steps)]
-    assert acts[0] == Action.TURN_LEFT and Action.MOVE_FORWARD in acts and tracker.next_action() is None
+        _blocked(tracker, int(Action.MOVE_FORWARD), True)
+        _blocked(tracker, int(Action.TURN_LEFT), False)
+    assert tracker.next_action() is None and tracker.blocked == cfg.untrap_after - 1
+    _blocked(tracker, int(Action.MOVE_FORWARD), False)          # a forward that moved resets the count
+    assert tracker.blocked == 0
+    for _ in range(cfg.untrap_after):
+        _blocked(tracker, int(Action.MOVE_FORWARD), True)
+    assert tracker.escaping and tracker.routines == 1
+
+
+def test_escape_tries_every_heading_until_one_moves():
+    """turn, forward, turn, forward, ... until a forward moves; one more forward ends it."""
+    cfg = AgentConfig()
+    tracker = CollisionTracker(cfg)
+    tracker.record(int(Action.MOVE_FORWARD))
+    tracker.force()
+    open_heading = 5                       # only the 5th heading tried is free
+    heading, actions = 0, []
+    while (a := tracker.next_action()) is not None:
+        actions.append(a)
+        tracker.record(a)
+        if a == Action.TURN_LEFT:
+            heading += 1
+        tracker.observe(a == Action.MOVE_FORWARD and heading != open_heading)
+    assert actions[:4] == [Action.TURN_LEFT, Action.MOVE_FORWARD, Action.TURN_LEFT, Action.MOVE_FORWARD]
+    assert heading == open_heading and actions[-2:] == [Action.MOVE_FORWARD, Action.MOVE_FORWARD]
+    assert not tracker.escaping
+    tracker.force()                         # the next escape turns the other way
+    assert tracker.next_action() == Action.TURN_RIGHT
+
+
+def test_escape_is_bounded():
+    cfg = AgentConfig(untrap_steps=10)
+    tracker = CollisionTracker(cfg)
+    tracker.force()
+    n = 0
+    while (a := tracker.next_action()) is not None:
+        tracker.record(a)
+        tracker.observe(a == Action.MOVE_FORWARD)   # every heading blocked
+        n += 1
+    assert n == 10 and not tracker.escaping
 
 
 def test_map_module_marks_obstacles_and_explored_from_a_wall():

@@ -104,3 +104,55 @@ def test_ndf_uncertainty_aware_agent_and_video_panel_on_habitat_observations(sma
             break
     panel = render_panel(reduced)
     assert panel.ndim == 3 and panel.shape[2] == 3 and panel.std() > 0
+
+
+class TrapWorld:
+    """A world the agent cannot see (every depth pixel invalid, as when facing holes in a scan)
+    whose forward moves are blocked in every heading but one, like a start in a one-cell neck of
+    a scanned house's navigable floor. Observations are Habitat's keys (gt semantics: void)."""
+
+    def __init__(self, cfg, open_heading_deg: float):
+        w, h = cfg.env.resolution
+        self.shape, self.xy, self.yaw = (h, w), np.zeros(2), 0.0
+        self.open = np.deg2rad(open_heading_deg)
+        self.turn, self.step_m = np.deg2rad(cfg.env.turn_angle_deg), cfg.env.forward_step_m
+        self.moves = []   # step indices of forward moves that moved
+
+    def obs(self) -> dict:
+        h, w = self.shape
+        return {"rgb": np.zeros((h, w, 3), np.uint8), "depth": np.zeros((h, w, 1), np.float32),
+                "gps": np.array([self.xy[0], -self.xy[1]], np.float32),
+                "compass": np.array([self.yaw], np.float32), "objectgoal": np.array([0]),
+                "semantic": np.full((h, w), -1, np.int16)}
+
+    def step(self, action: int, index: int) -> None:
+        from envs.task import Action, wrap_angle
+
+        if action == Action.TURN_LEFT:
+            self.yaw = wrap_angle(self.yaw + self.turn)
+        elif action == Action.TURN_RIGHT:
+            self.yaw = wrap_angle(self.yaw - self.turn)
+        elif action == Action.MOVE_FORWARD and (abs(wrap_angle(self.yaw - self.open)) < 1e-3 or self.moves):
+            self.xy = self.xy + self.step_m * np.array([np.cos(self.yaw), np.sin(self.yaw)])
+            self.moves.append(index)
+
+
+@pytest.mark.parametrize("open_heading_deg", [150.0, -90.0])
+def test_agent_escapes_a_trap_it_cannot_see(open_heading_deg):
+    """Blind and blocked in all headings but one, the agent still leaves within a bounded number
+    of steps (opening spin + the no-progress watchdog + one full escape), and keeps moving."""
+    from agent.policy import PeanutAgent
+    from envs.task import Action
+
+    cfg = load_config(None, ["env.resolution=64x48", "agent.map_resolution=64x48", "agent.map_size_m=16",
+                             "mapping.initial_alloc_mb=16"])
+    world, agent = TrapWorld(cfg, open_heading_deg), PeanutAgent(cfg)
+    agent.reset(world.obs())
+    for i in range(200):
+        action = agent.act(world.obs())
+        assert action != Action.STOP, f"stopped at step {i}"
+        world.step(action, i)
+    a = cfg.agent
+    bound = round(360 / cfg.env.turn_angle_deg) + a.stuck_steps + a.untrap_steps + 2
+    assert world.moves and world.moves[0] <= bound, world.moves[:3]
+    assert len(world.moves) >= 10    # then it keeps moving (no loop in place)

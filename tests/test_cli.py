@@ -1,5 +1,6 @@
 """End-to-end `calnav` commands in a small form: objectnav (resume, config refusal, crash
 records), view-episode, bench."""
+import csv
 import json
 
 import pytest
@@ -89,6 +90,28 @@ def test_bench_quick_has_required_figures(tmp_path):
     for key in ("env.render_ms_640x480", "env.raycast_ms_640x480", "env.render_ratio_640x480",
                 "env.steps_per_s_640x480", "env.steps_per_s_160x120"):
         assert figures[key] > 0
+
+
+def test_bench_quick_scan_figures(tmp_path):
+    path = tmp_path / "bench.json"
+    assert main(["bench", "--quick", "--only", "scan", "--output", str(path)]) == 0
+    figures = json.loads(path.read_text())
+    for key in ("scan.build_s", "scan.triangles", "scan.render_ms_160x120", "scan.render_ratio_160x120",
+                "scan.agent_hz_160x120"):
+        assert figures[key] > 0
+
+
+def test_scan_houses_writes_the_quality_table(tmp_path, capsys):
+    out = tmp_path / "q"
+    fast = ["env.dataset.scanning.frames=40", "env.dataset.scanning.resolution=64x48",
+            "env.dataset.scanning.voxel_m=0.06", "env.dataset.scanning.triangles_per_m2=0", "run.workers=1"]
+    assert main(["scan-houses", "--splits", "val", "--houses", "1", "--output", str(out), *fast]) == 0
+    rows = list(csv.DictReader((out / "quality.csv").open()))
+    assert [r["scene_id"] for r in rows] == ["house_val_0000"]
+    assert 0 <= float(rows[0]["floor_missing"]) <= 1 and float(rows[0]["triangles"]) > 0
+    assert "real ScanNet apartment" in (out / "quality.md").read_text()
+    assert main(["scan-houses", "--splits", "nope", "--output", str(tmp_path / "bad")]) == 2
+    assert "valid splits" in capsys.readouterr().err and not (tmp_path / "bad").exists()
 
 
 PEANUT_TINY = ["--agent", "peanut", "--episodes", "1", "run.workers=1", "env.resolution=64x48",

@@ -35,13 +35,21 @@ def rss_mb() -> float:
 
 
 def run(ctx) -> dict[str, float]:
+    hz, act_ms, rss_growth, n = agent_loop(ctx)
+    return {"agent.hz_160x120": hz, "agent.act_ms_160x120": act_ms,
+            "agent.rss_growth_mb_500_steps": rss_growth, "agent.bench_steps": float(n)}
+
+
+def agent_loop(ctx, overrides: tuple[str, ...] = ()) -> tuple[float, float, float, int]:
+    """(steps per second, median act ms, RSS growth MiB, steps) of the explore-only episode of
+    the module docstring; ``overrides`` change the config (e.g. env.dataset.style=scanned)."""
     import gymnasium as gym
 
     import envs  # noqa: F401  (registers the env)
     from agent.policy import PeanutAgent
     from eval.config import load_config
 
-    cfg = load_config(None, ["env.resolution=160x120", "agent.segmenter=gt"])
+    cfg = load_config(None, ["env.resolution=160x120", "agent.segmenter=gt", *overrides])
     cfg.agent = dataclasses.replace(cfg.agent, goal_threshold=EXPLORE_ONLY_THRESHOLD)
     steps = QUICK_STEPS if ctx.quick else STEPS
     cfg.env = dataclasses.replace(cfg.env, max_episode_steps=steps)
@@ -62,5 +70,4 @@ def run(ctx) -> dict[str, float]:
             break
     wall = time.perf_counter() - t0
     n = len(act_ms)
-    return {"agent.hz_160x120": n / wall, "agent.act_ms_160x120": float(np.median(act_ms)),
-            "agent.rss_growth_mb_500_steps": rss_mb() - rss0, "agent.bench_steps": float(n)}
+    return n / wall, float(np.median(act_ms)), rss_mb() - rss0, n

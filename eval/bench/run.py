@@ -11,7 +11,7 @@ import time
 from pathlib import Path
 from typing import Callable
 
-from eval.bench import agent, backends, env, fusion, segmenter, sequence, start_pose
+from eval.bench import agent, backends, env, fusion, scan, segmenter, sequence, start_pose
 from eval.bench.context import BenchContext
 
 SECTIONS: dict[str, Callable[[BenchContext], dict[str, float]]] = {
@@ -22,6 +22,7 @@ SECTIONS: dict[str, Callable[[BenchContext], dict[str, float]]] = {
     "sequence": sequence.run,
     "start_pose": start_pose.run,
     "backends": backends.run,
+    "scan": scan.run,
 }
 
 

@@ -1,0 +1,90 @@
+"""How scan-like a scanned house is, in the figures one reads off a real labelled scan.
+
+``scan_quality(clean, scanned)`` -> dict:
+
+- ``triangles``, ``triangles_per_m2``: triangle count and count per m^2 of the xy footprint
+  (a ScanNet ``_vh_clean_2`` apartment: 153k triangles over 8 x 9 m, ~2,100 per m^2);
+- ``floor_missing``, ``wall_missing``: fraction of the *observable* clean floor / wall area with
+  no scanned surface within ``COVER_DISTANCE_M``. Observable: a surface sample with at least
+  ``OBSERVABLE_CLEARANCE_M`` of free space in front of it along its normal, and something
+  (another wall, the ceiling) at the end of it: this excludes faces buried inside other walls,
+  floor under furniture, wall behind a cabinet, and the outside of the house;
+- ``void_fraction``, ``void_area_fraction``: unlabelled triangles / surface area;
+- ``median_error_mm``, ``p90_error_mm``: distance from scanned surface samples to the clean mesh.
+"""
+from __future__ import annotations
+
+import numpy as np
+import open3d as o3d
+import open3d.core as o3c
+
+from envs.scene import Scene, sample_surface
+from envs.semantics import CLASS_ID, VOID
+
+COVER_DISTANCE_M = 0.05         # a clean surface point is covered by a scan surface this close, metres
+OBSERVABLE_CLEARANCE_M = 0.3    # free space needed in front of a clean surface point to count it, metres
+SAMPLE_SPACING_M = 0.05         # surface sample spacing of the figures, metres
+SAMPLE_SEED = 0                 # surface samples are random but fixed: the figures are deterministic
+QUALITY_KEYS = ("triangles", "triangles_per_m2", "floor_missing", "wall_missing", "void_fraction",
+                "void_area_fraction", "median_error_mm", "p90_error_mm")
+
+
+def _rc(scene: Scene) -> o3d.t.geometry.RaycastingScene:
+    rc = o3d.t.geometry.RaycastingScene()
+    rc.add_triangles(o3c.Tensor(scene.vertices), o3c.Tensor(scene.triangles.astype(np.uint32)))
+    return rc
+
+
+def _tri_normals(tris: np.ndarray) -> np.ndarray:
+    n = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+    return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+
+
+def _observable_samples(clean: Scene, rc_clean, class_name: str, rng) -> np.ndarray:
+    """(n, 3) samples of the clean ``class_name`` surface that a scanner could have seen."""
+    sel = clean.tri_class == CLASS_ID[class_name]
+    if not sel.any():
+        return np.zeros((0, 3))
+    tris = clean.vertices[clean.triangles[sel]].astype(np.float64)
+    normals = _tri_normals(tris)
+    if class_name == "wall":   # wall tops and bottoms are never seen
+        keep = np.abs(normals[:, 2]) < 0.5
+        tris, normals = tris[keep], normals[keep]
+    if len(tris) == 0:
+        return np.zeros((0, 3))
+    pts, idx = sample_surface(tris, SAMPLE_SPACING_M, rng, return_index=True)
+    n = normals[idx]
+    if class_name == "wall":
+        top = clean.floor_z + float(clean.meta.get("wall_height_m", np.inf))
+        inside = (pts[:, 2] > clean.floor_z + 0.02) & (pts[:, 2] < top - 0.02)
+        pts, n = pts[inside], n[inside]
+    rays = np.concatenate([pts + 0.01 * n, n], axis=1).astype(np.float32)
+    t = rc_clean.cast_rays(o3c.Tensor(rays))["t_hit"].numpy()
+    return pts[(t > OBSERVABLE_CLEARANCE_M) & np.isfinite(t)]   # inf: faces the outside of the house
+
+
+def scan_quality(clean: Scene, scanned: Scene) -> dict[str, float]:
+    """The figures of the module docstring for ``scanned``, a scan of ``clean``."""
+    rng = np.random.default_rng(SAMPLE_SEED)
+    rc_clean, rc_scan = _rc(clean), _rc(scanned)
+    lo, hi = clean.bounds()
+    footprint = float((hi[0] - lo[0]) * (hi[1] - lo[1]))
+    out: dict[str, float] = {"triangles": float(len(scanned.triangles)),
+                             "triangles_per_m2": len(scanned.triangles) / footprint}
+    for name in ("floor", "wall"):
+        pts = _observable_samples(clean, rc_clean, name, rng)
+        if len(pts) == 0:
+            out[f"{name}_missing"] = float("nan")
+            continue
+        d = rc_scan.compute_distance(o3c.Tensor(pts.astype(np.float32))).numpy()
+        out[f"{name}_missing"] = float(np.mean(d > COVER_DISTANCE_M))
+    tris = scanned.vertices[scanned.triangles].astype(np.float64)
+    area = 0.5 * np.linalg.norm(np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]), axis=1)
+    void = scanned.tri_class == VOID
+    out["void_fraction"] = float(void.mean())
+    out["void_area_fraction"] = float(area[void].sum() / max(area.sum(), 1e-12))
+    samples = sample_surface(tris, SAMPLE_SPACING_M, rng)
+    err = rc_clean.compute_distance(o3c.Tensor(samples.astype(np.float32))).numpy()
+    out["median_error_mm"] = float(np.median(err) * 1000.0)
+    out["p90_error_mm"] = float(np.percentile(err, 90) * 1000.0)
+    return out

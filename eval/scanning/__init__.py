@@ -1,0 +1,1 @@
+"""The scan-houses command: scanned houses built on the backend, and their scan-likeness report."""
