@@ -62,7 +62,8 @@ class PeanutAgent:
         self.perception = Perception(self.cfg, self.sensors, device)
         self.class_names = self.perception.class_names   # class names and ids come from the segmenter
         self.num_classes = len(self.class_names)
-        self.map_module = SemanticMapModule(self.cfg, cfg.mapping, self.class_names)
+        self.map_module = SemanticMapModule(self.cfg, cfg.mapping, self.class_names,
+                                            (self.sensors.min_depth_m, self.sensors.max_depth_m))
         self.planner = Planner(self.cfg)
         self.collisions = CollisionTracker(self.cfg)
         self.state: MapState | None = None
@@ -106,7 +107,6 @@ class PeanutAgent:
             self._watch_progress(xy)
             if self.collisions.routines > routines and self.ltg is not None:
                 self._exclude_around(self.ltg)  # stuck on the way to this frontier: give it up
-                self.ltg = None
         frame = self.frame = self.perception.observe(obs)
         self.map_module.update(self.state, frame, pose)
         self.steps += 1
@@ -177,7 +177,7 @@ class PeanutAgent:
         if self.steps < self.deferred_until:
             rejected = rejected | self.deferred[win]
         det = detect_goal(conf, cfg.goal_threshold, cfg.goal_min_area_cells, exclude=rejected)
-        free = ~dilate(st.obstacles(win), cfg.agent_radius_m / cfg.cell_m)  # unknown cells are optimistic
+        free = ~dilate(st.obstacles(win), cfg.dilation_cells)  # unknown cells are optimistic
         if det.found:
             action = self._approach(det, agent_rc, yaw, free, "goal")
             if action is not None:

@@ -103,6 +103,42 @@ def project_voxels(coords: np.ndarray, probs: np.ndarray, origin: np.ndarray, ce
     return mean.astype(np.float32).reshape(k, n, n)
 
 
+def floor_holes(depth: np.ndarray, intrinsics: np.ndarray, pose: np.ndarray, near_m: float,
+                far_m: float, floor_pixels: np.ndarray | None = None) -> np.ndarray:
+    """World points (M, 2) metres on the floor plane (z = 0) where the floor should have
+    returned depth but did not: pixels with no valid depth whose ray meets the floor at a
+    z-depth in (near_m, far_m). Through a hole in a reconstructed floor the depth sensor sees
+    nothing (Habitat renders 0 there), and the simulator's navigation mesh has no floor.
+
+    depth (H, W) float metres (0 = invalid); intrinsics (3, 3); pose (4, 4) world-from-camera.
+    floor_pixels (H, W) bool, optional: pixels that saw the floor; then only invalid pixels with
+    floor seen below them in their image column count (a hole is framed by floor in front of
+    it; an object closer than the sensor's minimum range also returns nothing, but nothing
+    below it in the image is floor seen past it).
+    """
+    h, w = depth.shape
+    invalid = depth <= 0
+    if floor_pixels is not None:
+        below = np.zeros_like(invalid)   # some pixel lower in the column saw the floor
+        below[:-1] = np.flip(np.logical_or.accumulate(np.flip(floor_pixels, 0), axis=0), 0)[1:]
+        invalid &= below
+    pix = np.flatnonzero(invalid.reshape(-1))
+    if len(pix) == 0:
+        return np.zeros((0, 2), np.float32)
+    v, u = np.divmod(pix, w)
+    r = pose[:3, :3]
+    x = (u - intrinsics[0, 2]) / intrinsics[0, 0]
+    y = (v - intrinsics[1, 2]) / intrinsics[1, 1]
+    dz = r[2, 0] * x + r[2, 1] * y + r[2, 2]          # world z of the ray direction (camera z = 1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = -pose[2, 3] / dz                          # z-depth at which the ray meets z = 0
+    keep = (dz < 0) & (t > near_m) & (t < far_m)
+    t, x, y = t[keep], x[keep], y[keep]
+    px = pose[0, 3] + t * (r[0, 0] * x + r[0, 1] * y + r[0, 2])
+    py = pose[1, 3] + t * (r[1, 0] * x + r[1, 1] * y + r[1, 2])
+    return np.stack([px, py], axis=1).astype(np.float32)
+
+
 def obstacle_points(points: np.ndarray, min_height_m: float, max_height_m: float) -> np.ndarray:
     """Bool mask (N,) of points (N, 3) whose height above the floor (z) is in
     [min_height_m, max_height_m] metres."""

@@ -24,7 +24,9 @@ Per frame (``update``), with the segmented frame at the mapping resolution
   semantic = max over time of the per-frame per-cell mean.
 
 Obstacles: points with height in [obstacle_min_height_m, camera z + obstacle_above_camera_m]
-(max over time) plus collision marks. Explored: cells of every point plus the free rays of
+(max over time) plus collision marks plus floor holes (``HOLE``: pixels with no depth whose ray
+meets the floor inside the sensor's range, in cells where no floor point was ever seen; a hole
+in a scanned floor returns nothing, and the simulator's navigation mesh has no floor there). Explored: cells of every point plus the free rays of
 each image column (``agent.projection.free_rays``) plus the agent's footprint.
 """
 from __future__ import annotations
@@ -49,6 +51,8 @@ class MapChannels(IntEnum):
     EXPLORED = 1      # observed cells (points and free rays)
     COLLISION = 2     # cells marked by blocked forward moves
     VISITED = 3       # cells the agent stood on
+    HOLE = 4          # floor expected but no depth returned (a hole in a scanned floor), not since seen as floor
+    FLOOR = 5         # cells where floor points were seen (clears HOLE for good)
 
 
 NUM_CHANNELS = len(MapChannels)
@@ -146,20 +150,23 @@ class MapState:
                 slice(max(0, b[2] - margin_cells), min(n, b[3] + margin_cells + 1)))
 
     def obstacles(self, window: tuple[slice, slice] = (slice(None), slice(None))) -> np.ndarray:
-        """Obstacle or collision cells (bool) inside ``window``."""
-        return self.channels[MapChannels.OBSTACLE][window] | self.channels[MapChannels.COLLISION][window]
+        """Obstacle, collision or floor-hole cells (bool) inside ``window``."""
+        ch = self.channels
+        return ch[MapChannels.OBSTACLE][window] | ch[MapChannels.COLLISION][window] | ch[MapChannels.HOLE][window]
 
     def traversable(self, cfg: AgentConfig, window: tuple[slice, slice] = (slice(None), slice(None))) -> np.ndarray:
-        """Explored minus obstacles dilated by the agent radius (bool) inside ``window``."""
-        return self.channels[MapChannels.EXPLORED][window] & ~pj.dilate(self.obstacles(window), cfg.agent_radius_m / cfg.cell_m)
+        """Explored minus obstacles dilated by ``cfg.dilation_cells`` (bool) inside ``window``."""
+        return self.channels[MapChannels.EXPLORED][window] & ~pj.dilate(self.obstacles(window), cfg.dilation_cells)
 
 
 class SemanticMapModule:
     """Stateless update of a ``MapState`` from one segmented frame: fuse (``fused``), project.
     class_names: the segmenter's classes (K)."""
 
-    def __init__(self, cfg: AgentConfig, mapping_cfg: MappingConfig, class_names: Sequence[str]):
+    def __init__(self, cfg: AgentConfig, mapping_cfg: MappingConfig, class_names: Sequence[str],
+                 depth_range_m: tuple[float, float] = (0.5, 5.0)):
         self.cfg, self.mapping_cfg = cfg, mapping_cfg
+        self.depth_range_m = depth_range_m   # the sensor's valid depth (min, max), metres: where holes can show
         self.class_names = tuple(class_names)
         self.num_classes = len(self.class_names)
         self.voxel_size_m = mapping_cfg.voxel_size_m
@@ -198,12 +205,36 @@ class SemanticMapModule:
         flat_channels[MapChannels.EXPLORED, fcells[finside]] = True
         flat_channels[MapChannels.EXPLORED, cells[inside]] = True
         state.grow_bbox(np.concatenate([fcells[finside], cells[inside]]))
+        if cfg.hole_margin_m > 0:
+            self._mark_holes(state, depth, intrinsics, pose, points, pix, cells, inside)
         self._mark_agent(state, cam_xy)
         if vmap is not None:
             self._project_fused(state, points, vmap)
         else:
             p = probs.reshape(-1, probs.shape[-1])[pix]
             self._project_ndf(state, p, cells, inside)
+
+    def _mark_holes(self, state: MapState, depth: np.ndarray, intrinsics: np.ndarray, pose: np.ndarray,
+                    points: np.ndarray, pix: np.ndarray, cells: np.ndarray, inside: np.ndarray) -> None:
+        """Floor seen (points within floor_tolerance_m of z = 0) clears a cell for good; floor
+        expected but no depth returned (``projection.floor_holes``: at least hole_margin_m inside
+        the sensor's range, with floor seen below it in the image) marks a hole there, unless
+        its floor was seen."""
+        cfg, n = self.cfg, state.size
+        flat = state.channels.reshape(NUM_CHANNELS, -1)
+        floor = inside & (np.abs(points[:, 2]) <= cfg.floor_tolerance_m)
+        flat[MapChannels.FLOOR, cells[floor]] = True
+        flat[MapChannels.HOLE, cells[floor]] = False
+        near, far = self.depth_range_m
+        floor_pixels = np.zeros(depth.size, bool)
+        floor_pixels[pix[floor]] = True
+        holes = pj.floor_holes(depth, intrinsics, pose, near + cfg.hole_margin_m, far - cfg.hole_margin_m,
+                               floor_pixels.reshape(depth.shape))
+        hcells, hinside = pj.cell_of(holes, state.origin, cfg.cell_m, n)
+        hcells = hcells[hinside]
+        hcells = hcells[~flat[MapChannels.FLOOR, hcells]]
+        flat[MapChannels.HOLE, hcells] = True
+        flat[MapChannels.EXPLORED, hcells] = True
 
     def _mark_agent(self, state: MapState, xy: np.ndarray) -> None:
         """Footprint explored and free, centre visited."""
@@ -213,6 +244,7 @@ class SemanticMapModule:
         off = off[((off >= 0) & (off < state.size)).all(axis=1)]
         state.channels[MapChannels.EXPLORED][off[:, 0], off[:, 1]] = True
         state.channels[MapChannels.OBSTACLE][off[:, 0], off[:, 1]] = False
+        state.channels[MapChannels.HOLE][off[:, 0], off[:, 1]] = False   # it stands there: floor
         state.channels[MapChannels.VISITED][r, c] = True
         state.grow_bbox(off[:, 0] * state.size + off[:, 1])
 

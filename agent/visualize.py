@@ -18,7 +18,7 @@ PANEL_HEIGHT = 360          # output panel height, pixels
 MAP_MARGIN_CELLS = 20       # top-down crop margin around the explored area, cells
 COLORS = {                  # RGB
     "unknown": (255, 255, 255), "explored": (225, 225, 225), "obstacle": (90, 90, 90),
-    "collision": (200, 60, 200), "frontier": (60, 120, 255), "goal": (0, 200, 0),
+    "collision": (200, 60, 200), "hole": (40, 40, 140), "frontier": (60, 120, 255), "goal": (0, 200, 0),
     "ltg": (255, 190, 0), "stg": (255, 0, 0), "path": (0, 150, 150), "agent": (255, 0, 0),
 }
 VIDEO_FPS = 6               # frames per second of episode videos
@@ -36,6 +36,7 @@ def topdown(agent) -> np.ndarray:
     img[shade] = (img[shade] * (1 - conf[shade, None]) + red * conf[shade, None]).astype(np.uint8)
     img[ch[MapChannels.OBSTACLE]] = COLORS["obstacle"]
     img[ch[MapChannels.COLLISION]] = COLORS["collision"]
+    img[ch[MapChannels.HOLE]] = COLORS["hole"]
     info = agent.info
     win = info.window if info is not None and info.window is not None else (slice(0, None), slice(0, None))
     off = np.array([win[0].start, win[1].start])

@@ -219,3 +219,59 @@ def test_ndf_projection_keeps_max_over_time_of_thresholded_detections():
     assert sem[0, 1] == 0 and np.isclose(sem[1, 1], 0.8)  # 0.55 below the pixel threshold
     module._project_ndf(state, np.array([[0.65, 0.35]]), cells[:1], inside[:1])
     np.testing.assert_allclose(sem[0, 0], 0.8)          # max over time: a lower frame does not lower it
+
+
+def test_floor_holes_hand_case():
+    """A camera 1 m up, pitched 45 deg down, sees no depth: its principal ray meets the floor
+    1 m ahead at z-depth sqrt(2); rays above the horizon never meet it."""
+    from agent.projection import floor_holes
+    from envs.task import camera_pose
+
+    k = np.array([[10.0, 0, 5], [0, 10.0, 5], [0, 0, 1]])     # 11 x 11 pixels, centre (5, 5)
+    pose = camera_pose(np.zeros(2), 0.0, 1.0, np.deg2rad(-45.0))
+    depth = np.zeros((11, 11), np.float32)
+    pts = floor_holes(depth, k, pose, 0.5, 5.0)
+    centre = floor_holes(np.where(np.arange(121).reshape(11, 11) == 60, 0.0, 1.0).astype(np.float32), k, pose, 0.5, 5.0)
+    np.testing.assert_allclose(centre, [[1.0, 0.0]], atol=1e-6)
+    assert len(pts) == 121                                    # all rays meet the floor within 5 m here
+    assert len(floor_holes(depth, k, pose, 0.5, 1.2)) < 121  # nearer than the principal ray's 1.41 m only
+    level = camera_pose(np.zeros(2), 0.0, 1.0, 0.0)          # looking level: the upper half never meets it
+    assert len(floor_holes(depth, k, level, 0.5, 100.0)) == 5 * 11
+
+
+def test_holes_block_until_the_floor_is_seen():
+    from agent.semantic_map import MapChannels
+    from envs.task import camera_pose
+
+    cfg = AgentConfig(map_size_m=8.0, hole_margin_m=0.3)
+    module = SemanticMapModule(cfg, MappingConfig(voxel_size_m=0.05), ("a", "b", "c"), (0.5, 5.0))
+    k = np.array([[20.0, 0, 16], [0, 20.0, 12], [0, 0, 1]])
+    pose = camera_pose(np.zeros(2), 0.0, 0.88, np.deg2rad(-30.0))
+    v, u = np.mgrid[0:24, 0:32]
+    ray = np.stack([(u - 16) / 20.0, (v - 12) / 20.0, np.ones_like(u, float)], -1) @ pose[:3, :3].T
+    floor = np.where(ray[..., 2] < 0, -0.88 / np.minimum(ray[..., 2], -1e-9), 0.0)
+    floor[(floor < 0.5) | (floor > 5.0)] = 0
+    floor = floor.astype(np.float32)
+    probs = np.zeros((24, 32, 3), np.float32)
+
+    state = MapState.empty(np.zeros(2), cfg, 3)
+    holed = floor.copy()
+    holed[8:12, 10:20] = 0.0                      # a hole, with floor seen below it in the image
+    module.project(state, holed, probs, k, pose)
+    hole = state.channels[MapChannels.HOLE]
+    assert hole.any() and (state.obstacles() & hole).sum() == hole.sum()
+    r, c = np.argwhere(hole)[0]
+    module.project(state, floor, probs, k, pose)   # the same view, floor everywhere: cleared for good
+    assert not state.channels[MapChannels.HOLE][r, c] and state.channels[MapChannels.FLOOR][r, c]
+    module.project(state, holed, probs, k, pose)
+    assert not state.channels[MapChannels.HOLE][r, c]
+
+    occluded = MapState.empty(np.zeros(2), cfg, 3)  # something closer than 0.5 m fills the bottom: no floor below
+    near = floor.copy()
+    near[6:, :] = 0.0
+    module.project(occluded, near, probs, k, pose)
+    assert not occluded.channels[MapChannels.HOLE].any()
+    off = SemanticMapModule(AgentConfig(map_size_m=8.0), MappingConfig(voxel_size_m=0.05), ("a", "b", "c"))
+    fresh = MapState.empty(np.zeros(2), cfg, 3)
+    off.project(fresh, holed, probs, k, pose)
+    assert not fresh.channels[MapChannels.HOLE].any()
