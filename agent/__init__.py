@@ -10,7 +10,7 @@ agent (``agent.policy.PeanutAgent``, ``calnav objectnav --agent peanut``), one f
 | goal detection | ``goal_detection.py`` | threshold + largest connected component with a minimum area |
 | exploration | ``exploration.py`` | frontiers, scored by geodesic distance and size (+ optional co-occurrence prior) |
 | local planning | ``planner.py`` | ``Planner``: geodesic field to the goal region, short-term goal on a ring, TURN / FORWARD |
-| collisions | ``collision.py`` | blocked-move detection, obstacle marks ahead, untrap routine |
+| collisions | ``collision.py`` | blocked-move detection, obstacle marks ahead, the escape (every heading in turn until one moves; started by blocks or by the policy's no-progress watchdog) |
 | policy | ``policy.py`` | ``PeanutAgent``: reset / act, the decision logic, forced STOP at the step limit |
 | visualisation | ``visualize.py`` | per-step panel (RGB, segmentation, top-down map) and episode video |
 """

@@ -312,3 +312,22 @@ def test_style_names_match():
     from envs.scenes import STYLES
 
     assert typing.get_args(StyleName) == STYLES
+
+
+@pytest.mark.parametrize("override", ["env.dataset.style=photoreal", "env.dataset.scanning.depth_noise=1",
+                                      "env.dataset.scanning.voxel_m=0", "env.dataset.scanning.axial_noise_m=-1"])
+def test_objectnav_refuses_bad_scan_settings_before_writing(tmp_path, capsys, override):
+    from eval.cli import main
+
+    out = tmp_path / "run"
+    assert main(["objectnav", "--episodes", "1", "--output", str(out), override]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "calnav objectnav: error:" in err[0] and not out.exists()
+
+
+def test_scanned_style_of_a_user_directory_refused_by_the_cli(tmp_path, capsys):
+    from eval.cli import main
+
+    out = tmp_path / "run"
+    assert main(["objectnav", "--output", str(out), f"env.dataset.scene_dir={tmp_path}", "env.dataset.style=scanned"]) == 2
+    assert "already are scans" in capsys.readouterr().err and not out.exists()
