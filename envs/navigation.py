@@ -24,6 +24,8 @@ FIELD_CACHE_SIZE = 8        # geodesic fields kept per NavGrid (LRU)
 MOVE_SAMPLE_FRACTION = 0.5  # move_forward checks the segment every this many cells
 OBSTACLE_SAMPLE_FRACTION = 0.5  # obstacle surfaces are sampled every this many cells
 OBSTACLE_SEED = 0           # surface sampling is random but fixed: the grid is deterministic
+
+
 def closed_solids(scene: Scene) -> bool:
     """Whether the scene is built of closed, outward-facing solids (``envs.primitives``: the
     procedural houses), so that face orientation tells inside from outside. Scans (calnav's

@@ -171,7 +171,7 @@ def load_labelled_ply(path, label_map=None, label_property: str = "label", up_ax
     floor_z = float(np.percentile(floor_vz, FLOOR_PERCENTILE))
     verts[:, 2] -= floor_z
 
-    coloured = all(p in vnames for p in ("red", "green", "blue")) or all(p in fnames for p in ("red", "green", "blue"))
+    coloured = True
     if all(p in vnames for p in ("red", "green", "blue")):
         vcol = np.stack([vdata[c] for c in ("red", "green", "blue")], axis=1).astype(np.float64)
         vcol = vcol * 255.0 if vcol.max() <= 1.0 and vdata["red"].dtype.kind == "f" else vcol
@@ -179,7 +179,7 @@ def load_labelled_ply(path, label_map=None, label_property: str = "label", up_ax
     elif all(p in fnames for p in ("red", "green", "blue")):
         albedo = np.stack([fdata[c] for c in ("red", "green", "blue")], axis=1).astype(np.float64)[owner]
     else:
-        albedo = np.full((len(tris), 3), DEFAULT_ALBEDO, dtype=np.float64)
+        albedo, coloured = np.full((len(tris), 3), DEFAULT_ALBEDO, dtype=np.float64), False
 
     inst_prop = next((p for p in INSTANCE_PROPERTIES if p in fnames or p in vnames), None)
     if inst_prop is not None:

@@ -62,22 +62,24 @@ def _stops(scene, navgrid, rng: np.random.Generator, n_fallback: int = 6, spacin
         raise ValueError(f"scene {scene.name!r} has no navigable floor to scan")
     free_xy = navgrid.to_world(free)
     if spacing_m > 0:
-        picks = [int(rng.integers(len(free_xy)))]
-        d = np.linalg.norm(free_xy - free_xy[picks[0]], axis=1)
-        while d.max() > spacing_m:
-            picks.append(int(np.argmax(d)))
-            d = np.minimum(d, np.linalg.norm(free_xy - free_xy[picks[-1]], axis=1))
-        return free_xy[picks]
+        return _farthest_points(free_xy, rng, spacing_m=spacing_m)
     if scene.rooms:
         centres = np.array([[(r.xmin + r.xmax) / 2, (r.ymin + r.ymax) / 2] for r in scene.rooms])
         idx = [int(np.argmin(np.linalg.norm(free_xy - c, axis=1))) for c in centres]
         return free_xy[sorted(set(idx), key=idx.index)]
-    picks = [int(rng.integers(len(free_xy)))]
-    d = np.linalg.norm(free_xy - free_xy[picks[0]], axis=1)
-    for _ in range(n_fallback - 1):
+    return _farthest_points(free_xy, rng, count=n_fallback)
+
+
+def _farthest_points(points: np.ndarray, rng: np.random.Generator, count: int | None = None,
+                     spacing_m: float = 0.0) -> np.ndarray:
+    """Farthest-point samples of ``points`` (N, 2) from a random first one: ``count`` of them, or
+    (count None) until every point lies within ``spacing_m`` of a sample."""
+    picks = [int(rng.integers(len(points)))]
+    d = np.linalg.norm(points - points[picks[0]], axis=1)
+    while len(picks) < count if count is not None else d.max() > spacing_m:
         picks.append(int(np.argmax(d)))
-        d = np.minimum(d, np.linalg.norm(free_xy - free_xy[picks[-1]], axis=1))
-    return free_xy[picks]
+        d = np.minimum(d, np.linalg.norm(points - points[picks[-1]], axis=1))
+    return points[picks]
 
 
 def _tour(stops: np.ndarray, start: np.ndarray, rng: np.random.Generator) -> list[np.ndarray]:

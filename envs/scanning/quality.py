@@ -15,9 +15,10 @@
 from __future__ import annotations
 
 import numpy as np
-import open3d as o3d
 import open3d.core as o3c
 
+from envs.render import build_raycasting_scene
+from envs.scanning.scanner import footprint_m2
 from envs.scene import Scene, sample_surface
 from envs.semantics import CLASS_ID, VOID
 
@@ -27,12 +28,6 @@ SAMPLE_SPACING_M = 0.05         # surface sample spacing of the figures, metres
 SAMPLE_SEED = 0                 # surface samples are random but fixed: the figures are deterministic
 QUALITY_KEYS = ("triangles", "triangles_per_m2", "floor_missing", "wall_missing", "void_fraction",
                 "void_area_fraction", "median_error_mm", "p90_error_mm")
-
-
-def _rc(scene: Scene) -> o3d.t.geometry.RaycastingScene:
-    rc = o3d.t.geometry.RaycastingScene()
-    rc.add_triangles(o3c.Tensor(scene.vertices), o3c.Tensor(scene.triangles.astype(np.uint32)))
-    return rc
 
 
 def _tri_normals(tris: np.ndarray) -> np.ndarray:
@@ -66,9 +61,8 @@ def _observable_samples(clean: Scene, rc_clean, class_name: str, rng) -> np.ndar
 def scan_quality(clean: Scene, scanned: Scene) -> dict[str, float]:
     """The figures of the module docstring for ``scanned``, a scan of ``clean``."""
     rng = np.random.default_rng(SAMPLE_SEED)
-    rc_clean, rc_scan = _rc(clean), _rc(scanned)
-    lo, hi = clean.bounds()
-    footprint = float((hi[0] - lo[0]) * (hi[1] - lo[1]))
+    rc_clean, rc_scan = build_raycasting_scene(clean), build_raycasting_scene(scanned)
+    footprint = footprint_m2(clean)
     out: dict[str, float] = {"triangles": float(len(scanned.triangles)),
                              "triangles_per_m2": len(scanned.triangles) / footprint}
     for name in ("floor", "wall"):
