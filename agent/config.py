@@ -91,9 +91,16 @@ class AgentConfig:
         for key in ("stuck_radius_m", "loop_radius_m"):
             if not 0 < getattr(self, key) < 100:
                 raise ValueError(f"agent.{key} must be in (0, 100) metres, got {getattr(self, key)}")
-        for key in ("ring_cells", "replan_steps", "untrap_after", "untrap_steps", "free_ray_samples", "stuck_steps", "loop_steps"):
+        for key in ("ring_cells", "replan_steps", "untrap_after", "untrap_steps", "free_ray_samples", "stuck_steps",
+                    "loop_steps", "goal_min_area_cells"):
             if getattr(self, key) < 1:
                 raise ValueError(f"agent.{key} must be >= 1, got {getattr(self, key)}")
+        for key in ("frontier_min_cells", "frontier_size_weight_m", "prior_bonus_m", "prior_radius_m", "clearance_m",
+                    "obstacle_min_height_m", "obstacle_above_camera_m", "verify_distance_m"):
+            if not getattr(self, key) >= 0:   # written so that NaN fails too
+                raise ValueError(f"agent.{key} must be >= 0, got {getattr(self, key)}")
+        if not self.clearance_cost >= 1:
+            raise ValueError(f"agent.clearance_cost must be >= 1 (free cells cost 1), got {self.clearance_cost}")
         w, h = self.map_resolution
         if w < 8 or h < 8:
             raise ValueError(f"agent.map_resolution must be at least 8x8, got {w}x{h}")

@@ -83,3 +83,15 @@ class EnvConfig:
                              f"{vfov:.3g} deg, outside ({lo:g}, {hi:g}); use a wider view or a taller image")
         if not 0 < self.min_depth_m < self.max_depth_m:
             raise ValueError(f"need 0 < env.min_depth_m < env.max_depth_m, got {self.min_depth_m}, {self.max_depth_m}")
+        for key in ("camera_height_m", "forward_step_m", "agent_radius_m", "agent_height_m", "nav_cell_m",
+                    "success_distance_m", "view_point_radius_m"):
+            if not getattr(self, key) > 0:   # written so that NaN fails too
+                raise ValueError(f"env.{key} must be > 0 metres, got {getattr(self, key)}")
+        for key in ("turn_angle_deg", "tilt_angle_deg"):
+            if not 0 < getattr(self, key) <= 180:
+                raise ValueError(f"env.{key} must be in (0, 180] degrees, got {getattr(self, key)}")
+        for key in ("rgb_noise_std", "depth_noise_std", "obstacle_min_height_m"):
+            if not getattr(self, key) >= 0:
+                raise ValueError(f"env.{key} must be >= 0, got {getattr(self, key)}")
+        if self.max_episode_steps < 1:
+            raise ValueError(f"env.max_episode_steps must be >= 1 actions, got {self.max_episode_steps}")

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+import math
 import re
 import types
 import typing
@@ -177,9 +178,12 @@ def _coerce(value: Any, tp: Any, key: str) -> Any:
         if isinstance(value, bool):
             raise ConfigError(f"bad value for {key}: {value!r}; expected a number")
         try:
-            return float(value)
+            number = float(value)
         except (TypeError, ValueError):
             raise ConfigError(f"bad value for {key}: {value!r}; expected a number") from None
+        if not math.isfinite(number):   # by construction: no config key takes NaN or inf
+            raise ConfigError(f"bad value for {key}: {value!r}; expected a finite number")
+        return number
     if tp is str:
         if isinstance(value, (dict, list)):
             raise ConfigError(f"bad value for {key}: {value!r}; expected a string")

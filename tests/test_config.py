@@ -149,3 +149,30 @@ def test_env_fields_of_view_are_ones_the_map_accepts():
     with pytest.raises(ConfigError, match=r"vertical field of view of 0.0\d+ deg.*outside \(1, 179\)"):
         load_config(None, ["env.hfov_deg=2", "env.resolution=1000x8"])
     load_config(None, ["env.hfov_deg=150"])
+
+
+@pytest.mark.parametrize("override, message", [
+    # issue 26's "wrong results with exit 0": each ran to a table of wrong numbers before
+    ("env.success_distance_m=nan", "env.success_distance_m.*expected a finite number"),
+    ("agent.frontier_size_weight_m=nan", "agent.frontier_size_weight_m.*expected a finite number"),
+    ("mapping.min_tsdf_weight=nan", "mapping.min_tsdf_weight.*expected a finite number"),
+    ("env.turn_angle_deg=nan", "env.turn_angle_deg.*expected a finite number"),
+    ("env.hfov_deg=inf", "env.hfov_deg.*expected a finite number"),
+    ("env.max_episode_steps=0", r"env.max_episode_steps must be >= 1"),
+    ("env.max_episode_steps=-3", r"env.max_episode_steps must be >= 1"),
+    ("env.forward_step_m=-0.25", r"env.forward_step_m must be > 0"),
+    ("env.camera_height_m=-1", r"env.camera_height_m must be > 0"),
+    ("agent.goal_min_area_cells=-5", r"agent.goal_min_area_cells must be >= 1"),
+    ("agent.frontier_size_weight_m=-1", r"agent.frontier_size_weight_m must be >= 0"),
+])
+def test_non_finite_and_out_of_range_numbers_are_refused(override, message):
+    with pytest.raises(ConfigError, match=message) as err:
+        load_config(None, [override])
+    assert "\n" not in str(err.value)
+
+
+def test_glfs_eta_nan_is_refused():
+    from eval.calibration.config import CalibrateMapConfig
+
+    with pytest.raises(ConfigError, match="glfs.eta.*expected a finite number"):
+        load_config(None, ["glfs.eta=nan"], cls=CalibrateMapConfig)

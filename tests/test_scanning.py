@@ -275,13 +275,45 @@ def test_scanned_house_navigates_and_makes_habitat_episodes(scanned_house):
             assert len(goal.view_points) and grid.is_navigable(goal.view_points).all()
 
 
+
+def test_segmenter_training_frames_mix_in_scans(scanned_house):
+    """data.scanned_fraction: that share of a house's training frames comes from its scan (each
+    reproduced by rendering the scan at the recorded pose), the clean frames are the ones a
+    fraction of 0 draws, and evaluation sets ignore the key (they follow env.dataset.style)."""
+    from envs.scenes import load_scene
+    from eval.segmenter.data import SegDataConfig, cache_path, render_frames
+
+    env = EnvConfig(dataset=dataclasses.replace(_fast_dataset(), style="clean"))
+    mixed_cfg = SegDataConfig(resolution=(48, 36), walk_steps=3, keep_sparse_prob=1.0, scanned_fraction=0.5)
+    clean_cfg = dataclasses.replace(mixed_cfg, scanned_fraction=0.0)
+    mixed = render_frames(env, mixed_cfg, "val", 8, 0, progress=False, rebalance=True)
+    clean = render_frames(env, clean_cfg, "val", 8, 0, progress=False, rebalance=True)
+    np.testing.assert_array_equal(mixed.rgb[:4], clean.rgb[:4])
+    assert not np.array_equal(mixed.rgb[4:], clean.rgb[4:])
+    cam = Camera(width=48, height=36, hfov_deg=env.hfov_deg)
+    scan = Renderer(scanned_house, cam, min_depth_m=env.min_depth_m, max_depth_m=env.max_depth_m)
+    clean_house = Renderer(load_scene("house_val_0000", env.dataset), cam, min_depth_m=env.min_depth_m,
+                           max_depth_m=env.max_depth_m)
+    for i in range(4, 8):
+        frame = scan.render(mixed.poses[i].astype(np.float64))
+        assert np.abs(frame.rgb.astype(int) - mixed.rgb[i]).max() <= 1
+        assert not np.array_equal(clean_house.render(mixed.poses[i].astype(np.float64)).rgb, mixed.rgb[i])
+    assert cache_path(env, mixed_cfg, "val", 8, 0, False, rebalance=True) != \
+        cache_path(env, clean_cfg, "val", 8, 0, False, rebalance=True)
+    assert cache_path(env, mixed_cfg, "val", 8, 0, False) == cache_path(env, clean_cfg, "val", 8, 0, False)
+    with pytest.raises(ValueError, match=r"scanned_fraction must be in \[0, 1\]"):
+        SegDataConfig(scanned_fraction=1.5)
+    with pytest.raises(ValueError, match="scanned_fraction must be in"):
+        SegDataConfig(scanned_fraction=float("nan"))
+
+
 # ------------------------------------------------------------------ bad input
 @pytest.mark.parametrize("override, message", [
     ("env.dataset.style=photoreal", "valid choices: clean, scanned"),
     ("env.dataset.scanning.axial_noise_m=-0.001", "scanning.axial_noise_m must be in [0, 0.5]"),
     ("env.dataset.scanning.voxel_m=0", "scanning.voxel_m must be in [0.005, 0.2]"),
-    ("env.dataset.scanning.voxel_m=.nan", "scanning.voxel_m must be in"),
-    ("env.dataset.scanning.max_depth_m=.inf", "scanning.max_depth_m must be in"),
+    ("env.dataset.scanning.voxel_m=.nan", "expected a finite number"),
+    ("env.dataset.scanning.max_depth_m=.inf", "expected a finite number"),
     ("env.dataset.scanning.min_depth_m=3 env.dataset.scanning.max_depth_m=2", "min_depth_m < "),
     ("env.dataset.scanning.resolution=8x8", "scanning.resolution must be between"),
 ])

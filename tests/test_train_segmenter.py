@@ -12,7 +12,7 @@ from eval.config import load_config
 from eval.segmenter.data import SegmenterExperimentConfig, cache_path, load_or_render
 
 TINY = ["data.frames=16", "data.scenes=2", "data.resolution=64x48", "data.walk_steps=4",
-        "train.epochs=4", "train.batch_size=8", "train.val_frames=4", "train.lr=0.01",
+        "data.scanned_fraction=0", "train.epochs=4", "train.batch_size=8", "train.val_frames=4", "train.lr=0.01",
         "env.dataset.train_scenes=2", "env.dataset.val_scenes=1", "env.dataset.test_scenes=1"]
 
 
@@ -102,3 +102,36 @@ def test_train_rejects_unknown_model(cfg, tmp_path):
 
     with pytest.raises(ValueError, match="trainable models"):
         train(cfg, "gt", tmp_path / "x.pt", progress=False)
+
+
+def test_gaussian_blur_hand_case():
+    """sigma 1 px: radius 2, 1-D weights exp(-x^2 / 2) / 2.48373 for x = -2..2; an impulse spreads
+    into their outer product (centre 0.40262^2 = 0.16210), a constant image is unchanged."""
+    from eval.segmenter.train import gaussian_blur
+
+    img = torch.zeros(1, 3, 9, 9)
+    img[:, :, 4, 4] = 1.0
+    out = gaussian_blur(img, 1.0)
+    w = np.exp(-0.5 * np.arange(-2, 3) ** 2) / np.exp(-0.5 * np.arange(-2, 3) ** 2).sum()
+    assert w[2] == pytest.approx(0.40262, abs=1e-5)
+    np.testing.assert_allclose(out[0, 1, 2:7, 2:7].numpy(), np.outer(w, w), atol=1e-6)
+    assert float(out[0, 0, 0, 0]) == 0.0 and float(out.sum()) == pytest.approx(3.0, abs=1e-5)
+    flat = torch.full((2, 3, 6, 7), 0.37)
+    np.testing.assert_allclose(gaussian_blur(flat, 1.7).numpy(), 0.37, atol=1e-6)
+
+
+def test_augmentation_blurs_the_chosen_share(cfg):
+    """train.blur_prob = 1 blurs every image (an impulse spreads); 0 leaves the stream untouched."""
+    import dataclasses
+
+    from eval.segmenter.train import augment
+
+    rgb = torch.zeros(4, 3, 12, 12)
+    rgb[:, :, 6, 6] = 0.5
+    labels = torch.zeros(4, 12, 12, dtype=torch.int64)
+    quiet = dataclasses.replace(cfg.train, brightness=0.0, contrast=0.0, colour=0.0, rgb_noise_std=0.0, hflip=False)
+    same, _, _ = augment(rgb.clone(), None, labels, torch.Generator().manual_seed(0), quiet, 5.0)
+    torch.testing.assert_close(same, rgb)
+    blurred, _, _ = augment(rgb.clone(), None, labels, torch.Generator().manual_seed(0),
+                            dataclasses.replace(quiet, blur_prob=1.0, blur_sigma_px=2.0), 5.0)
+    assert (blurred[:, :, 6, 6] < 0.5).all() and (blurred[:, :, 6, 7] > 0).all()

@@ -13,7 +13,14 @@ object (non-structure) pixels are fewer than ``min_object_fraction`` is kept onl
 probability ``keep_sparse_prob`` (the walk goes on either way). Evaluation frames are not
 rebalanced: they follow the agent-like walk distribution.
 
-Frames are rendered clean (sensor noise and photometric changes are training-time
+Scans: a share ``scanned_fraction`` of every house's *training* frames is rendered from the
+house's scan (``env.dataset.style: scanned``, ``envs.scanning``: holes, lumpy surfaces, baked
+and blurred vertex colours, void where the scan kept no label), on walks over the scan's own
+navigable cells, so the networks learn reconstructed appearance next to the clean one.
+Validation and evaluation frames follow ``env.dataset.style`` alone (score each style with
+``env.dataset.style=clean`` / ``scanned``).
+
+Frames are rendered without sensor noise (sensor noise and photometric changes are training-time
 augmentation, drawn afresh every epoch) and cached at
 ``cache_dir()/segdata/<split>_<frames>_<key>.npz``, ``key`` a hash of everything that affects
 them: rgb (N, H, W, 3) uint8, depth (N, H, W) float16 metres (0 invalid), labels (N, H, W)
@@ -56,12 +63,15 @@ class SegDataConfig:
     seed: int = 0                    # pose sampling seed (eval adds EVAL_SEED_OFFSET)
     min_object_fraction: float = 0.03  # training frames with fewer non-structure (object) pixels than this ...
     keep_sparse_prob: float = 0.3    # ... are kept with this probability (1 = no rebalancing; eval never rebalances)
+    scanned_fraction: float = 0.5    # share of each house's training frames rendered from its scan, [0, 1]
+                                     # (validation / evaluation frames follow env.dataset.style)
 
     def __post_init__(self) -> None:
         if self.frames < 1 or self.walk_steps < 1:
             raise ValueError("data.frames and data.walk_steps must be >= 1")
-        if not 0 <= self.turn_prob <= 1:
-            raise ValueError(f"data.turn_prob must be in [0, 1], got {self.turn_prob}")
+        for key in ("turn_prob", "keep_sparse_prob", "scanned_fraction", "min_object_fraction"):
+            if not 0 <= getattr(self, key) <= 1:   # also refuses NaN
+                raise ValueError(f"data.{key} must be in [0, 1], got {getattr(self, key)}")
         w, h = self.resolution
         if w < 16 or h < 16:
             raise ValueError(f"data.resolution must be at least 16x16, got {w}x{h}")
@@ -91,12 +101,18 @@ class TrainConfig:
     rgb_noise_std: float = 4.0       # per-image Gaussian rgb noise std drawn from [0, this], uint8 levels
     depth_noise_std: float = 0.02    # per-image depth noise std drawn from [0, this], metres per metre
     hflip: bool = True               # mirror half of the batches' images left-right
+    blur_prob: float = 0.25          # probability an image is Gaussian-blurred (scan-like soft colours), [0, 1]
+    blur_sigma_px: float = 1.0       # blur std drawn from [0.3, this] per batch, pixels at the training resolution, [0.3, 5]
 
     def __post_init__(self) -> None:
         if self.epochs < 1 or self.batch_size < 1:
             raise ValueError("train.epochs and train.batch_size must be >= 1")
-        if self.lr <= 0:
+        if not self.lr > 0:   # also refuses NaN
             raise ValueError(f"train.lr must be > 0, got {self.lr}")
+        if not 0 <= self.blur_prob <= 1:
+            raise ValueError(f"train.blur_prob must be in [0, 1], got {self.blur_prob}")
+        if not 0.3 <= self.blur_sigma_px <= 5:
+            raise ValueError(f"train.blur_sigma_px must be in [0.3, 5], got {self.blur_sigma_px}")
 
 
 @dataclass
@@ -174,30 +190,37 @@ def render_frames(env_cfg: EnvConfig, data_cfg: SegDataConfig, split: str, frame
            "scene": np.empty(frames, np.int16)}
     if with_instance:
         out["instance"] = np.empty((frames, h, w), np.int32)
+    fraction = data_cfg.scanned_fraction if rebalance and env_cfg.dataset.style == "clean" else 0.0
     i = 0
     for s, (scene_id, count) in enumerate(tqdm(list(zip(ids, counts)), desc=f"render {split} frames",
                                                unit="scene", disable=not progress)):
-        rng = np.random.default_rng([seed, s])  # per scene: frames do not shift when counts change elsewhere
-        scene = load_scene(scene_id, env_cfg.dataset)
-        renderer = Renderer(scene, camera, min_depth_m=env_cfg.min_depth_m, max_depth_m=env_cfg.max_depth_m)
-        grid = NavGrid.build(scene, env_cfg, raycasting_scene=renderer.raycasting_scene)
-        structure = np.array([n in STRUCTURE_NAMES for n in scene.class_names] + [True])  # last: void
-        done = 0
-        for pose in walk_poses(grid, env_cfg, data_cfg, rng):
-            if done == count:
-                break
-            fr = renderer.render(pose)
-            if rebalance and data_cfg.keep_sparse_prob < 1:
-                objects = float((~structure[fr.semantic]).mean())  # void (-1) indexes the last entry
-                if objects < data_cfg.min_object_fraction and rng.random() >= data_cfg.keep_sparse_prob:
-                    continue
-            done += 1
-            out["rgb"][i], out["depth"][i], out["poses"][i], out["scene"][i] = fr.rgb, fr.depth, pose, s
-            sem = fr.semantic
-            out["labels"][i] = np.where((sem >= 0) & (sem < len(scene.class_names)), sem, -1)
-            if with_instance:
-                out["instance"][i] = fr.instance
-            i += 1
+        scanned = int(round(count * fraction))
+        # per scene and style: frames do not shift when counts change elsewhere (the clean stream is the
+        # one every earlier release drew, so a fraction of 0 renders the same frames as before)
+        for style, wanted, rng in ((None, count - scanned, np.random.default_rng([seed, s])),
+                                   ("scanned", scanned, np.random.default_rng([seed, s, 1]))):
+            if wanted == 0:
+                continue
+            scene = load_scene(scene_id, env_cfg.dataset, style=style)
+            renderer = Renderer(scene, camera, min_depth_m=env_cfg.min_depth_m, max_depth_m=env_cfg.max_depth_m)
+            grid = NavGrid.build(scene, env_cfg, raycasting_scene=renderer.raycasting_scene)
+            structure = np.array([n in STRUCTURE_NAMES for n in scene.class_names] + [True])  # last: void
+            done = 0
+            for pose in walk_poses(grid, env_cfg, data_cfg, rng):
+                if done == wanted:
+                    break
+                fr = renderer.render(pose)
+                if rebalance and data_cfg.keep_sparse_prob < 1:
+                    objects = float((~structure[fr.semantic]).mean())  # void (-1) indexes the last entry
+                    if objects < data_cfg.min_object_fraction and rng.random() >= data_cfg.keep_sparse_prob:
+                        continue
+                done += 1
+                out["rgb"][i], out["depth"][i], out["poses"][i], out["scene"][i] = fr.rgb, fr.depth, pose, s
+                sem = fr.semantic
+                out["labels"][i] = np.where((sem >= 0) & (sem < len(scene.class_names)), sem, -1)
+                if with_instance:
+                    out["instance"][i] = fr.instance
+                i += 1
     return SegData(**out)
 
 
@@ -209,8 +232,10 @@ def cache_path(env_cfg: EnvConfig, data_cfg: SegDataConfig, split: str, frames: 
                                                  "turn_angle_deg", "forward_step_m", "agent_radius_m",
                                                  "agent_height_m", "nav_cell_m")}
     data_part = asdict(data_cfg) | {"frames": None, "seed": None}
-    if not rebalance:   # the rebalancing knobs do not change an un-rebalanced set
-        data_part |= {"min_object_fraction": None, "keep_sparse_prob": None}
+    if not rebalance:   # the rebalancing knobs and the scan share do not change an un-rebalanced set
+        data_part |= {"min_object_fraction": None, "keep_sparse_prob": None, "scanned_fraction": None}
+    if not data_part.get("scanned_fraction"):
+        data_part.pop("scanned_fraction")   # keys (and caches) of sets without scans are unchanged
     blob = json.dumps({"v": DATA_VERSION, "split": split, "frames": frames, "seed": seed, "inst": with_instance,
                        "rebalance": rebalance, "data": data_part,
                        "env": env_part, "dataset": asdict(env_cfg.dataset)}, sort_keys=True, default=list)

@@ -7,7 +7,7 @@ Data: ``data.frames`` frames rendered from the *train* split only (``eval.segmen
 cached on disk); ``train.val_frames`` val-split frames are scored after every epoch.
 Training: cross-entropy (void ignored, optional inverse-log-frequency class weights), AdamW with
 a one-cycle learning-rate schedule, on-the-fly augmentation (brightness, contrast, per-channel
-colour gain, Gaussian rgb noise, multiplicative depth noise, horizontal flips), all drawn from
+colour gain, Gaussian rgb noise, optional Gaussian blur, multiplicative depth noise, horizontal flips), all drawn from
 generators seeded by (run.seed, epoch), so a resumed run is bit-identical to an uninterrupted
 one on the same machine and thread count.
 
@@ -82,6 +82,11 @@ def augment(rgb: torch.Tensor, depth: torch.Tensor | None, labels: torch.Tensor,
     rgb = rgb * gain
     noise = torch.randn(rgb.shape, generator=gen).to(rgb.device)
     rgb = (rgb + noise * uniform(0, cfg.rgb_noise_std / 255.0, b, 1, 1, 1)).clamp_(0.0, 1.0)
+    if cfg.blur_prob > 0:   # drawn only when enabled: runs without blur keep their augmentation stream
+        sigma = float(uniform(0.3, max(cfg.blur_sigma_px, 0.3), 1))
+        blurred = gaussian_blur(rgb, sigma)
+        pick = (torch.rand(b, generator=gen) < cfg.blur_prob).to(rgb.device)
+        rgb = torch.where(pick[:, None, None, None], blurred, rgb)
     if depth is not None:
         valid = depth > 0
         dn = torch.randn(depth.shape, generator=gen).to(depth.device)
@@ -94,6 +99,19 @@ def augment(rgb: torch.Tensor, depth: torch.Tensor | None, labels: torch.Tensor,
         if depth is not None:
             depth = torch.where(flip[:, None, None, None], depth.flip(-1), depth)
     return rgb.contiguous(memory_format=torch.channels_last), depth, labels
+
+
+def gaussian_blur(img: torch.Tensor, sigma: float) -> torch.Tensor:
+    """(B, C, H, W) images blurred by a separable Gaussian of std ``sigma`` pixels (radius 2 sigma,
+    edges replicated)."""
+    r = max(1, int(math.ceil(2 * sigma)))
+    x = torch.arange(-r, r + 1, dtype=img.dtype, device=img.device)
+    k = torch.exp(-0.5 * (x / sigma) ** 2)
+    k = k / k.sum()
+    c = img.shape[1]
+    out = F.pad(img, (r, r, r, r), mode="replicate")
+    out = F.conv2d(out, k.view(1, 1, 1, -1).expand(c, 1, 1, -1), groups=c)
+    return F.conv2d(out, k.view(1, 1, -1, 1).expand(c, 1, -1, 1), groups=c)
 
 
 def confusion_update(conf: np.ndarray, logits: torch.Tensor, labels: torch.Tensor) -> None:
