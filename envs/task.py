@@ -53,7 +53,8 @@ def num_actions(enable_look: bool) -> int:
 def check_action(action, enable_look: bool) -> Action:
     """Validate an action id; a clear error lists the valid ids and names."""
     try:
-        a = int(action)
+        # a bool is an int to Python, but True is no action id (it would be MOVE_FORWARD)
+        a = None if isinstance(action, (bool, np.bool_)) else int(action)
     except (TypeError, ValueError):
         a = None
     n = num_actions(enable_look)

@@ -99,6 +99,9 @@ def test_invalid_actions_and_step_after_done(env):
         env.step(4)  # LOOK_UP is off by default
     with pytest.raises(ValueError, match="invalid action"):
         env.step(1.5)
+    for flag in (True, np.bool_(True), False):   # not MOVE_FORWARD / STOP
+        with pytest.raises(ValueError, match="invalid action"):
+            env.step(flag)
     _, _, terminated, truncated, info = env.step(Action.STOP)
     assert terminated and not truncated
     with pytest.raises(RuntimeError, match="call reset"):
