@@ -39,6 +39,7 @@ from typing import Callable, Iterable, Iterator
 import yaml
 
 from common.atomic import write_text_atomic
+from eval.stats import METRICS
 
 # Dotted config keys that do not change results: a rerun with other values may resume the same
 # directory, and `calnav compare` never makes them columns.
@@ -208,6 +209,10 @@ def _parse(line: str) -> tuple[dict | None, str]:
         return None, f"a JSON {type(rec).__name__}, not an object"
     if not isinstance(rec.get(RECORD_KEY), int) or isinstance(rec.get(RECORD_KEY), bool):
         return None, f"no integer {RECORD_KEY!r}"
+    if rec.get("status", "ok") == "ok":   # a finished episode carries every metric (a crash record: its error)
+        missing = [m for m in METRICS if not isinstance(rec.get(m), (int, float)) or isinstance(rec.get(m), bool)]
+        if missing:
+            return None, f"episode {rec[RECORD_KEY]} has no number for {', '.join(missing)}; it runs again"
     return rec, ""
 
 

@@ -102,11 +102,27 @@ def test_non_object_json_line_is_skipped_and_its_episode_rerun(run_copy, capsys)
     assert sorted(r["index"] for r in got) == [0, 1, 2, 3] and got[-1]["index"] == lost  # re-run
 
 
+def test_record_without_its_metrics_is_damaged_and_rerun(run_copy, capsys):
+    """Issue 26: a record {"index": 3} counted as a finished episode (N=4, SPL over 3)."""
+    records = run_copy / "episodes.jsonl"
+    lines = records.read_text().splitlines()
+    lost = json.loads(lines[3])["index"]
+    records.write_text("\n".join([*lines[:3], json.dumps({"index": lost})]) + "\n")
+    assert main(_objectnav(run_copy)) == 0
+    assert f"episode {lost} has no number for success, spl, softspl, distance_to_goal; it runs again" in \
+        capsys.readouterr().err
+    got = _lines(run_copy)
+    assert sorted(r["index"] for r in got) == [0, 1, 2, 3] and all("spl" in r for r in got)
+    summary = json.loads((run_copy / "summary.json").read_text())
+    assert summary["count"] == 4 and summary["success"] == 1.0
+
+
 def test_read_records_skips_damage_and_keeps_the_last_valid_record(tmp_path, capsys):
     p = tmp_path / "episodes.jsonl"
-    p.write_text('{"index": 0, "v": 1}\n[1, 2]\n{"v": 3}\n{"index": 0, "v": 2}\n{"index": 1, "v"')
+    m = '"success": 1, "spl": 0.5, "softspl": 0.5, "distance_to_goal": 0.0'
+    p.write_text(f'{{"index": 0, "v": 1, {m}}}\n[1, 2]\n{{"v": 3}}\n{{"index": 0, "v": 2, {m}}}\n{{"index": 1, "v"')
     read = read_records(p)
-    assert read.records == {0: {"index": 0, "v": 2}} and read.duplicates == 1
+    assert read.records[0]["v"] == 2 and list(read.records) == [0] and read.duplicates == 1
     assert read.damaged == [2, 3, 5] and not read.clean_end
     err = capsys.readouterr().err
     assert f"{p}:3: skipped a damaged record (no integer 'index')" in err and f"{p}:5:" in err
