@@ -35,6 +35,7 @@ RAY_EXTRA_HINT = 'run.backend=ray needs Ray: pip install -e ".[ray]" (make test 
 RAY_TASK_RETRIES = 3          # re-runs of a task whose worker process or node died
 # Environment the Ray workers need from the driver (Ray does not forward the driver's environment).
 FORWARDED_ENV = ("CALNAV_CACHE", "OMP_WAIT_POLICY", "PYTHONPATH")
+RAY_CONNECT_TIMEOUT_S = 10.0   # a cluster address that does not answer within this fails before anything is written
 
 
 def check_backend(name: str, address: str = "") -> None:
@@ -46,8 +47,29 @@ def check_backend(name: str, address: str = "") -> None:
             import ray  # noqa: F401
         except ImportError:
             raise ValueError(RAY_EXTRA_HINT) from None
+        check_ray_reachable(address)
     elif address:
         raise ValueError(f"run.ray_address={address!r} is only used with run.backend=ray")
+
+
+def check_ray_reachable(address: str, timeout_s: float = RAY_CONNECT_TIMEOUT_S) -> None:
+    """ValueError unless ``host:port`` (or ``ray://host:port``) accepts a TCP connection within
+    ``timeout_s``: Ray itself retries an unreachable address for minutes. "" (a local instance)
+    and "auto" (Ray's own lookup, which fails at once when no cluster runs) are not probed."""
+    import socket
+
+    if address in ("", "auto"):
+        return
+    hostport = address.removeprefix("ray://")
+    host, sep, port = hostport.rpartition(":")
+    if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise ValueError(f"run.ray_address={address!r} is not an address; valid forms: '' (a local Ray), auto, "
+                         "host:port, ray://host:port")
+    try:
+        socket.create_connection((host, int(port)), timeout=timeout_s).close()
+    except OSError as exc:
+        raise ValueError(f"cannot reach Ray at run.ray_address={address!r} ({exc.strerror or exc}); start the "
+                         "cluster (ray start --head) or use run.ray_address='' for a local Ray") from None
 
 
 PR_SET_PDEATHSIG = 1   # prctl(2) option: the signal a process gets when its parent dies (Linux)

@@ -68,6 +68,24 @@ def test_missing_ray_names_the_install_command(monkeypatch):
         check_backend("ray")
 
 
+def test_unreachable_ray_address_fails_before_writing(tmp_path, capsys):
+    """Issue 26: run.ray_address=127.0.0.1:1 retried for ever after writing the results directory."""
+    pytest.importorskip("ray", reason="the ray extra is installed by `make test`")
+    import time
+
+    from eval.cli import main
+
+    out = tmp_path / "run"
+    t0 = time.monotonic()
+    rc = main(["objectnav", "--agent", "oracle", "--episodes", "0:1", "--output", str(out), *SMALL,
+               "run.backend=ray", "run.ray_address=127.0.0.1:1"])
+    assert rc == 2 and not out.exists() and time.monotonic() - t0 < 60
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "cannot reach Ray at run.ray_address='127.0.0.1:1'" in err[0]
+    with pytest.raises(ValueError, match="valid forms: '' \\(a local Ray\\), auto, host:port"):
+        check_backend("ray", "my-cluster")
+
+
 def test_local_and_ray_map_the_same_results(local_ray):
     from eval.backends import RayBackend
 
