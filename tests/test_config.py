@@ -1,4 +1,6 @@
 """Typed YAML config with dotted overrides: values, errors naming key and choices, multirun."""
+import os
+
 import pytest
 
 from eval.config import (CONFIG_DIR, Config, ConfigError, dump_yaml, expand_multirun, load_config,
@@ -176,3 +178,20 @@ def test_glfs_eta_nan_is_refused():
 
     with pytest.raises(ConfigError, match="glfs.eta.*expected a finite number"):
         load_config(None, ["glfs.eta=nan"], cls=CalibrateMapConfig)
+
+
+def test_binary_or_unreadable_config_names_the_file(tmp_path):
+    """Issue 26: a binary --config gave a codec error without the file name."""
+    binary = tmp_path / "weights.yaml"
+    binary.write_bytes(b"\x89PNG\x00\xff\xfe")
+    with pytest.raises(ConfigError, match=rf"config {binary} is not a UTF-8 YAML text file \(byte 0"):
+        load_config(binary)
+    locked = tmp_path / "locked.yaml"
+    locked.write_text("run:\n  seed: 1\n")
+    locked.chmod(0)
+    try:
+        if not os.access(locked, os.R_OK):   # root reads anything
+            with pytest.raises(ConfigError, match=rf"cannot read config {locked}"):
+                load_config(locked)
+    finally:
+        locked.chmod(0o644)
