@@ -17,6 +17,9 @@ StyleName = Literal["clean", "scanned"]
 FOV_BOUNDS_DEG = (1.0, 179.0)
 
 
+MAX_RESOLUTION_PX = 4096   # largest sensor side, pixels (a 40000x30000 typo fails here, not in an allocation)
+
+
 @dataclass
 class DatasetConfig:
     """Episode dataset: scene seeds per split (disjoint ranges) and episodes per scene."""
@@ -72,8 +75,9 @@ class EnvConfig:
 
     def __post_init__(self) -> None:
         w, h = self.resolution
-        if w < 8 or h < 8:
-            raise ValueError(f"env.resolution must be at least 8x8 pixels, got {w}x{h}")
+        if not (8 <= w <= MAX_RESOLUTION_PX and 8 <= h <= MAX_RESOLUTION_PX):
+            raise ValueError(f"env.resolution must be between 8x8 and {MAX_RESOLUTION_PX}x{MAX_RESOLUTION_PX} "
+                             f"pixels, got {w}x{h}")
         lo, hi = FOV_BOUNDS_DEG
         if not lo < self.hfov_deg < hi:
             raise ValueError(f"env.hfov_deg must be in ({lo:g}, {hi:g}) degrees, got {self.hfov_deg}")

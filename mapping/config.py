@@ -29,6 +29,10 @@ WEIGHTING_NAMES: tuple[str, ...] = WeightingName.__args__  # type: ignore[attr-d
 LAPLACE_MU = 1e-3
 
 
+MAX_ALLOC_MB = 65536          # initial_alloc_mb cap, MiB (64 GiB: beyond any machine this runs on)
+MAX_BLOCK_COUNT = 50_000_000  # block_count cap, blocks
+
+
 @dataclass
 class MappingConfig:
     # --- fusion -----------------------------------------------------------------------------
@@ -72,6 +76,10 @@ class MappingConfig:
                 raise ValueError(f"mapping.{name} must be > 0, got {getattr(self, name)}")
         if not 0 <= self.depth_min_m < self.depth_max_m:
             raise ValueError(f"need 0 <= mapping.depth_min_m < mapping.depth_max_m, got {self.depth_min_m}, {self.depth_max_m}")
+        if self.initial_alloc_mb > MAX_ALLOC_MB:   # a typo such as 1e12 fails here, not as an allocation failure
+            raise ValueError(f"mapping.initial_alloc_mb must be in (0, {MAX_ALLOC_MB}] MiB, got {self.initial_alloc_mb:g}")
+        if self.block_count > MAX_BLOCK_COUNT:
+            raise ValueError(f"mapping.block_count must be in [0, {MAX_BLOCK_COUNT}] blocks, got {self.block_count}")
         res = self.block_resolution
         if res < 2 or res & (res - 1):
             raise ValueError(f"mapping.block_resolution must be a power of two >= 2, got {res}")

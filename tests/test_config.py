@@ -47,7 +47,7 @@ def test_bad_values_name_key_and_choices():
         load_config(None, ["env.hfov_deg=wide"])
     with pytest.raises(ConfigError, match=r"env.max_episode_steps.*expected an integer"):
         load_config(None, ["env.max_episode_steps=1.5x"])
-    with pytest.raises(ConfigError, match=r"resolution must be at least 8x8"):
+    with pytest.raises(ConfigError, match=r"resolution must be between 8x8 and 4096x4096"):
         load_config(None, ["env.resolution=4x4"])
     with pytest.raises(ConfigError, match=r"expected true or false"):
         load_config(None, ["env.enable_look=maybe"])
@@ -110,7 +110,7 @@ def test_negative_workers_are_refused():
 
 def test_wxh_is_parsed_from_the_raw_text_and_0x0_is_a_bad_resolution(tmp_path):
     # YAML 1.1 reads 0x0 / 0x10 as hexadecimal integers: WxH must never go through that
-    with pytest.raises(ConfigError, match=r"env.resolution must be at least 8x8 pixels, got 0x0"):
+    with pytest.raises(ConfigError, match=r"env.resolution must be between 8x8 and 4096x4096 pixels, got 0x0"):
         load_config(None, ["env.resolution=0x0"])
     with pytest.raises(ConfigError, match=r"got 0x16"):
         load_config(None, ["env.resolution=0x16"])
@@ -166,6 +166,8 @@ def test_env_fields_of_view_are_ones_the_map_accepts():
     ("env.camera_height_m=-1", r"env.camera_height_m must be > 0"),
     ("agent.goal_min_area_cells=-5", r"agent.goal_min_area_cells must be >= 1"),
     ("agent.frontier_size_weight_m=-1", r"agent.frontier_size_weight_m must be >= 0"),
+    ("env.resolution=40000x30000", r"env.resolution must be between 8x8 and 4096x4096 pixels"),
+    ("mapping.initial_alloc_mb=1e12", r"mapping.initial_alloc_mb must be in \(0, 65536\] MiB"),
 ])
 def test_non_finite_and_out_of_range_numbers_are_refused(override, message):
     with pytest.raises(ConfigError, match=message) as err:
