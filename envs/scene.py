@@ -196,3 +196,20 @@ def cache_dir() -> Path:
     """Root of calnav's on-disk cache: ``$CALNAV_CACHE`` or ``~/.cache/calnav``."""
     root = os.environ.get("CALNAV_CACHE")
     return Path(root) if root else Path.home() / ".cache" / "calnav"
+
+
+def check_cache_dir() -> Path:
+    """The cache root, created if missing; ValueError in one line when it is a file or cannot
+    be written (``$CALNAV_CACHE`` set to the wrong place), before any command writes."""
+    root = cache_dir()
+    where = "CALNAV_CACHE" if os.environ.get("CALNAV_CACHE") else "the default cache"
+    if root.exists() and not root.is_dir():
+        raise ValueError(f"{where} {root} is a file, not a directory; point CALNAV_CACHE at a writable directory")
+    try:
+        root.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ValueError(f"cannot create {where} {root} ({exc.strerror or exc}); point CALNAV_CACHE at a "
+                         "writable directory") from None
+    if not os.access(root, os.W_OK | os.X_OK):
+        raise ValueError(f"{where} {root} is not writable; point CALNAV_CACHE at a writable directory")
+    return root

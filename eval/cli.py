@@ -201,11 +201,18 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     try:
+        from envs.scene import check_cache_dir
+
+        check_cache_dir()   # every command reads or writes the cache
         module, function = COMMANDS[args.command]
         getattr(importlib.import_module(module), function)(args)
     except (ConfigError, ValueError, FileNotFoundError, ResultsError) as exc:
         print(f"calnav {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print(f"calnav {args.command}: interrupted; finished work is kept: rerun the same command to resume",
+              file=sys.stderr)
+        return 130
     return 0
 
 

@@ -185,3 +185,27 @@ def test_habitat_benchmark_names_the_install_when_habitat_lab_is_missing(tmp_pat
     err = capsys.readouterr().err
     assert "habitat-lab is not installed" in err and "make habitat-setup" in err and 'pip install -e ".[habitat]"' in err
     assert not (tmp_path / "h").exists()
+
+
+@pytest.mark.parametrize("where", ["file", "under_file"])
+def test_cache_that_is_a_file_is_one_line_before_writing(tmp_path, capsys, monkeypatch, where):
+    """Issue 26: CALNAV_CACHE pointing at a file (or below one) was a traceback."""
+    blocker = tmp_path / "cache"
+    blocker.write_text("not a directory")
+    monkeypatch.setenv("CALNAV_CACHE", str(blocker if where == "file" else blocker / "sub"))
+    out = tmp_path / "run"
+    assert main(["objectnav", "--agent", "oracle", "--episodes", "0:1", "--output", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "point CALNAV_CACHE at a writable directory" in err[0] and not out.exists()
+
+
+def test_ctrl_c_is_one_line_that_says_how_to_resume(tmp_path, capsys, monkeypatch):
+    import eval.objectnav.run as run
+
+    def interrupted(args):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(run, "main_objectnav", interrupted)
+    assert main(["objectnav", "--agent", "oracle", "--episodes", "0:1", "--output", str(tmp_path / "r")]) == 130
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["calnav objectnav: interrupted; finished work is kept: rerun the same command to resume"]
