@@ -166,6 +166,30 @@ def test_non_rigid_pose_is_rejected_with_its_frame_number(tmp_path):
         Sequence(root, "scannet")
 
 
+def test_an_8bit_depth_frame_is_refused_with_its_frame_number(tmp_path):
+    """Issue 26: an 8-bit depth PNG after the first frame was read as millimetres (0-25 cm)."""
+    root = write_scannet(tmp_path / "seq", n=3)
+    depth = cv2.imread(str(root / "depth" / "2.png"), cv2.IMREAD_UNCHANGED)
+    cv2.imwrite(str(root / "depth" / "2.png"), (depth // 256).astype(np.uint8))
+    seq = Sequence(root, "scannet")
+    seq.read(0)
+    with pytest.raises(ValueError, match=r"frame 2: depth .*2.png must be a single-channel 16-bit PNG, got uint8"):
+        seq.read(2)
+
+
+def test_class_list_with_a_repeated_name_is_refused(tmp_path):
+    """Issue 26: a classes.json naming a class twice gave mIoU 0.748 instead of 0.957 with exit 0."""
+    from mapping.sequences.labels import read_class_list
+
+    path = tmp_path / "classes.json"
+    path.write_text(json.dumps(["wall", "floor", "chair", "floor"]))
+    with pytest.raises(ValueError, match="names 'floor' twice"):
+        read_class_list(path)
+    path.write_text("[wall, floor")
+    with pytest.raises(ValueError, match="is not valid JSON"):
+        read_class_list(path)
+
+
 def test_logits_dir_checks_class_count_and_size(tmp_path):
     root = write_scannet(tmp_path / "seq", n=2)
     seq = Sequence(root, "scannet")

@@ -17,12 +17,19 @@ def read_class_list(path) -> tuple[str, ...]:
     if not path.exists():
         raise ValueError(f"class list not found: {path}")
     if path.suffix.lower() == ".json":
-        data = json.loads(path.read_text())
+        try:
+            data = json.loads(path.read_text())
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise ValueError(f"class list {path} is not valid JSON ({exc})") from None
         names = data.get("class_names") if isinstance(data, dict) else data
     else:
         names = [line.strip() for line in path.read_text().splitlines() if line.strip()]
     if not isinstance(names, list) or len(names) < 2 or not all(isinstance(n, str) for n in names):
         raise ValueError(f"class list {path} must name at least 2 classes (a JSON list or one name per line)")
+    seen: set[str] = set()
+    repeated = [n for n in names if n in seen or seen.add(n)]
+    if repeated:   # two logit channels of one name: ground truth would match only the first
+        raise ValueError(f"class list {path} names {repeated[0]!r} twice; every class needs its own name")
     return tuple(names)
 
 

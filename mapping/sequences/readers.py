@@ -193,6 +193,9 @@ class Sequence:
         paths = self._paths(index)
         pose = self._poses[index]
         raw = _imread(paths["depth"], cv2.IMREAD_UNCHANGED)
+        if raw.ndim != 2 or raw.dtype != np.uint16:   # an 8-bit PNG read as millimetres would be 0-25 cm
+            raise ValueError(f"frame {index}: depth {paths['depth']} must be a single-channel 16-bit PNG, "
+                             f"got {raw.dtype} with shape {raw.shape}")
         if (raw.shape[1], raw.shape[0]) != self.depth_size:
             raise ValueError(f"frame {index}: depth is {raw.shape[1]}x{raw.shape[0]}, the sequence's is "
                              f"{self.depth_size[0]}x{self.depth_size[1]}")
