@@ -63,6 +63,23 @@ def warn(message: str) -> None:
     print(f"calnav: warning: {message}", file=sys.stderr)
 
 
+def check_output_file(path: Path | str, option: str = "--output") -> Path:
+    """An output *file* the command will write at its end, checked before any work: not a
+    directory, and its nearest existing parent a writable directory (missing ones are created
+    at write time). ResultsError in one line otherwise."""
+    path = Path(path)
+    if path.is_dir():
+        raise ResultsError(f"{option} {path} is a directory; give a file name")
+    parent = path.parent
+    while not parent.exists() and parent != parent.parent:
+        parent = parent.parent
+    if not parent.is_dir():
+        raise ResultsError(f"{option} {path}: {parent} is a file, not a directory")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise ResultsError(f"{option} {path}: {parent} is not writable")
+    return path
+
+
 @contextmanager
 def writing(what: Path | str) -> Iterator[None]:
     """Turn an OSError (read-only file system, no permission, a directory in the way) while

@@ -209,3 +209,19 @@ def test_ctrl_c_is_one_line_that_says_how_to_resume(tmp_path, capsys, monkeypatc
     assert main(["objectnav", "--agent", "oracle", "--episodes", "0:1", "--output", str(tmp_path / "r")]) == 130
     err = capsys.readouterr().err.strip().splitlines()
     assert err == ["calnav objectnav: interrupted; finished work is kept: rerun the same command to resume"]
+
+
+@pytest.mark.parametrize("command", [
+    ["fit-glfs", "--segmenter", "gt"],
+    ["train-segmenter", "--model", "learned_rgb"],
+    ["eval-segmenter", "--model", "gt", "--split", "test", "--frames", "1"],
+])
+def test_output_file_under_a_file_fails_before_any_work(tmp_path, capsys, command):
+    """Issue 26: fit-glfs checked --output only after training ("File exists" under a file)."""
+    blocker = tmp_path / "blocker"
+    blocker.write_text("x")
+    assert main([*command, "--output", str(blocker / "out.json")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"{blocker} is a file, not a directory" in err[0]
+    assert main([*command, "--output", str(tmp_path)]) == 2
+    assert "is a directory; give a file name" in capsys.readouterr().err

@@ -35,7 +35,7 @@ from eval.backends import check_backend
 from eval.calibration.config import CalibrateMapConfig, GLFSVariant
 from eval.calibration.record import ROLES, load_role, record_houses, role_scene_ids
 from eval.config import ConfigError, load_config
-from eval.results_dir import ResultsDir, writing
+from eval.results_dir import ResultsDir, check_output_file, writing
 from eval.preflight import check_command
 from mapping import metrics
 from mapping.calibration.fit import MapObjective, fit_temperature_2d, fit_temperature_3d, fit_vector_3d
@@ -289,6 +289,7 @@ def main_fit_glfs(args) -> None:
     """Record the calibration-train / -validation scans of one segmenter and train one GLFS
     variant (``--variant``, default the first of ``study.glfs_variants``)."""
     check_command(args, "fit-glfs")  # every file the config names, before anything is written
+    check_output_file(args.output)   # written at the end: a bad path must not cost the training first
     from agent.segmenters import make_segmenter
 
     cfg = load_config(args.config, [*args.overrides, f"study.segmenters=[{args.segmenter}]", "study.strategies=[glfs]"],

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from eval.config import load_config
+from eval.results_dir import check_output_file, writing
 from eval.segmenter.data import EVAL_SEED_OFFSET, SegmenterExperimentConfig, load_or_render
 from mapping.metrics import CalibrationStats
 
@@ -84,10 +85,13 @@ def format_report(m: dict) -> str:
 
 def main_eval_segmenter(args) -> None:
     cfg = load_config(args.config, args.overrides, cls=SegmenterExperimentConfig)
+    if args.output:
+        check_output_file(args.output)
     metrics = evaluate(cfg, args.model, args.split, args.frames)
     print(format_report(metrics))
     if args.output:
         out = Path(args.output)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_text(json.dumps(metrics, indent=1) + "\n")
+        with writing(out):
+            out.parent.mkdir(parents=True, exist_ok=True)
+            out.write_text(json.dumps(metrics, indent=1) + "\n")
         print(f"wrote {out}")

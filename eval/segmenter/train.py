@@ -36,6 +36,7 @@ from agent.segmenters.learned import LEARNED_MODELS, default_weights_path, save_
 from agent.segmenters.network import NetSpec, SegNet, count_parameters
 from common.atomic import atomic_path
 from eval.config import load_config, to_dict
+from eval.results_dir import check_output_file
 from eval.segmenter.data import (VAL_SEED_OFFSET, SegData, SegmenterExperimentConfig, TrainConfig,
                                  load_or_render)
 from mapping.metrics import CalibrationStats
@@ -272,6 +273,7 @@ def train(cfg: SegmenterExperimentConfig, model: str, output: Path | str, resume
 def main_train_segmenter(args) -> None:
     cfg = load_config(args.config, args.overrides, cls=SegmenterExperimentConfig)
     output = Path(args.output) if args.output else default_weights_path(args.model)
+    check_output_file(output)   # written after training: a bad path fails now, not after 20 minutes
     parts = ["calnav", "train-segmenter", "--model", args.model, "--config", str(args.config), *args.overrides]
     if args.output:
         parts += ["--output", str(args.output)]
