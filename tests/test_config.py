@@ -175,11 +175,14 @@ def test_non_finite_and_out_of_range_numbers_are_refused(override, message):
     assert "\n" not in str(err.value)
 
 
-def test_glfs_eta_nan_is_refused():
+def test_glfs_eta_nan_and_a_zero_grid_are_refused():
     from eval.calibration.config import CalibrateMapConfig
 
     with pytest.raises(ConfigError, match="glfs.eta.*expected a finite number"):
         load_config(None, ["glfs.eta=nan"], cls=CalibrateMapConfig)
+    # issue 26: grid_points=0 failed after 60 s of scans and 429 MB written
+    with pytest.raises(ConfigError, match=r"study.grid_points must be >= 2 \(got 0\)"):
+        load_config(None, ["study.grid_points=0"], cls=CalibrateMapConfig)
 
 
 def test_binary_or_unreadable_config_names_the_file(tmp_path):

@@ -85,6 +85,9 @@ class StudyConfig:
             raise ValueError("study.calib_train_scenes, calib_val_scenes and test_scenes must be >= 1")
         if min(self.cache_cap, self.pixels_per_frame, self.fit_max_voxels, self.glfs_max_voxels) < 1:
             raise ValueError("study.cache_cap, pixels_per_frame, fit_max_voxels and glfs_max_voxels must be >= 1")
+        if self.grid_points < 2 or self.refine_iters < 0 or self.vector_sweeps < 0 or self.vector_refine_iters < 0:
+            raise ValueError(f"study.grid_points must be >= 2 (got {self.grid_points}); refine_iters, vector_sweeps "
+                             "and vector_refine_iters >= 0")
         if "glfs" in self.strategies and not self.glfs_variants:
             raise ValueError("study.glfs_variants must name at least one variant when glfs is compared")
         names = [v.name for v in self.glfs_variants]
