@@ -118,6 +118,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="labelled ground-truth mesh (default: *_vh_clean_2.labels.ply in the sequence directory)")
     p.add_argument("--config", default=None, help="YAML config (default: configs/map_sequence.yaml)")
     p.add_argument("--output", required=True, help="results directory")
+    p.add_argument("--force", action="store_true", help="replace the results of another config in --output")
     p.add_argument("overrides", nargs="*", metavar="KEY=VALUE",
                    help="dotted config overrides, e.g. mapping.fusion=glfs sequence.frame_stride=2")
 

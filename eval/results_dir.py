@@ -63,6 +63,19 @@ def warn(message: str) -> None:
     print(f"calnav: warning: {message}", file=sys.stderr)
 
 
+def check_output_dir(path: Path | str, option: str = "--output") -> Path:
+    """An output *directory* a command without a results-directory owner writes into, checked
+    before any work: not a file, and creatable (see ``check_output_file``)."""
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise ResultsError(f"{option} {path} is a file, not a directory; pass a directory")
+    if not path.exists():
+        check_output_file(path, option)   # the nearest existing parent must be a writable directory
+    elif not os.access(path, os.W_OK | os.X_OK):
+        raise ResultsError(f"{option} {path} is not writable")
+    return path
+
+
 def check_output_file(path: Path | str, option: str = "--output") -> Path:
     """An output *file* the command will write at its end, checked before any work: not a
     directory, and its nearest existing parent a writable directory (missing ones are created

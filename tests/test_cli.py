@@ -225,3 +225,17 @@ def test_output_file_under_a_file_fails_before_any_work(tmp_path, capsys, comman
     assert len(err) == 1 and f"{blocker} is a file, not a directory" in err[0]
     assert main([*command, "--output", str(tmp_path)]) == 2
     assert "is a directory; give a file name" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("command", [
+    ["view-episode", "--episode", "0"],
+    ["export-sequence", "--scene", "house_val_0000"],
+])
+def test_output_directory_that_is_a_file_is_one_line(tmp_path, capsys, command):
+    """Issue 26: --output that is a file (or under one) was a NotADirectoryError / FileExistsError traceback."""
+    blocker = tmp_path / "blocker"
+    blocker.write_text("x")
+    for out in (blocker, blocker / "sub"):
+        rc = main([*command, "--output", str(out)])
+        err = capsys.readouterr().err.strip().splitlines()
+        assert rc == 2 and len(err) == 1 and "is a file, not a directory" in err[0], err

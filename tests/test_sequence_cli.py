@@ -89,6 +89,22 @@ def test_precomputed_logits_give_the_segmenters_map(tmp_path):
     assert res["fusion"] == "glfs" and res["skipped_frames"] == [1] and res["frames"] == 3
 
 
+def test_map_owns_its_results_directory(tmp_path, capsys):
+    """Issue 26: a rerun of another config left the earlier map beside the new config.yaml."""
+    root = write_scannet(tmp_path / "seq", n=3)
+    out = tmp_path / "out"
+    base = ["map", str(root), "--layout", "scannet", "--segmenter", "gt", "--output", str(out)]
+    assert main(base) == 0
+    (out / "reliability_classes.png").write_text("stale")
+    assert main([*base, "mapping.fusion=rbu"]) == 2
+    assert "holds results of a different config" in capsys.readouterr().err
+    assert json.loads((out / "results.json").read_text())["fusion"] != "rbu"   # untouched
+    assert main([*base, "--force", "mapping.fusion=rbu"]) == 0
+    assert json.loads((out / "results.json").read_text())["fusion"] == "rbu"
+    stale = out / "reliability_classes.png"
+    assert not stale.exists() or stale.read_bytes()[:4] == b"\x89PNG"   # never the earlier run's file
+
+
 def _fails(args, capsys, message: str, out) -> None:
     assert main([*args, "--output", str(out)]) == 2
     err = capsys.readouterr().err

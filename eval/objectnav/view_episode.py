@@ -101,8 +101,10 @@ def main_view_episode(args) -> None:
     import envs  # noqa: F401
     from eval.objectnav.agents import make_agent
     from eval.config import load_config
+    from eval.results_dir import check_output_dir
 
     cfg = load_config(args.config, args.overrides)
+    check_output_dir(args.output)
     env = gym.make("calnav/ObjectNav-v0", split=cfg.env.split, config=cfg.env)
     n = len(env.unwrapped.episodes)
     if not 0 <= args.episode < n:

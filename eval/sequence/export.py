@@ -159,13 +159,14 @@ def main_export_sequence(args) -> None:
     from eval.calibration.config import CalibrateMapConfig
     from eval.calibration.study import scene_seed
     from eval.config import load_config
+    from eval.results_dir import check_output_dir
 
     overrides = [f"env.resolution={args.resolution}", *([f"scan.frames={args.frames}"] if args.frames else []),
                  *args.overrides]
     cfg = load_config(args.config, overrides, cls=CalibrateMapConfig)
     if not args.max_edge > 0:
         raise ValueError(f"--max-edge must be > 0 metres, got {args.max_edge}")
-    out = Path(args.output)
+    out = check_output_dir(args.output)
     if out.exists() and any(out.iterdir()) and not args.force:
         raise ValueError(f"{out} is not empty; pass --force to write into it or choose another --output")
     from envs.scenes import load_scene

@@ -20,12 +20,15 @@ from pathlib import Path
 
 import numpy as np
 
+from eval.results_dir import ResultsDir, writing
 from eval.sequence.config import MapSequenceConfig
 from eval.sequence.source import PrecomputedLogits, SegmenterLogits, fuse_frames, map_frames, prefetched
 from mapping.sequences import LogitsDir, Sequence, vertex_ground_truth
 
 DEFAULT_CONFIG = "configs/map_sequence.yaml"
 MAP_FORMAT_VERSION = 1
+# what one run writes besides config.yaml (results.json last: its presence means a finished map)
+MAP_FILES: tuple[str, ...] = ("map.npz", "map.ply", "reliability.png", "reliability_classes.png", "results.json")
 
 
 @dataclass
@@ -93,7 +96,7 @@ def write_map(out: Path, coords: np.ndarray, probs: np.ndarray, class_names, met
 
 
 def main_map(args) -> None:
-    from eval.config import dump_yaml, load_config
+    from eval.config import load_config
 
     cfg = load_config(args.config or DEFAULT_CONFIG, list(args.overrides), cls=MapSequenceConfig)
     seq = Sequence(args.sequence_dir, args.layout, cfg.sequence)
@@ -105,9 +108,16 @@ def main_map(args) -> None:
 
     vmap = SemanticVoxelMap(len(names), cfg.mapping, class_names=names)   # GLFS parameter file / K checked here
     out = Path(args.output)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "config.yaml").write_text(dump_yaml(cfg))
+    # the results directory's owner: a lock (a second run into it is refused), the config check
+    # (another config is refused unless --force), and no file of an earlier run left beside this one
+    with ResultsDir(out, cfg, force=args.force, discard=MAP_FILES, files=MAP_FILES):
+        for name in MAP_FILES:
+            (out / name).unlink(missing_ok=True)
+        with writing(out):
+            _map_into(out, cfg, seq, source, vmap, names, ply, gt, args)
 
+
+def _map_into(out: Path, cfg, seq, source, vmap, names, ply, gt, args) -> None:
     res = map_sequence(seq, source, cfg.mapping, progress=True, vmap=vmap)
     coords, probs = res.vmap.voxels()
     meta = {"sequence": str(seq.root), "layout": seq.layout, "voxel_size_m": cfg.mapping.voxel_size_m,
