@@ -157,6 +157,34 @@ class ResultsDir:
             raise
         return self
 
+    def check(self) -> "ResultsDir":
+        """What ``open`` would refuse, found without writing anything (for a command that works
+        in memory first and writes only at its end): a file in the way, an unwritable parent,
+        a run holding the directory, another config's results without ``force``."""
+        if self.path.exists() and not self.path.is_dir():
+            raise ResultsError(f"{self.option} {self.path} is a file, not a directory; pass a directory")
+        if not self.path.exists():
+            check_output_file(self.path, self.option)
+            return self
+        lock = self.path / LOCK_NAME
+        if lock.exists():
+            with writing(f"lock file {lock}"):
+                fd = os.open(lock, os.O_RDONLY)
+            try:
+                fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+            except BlockingIOError:
+                holder = os.read(fd, 32).decode(errors="replace").strip() or "unknown"
+                raise ResultsError(f"{self.path} is in use by another calnav run (pid {holder}); wait for it "
+                                   f"to finish or pass another {self.option}") from None
+            finally:
+                os.close(fd)
+        if self.cfg is not None and not self.force and self._holds_other_config():
+            raise ResultsError(f"{self.path} holds results of a different config ({self.path / CONFIG_NAME}); use "
+                               f"another {self.option}, or --force to discard them")
+        if not os.access(self.path, os.W_OK | os.X_OK):
+            raise ResultsError(f"{self.option} {self.path} is not writable")
+        return self
+
     def close(self) -> None:
         if self._lock_fd is not None:
             os.close(self._lock_fd)  # closing the last descriptor releases the flock
@@ -177,24 +205,30 @@ class ResultsDir:
         os.write(fd, f"{os.getpid()}\n".encode())
         self._lock_fd = fd
 
-    def _check_config(self) -> None:
+    def _holds_other_config(self) -> bool:
+        """Whether the directory's config.yaml (if any) differs from ``cfg`` beyond the neutral keys."""
         from eval.config import dump_yaml
 
         saved = self.path / CONFIG_NAME
-        text = dump_yaml(self.cfg)
-        if saved.exists():
-            try:
-                old = yaml.safe_load(saved.read_text()) or {}
-            except (yaml.YAMLError, UnicodeDecodeError) as exc:
-                raise ResultsError(f"{saved} is not a readable config ({type(exc).__name__}); remove it or "
-                                   f"pass another {self.option}") from None
-            if not isinstance(old, dict) or (strip_neutral(old, self.neutral_keys)
-                                             != strip_neutral(yaml.safe_load(text), self.neutral_keys)):
-                if not self.force:
-                    raise ResultsError(f"{self.path} holds results of a different config ({saved}); use "
-                                       f"another {self.option}, or --force to discard them")
-                self._discard()
-        self.write_text(CONFIG_NAME, text)
+        if not saved.exists():
+            return False
+        try:
+            old = yaml.safe_load(saved.read_text()) or {}
+        except (yaml.YAMLError, UnicodeDecodeError) as exc:
+            raise ResultsError(f"{saved} is not a readable config ({type(exc).__name__}); remove it or "
+                               f"pass another {self.option}") from None
+        return not isinstance(old, dict) or (strip_neutral(old, self.neutral_keys)
+                                             != strip_neutral(yaml.safe_load(dump_yaml(self.cfg)), self.neutral_keys))
+
+    def _check_config(self) -> None:
+        from eval.config import dump_yaml
+
+        if self._holds_other_config():
+            if not self.force:
+                raise ResultsError(f"{self.path} holds results of a different config ({self.path / CONFIG_NAME}); "
+                                   f"use another {self.option}, or --force to discard them")
+            self._discard()
+        self.write_text(CONFIG_NAME, dump_yaml(self.cfg))
 
     def _discard(self) -> None:
         with writing(f"results in {self.path}"):

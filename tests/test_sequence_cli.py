@@ -166,3 +166,64 @@ def test_bench_sequence_section_figures(tmp_path):
     for key in ("decode_ms_40x30", "segment_ms_40x30", "fusion_ms_40x30", "read_map_ms_40x30", "read_map_fps_40x30"):
         assert out[f"sequence.{key}"] > 0
     assert out["sequence.read_map_vs_parts"] > 0
+
+
+def _break(root, logits, defect: str) -> None:
+    """One per-frame defect of issue 26's list, in frame 2 of a 3-frame recording."""
+    import cv2
+
+    if defect == "truncated jpeg":
+        data = (root / "color" / "2.jpg").read_bytes()
+        (root / "color" / "2.jpg").write_bytes(data[:len(data) // 3])
+    elif defect == "3-channel depth":
+        d = cv2.imread(str(root / "depth" / "2.png"), cv2.IMREAD_UNCHANGED)
+        cv2.imwrite(str(root / "depth" / "2.png"), np.dstack([d, d, d]))
+    elif defect == "wrong-size depth":
+        d = cv2.imread(str(root / "depth" / "2.png"), cv2.IMREAD_UNCHANGED)
+        cv2.imwrite(str(root / "depth" / "2.png"), d[:-2])
+    elif defect == "missing semantic frame":
+        (root / "semantic" / "2.png").unlink()
+    elif defect == "nan logits":
+        arr = np.load(logits / "2.npy")
+        arr[0, 0, 0] = np.nan
+        np.save(logits / "2.npy", arr)
+    elif defect == "int8 logits":
+        np.save(logits / "2.npy", np.load(logits / "2.npy").astype(np.int8))
+    elif defect == "missing logits":
+        (logits / "2.npy").unlink()
+    elif defect == "truncated npy":
+        data = (logits / "2.npy").read_bytes()
+        (logits / "2.npy").write_bytes(data[:len(data) // 2])
+    elif defect == "nan ply vertex":
+        from plyfile import PlyData
+
+        ply_path = next(root.glob("*.labels.ply"))
+        ply = PlyData.read(str(ply_path), mmap=False)
+        ply["vertex"].data["x"][0] = np.nan
+        ply.write(str(ply_path))
+
+
+@pytest.mark.parametrize("defect, message", [
+    ("truncated jpeg", "2.jpg"), ("3-channel depth", "frame 2: depth"), ("wrong-size depth", "frame 2: depth is"),
+    ("missing semantic frame", "have no semantic/ file, e.g. frame 2"), ("nan logits", "of frame 2 hold NaN"),
+    ("int8 logits", "2.npy must be (H, W, K) float16 / float32, got int8"), ("missing logits", "no logits for frame 2"),
+    ("truncated npy", "cannot read logits"), ("nan ply vertex", "1 vertices have NaN or inf coordinates"),
+])
+def test_map_per_frame_defects_are_named_and_nothing_is_written(tmp_path, capsys, defect, message):
+    """Issue 26: per-frame problems were tracebacks, unnamed, or found after map.npz was written."""
+    from agent.segmenters import make_segmenter
+    from mapping.sequences import Sequence
+
+    root = write_scannet(tmp_path / "seq", n=3)
+    logits = tmp_path / "logits"
+    logits.mkdir()
+    (logits / "classes.json").write_text(json.dumps(list(CLASSES)))
+    seg = make_segmenter("gt")
+    for f in Sequence(root, "scannet").frames():
+        np.save(logits / f"{f.index}.npy", seg.segment(f.rgb, f.depth, semantic=f.semantic))
+    _break(root, logits, defect)
+    out = tmp_path / "out"
+    assert main(["map", str(root), "--layout", "scannet", "--logits", str(logits), "--output", str(out)]) == 2
+    last = capsys.readouterr().err.strip().splitlines()[-1]   # after the progress bar: one error line
+    assert last.startswith("calnav map: error: ") and message in last, last
+    assert not out.exists(), "nothing may be written on bad input"

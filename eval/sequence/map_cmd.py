@@ -110,15 +110,18 @@ def main_map(args) -> None:
     out = Path(args.output)
     # the results directory's owner: a lock (a second run into it is refused), the config check
     # (another config is refused unless --force), and no file of an earlier run left beside this one
-    with ResultsDir(out, cfg, force=args.force, discard=MAP_FILES, files=MAP_FILES):
+    results_dir = ResultsDir(out, cfg, force=args.force, discard=MAP_FILES, files=MAP_FILES)
+    results_dir.check()   # refused now rather than after the fusion, and nothing written yet
+    # every frame is read (and its problems named) while fusing in memory, before anything is written
+    res = map_sequence(seq, source, cfg.mapping, progress=True, vmap=vmap)
+    with results_dir:
         for name in MAP_FILES:
             (out / name).unlink(missing_ok=True)
         with writing(out):
-            _map_into(out, cfg, seq, source, vmap, names, ply, gt, args)
+            _write_results(out, cfg, seq, res, names, ply, gt, args)
 
 
-def _map_into(out: Path, cfg, seq, source, vmap, names, ply, gt, args) -> None:
-    res = map_sequence(seq, source, cfg.mapping, progress=True, vmap=vmap)
+def _write_results(out: Path, cfg, seq, res: MappedSequence, names, ply, gt, args) -> None:
     coords, probs = res.vmap.voxels()
     meta = {"sequence": str(seq.root), "layout": seq.layout, "voxel_size_m": cfg.mapping.voxel_size_m,
             "fusion": cfg.mapping.fusion, "frames": res.frames, "skipped_frames": res.skipped}

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import zipfile
 from contextlib import nullcontext
 from pathlib import Path
 
@@ -60,8 +61,11 @@ class LogitsDir:
         path = next((self.folder / f"{index}{s}" for s in (".npy", ".npz") if (self.folder / f"{index}{s}").exists()), None)
         if path is None:
             raise ValueError(f"no logits for frame {index}: expected {self.folder}/{index}.npy or .npz")
-        with (np.load(path) if path.suffix == ".npz" else nullcontext(np.load(path))) as data:
-            arr = data if isinstance(data, np.ndarray) else data["logits" if "logits" in data.files else data.files[0]]
+        try:
+            with (np.load(path) if path.suffix == ".npz" else nullcontext(np.load(path))) as data:
+                arr = data if isinstance(data, np.ndarray) else data["logits" if "logits" in data.files else data.files[0]]
+        except (OSError, ValueError, EOFError, KeyError, IndexError, zipfile.BadZipFile) as exc:   # truncated / not numpy
+            raise ValueError(f"cannot read logits {path} of frame {index}: {exc}") from None
         if arr.ndim != 3 or arr.dtype not in (np.float16, np.float32):
             raise ValueError(f"logits {path} must be (H, W, K) float16 / float32, got {arr.dtype} {arr.shape}")
         if arr.shape[2] != self.num_classes:
@@ -70,7 +74,10 @@ class LogitsDir:
         if size not in self.sizes:
             valid = " or ".join(f"{w}x{h} ({what})" for (w, h), what in self.sizes.items())
             raise ValueError(f"logits {path} are {size[0]}x{size[1]} pixels; expected {valid}")
-        return arr.astype(np.float32, copy=False)
+        arr = arr.astype(np.float32, copy=False)
+        if not np.isfinite(arr).all():
+            raise ValueError(f"logits {path} of frame {index} hold NaN or inf")
+        return arr
 
 
 
@@ -83,6 +90,9 @@ def vertex_ground_truth(ply_path, class_names, cfg: SequenceConfig, seq_root=Non
     from common.ply_labels import NYU40_NAMES, class_ids_of, class_index, int_keyed, read_label_table, read_vertex_labels
 
     vertices, raw = read_vertex_labels(ply_path, cfg.label_property)
+    if not np.isfinite(vertices).all():
+        bad = int((~np.isfinite(vertices).all(axis=1)).sum())
+        raise ValueError(f"{ply_path}: {bad} vertices have NaN or inf coordinates")
     source = cfg.label_map
     if not source and seq_root is not None and (Path(seq_root) / "label_map.json").exists():
         source = str(Path(seq_root) / "label_map.json")

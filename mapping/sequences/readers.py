@@ -245,6 +245,10 @@ def _open_scannet(root: Path):
             raise ValueError(f"{root}: {len(missing)} depth frames have no {name} file, e.g. frame {missing[0]}")
     sem_dir, raw_dir = root / "semantic", root / "label-filt"
     sem, raw = _numeric_stems(sem_dir, ".png"), _numeric_stems(raw_dir, ".png")
+    for name, have in (("semantic", sem), ("label-filt", raw)):
+        missing = sorted(depth - have) if have else []   # labels for some frames only: scores would skip the rest
+        if missing:
+            raise ValueError(f"{root}: {len(missing)} depth frames have no {name}/ file, e.g. frame {missing[0]}")
 
     def paths(i: int) -> dict:
         return {"color": root / "color" / f"{i}{ext}", "depth": root / "depth" / f"{i}.png",
