@@ -289,7 +289,10 @@ def read_records(path: str | os.PathLike, quiet: bool = False) -> RecordsRead:
         return out
     if path.is_dir():
         raise ResultsError(f"{path} is a directory, not a records file")
-    text = path.read_text(errors="replace")
+    try:
+        text = path.read_text(errors="replace")
+    except OSError as exc:
+        raise ResultsError(f"cannot read {path}: {exc.strerror or exc}") from None
     out.clean_end = not text or text.endswith("\n")
     dup_indices = []
     for lineno, line in enumerate(text.splitlines(), start=1):
