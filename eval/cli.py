@@ -45,7 +45,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--episodes", default="0:14", help="N (first N) or A:B (a range) of the split's episodes")
     p.add_argument("--variants", default="world,start,start_offset,start_rotated,house_yaw37",
                    help="comma-separated variants (eval.objectnav.frames.VARIANTS)")
-    p.add_argument("--workers", type=int, default=2, help="worker processes (shorthand for run.workers)")
+    p.add_argument("--workers", type=int, default=None,
+                   help="worker processes (shorthand for run.workers; default: the config's)")
     p.add_argument("--output", default="runs/start_pose", help="results directory")
     p.add_argument("--force", action="store_true", help="discard results of a different config in --output")
 

@@ -331,9 +331,11 @@ def main_start_pose(args) -> None:
     from eval.config import load_config
 
     variants = parse_variants(args.variants)           # every check before anything runs
-    if args.workers < 1:
+    if args.workers is not None and args.workers < 1:
         raise ValueError(f"--workers must be >= 1, got {args.workers}")
-    cfg = load_config(args.config, [f"run.workers={args.workers}", *args.overrides])
+    # the shorthand only when given: it never silently replaces the config's run.workers
+    shorthand = [f"run.workers={args.workers}"] if args.workers is not None else []
+    cfg = load_config(args.config, [*shorthand, *args.overrides])
     if cfg.run.agent != "peanut":
         raise ValueError(f"start-pose runs the peanut agent (its maps live in the start frame), got run.agent={cfg.run.agent}")
     indices = list(parse_episode_range(str(args.episodes), len(load_split(cfg.env.split, cfg.env))))
