@@ -129,7 +129,8 @@ def test_augmentation_blurs_the_chosen_share(cfg):
     rgb = torch.zeros(4, 3, 12, 12)
     rgb[:, :, 6, 6] = 0.5
     labels = torch.zeros(4, 12, 12, dtype=torch.int64)
-    quiet = dataclasses.replace(cfg.train, brightness=0.0, contrast=0.0, colour=0.0, rgb_noise_std=0.0, hflip=False)
+    quiet = dataclasses.replace(cfg.train, brightness=0.0, contrast=0.0, colour=0.0, rgb_noise_std=0.0, hflip=False,
+                                blur_prob=0.0)
     same, _, _ = augment(rgb.clone(), None, labels, torch.Generator().manual_seed(0), quiet, 5.0)
     torch.testing.assert_close(same, rgb)
     blurred, _, _ = augment(rgb.clone(), None, labels, torch.Generator().manual_seed(0),

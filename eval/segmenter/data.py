@@ -54,7 +54,7 @@ MAX_BLOCKED_RETRIES = 12        # a walk whose moves keep failing just records t
 class SegDataConfig:
     """Which frames are rendered (``data`` section)."""
 
-    frames: int = 10000              # training frames rendered (eval: --frames)
+    frames: int = 20000              # training frames rendered (eval: --frames)
     scenes: int = 0                  # houses of the split used; 0 = all (env.dataset.<split>_scenes)
     resolution: tuple[int, int] = (160, 120)  # rendered frame WxH, pixels (the training resolution)
     walk_steps: int = 10             # frames per random walk
