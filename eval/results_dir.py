@@ -171,11 +171,7 @@ class ResultsDir:
             with writing(f"lock file {lock}"):
                 fd = os.open(lock, os.O_RDONLY)
             try:
-                fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
-            except BlockingIOError:
-                holder = os.read(fd, 32).decode(errors="replace").strip() or "unknown"
-                raise ResultsError(f"{self.path} is in use by another calnav run (pid {holder}); wait for it "
-                                   f"to finish or pass another {self.option}") from None
+                self._flock_or_refuse(fd, fcntl.LOCK_SH)   # released with the descriptor below
             finally:
                 os.close(fd)
         if self.cfg is not None and not self.force and self._holds_other_config():
@@ -190,17 +186,24 @@ class ResultsDir:
             os.close(self._lock_fd)  # closing the last descriptor releases the flock
             self._lock_fd = None
 
+    def _flock_or_refuse(self, fd: int, mode: int) -> None:
+        """flock ``fd`` without waiting; ResultsError naming the holder's pid when another run has it."""
+        try:
+            fcntl.flock(fd, mode | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.read(fd, 32).decode(errors="replace").strip() or "unknown"
+            raise ResultsError(f"{self.path} is in use by another calnav run (pid {holder}); wait for it "
+                               f"to finish or pass another {self.option}") from None
+
     def _lock(self) -> None:
         lock = self.path / LOCK_NAME
         with writing(f"lock file {lock}"):
             fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
         try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            holder = os.read(fd, 32).decode(errors="replace").strip() or "unknown"
+            self._flock_or_refuse(fd, fcntl.LOCK_EX)
+        except ResultsError:
             os.close(fd)
-            raise ResultsError(f"{self.path} is in use by another calnav run (pid {holder}); wait for it "
-                               f"to finish or pass another {self.option}") from None
+            raise
         os.ftruncate(fd, 0)
         os.write(fd, f"{os.getpid()}\n".encode())
         self._lock_fd = fd

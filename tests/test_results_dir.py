@@ -237,3 +237,24 @@ def test_config_check_ignores_neutral_keys_and_force_discards(tmp_path):
             pass
         assert not (out / "fits").exists() and not (out / RECORDS).exists() and (out / "keep.txt").exists()
         assert "seed: 5" in (out / "config.yaml").read_text()
+
+
+def test_check_finds_a_held_directory_and_another_config_without_writing(tmp_path):
+    """ResultsDir.check (calnav map: checked before fusing, opened after) refuses what open would."""
+    from eval.config import load_config
+
+    path = tmp_path / "r"
+    held = ResultsDir(path, load_config(None, ["run.seed=1"])).open()
+    try:
+        with pytest.raises(ResultsError, match=r"in use by another calnav run \(pid \d+\)"):
+            ResultsDir(path).check()
+    finally:
+        held.close()
+    before = sorted(p.name for p in path.iterdir())
+    with pytest.raises(ResultsError, match="holds results of a different config"):
+        ResultsDir(path, load_config(None, ["run.seed=2"])).check()
+    ResultsDir(path, load_config(None, ["run.seed=2"]), force=True).check()
+    ResultsDir(path, load_config(None, ["run.seed=1"])).check()
+    assert sorted(p.name for p in path.iterdir()) == before   # check writes nothing
+    ResultsDir(tmp_path / "new" / "dir").check()
+    assert not (tmp_path / "new").exists()
