@@ -161,10 +161,8 @@ class ResultsDir:
         """What ``open`` would refuse, found without writing anything (for a command that works
         in memory first and writes only at its end): a file in the way, an unwritable parent,
         a run holding the directory, another config's results without ``force``."""
-        if self.path.exists() and not self.path.is_dir():
-            raise ResultsError(f"{self.option} {self.path} is a file, not a directory; pass a directory")
+        check_output_dir(self.path, self.option)   # a file in the way, an unwritable parent or directory
         if not self.path.exists():
-            check_output_file(self.path, self.option)
             return self
         lock = self.path / LOCK_NAME
         if lock.exists():
@@ -177,8 +175,6 @@ class ResultsDir:
         if self.cfg is not None and not self.force and self._holds_other_config():
             raise ResultsError(f"{self.path} holds results of a different config ({self.path / CONFIG_NAME}); use "
                                f"another {self.option}, or --force to discard them")
-        if not os.access(self.path, os.W_OK | os.X_OK):
-            raise ResultsError(f"{self.option} {self.path} is not writable")
         return self
 
     def close(self) -> None:
