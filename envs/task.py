@@ -158,7 +158,7 @@ def xy_yaw_to_gps_compass(xy, yaw: float, start_xy, start_rotation) -> tuple[np.
 
     Computed exactly as habitat-lab does (its start position in float32, numpy-quaternion's
     arithmetic, Habitat's y-up frame in which calnav (x, y) is (x, ., -y)), so the values are
-    bit-identical to habitat-lab's on the same episode (``tests/test_habitat_agent.py``)."""
+    bit-identical to habitat-lab's on the same episode (``tests/agent/test_habitat_agent.py``)."""
     sx, sy, sz, sw = (float(c) for c in start_rotation)
     start = (sw, sx, sy, sz)
     origin = np.array([start_xy[0], 0.0, -start_xy[1]], np.float32)

@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from conftest import small_or_full
+from tests.conftest import small_or_full
 from eval.cli import main
 
 pytestmark = pytest.mark.e2e

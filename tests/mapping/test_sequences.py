@@ -11,7 +11,7 @@ import pytest
 from mapping import frame_geometry as fg
 from mapping.sequences import (LogitsDir, Registration, Sequence, SequenceConfig, depth_from_raw,
                                vertex_ground_truth)
-from sequence_data import CLASSES, FLOOR, TABLE, WALL, intrinsics, render_frames, write_scannet
+from tests.sequence_data import CLASSES, FLOOR, TABLE, WALL, intrinsics, render_frames, write_scannet
 
 
 def _rot_z(a: float) -> np.ndarray:

@@ -26,7 +26,7 @@ def test_every_shipped_config_loads():
     special = {"segmenter.yaml": SegmenterExperimentConfig, "calibrate_map.yaml": CalibrateMapConfig,
                "map_sequence.yaml": MapSequenceConfig}
     # habitat-lab configs (habitat_*.yaml) are hydra configs of habitat-lab's schema: composed
-    # by habitat-lab in tests/test_habitat.py
+    # by habitat-lab in tests/envs/test_habitat.py
     files = sorted(p for p in CONFIG_DIR.glob("*.yaml") if not p.name.startswith("habitat_"))
     assert files
     for path in files:

@@ -17,7 +17,7 @@ from eval.cli import main
 from eval.results_dir import RECORDS_NAME as RECORDS, ResultsDir, ResultsError, read_records
 
 SMALL = ["env.resolution=32x24", "env.dataset.val_scenes=2", "env.dataset.episodes_per_scene=3"]
-REPO_ROOT = Path(__file__).resolve().parents[1]
+REPO_ROOT = Path(__file__).resolve().parents[2]
 LOCK_HOLDER = ("import sys, time; from eval.results_dir import ResultsDir; ResultsDir(sys.argv[1]).open(); "
                "print('locked', flush=True); time.sleep(600)")
 

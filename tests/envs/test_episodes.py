@@ -7,7 +7,7 @@ import numpy as np
 import open3d as o3d
 import pytest
 
-from conftest import small_or_full
+from tests.conftest import small_or_full
 from envs.config import EnvConfig
 from envs.episodes import (episodes_from_habitat, episodes_to_habitat, generate_scene_episodes,
                            goal_mask, habitat_quaternion_to_yaw, load_split, parse_episode_range,

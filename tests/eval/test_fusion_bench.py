@@ -8,7 +8,7 @@ from eval.config import ConfigError, load_config
 from mapping.config import MappingConfig
 from mapping.fusion import STRATEGIES
 from mapping.ground_truth import LabelledMesh
-from test_voxel_map import VIEWS, intrinsics, look_at
+from tests.mapping.test_voxel_map import VIEWS, intrinsics, look_at
 
 
 def _frames(mesh, w, h, n=3):

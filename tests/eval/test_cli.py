@@ -180,7 +180,7 @@ def test_habitat_benchmark_names_the_install_when_habitat_lab_is_missing(tmp_pat
     import importlib.util
 
     if importlib.util.find_spec("habitat") is not None:
-        pytest.skip("habitat-lab is installed here: tests/test_habitat.py covers habitat-benchmark")
+        pytest.skip("habitat-lab is installed here: tests/envs/test_habitat.py covers habitat-benchmark")
     assert main(["habitat-benchmark", "--output", str(tmp_path / "h"), "env.dataset.val_scenes=2"]) == 2
     err = capsys.readouterr().err
     assert "habitat-lab is not installed" in err and "make habitat-setup" in err and 'pip install -e ".[habitat]"' in err

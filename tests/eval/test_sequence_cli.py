@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from eval.cli import main
-from sequence_data import CLASSES, write_scannet
+from tests.sequence_data import CLASSES, write_scannet
 
 ROUND_TRIP = ["--frames", "8", "--resolution", "64x48", "--max-edge", "0.1"]
 

@@ -21,7 +21,7 @@ from eval.objectnav.run import EpisodeJob, run_jobs
 
 SMALL = ["env.resolution=64x48", "env.dataset.val_scenes=2", "env.dataset.episodes_per_scene=3"]
 PEANUT_GT = ["agent.segmenter=gt", "agent.map_resolution=64x48", "env.max_episode_steps=60"]
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 METRICS = ("success", "spl", "softspl", "distance_to_goal", "steps", "path_length", "collisions", "stop_reason")
 
 

@@ -11,7 +11,7 @@ import json
 import numpy as np
 import pytest
 
-from conftest import require_habitat
+from tests.conftest import require_habitat
 
 require_habitat()
 if importlib.util.find_spec("agent.sensors") is None:

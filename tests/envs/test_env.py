@@ -7,7 +7,7 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 import envs
-from conftest import small_or_full
+from tests.conftest import small_or_full
 from envs.oracle import OracleAgent, ShortestPathFollower
 from envs.semantics import NUM_CLASSES
 from envs.task import Action
@@ -33,6 +33,25 @@ def test_make_with_defaults_and_overrides(small_env_config):
     assert obs["rgb"].shape == (24, 32, 3)
     with pytest.raises(ValueError, match="unknown EnvConfig fields"):
         gym.make(envs.ENV_ID, split="val", config=small_env_config, resolutoin=(32, 24))
+
+
+def test_make_max_episode_steps_is_the_envs_own_limit(small_env_config):
+    """gym.make(max_episode_steps=3): the env itself truncates at 3 (its info and state end the
+    episode there), not only gymnasium's outer TimeLimit while the env runs on to 500."""
+    from dataclasses import replace
+
+    e = gym.make(envs.ENV_ID, split="val", config=small_env_config, max_episode_steps=3)
+    assert e.unwrapped.config.max_episode_steps == 3 and e.spec.max_episode_steps == 3
+    e.reset(options={"episode_index": 0})
+    for i in range(3):
+        _, _, terminated, truncated, info = e.step(int(Action.TURN_LEFT))
+    assert (terminated, truncated, info["steps"]) == (False, True, 3)
+    with pytest.raises(RuntimeError, match="episode is over"):
+        e.unwrapped.step(int(Action.TURN_LEFT))
+    # without the argument the config's limit stands; a config stating another limit contradicts it
+    assert gym.make(envs.ENV_ID, split="val", config=small_env_config).unwrapped.config.max_episode_steps == 500
+    with pytest.raises(ValueError, match="contradicts the env config's max_episode_steps=7"):
+        gym.make(envs.ENV_ID, split="val", config=replace(small_env_config, max_episode_steps=7), max_episode_steps=3)
 
 
 def test_observation_spec(env, small_env_config):

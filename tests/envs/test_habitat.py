@@ -11,7 +11,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from conftest import require_habitat
+from tests.conftest import require_habitat
 
 require_habitat()
 

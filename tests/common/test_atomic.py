@@ -11,7 +11,7 @@ import pytest
 
 from common.atomic import atomic_path, is_temp_file, temp_path, write_json_atomic, write_text_atomic
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
+REPO_ROOT = Path(__file__).resolve().parents[2]
 PACKAGES = ("common", "envs", "mapping", "agent", "eval")
 
 
