@@ -13,6 +13,9 @@ simulated segmenters only (Habitat gives neither).
 ``spl``, ``softspl`` (plus ``episode_id``, ``steps``, ``collisions``, ``path_length``).
 An episode terminates on STOP and is truncated after ``max_episode_steps`` actions (the
 agent, like PEANUT, should STOP on its last step to have a chance of success).
+``gym.make(ENV_ID, max_episode_steps=N)`` sets that limit: gymnasium's ``TimeLimit`` is applied
+outside the env, so ``EpisodeLimit`` (registered as the id's additional wrapper) hands N to the
+env, which then truncates, reports and ends its episode at N too.
 
 Reward (for RL users; the metrics do not depend on it): habitat-lab's ObjectNav shaping,
 reduction in DistanceToGoal, -0.01 per step, +2.5 on success.
@@ -220,3 +223,35 @@ class ObjectNavEnv(gym.Env):
             **m, "episode_id": self.episode.episode_id, "steps": self.steps,
             "collisions": self.collisions, "path_length": self._measurements["spl"].path_length,
         }
+
+
+class EpisodeLimit(gym.Wrapper, gym.utils.RecordConstructorArgs):
+    """Makes the env honour ``gym.make(ENV_ID, max_episode_steps=N)``.
+
+    gymnasium builds the env first and wraps it in ``TimeLimit(N)`` afterwards, so the env would
+    keep its config's limit (500) and run on past N if stepped further. This wrapper, which
+    gymnasium applies after ``TimeLimit`` (it is the id's registered additional wrapper), finds the
+    ``TimeLimit`` and sets the env's ``max_episode_steps`` to N. A config that states another
+    limit of its own (not the default) contradicts the argument: refused, naming both."""
+
+    def __init__(self, env: gym.Env):
+        gym.utils.RecordConstructorArgs.__init__(self)  # so gym.make(env.spec) can rebuild it
+        gym.Wrapper.__init__(self, env)
+        limit = _time_limit(env)
+        base = env.unwrapped
+        if limit is None or not isinstance(base, ObjectNavEnv) or limit == base.config.max_episode_steps:
+            return
+        if base.config.max_episode_steps != EnvConfig().max_episode_steps:
+            raise ValueError(f"gym.make(max_episode_steps={limit}) contradicts the env config's "
+                             f"max_episode_steps={base.config.max_episode_steps}: give one of them")
+        base.config = replace(base.config, max_episode_steps=limit)
+        EnvConfig.__post_init__(base.config)
+
+
+def _time_limit(env: gym.Env) -> int | None:
+    """The step limit of the outermost gymnasium ``TimeLimit`` around ``env``, or None."""
+    while isinstance(env, gym.Wrapper):
+        if isinstance(env, gym.wrappers.TimeLimit):
+            return int(env._max_episode_steps)  # gymnasium keeps it only there
+        env = env.env
+    return None

@@ -42,6 +42,7 @@ def test_make_max_episode_steps_is_the_envs_own_limit(small_env_config):
 
     e = gym.make(envs.ENV_ID, split="val", config=small_env_config, max_episode_steps=3)
     assert e.unwrapped.config.max_episode_steps == 3 and e.spec.max_episode_steps == 3
+    assert gym.make(e.spec).unwrapped.config.max_episode_steps == 3  # the spec rebuilds it
     e.reset(options={"episode_index": 0})
     for i in range(3):
         _, _, terminated, truncated, info = e.step(int(Action.TURN_LEFT))
