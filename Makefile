@@ -10,7 +10,7 @@ HABITAT_VENV  ?= .venv-habitat
 HPY           := $(HABITAT_VENV)/bin/python
 HABITAT_STAMP := $(HABITAT_VENV)/.calnav-installed
 
-.PHONY: setup habitat-setup demo test test-full bench study clean-cache
+.PHONY: setup habitat-setup demo test test-full docs bench study clean-cache
 
 setup: $(STAMP)
 
@@ -36,19 +36,25 @@ $(HABITAT_STAMP): pyproject.toml
 demo: $(STAMP)
 	$(VENV)/bin/calnav demo
 
-# the main suite, then the habitat-lab interop tests (marker habitat) for real in .venv-habitat
+# the main suite, then the habitat-lab interop tests (marker habitat) for real in .venv-habitat,
+# then the docs site (mkdocs.yml; strict: a broken link or anchor fails) into the ignored site/
 test: $(STAMP) $(HABITAT_STAMP)
 	$(PY) -m pytest -q -ra
 	CALNAV_REQUIRE_HABITAT=1 $(HPY) -m pytest -q -ra -m habitat
+	$(VENV)/bin/mkdocs build --strict --quiet --site-dir site
 
 test-full: $(STAMP) $(HABITAT_STAMP)
 	CALNAV_FULL_TESTS=1 $(PY) -m pytest -q -ra
 	CALNAV_REQUIRE_HABITAT=1 CALNAV_FULL_TESTS=1 $(HPY) -m pytest -q -ra -m habitat
 
+# the documentation site (docs/, mkdocs.yml) into site/; `$(VENV)/bin/mkdocs serve` to browse it
+docs: $(STAMP)
+	$(VENV)/bin/mkdocs build --strict --site-dir site
+
 bench: $(STAMP)
 	$(VENV)/bin/calnav bench --output bench.json
 
-# The README's ObjectNav comparison: tune per segmenter x map, evaluate on a disjoint range
+# The ObjectNav comparison (docs/objectnav_study.md): tune per segmenter x map, evaluate on a disjoint range
 # (several hours on 2 cores; resumable, rerun to continue).
 study: $(STAMP)
 	CALNAV=$(VENV)/bin/calnav eval/objectnav/study.sh

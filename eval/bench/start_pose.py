@@ -15,7 +15,7 @@ from __future__ import annotations
 
 EPISODES = 8            # 8 episodes x 5 variants = 40 episodes, ~4 min on 2 free cores
 QUICK_EPISODES = 2
-GOAL_THRESHOLD = 0.7    # `calnav tune`'s pick for learned_rgb + GLFS (README, ObjectNav comparison)
+GOAL_THRESHOLD = 0.7    # `calnav tune`'s pick for learned_rgb + GLFS (docs/objectnav_study.md, start-pose study)
 OVERRIDES = ["env.resolution=160x120", "agent.segmenter=learned_rgb", "mapping.fusion=glfs",
              "mapping.glfs_params=agent/weights/glfs_learned_rgb.json", f"agent.goal_threshold={GOAL_THRESHOLD}"]
 

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The README's ObjectNav comparison (the paper's Table II): for each segmenter and map type, tune
+# The ObjectNav comparison of docs/objectnav_study.md (the paper's Table II): for each segmenter and map type, tune
 # the goal threshold on val episodes $TUNE (a best threshold on the grid's edge extends the
 # grid, `--extend 2`), then evaluate the tuned config on the disjoint range $EVAL; GLFS is also
 # evaluated with the uncertainty-aware agent (at GLFS's tuned threshold), and so is RBU (at its
@@ -8,7 +8,7 @@
 #   usage: eval/objectnav/study.sh   (env: OUT, TUNE, EVAL, THRESHOLDS, THRESHOLDS_<segmenter>,
 #                                     SEGMENTERS, CALNAV, RUN)
 # RUN: extra `run.*` overrides for every command, e.g. RUN="run.backend=ray run.ray_address=auto"
-# to run every tuning grid and evaluation as Ray tasks on a cluster (see README, "Scaling out").
+# to run every tuning grid and evaluation as Ray tasks on a cluster (see docs/ray.md).
 set -euo pipefail
 OUT=${OUT:-runs/study}
 TUNE=${TUNE:-0:100}            # tuning episodes (val), an A:B range
@@ -21,7 +21,7 @@ THRESHOLDS_gt=${THRESHOLDS_gt:-0.5,0.7,0.85}
 SEGMENTERS=${SEGMENTERS:-learned_rgb gt}
 CALNAV=${CALNAV:-.venv/bin/calnav}
 # 160x120 = the mapping resolution the agent subsamples 640x480 to, and the segmenters' training
-# resolution: same information, 1.6x faster episodes (README, "ObjectNav comparison").
+# resolution: same information, 1.6x faster episodes (docs/objectnav_study.md, "Sensor resolution").
 # shellcheck disable=SC2206
 RUN=(${RUN:-})
 COMMON=(env.resolution=160x120 "${RUN[@]}")
