@@ -5,4 +5,6 @@ project package (``agent``, ``envs``, ``mapping``, ``eval``).
   contents or through a temporary path for writers such as ``np.savez`` / ``torch.save``.
 - ``common.npz``: save / load a versioned ``.npz`` (arrays + a JSON metadata record carrying
   ``format_version``), with clear errors naming the file.
+- ``common.prefetch``: an iterator's items produced a bounded number ahead by a background
+  thread, exceptions re-raised in the consumer.
 """

@@ -207,7 +207,12 @@ def main(argv: list[str] | None = None) -> int:
 
         check_cache_dir()   # every command reads or writes the cache
         module, function = COMMANDS[args.command]
-        getattr(importlib.import_module(module), function)(args)
+        command_main = getattr(importlib.import_module(module), function)
+        from eval.preflight import COMMANDS as PREFLIGHT_COMMANDS, check_command
+
+        if args.command in PREFLIGHT_COMMANDS:
+            check_command(args, args.command)   # every file the configs name, before anything is written
+        command_main(args)
     except (ConfigError, ValueError, FileNotFoundError, ResultsError) as exc:
         print(f"calnav {args.command}: error: {exc}", file=sys.stderr)
         return 2

@@ -14,8 +14,10 @@ Checked per config, by the loaders that own the data:
   uses (``envs.scenes.split_scene_ids``);
 - ``run.backend``: a known backend, and for ``ray`` an importable Ray (``eval.backends``).
 
-Each command calls ``check_command(args, COMMAND)`` once, first thing in its main; it loads
-every config the command will run (all multirun combinations) exactly as the command does.
+``eval.cli`` calls ``check_command(args, COMMAND)`` for each command of ``COMMANDS`` once, just
+before the command's main; it loads every config the command will run (all multirun
+combinations) exactly as the command does. Like ``eval.cli`` it sits above the experiments (it
+imports their config loading); no experiment imports it.
 """
 from __future__ import annotations
 

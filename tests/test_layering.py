@@ -9,7 +9,18 @@ not depend on the working directory:
   ``envs.semantics``), never the simulator's internals;
 - the online map (``mapping`` outside ``mapping.calibration``) does not import the offline
   calibration package;
-- ``common``, ``envs`` and ``mapping`` have no import cycles between their modules.
+- no package has an import cycle between its modules;
+- inside ``eval`` (one node per experiment subpackage or top-level module):
+
+  - the top, ``eval.cli`` (parsing and dispatch) and ``eval.preflight`` (loads every command's
+    configs), may import anything of ``eval``; only ``eval.cli`` imports ``eval.preflight`` and
+    nothing imports ``eval.cli``;
+  - the shared modules (``config``, ``results_dir``, ``backends``, ``stats``) import no
+    experiment subpackage and not the top;
+  - an experiment subpackage imports the shared modules and only the experiment subpackages
+    ``EVAL_ALLOWED`` declares for it: a new cross-import fails until it is declared there;
+  - neither the imports nor the declared table have a cycle between the nodes;
+  - every subpackage and top-level module of ``eval`` is classified (a new one must be).
 """
 from __future__ import annotations
 
@@ -95,24 +106,120 @@ def test_online_map_does_not_import_the_calibration_package(sources):
     assert not bad, "\n".join(bad)
 
 
+def _find_cycle(graph: dict[str, set[str]]) -> list[str] | None:
+    """One cycle of ``graph`` ({node: nodes it depends on}) as [a, b, ..., a], or None."""
+    done: set[str] = set()
+
+    def visit(node: str, path: list[str]) -> list[str] | None:
+        for dep in sorted(graph.get(node, ())):
+            if dep in path:
+                return path[path.index(dep):] + [dep]
+            if dep not in done and (cycle := visit(dep, path + [dep])):
+                return cycle
+        done.add(node)
+        return None
+
+    for node in sorted(graph):
+        if cycle := visit(node, [node]):
+            return cycle
+    return None
+
+
 def test_no_import_cycles(sources):
     # edges between modules of one package; `from mapping import fusion` also names the package
     # ``mapping`` itself, an ancestor that is always initialised first: not an edge
     graph = {mod: {d for d in deps if d in sources[pkg] and d != mod and not mod.startswith(d + ".")}
-             for pkg in ("common", "envs", "mapping") for mod, deps in sources[pkg].items()}
-    assert len(graph) > 20
-    done: set[str] = set()
+             for pkg in PACKAGES for mod, deps in sources[pkg].items()}
+    assert len(graph) > 100
+    cycle = _find_cycle(graph)
+    assert cycle is None, "import cycle: " + " -> ".join(cycle or [])
 
-    def visit(mod: str, path: list[str]) -> None:
-        for dep in sorted(graph.get(mod, ())):
-            if dep in path:
-                pytest.fail("import cycle: " + " -> ".join(path[path.index(dep):] + [dep]))
-            elif dep not in done:
-                visit(dep, path + [dep])
-        done.add(mod)
 
-    for mod in sorted(graph):
-        visit(mod, [mod])
+def test_find_cycle_finds_one():
+    assert _find_cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == ["a", "b", "c", "a"]
+    assert _find_cycle({"a": {"b", "c"}, "b": {"c"}, "c": set()}) is None
+
+
+# ------------------------------------------------------------------------------------- eval
+# One node per experiment subpackage (eval/<name>/) and per top-level module (eval/<name>.py).
+EVAL_TOP = {"cli", "preflight"}                              # may import anything of eval
+EVAL_SHARED = {"config", "results_dir", "backends", "stats"}  # import only each other
+# experiment subpackage -> the experiment subpackages it may import (the shared modules always).
+# Declaring a new edge here must keep the table acyclic (test_eval_dependency_table_is_acyclic).
+EVAL_ALLOWED: dict[str, set[str]] = {
+    "bench": {"objectnav",     # bench.backends, bench.start_pose time ObjectNav runs and the frame study
+              "sequence"},     # bench.sequence times ScanNet export and the recorded-sequence map
+    "calibration": set(),
+    "habitat": {"objectnav"},  # the habitat benchmark reuses objectnav.run's bookkeeping and report
+    "objectnav": set(),
+    "scanning": set(),
+    "segmenter": set(),
+    "sequence": {"calibration"},  # export-sequence writes a calibration scan (HouseScan, scene_seed,
+                                  # CalibrateMapConfig); `calnav map` draws calibration.plots' diagrams
+}
+
+
+def _eval_node(module: str) -> str | None:
+    """The eval node of a module name (``eval.objectnav.run.main`` -> ``objectnav``); None for
+    ``eval`` itself and outside eval."""
+    parts = module.split(".")
+    return parts[1] if parts[0] == "eval" and len(parts) > 1 else None
+
+
+@pytest.fixture(scope="module")
+def eval_edges(sources) -> list[tuple[str, str, str, str]]:
+    """(node, node imported, module, module imported) of every import between two eval nodes."""
+    return sorted((src, dst, mod, dep) for mod, deps in sources["eval"].items() for dep in deps
+                  if (src := _eval_node(mod)) and (dst := _eval_node(dep)) and dst != src)
+
+
+def test_every_eval_part_is_classified(sources, eval_edges):
+    root = REPO_ROOT / "eval"
+    found = {p.name for p in root.iterdir() if p.is_dir() and (p / "__init__.py").is_file()}
+    found |= {p.stem for p in root.glob("*.py") if p.stem != "__init__"}
+    assert found == EVAL_TOP | EVAL_SHARED | set(EVAL_ALLOWED), \
+        f"classify in EVAL_TOP / EVAL_SHARED / EVAL_ALLOWED: {sorted(found ^ (EVAL_TOP | EVAL_SHARED | set(EVAL_ALLOWED)))}"
+    assert not (EVAL_TOP & EVAL_SHARED) and not ((EVAL_TOP | EVAL_SHARED) & set(EVAL_ALLOWED))
+    assert all(deps <= set(EVAL_ALLOWED) for deps in EVAL_ALLOWED.values())
+    assert {_eval_node(m) for m in sources["eval"]} - {None} == found
+    # the scan sees cross-node imports of each kind: experiment -> shared, experiment -> experiment, top -> experiment
+    kinds = {(src in EVAL_ALLOWED, dst in EVAL_ALLOWED, src in EVAL_TOP) for src, dst, _, _ in eval_edges}
+    assert {(True, False, False), (True, True, False), (False, True, True)} <= kinds, kinds
+
+
+def test_eval_shared_modules_import_no_experiment(eval_edges):
+    bad = [f"{mod} imports {dep}" for src, dst, mod, dep in eval_edges
+           if src in EVAL_SHARED and dst not in EVAL_SHARED]
+    assert not bad, f"the shared modules {sorted(EVAL_SHARED)} import only each other:\n" + "\n".join(bad)
+
+
+def test_eval_experiments_import_only_declared_experiments(eval_edges):
+    bad = [f"{mod} imports {dep}" for src, dst, mod, dep in eval_edges
+           if src in EVAL_ALLOWED and dst not in EVAL_SHARED | EVAL_ALLOWED[src]]
+    assert not bad, ("an undeclared import between eval's parts: declare the edge in EVAL_ALLOWED "
+                     "(keeping it acyclic) or move the shared code to a shared module:\n" + "\n".join(bad))
+
+
+def test_only_the_cli_imports_preflight_and_nothing_imports_the_cli(eval_edges):
+    bad = [f"{mod} imports {dep}" for src, dst, mod, dep in eval_edges
+           if dst == "cli" or (dst == "preflight" and src != "cli")]
+    assert not bad, "\n".join(bad)
+
+
+def test_no_import_cycles_between_eval_parts(eval_edges):
+    graph: dict[str, set[str]] = {}
+    for src, dst, _, _ in eval_edges:
+        graph.setdefault(src, set()).add(dst)
+    assert len(graph) >= len(EVAL_ALLOWED)
+    cycle = _find_cycle(graph)
+    where = [f"{mod} imports {dep}" for src, dst, mod, dep in eval_edges
+             if cycle and (src, dst) in zip(cycle, cycle[1:])]
+    assert cycle is None, "import cycle between eval's parts: " + " -> ".join(cycle or []) + "\n" + "\n".join(where)
+
+
+def test_eval_dependency_table_is_acyclic():
+    cycle = _find_cycle(EVAL_ALLOWED)
+    assert cycle is None, "EVAL_ALLOWED declares a cycle: " + " -> ".join(cycle or [])
 
 
 # habitat-lab (numpy 1.26 only, its own venv) is imported by these modules and no others, so

@@ -12,12 +12,19 @@ from envs.trajectories import ScanConfig
 from eval.config import RunConfig, build_dataclass, to_dict
 from mapping.config import FUSION_NAMES, MappingConfig
 from mapping.calibration.glfs_train import GLFSTrainConfig
-from mapping.sequences import SequenceConfig
-from eval.sequence.config import SequenceSetConfig
+from mapping.sequences import LayoutName, SequenceConfig
 
 CALIBRATIONS: tuple[str, ...] = ("none", "temperature_2d", "temperature_3d", "vector_3d")
 LEARNED_SEGMENTERS: tuple[str, ...] = ("learned_rgb", "learned_rgbd")
 TAU_CURVE_RANGE = (0.01, 300.0)   # the mECE-vs-temperature curve's span (authors' RBU optimum: 80-131)
+
+
+@dataclass
+class SequenceSetConfig:
+    """Recorded sequences replacing calnav's houses in ``calnav calibrate-map``."""
+
+    list: str = ""                   # list file, one "<role> <dir> [layout]" per line (role: calib_train | calib_val | test); "" = calnav houses
+    layout: LayoutName = "scannet"   # layout of listed sequences that name none: scannet | 7scenes
 
 
 @dataclass

@@ -3,7 +3,7 @@ frame is segmented by each segmenter, and a semantic voxel map with an observati
 records every voxel observation (logits, distance, incidence angle). Voxels are labelled from
 the house mesh. The frames come from a frame source (``frame_source``): ``HouseScan`` renders a
 house's scan batch by batch (once per segmenter: rendering is cheap next to segmenting, and
-no scan is held in memory); ``eval.sequence.source.RecordedScan`` reads a recorded sequence of
+no scan is held in memory); ``RecordedScan`` reads a recorded sequence of
 ``sequences.list`` and labels voxels from its labelled mesh. Per house and segmenter two files are written (atomically, so a rerun skips
 finished houses):
 
@@ -14,13 +14,17 @@ finished houses):
 from __future__ import annotations
 
 import dataclasses
+import itertools
+import zlib
 from pathlib import Path
 
 import numpy as np
 
 from common.atomic import atomic_path, write_bytes_atomic
+from common.prefetch import prefetched
 from eval.calibration.config import CalibrateMapConfig
 from mapping.calibration.obs_cache import ObsCache
+from mapping.sequences import LAYOUT_NAMES, Registration, Sequence, SequenceFrame, vertex_ground_truth
 
 SEGMENT_BATCH = 16   # frames per segmenter forward pass
 ROLES = ("calib_train", "calib_val", "test")
@@ -34,8 +38,6 @@ def role_scene_ids(cfg: CalibrateMapConfig) -> dict[str, list[str]]:
 
     st, ds = cfg.study, cfg.env.dataset
     if cfg.sequences.list:
-        from eval.sequence.source import read_sequence_list
-
         listed = read_sequence_list(cfg.sequences.list, cfg.sequences.layout)
         return {role: [sid for sid, _, _ in listed[role]] for role in ROLES}
     if ds.scene_dir:
@@ -46,6 +48,12 @@ def role_scene_ids(cfg: CalibrateMapConfig) -> dict[str, list[str]]:
     calib = split_scene_ids("calib", dataclasses.replace(ds, calib_scenes=st.calib_train_scenes + st.calib_val_scenes))
     test = split_scene_ids("test", dataclasses.replace(ds, test_scenes=st.test_scenes))
     return {"calib_train": calib[:st.calib_train_scenes], "calib_val": calib[st.calib_train_scenes:], "test": test}
+
+
+
+def scene_seed(scene_id: str, base: int) -> int:
+    """Per-house trajectory seed (stable across runs and house lists)."""
+    return (zlib.crc32(scene_id.encode()) + 7919 * base) % (2 ** 31)
 
 
 def dataset_for(cfg: CalibrateMapConfig):
@@ -65,7 +73,7 @@ class HouseScan:
     rendered a batch at a time. ``class_names``, ``intrinsics`` (3, 3), ``len()`` frames;
     ``batches(n)`` yields (rgb (B, H, W, 3) uint8, depth (B, H, W) float32 m, semantic (B, H, W)
     int16 class or -1, poses (B, 4, 4) world-from-camera); ``label(cache)`` labels an ``ObsCache``
-    from the house mesh. ``eval.sequence.source.RecordedScan`` is the same for a recording."""
+    from the house mesh. ``RecordedScan`` is the same for a recording."""
 
     def __init__(self, cfg: CalibrateMapConfig, scene_id: str, seed: int):
         from envs.navigation import NavGrid
@@ -98,11 +106,90 @@ class HouseScan:
         cache.label_from_mesh(self.scene.vertices, self.scene.triangles, self.scene.tri_class)
 
 
+# ---------------------------------------------------------------- recorded sequences
+def read_sequence_list(path, default_layout: str = "scannet") -> dict[str, list[tuple[str, Path, str]]]:
+    """{role: [(sequence id, directory, layout)]} of a list file: one ``<role> <dir> [layout]``
+    per line (``#`` comments; relative directories are relative to the list file). The id is
+    the directory name and must be unique."""
+    path = Path(path)
+    if not path.exists():
+        raise ValueError(f"sequence list not found: {path}")
+    out: dict[str, list] = {r: [] for r in ROLES}
+    seen: set[str] = set()
+    for n, line in enumerate(path.read_text().splitlines(), 1):
+        parts = line.split("#", 1)[0].split()
+        if not parts:
+            continue
+        if len(parts) not in (2, 3) or parts[0] not in ROLES:
+            raise ValueError(f"{path}:{n}: expected '<role> <dir> [layout]' with role one of {', '.join(ROLES)}, "
+                             f"got {line.strip()!r}")
+        layout = parts[2] if len(parts) == 3 else default_layout
+        if layout not in LAYOUT_NAMES:
+            raise ValueError(f"{path}:{n}: unknown layout {layout!r}; valid layouts: {', '.join(LAYOUT_NAMES)}")
+        folder = Path(parts[1]) if Path(parts[1]).is_absolute() else path.parent / parts[1]
+        if not folder.is_dir():
+            raise ValueError(f"{path}:{n}: sequence directory not found: {folder}")
+        sid = folder.resolve().name
+        if sid in seen:
+            raise ValueError(f"{path}:{n}: a second sequence named {sid!r} (ids are directory names)")
+        seen.add(sid)
+        out[parts[0]].append((sid, folder, layout))
+    return out
+
+
+class RecordedScan:
+    """A recorded sequence as a calibrate-map frame source (the interface of ``HouseScan``):
+    frames registered to the depth camera; voxel labels from the labelled PLY by nearest vertex."""
+
+    def __init__(self, seq: Sequence, class_names: tuple[str, ...]):
+        self.seq, self.class_names = seq, tuple(class_names)
+        seq.use_class_names(self.class_names)   # 2D labels from ScanNet's label-filt/ when mapped
+        self.intrinsics = seq.k_depth
+        self.ply = seq.labelled_ply()
+        if self.ply is None:
+            raise ValueError(f"{seq.root} has no labelled mesh (*_vh_clean_2.labels.ply) to label its voxels")
+        self.vertices, self.vertex_class = vertex_ground_truth(self.ply, self.class_names, seq.cfg, seq.root)
+
+    def __len__(self) -> int:
+        return len(self.seq)
+
+    def batches(self, size: int):
+        reg = Registration(self.seq.k_color, self.seq.color_size, self.seq.k_depth, self.seq.depth_size)
+        batch: list[SequenceFrame] = []
+        frames = prefetched(self.seq.frames())
+        for fr in itertools.chain(frames, [None]):   # None: flush the last batch
+            if fr is not None:
+                batch.append(fr)
+            if batch and (fr is None or len(batch) == size):
+                w, h = self.seq.depth_size
+                sem = [np.full((h, w), -1) if f.semantic is None else reg.labels(f.semantic) for f in batch]
+                yield (np.stack([reg.rgb(f.rgb) for f in batch]), np.stack([f.depth for f in batch]),
+                       np.stack(sem).astype(np.int16), np.stack([f.pose for f in batch]))
+                batch = []
+
+    def label(self, cache) -> None:
+        from mapping.ground_truth import nearest_vertex_labels
+
+        cache.set_labels(nearest_vertex_labels(cache.coords, self.vertices, self.vertex_class,
+                                               self.seq.cfg.label_distance_m))
+
+
+def recorded_scan(cfg, scene_id: str) -> RecordedScan | None:
+    """The ``RecordedScan`` of ``scene_id`` when ``cfg.sequences.list`` lists it, else None."""
+    from agent.segmenters.base import default_class_names
+
+    if not cfg.sequences.list:
+        return None
+    for entries in read_sequence_list(cfg.sequences.list, cfg.sequences.layout).values():
+        for sid, folder, layout in entries:
+            if sid == scene_id:
+                return RecordedScan(Sequence(folder, layout, cfg.sequence), default_class_names())
+    return None
+
+
 def frame_source(cfg: CalibrateMapConfig, scene_id: str, seed: int):
     """The frames of ``scene_id``: a recorded sequence of ``sequences.list`` when it names one,
     else a calnav house scan."""
-    from eval.sequence.source import recorded_scan
-
     return recorded_scan(cfg, scene_id) or HouseScan(cfg, scene_id, seed)
 
 

@@ -24,7 +24,6 @@ the variant (GLFS with untrained identity parameters is naive averaging, already
 from __future__ import annotations
 
 import json
-import zlib
 from pathlib import Path
 
 import numpy as np
@@ -33,10 +32,9 @@ import torch
 from common.atomic import atomic_path, write_json_atomic
 from eval.backends import check_backend
 from eval.calibration.config import CalibrateMapConfig, GLFSVariant
-from eval.calibration.record import ROLES, load_role, record_houses, role_scene_ids
+from eval.calibration.record import ROLES, load_role, record_houses, role_scene_ids, scene_seed
 from eval.config import ConfigError, load_config
 from eval.results_dir import ResultsDir, check_output_file, writing
-from eval.preflight import check_command
 from mapping import metrics
 from mapping.calibration.fit import MapObjective, fit_temperature_2d, fit_temperature_3d, fit_vector_3d
 from mapping.calibration.flat_obs import FlatObservations
@@ -58,11 +56,6 @@ def methods(cfg: CalibrateMapConfig) -> list[tuple[str, str]]:
     for s in cfg.study.strategies:
         out += [(s, v.name) for v in cfg.study.glfs_variants] if s == "glfs" else [(s, c) for c in cfg.study.calibrations]
     return out
-
-
-def scene_seed(scene_id: str, base: int) -> int:
-    """Per-house trajectory seed (stable across runs and house lists)."""
-    return (zlib.crc32(scene_id.encode()) + 7919 * base) % (2 ** 31)
 
 
 # ------------------------------------------------------------------------------- fit
@@ -272,7 +265,6 @@ def qualitative(cfg: CalibrateMapConfig, out: Path, segmenter: str, seg, scene_i
 
 
 def main_calibrate_map(args) -> None:
-    check_command(args, "calibrate-map")  # every file the config names, before anything is written
     overrides = (list(QUICK_OVERRIDES) if args.quick else []) + list(args.overrides)
     if getattr(args, "sequences", None):
         overrides.append(f"sequences.list={Path(args.sequences).resolve()}")
@@ -288,7 +280,6 @@ def main_calibrate_map(args) -> None:
 def main_fit_glfs(args) -> None:
     """Record the calibration-train / -validation scans of one segmenter and train one GLFS
     variant (``--variant``, default the first of ``study.glfs_variants``)."""
-    check_command(args, "fit-glfs")  # every file the config names, before anything is written
     check_output_file(args.output)   # written at the end: a bad path must not cost the training first
     from agent.segmenters import make_segmenter
 

@@ -26,7 +26,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from eval.config import Config, build_dataclass, load_config, to_dict
-from eval.preflight import check_command
 from eval.results_dir import RECORDS_NAME, AllEpisodesFailed, ResultsDir, writing
 from eval.stats import format_metrics_table, summarize
 
@@ -237,7 +236,6 @@ def _job_from_args(args, overrides: list[str], out: Path | None) -> EpisodeJob:
 
 
 def main_objectnav(args) -> None:
-    check_command(args, "objectnav")  # every file the configs name, before anything is written
     from eval.config import expand_multirun
 
     if getattr(args, "video", 0) < 0:

@@ -22,7 +22,6 @@ from pathlib import Path
 
 from eval.config import Config, ConfigError, dump_yaml, load_config, parse_override
 from eval.results_dir import ResultsDir
-from eval.preflight import check_command
 
 TUNE_METRICS: tuple[str, ...] = ("spl", "success", "softspl")  # all higher-is-better
 TUNED_KEYS: tuple[str, ...] = ("agent.goal_threshold", "agent.goal_min_area_cells")
@@ -224,7 +223,6 @@ def format_tune_table(rows: list[dict], best: dict) -> str:
 
 
 def main_tune(args) -> None:
-    check_command(args, "tune")  # every file the config names, before anything is written
     out = Path(args.output)
     rows, best = run_tune(args.config, args.overrides, args.episodes, args.thresholds, args.min_areas,
                           args.metric, out, force=args.force, extend=args.extend)

@@ -157,7 +157,7 @@ def export_house(cfg, scene_id: str, out: Path, seed: int, max_edge_m: float = D
 
 def main_export_sequence(args) -> None:
     from eval.calibration.config import CalibrateMapConfig
-    from eval.calibration.study import scene_seed
+    from eval.calibration.record import scene_seed
     from eval.config import load_config
     from eval.results_dir import check_output_dir
 

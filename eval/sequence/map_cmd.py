@@ -22,7 +22,8 @@ import numpy as np
 
 from eval.results_dir import ResultsDir, writing
 from eval.sequence.config import MapSequenceConfig
-from eval.sequence.source import PrecomputedLogits, SegmenterLogits, fuse_frames, map_frames, prefetched
+from common.prefetch import prefetched
+from eval.sequence.source import PrecomputedLogits, SegmenterLogits, fuse_frames, map_frames
 from mapping.sequences import LogitsDir, Sequence, vertex_ground_truth
 
 DEFAULT_CONFIG = "configs/map_sequence.yaml"

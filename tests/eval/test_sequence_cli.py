@@ -27,8 +27,7 @@ def test_export_round_trip_matches_mapping_the_frames_in_memory(tmp_path):
     depend on the lossy JPEG colour; millimetre depth on both sides)."""
     from agent.segmenters import make_segmenter
     from eval.calibration.config import CalibrateMapConfig
-    from eval.calibration.record import HouseScan
-    from eval.calibration.study import scene_seed
+    from eval.calibration.record import HouseScan, scene_seed
     from eval.config import load_config
     from eval.sequence.export import densify, depth_to_mm
     from eval.sequence.map_cmd import score

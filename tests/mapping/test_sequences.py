@@ -270,7 +270,7 @@ def test_densify_bounds_edges_and_keeps_area_and_classes():
 def test_prefetched_keeps_order_reraises_and_stops_its_thread():
     import threading
 
-    from eval.sequence.source import prefetched
+    from common.prefetch import prefetched
 
     assert list(prefetched(iter(range(7)))) == list(range(7))
 
