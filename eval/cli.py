@@ -6,6 +6,7 @@ import argparse
 import importlib
 import os
 import sys
+from dataclasses import dataclass
 
 # torch's OpenMP workers spin after each op and starve Open3D's threads on small machines
 # (measured: 400-900 ms instead of 2 ms per segmenter frame on 2 busy cores). Must be set
@@ -167,23 +168,45 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-# command -> (module, function taking the parsed args); imported on use so `--help` stays fast
-COMMANDS: dict[str, tuple[str, str]] = {
-    "objectnav": ("eval.objectnav.run", "main_objectnav"),
-    "start-pose": ("eval.objectnav.frames", "main_start_pose"),
-    "habitat-benchmark": ("eval.habitat.run", "main_habitat_benchmark"),
-    "view-episode": ("eval.objectnav.view_episode", "main_view_episode"),
-    "scan-houses": ("eval.scanning.run", "main_scan_houses"),
-    "bench": ("eval.bench.run", "main_bench"),
-    "train-segmenter": ("eval.segmenter.train", "main_train_segmenter"),
-    "eval-segmenter": ("eval.segmenter.evaluate", "main_eval_segmenter"),
-    "calibrate-map": ("eval.calibration.study", "main_calibrate_map"),
-    "fit-glfs": ("eval.calibration.study", "main_fit_glfs"),
-    "map": ("eval.sequence.map_cmd", "main_map"),
-    "export-sequence": ("eval.sequence.export", "main_export_sequence"),
-    "tune": ("eval.objectnav.tune", "main_tune"),
-    "compare": ("eval.objectnav.compare", "main_compare"),
-    "demo": ("eval.objectnav.demo", "main_demo"),
+@dataclass(frozen=True)
+class Command:
+    """One ``calnav`` command: where it lives (imported on use so ``--help`` stays fast), the
+    function that loads the configs it runs and its main. ``main`` (the CLI) loads the configs
+    once, runs the preflight on them and hands the same objects to the command's main, so the
+    preflight checks exactly the configs that run."""
+
+    module: str
+    main: str                 # main(args, configs) -> None, in module
+    configs: str | None       # configs(args) -> list of configs, in module (or "other.module:function");
+                              # None: the command reads no calnav config
+
+    def load(self):
+        """(main, configs loader), imported now."""
+        main = getattr(importlib.import_module(self.module), self.main)
+        if self.configs is None:
+            return main, lambda args: []
+        module, _, function = self.configs.rpartition(":")
+        return main, getattr(importlib.import_module(module or self.module), function)
+
+
+COMMANDS: dict[str, Command] = {
+    "objectnav": Command("eval.objectnav.run", "main_objectnav", "objectnav_configs"),
+    "start-pose": Command("eval.objectnav.frames", "main_start_pose", "start_pose_configs"),
+    "habitat-benchmark": Command("eval.habitat.run", "main_habitat_benchmark", "habitat_benchmark_configs"),
+    "view-episode": Command("eval.objectnav.view_episode", "main_view_episode", "view_episode_configs"),
+    "scan-houses": Command("eval.scanning.run", "main_scan_houses", "scan_houses_configs"),
+    "bench": Command("eval.bench.run", "main_bench", None),              # fixed workloads, no config
+    "train-segmenter": Command("eval.segmenter.train", "main_train_segmenter",
+                               "eval.segmenter.data:segmenter_configs"),
+    "eval-segmenter": Command("eval.segmenter.evaluate", "main_eval_segmenter",
+                              "eval.segmenter.data:segmenter_configs"),
+    "calibrate-map": Command("eval.calibration.study", "main_calibrate_map", "calibrate_map_configs"),
+    "fit-glfs": Command("eval.calibration.study", "main_fit_glfs", "fit_glfs_configs"),
+    "map": Command("eval.sequence.map_cmd", "main_map", "map_configs"),
+    "export-sequence": Command("eval.sequence.export", "main_export_sequence", "export_sequence_configs"),
+    "tune": Command("eval.objectnav.tune", "main_tune", "tune_configs"),
+    "compare": Command("eval.objectnav.compare", "main_compare", None),  # reads finished runs' configs
+    "demo": Command("eval.objectnav.demo", "main_demo", "demo_configs"),
 }
 
 
@@ -206,13 +229,12 @@ def main(argv: list[str] | None = None) -> int:
         from envs.scene import check_cache_dir
 
         check_cache_dir()   # every command reads or writes the cache
-        module, function = COMMANDS[args.command]
-        command_main = getattr(importlib.import_module(module), function)
-        from eval.preflight import COMMANDS as PREFLIGHT_COMMANDS, check_command
+        from eval.preflight import check_configs
 
-        if args.command in PREFLIGHT_COMMANDS:
-            check_command(args, args.command)   # every file the configs name, before anything is written
-        command_main(args)
+        command_main, load_configs = COMMANDS[args.command].load()
+        configs = load_configs(args)   # every config the command runs (all multirun combinations)
+        check_configs(configs)         # every file and service they name, before anything is written
+        command_main(args, configs)
     except (ConfigError, ValueError, FileNotFoundError, ResultsError) as exc:
         print(f"calnav {args.command}: error: {exc}", file=sys.stderr)
         return 2

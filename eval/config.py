@@ -263,6 +263,16 @@ def load_config(path: str | Path | None = None, overrides: list[str] | tuple[str
     return build_dataclass(cls, tree)
 
 
+def with_shorthand(overrides: list[str], key: str, value: Any, option: str) -> list[str]:
+    """``overrides`` plus ``key=value`` from a command-line shorthand (``--agent`` for
+    ``run.agent``...). The same key also given as an override is refused rather than silently
+    overridden by the shorthand: one line naming both."""
+    for text in overrides:
+        if text.partition("=")[0].strip() == key:
+            raise ConfigError(f"{option} {value} and the override {text} both set {key}: give one of them")
+    return [*overrides, f"{key}={value}"]
+
+
 def expand_multirun(overrides: list[str]) -> list[list[str]]:
     """['a=1,2', 'b=x'] -> [['a=1', 'b=x'], ['a=2', 'b=x']] (cross product of comma lists).
     Values that are YAML lists ('[1,2]') are not split."""

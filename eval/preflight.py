@@ -1,86 +1,86 @@
-"""Preflight: open and validate every file a run's config names BEFORE the run writes anything
-or starts a worker, so a bad file is one clear error (``calnav CMD: error: ...``, exit 2)
-instead of a half-made results directory (whose ``config.yaml`` then refuses the corrected
-rerun as "another config") or a ``BrokenProcessPool`` traceback from a worker.
+"""Preflight: open and validate every file and service a command's configs name BEFORE the
+command writes anything or starts a worker, so a bad file is one clear error (``calnav CMD:
+error: ...``, exit 2) instead of a half-made results directory (whose ``config.yaml`` then
+refuses the corrected rerun as "another config") or a ``BrokenProcessPool`` traceback from a
+worker.
 
-Checked per config, by the loaders that own the data:
+``eval.cli`` runs it for every command: the command registry (``eval.cli.COMMANDS``) names, per
+command, the function that loads the configs the command runs; the CLI loads them once, hands
+them to ``check_configs`` and then to the command's main, so what is checked is exactly what
+runs. Checked per config, by the section it has, with the loaders that own the data:
 
-- the segmenter (``agent.segmenter`` with ``agent.segmenter_config``; for the calibration
-  study every ``study.segmenters`` entry): its device and, for a learned one, its weight file
-  (``agent.segmenters.check_segmenter``);
+- ``run``: a known backend, for ``ray`` an importable Ray and a reachable address
+  (``eval.backends.check_backend``); a torch device other than cpu must exist;
+- ``agent`` (the episode configs): the segmenter's device and, for a learned one, its weight
+  file (``agent.segmenters.check_segmenter``); a segmenter that reads the ground-truth semantic
+  image only with a semantic sensor (the habitat config's, for habitat-benchmark); ``env.dataset.scene_dir`` when set: a directory
+  holding scenes for the split the episodes come from (``envs.scenes.split_scene_ids``);
+- ``study`` (the calibration study): every ``study.segmenters`` entry, and the houses or
+  recorded sequences of every role (``eval.calibration.record.role_scene_ids``);
 - ``mapping.glfs_params`` when set: readable, finite, valid, and for the segmenter's classes
-  (``mapping.glfs.GLFSParams.load``);
-- ``env.dataset.scene_dir`` when set: a directory holding scenes for the split(s) the run
-  uses (``envs.scenes.split_scene_ids``);
-- ``run.backend``: a known backend, and for ``ray`` an importable Ray (``eval.backends``).
+  (``mapping.glfs.GLFSParams.load``).
 
-``eval.cli`` calls ``check_command(args, COMMAND)`` for each command of ``COMMANDS`` once, just
-before the command's main; it loads every config the command will run (all multirun
-combinations) exactly as the command does. Like ``eval.cli`` it sits above the experiments (it
-imports their config loading); no experiment imports it.
+Other objects a command runs with (habitat-lab's own config) are validated by their loaders.
+Like ``eval.cli`` it sits above the experiments; no experiment imports it.
 """
 from __future__ import annotations
 
-from typing import Any
-
-from eval.config import Config, load_config
-
-COMMANDS: tuple[str, ...] = ("objectnav", "tune", "calibrate-map", "fit-glfs")
+from dataclasses import is_dataclass
+from typing import Any, Iterable
 
 
 def check_run_resources(cfg: Any) -> None:
-    """Validate the files ``cfg`` (a ``Config`` or ``CalibrateMapConfig``) names; raises
+    """Validate the files and services ``cfg`` (any command's config dataclass) names; raises
     ValueError / FileNotFoundError naming the file and what is wrong with it."""
     from agent.segmenters import check_segmenter
     from eval.backends import check_backend
     from mapping.glfs import GLFSParams
 
-    check_backend(cfg.run.backend, cfg.run.ray_address)   # run.backend=ray without Ray: the install command
+    if not is_dataclass(cfg):
+        return
+    run = getattr(cfg, "run", None)
+    if run is not None:
+        check_backend(run.backend, run.ray_address)   # run.backend=ray without Ray: the install command
+        if run.device != "cpu":
+            from agent.segmenters.base import resolve_device
 
-    if isinstance(cfg, Config):
-        names = check_segmenter(cfg.agent.segmenter, cfg.agent.segmenter_config, cfg.run.device)
-        if cfg.mapping.glfs_params:
-            GLFSParams.load(cfg.mapping.glfs_params, class_names=names)
+            resolve_device(run.device)
+    names = None
+    agent = getattr(cfg, "agent", None)
+    if agent is not None:
+        names = check_segmenter(agent.segmenter, agent.segmenter_config, run.device if run else None)
+        _check_sensors_feed_the_segmenter(cfg)
         if cfg.env.dataset.scene_dir:
             from envs.scenes import split_scene_ids
 
             split_scene_ids(cfg.env.split, cfg.env.dataset)
-        return
-    from eval.calibration.record import role_scene_ids
+    study = getattr(cfg, "study", None)
+    if study is not None:
+        for name in study.segmenters:
+            check_segmenter(name, device=run.device if run else None)
+    mapping = getattr(cfg, "mapping", None)
+    if mapping is not None and mapping.glfs_params:   # a study fits its own GLFS; a named file must still be sound
+        GLFSParams.load(mapping.glfs_params, class_names=names)
+    if study is not None:
+        from eval.calibration.record import role_scene_ids
 
-    for name in cfg.study.segmenters:
-        check_segmenter(name, device=cfg.run.device)
-    if cfg.mapping.glfs_params:   # the study fits its own GLFS; a named file must still be sound
-        GLFSParams.load(cfg.mapping.glfs_params)
-    role_scene_ids(cfg)
-
-
-def command_configs(args, command: str) -> list[Any]:
-    """Every config ``command`` (one of COMMANDS) will run for the parsed ``args``, loaded the
-    way the command loads it."""
-    if command == "objectnav":
-        from eval.config import expand_multirun
-        from eval.objectnav.run import agent_overrides
-
-        combos = expand_multirun(list(args.overrides)) if getattr(args, "multirun", False) else [list(args.overrides)]
-        return [load_config(args.config, agent_overrides(args, combo)) for combo in combos]
-    if command == "tune":
-        return [load_config(args.config, list(args.overrides))]
-    from eval.calibration.config import CalibrateMapConfig
-
-    if command == "calibrate-map":
-        from eval.calibration.study import QUICK_OVERRIDES
-
-        overrides = (list(QUICK_OVERRIDES) if args.quick else []) + list(args.overrides)
-        return [load_config(args.config, overrides, cls=CalibrateMapConfig)]
-    if command == "fit-glfs":
-        return [load_config(args.config, [*args.overrides, f"study.segmenters=[{args.segmenter}]",
-                                          "study.strategies=[glfs]"], cls=CalibrateMapConfig)]
-    raise ValueError(f"no preflight for command {command!r}; valid: {', '.join(COMMANDS)}")
+        role_scene_ids(cfg)
 
 
-def check_command(args, command: str) -> None:
-    """Load every config of ``command`` and check the files each names (see the module
-    docstring). Call once, before the command writes anything or starts a worker."""
-    for cfg in command_configs(args, command):
+def _check_sensors_feed_the_segmenter(cfg: Any) -> None:
+    """A map agent whose segmenter reads the ground-truth semantic image needs a semantic sensor
+    (else every episode crashes on its first step: a table of errors, or a habitat-lab traceback)."""
+    from agent.segmenters import segmenter_needs_semantic
+
+    if cfg.run.agent == "peanut" and not cfg.env.semantic_sensor and segmenter_needs_semantic(cfg.agent.segmenter):
+        raise ValueError(f"agent.segmenter={cfg.agent.segmenter} reads the ground-truth semantic observation, but "
+                         "this run has no semantic sensor (env.semantic_sensor is false; habitat-benchmark: the "
+                         "habitat config's sensors); use agent.segmenter=learned_rgb | learned_rgbd, or a semantic "
+                         "sensor (env.semantic_sensor=true; habitat-benchmark: --habitat-config "
+                         "configs/habitat_objectnav_semantic.yaml)")
+
+
+def check_configs(configs: Iterable[Any]) -> None:
+    """``check_run_resources`` for every config a command will run (all multirun combinations)."""
+    for cfg in configs:
         check_run_resources(cfg)

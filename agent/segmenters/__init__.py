@@ -13,7 +13,7 @@ from typing import Callable
 from agent.segmenters.base import Segmenter, SegmenterConfig, default_class_names, resolve_device, softmax
 
 __all__ = ["SEGMENTERS", "SEGMENTER_NAMES", "Segmenter", "SegmenterConfig", "check_segmenter", "make_segmenter",
-           "softmax"]
+           "segmenter_needs_semantic", "softmax"]
 
 
 def _ground_truth(name: str, cfg: SegmenterConfig, device: str | None, class_names) -> Segmenter:
@@ -41,6 +41,19 @@ SEGMENTERS: dict[str, Callable[..., Segmenter]] = {
     "gt": _ground_truth, "noisy": _ground_truth, "learned_rgb": _learned, "learned_rgbd": _learned,
 }
 SEGMENTER_NAMES: tuple[str, ...] = tuple(SEGMENTERS)
+
+
+def segmenter_needs_semantic(name: str) -> bool:
+    """Whether segmenter ``name`` reads the ground-truth ``semantic`` observation (its class's
+    ``needs_semantic``), so a run without that sensor cannot use it."""
+    if name not in SEGMENTERS:
+        raise ValueError(f"unknown segmenter {name!r}; valid names: {', '.join(SEGMENTER_NAMES)}")
+    if SEGMENTERS[name] is not _ground_truth:
+        return False   # the learned segmenters read rgb (and depth)
+    from agent.segmenters.ground_truth import GroundTruthSegmenter
+    from agent.segmenters.noisy import NoisySegmenter
+
+    return {"gt": GroundTruthSegmenter, "noisy": NoisySegmenter}[name].needs_semantic
 
 
 def check_segmenter(name: str, cfg: SegmenterConfig | None = None, device: str | None = None) -> tuple[str, ...]:

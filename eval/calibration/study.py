@@ -33,7 +33,7 @@ from common.atomic import atomic_path, write_json_atomic
 from eval.backends import check_backend
 from eval.calibration.config import CalibrateMapConfig, GLFSVariant
 from eval.calibration.record import ROLES, load_role, record_houses, role_scene_ids, scene_seed
-from eval.config import ConfigError, load_config
+from eval.config import ConfigError, load_config, with_shorthand
 from eval.results_dir import ResultsDir, check_output_file, writing
 from mapping import metrics
 from mapping.calibration.fit import MapObjective, fit_temperature_2d, fit_temperature_3d, fit_vector_3d
@@ -264,11 +264,18 @@ def qualitative(cfg: CalibrateMapConfig, out: Path, segmenter: str, seg, scene_i
                       GLFSParams.load(fits.glfs_path(variant)), variant)
 
 
-def main_calibrate_map(args) -> None:
+def calibrate_map_configs(args) -> list[CalibrateMapConfig]:
+    """The config ``calnav calibrate-map`` runs: ``--quick``'s preset under the overrides, and
+    ``--sequences LIST`` as ``sequences.list`` (resolved against the working directory)."""
     overrides = (list(QUICK_OVERRIDES) if args.quick else []) + list(args.overrides)
     if getattr(args, "sequences", None):
-        overrides.append(f"sequences.list={Path(args.sequences).resolve()}")
-    cfg = load_config(args.config, overrides, cls=CalibrateMapConfig)
+        overrides = with_shorthand(overrides, "sequences.list", Path(args.sequences).resolve(), "--sequences")
+    return [load_config(args.config, overrides, cls=CalibrateMapConfig)]
+
+
+def main_calibrate_map(args, configs: list[CalibrateMapConfig]) -> None:
+    """``configs``: ``calibrate_map_configs(args)``, checked by the preflight."""
+    cfg = configs[0]
     out = Path(args.output or (cfg.run.output_dir + "_quick" if args.quick else cfg.run.output_dir))
     rows = run_calibrate_map(cfg, out, force=args.force)
     from eval.calibration.report import format_table
@@ -277,14 +284,20 @@ def main_calibrate_map(args) -> None:
     print(f"\nresults: {out / 'results.csv'}, {out / 'results.md'}, plots in {out}")
 
 
-def main_fit_glfs(args) -> None:
+def fit_glfs_configs(args) -> list[CalibrateMapConfig]:
+    """The config ``calnav fit-glfs`` runs: the study's, with only ``--segmenter`` and GLFS."""
+    return [load_config(args.config, [*args.overrides, f"study.segmenters=[{args.segmenter}]", "study.strategies=[glfs]"],
+                        cls=CalibrateMapConfig)]
+
+
+def main_fit_glfs(args, configs: list[CalibrateMapConfig]) -> None:
     """Record the calibration-train / -validation scans of one segmenter and train one GLFS
-    variant (``--variant``, default the first of ``study.glfs_variants``)."""
+    variant (``--variant``, default the first of ``study.glfs_variants``). ``configs``:
+    ``fit_glfs_configs(args)``, checked by the preflight."""
     check_output_file(args.output)   # written at the end: a bad path must not cost the training first
     from agent.segmenters import make_segmenter
 
-    cfg = load_config(args.config, [*args.overrides, f"study.segmenters=[{args.segmenter}]", "study.strategies=[glfs]"],
-                      cls=CalibrateMapConfig)
+    cfg = configs[0]
     variants = {v.name: v for v in cfg.study.glfs_variants}
     name = args.variant or cfg.study.glfs_variants[0].name
     if name not in variants:

@@ -123,14 +123,22 @@ def load_configs(args, overrides: list[str]):
     return cfg, habitat_cfg
 
 
-def main_habitat_benchmark(args) -> None:
+def habitat_benchmark_configs(args) -> list:
+    """What ``calnav habitat-benchmark`` runs: [calnav config, habitat-lab config] (the second is
+    validated by habitat-lab's own loader)."""
     from common.habitat_import import HabitatMissing
-    from envs.episodes import load_split, parse_episode_range
 
     try:
-        cfg, habitat_cfg = load_configs(args, args.overrides)
+        return list(load_configs(args, args.overrides))
     except HabitatMissing as exc:
         raise ConfigError(str(exc)) from None
+
+
+def main_habitat_benchmark(args, configs) -> None:
+    """``configs``: ``habitat_benchmark_configs(args)``, checked by the preflight."""
+    from envs.episodes import load_split, parse_episode_range
+
+    cfg, habitat_cfg = configs
     episodes = load_split(cfg.env.split, cfg.env)
     indices = list(parse_episode_range(str(args.episodes), len(episodes)))
     out = Path(args.output or cfg.run.output_dir)

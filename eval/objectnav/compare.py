@@ -137,7 +137,8 @@ def failures_markdown(names: list[str], loaded: list[tuple[dict, list[dict]]]) -
     return "\n".join(lines)
 
 
-def main_compare(args) -> None:
+def main_compare(args, configs=()) -> None:
+    """``configs`` is empty: compare reads the finished runs' own ``config.yaml`` files."""
     from eval.objectnav.report import write_comparison
 
     paths = [Path(p) for p in args.runs]

@@ -9,11 +9,17 @@ from pathlib import Path
 from eval.config import load_config
 from eval.stats import format_metrics_table
 
-def main_demo(args) -> None:
+def demo_configs(args) -> list:
+    """The config ``calnav demo`` runs: ``configs/demo.yaml`` writing to ``--output``."""
+    return [load_config("configs/demo.yaml", [f"run.output_dir={args.output}"])]
+
+
+def main_demo(args, configs) -> None:
+    """``configs``: ``demo_configs(args)``, checked by the preflight."""
     from envs.episodes import load_split, parse_episode_range
     from eval.objectnav.run import run_objectnav
 
-    cfg = load_config("configs/demo.yaml", [f"run.output_dir={args.output}"])
+    cfg = configs[0]
     episodes = load_split(cfg.env.split, cfg.env)
     indices = list(parse_episode_range(str(args.episodes), len(episodes)))
     out = Path(cfg.run.output_dir)

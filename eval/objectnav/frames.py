@@ -13,11 +13,11 @@ A ``FrameVariant`` names how the agent's gps + compass are expressed and how the
   world origin (walls no longer axis-aligned in the world; ``rotated_setup``).
 
 ``frame_obs`` does the change of frame on one observation; ``FrameWrapper`` applies it in a
-gymnasium env; ``run_frame_study`` runs episodes x variants as tasks on the ``run.backend``
-backend (``eval.backends``: the local pool or Ray) and, in a results directory owned by
-``eval.results_dir`` (lock, config check, atomic writes), writes ``episodes.jsonl`` (a line per
-finished episode of this run) / ``summary.json`` / ``summary.csv`` (Success as successes / N and
-mean SPL per variant) / ``summary.png``; ``lockstep_map_stats`` drives one
+gymnasium env; ``run_frame_study`` runs episodes x variants through the episode runner every
+ObjectNav command uses (``eval.objectnav.run.run_jobs``: the ``run.backend`` backend, one
+resumable results directory per variant with its ``episodes.jsonl`` and ``summary.json``) and
+writes ``summary.json`` / ``summary.csv`` (Success as successes / N and mean SPL per variant) /
+``summary.png`` beside them; ``lockstep_map_stats`` drives one
 episode with the first variant's actions and records every variant's map statistics per step
 (the instrument that found the sensitive stage).
 """
@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import csv
 import io
-import json
 import math
 import tempfile
 from dataclasses import asdict, dataclass, replace
@@ -169,82 +168,47 @@ def make_env(cfg, variant: FrameVariant, work_dir: Path):
 
 # ---------------------------------------------------------------------------- episodes x variants
 FRAME_RESULTS = ("episodes.jsonl", "summary.json", "summary.csv", "summary.png")  # what --force discards
-_worker: dict = {}   # per process: (config, work dir, variant) -> (env, agent), built once
+VARIANT_ENV = "eval.objectnav.frames:variant_env"   # the episode runner's env maker for a variant
 
 
-@dataclass
-class FrameTask:
-    """One (variant, episode) of the study: the config (plain dict), where rotated houses are,
-    the variant (as a dict: picklable for any backend) and the episode index."""
-
-    cfg_dict: dict
-    work_dir: str
-    variant: dict
-    index: int
-
-
-def run_frame_task(task: FrameTask) -> dict:
-    """Run one task in this process (any backend); the env and agent of its variant stay warm."""
-    from agent.policy import PeanutAgent
-    from eval.config import Config, build_dataclass
-    from eval.objectnav.run import run_one_episode
-
-    variant = FrameVariant(**{**task.variant, "offset_m": tuple(task.variant["offset_m"])})
-    key = json.dumps([task.cfg_dict, task.work_dir, task.variant], sort_keys=True)
-    if key not in _worker:
-        cfg = build_dataclass(Config, task.cfg_dict)
-        _worker[key] = (make_env(cfg, variant, Path(task.work_dir)), PeanutAgent(cfg, cfg.run.device))
-    env, agent = _worker[key]
-    rec = run_one_episode(env, agent, task.index)
-    return {"variant": variant.name, **{k: rec[k] for k in ("index", "episode_id", "success", "spl", "steps",
-                                                             "stop_reason", "distance_to_goal")}}
+def variant_env(cfg, variant: dict, work_dir: str):
+    """``make_env`` for the episode runner (``eval.objectnav.run``): the variant as a plain dict
+    (picklable for any backend)."""
+    return make_env(cfg, FrameVariant(**{**variant, "offset_m": tuple(variant["offset_m"])}), Path(work_dir))
 
 
 def run_frame_study(cfg, indices: list[int], variants: list[FrameVariant], out: Path | None,
                     progress: bool = True, force: bool = False) -> dict[str, dict]:
-    """Run every (variant, episode) with the PEANUT agent of ``cfg`` on ``cfg.run``'s backend;
-    returns variant name -> {success, spl, n} (means). With ``out`` (a results directory: a
-    different config there is refused unless ``force``): episodes.jsonl, summary.json,
-    summary.csv, summary.png."""
+    """Run every (variant, episode) with the PEANUT agent of ``cfg`` through the episode runner
+    (``eval.objectnav.run.run_jobs``: the ``run.backend`` backend, resumable records, crashed
+    episodes recorded and retried, the shared summary); one results directory per variant,
+    ``<out>/<variant>/`` (``episodes.jsonl``, ``summary.json``), under ``out`` (locked, config
+    checked: a different config is refused unless ``force``), which gets ``summary.json`` /
+    ``summary.csv`` / ``summary.png``. Returns variant name -> {success, successes, spl, n,
+    success_sem, spl_sem, variant fields}. ``out`` None: a temporary directory."""
     from contextlib import ExitStack
 
-    from tqdm import tqdm
-
-    from eval.backends import make_backend
-    from eval.config import to_dict
+    from envs.episodes import load_split
+    from eval.objectnav.run import EpisodeJob, run_jobs
     from eval.results_dir import ResultsDir, writing
 
     names = [v.name for v in variants]
     if len(set(names)) != len(names):
         raise ValueError(f"frame variants need distinct names, got {names}")
-    backend = make_backend(cfg.run)      # checked before anything is written
     with ExitStack() as stack:
         results = stack.enter_context(ResultsDir(out, cfg, force=force, discard=FRAME_RESULTS)) if out else None
         work = Path(out) if out else Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="calnav_frames_")))
         for v in variants:   # write rotated houses once, before the workers start
             if v.house_yaw_deg:
-                from envs.episodes import load_split
-
                 rotated_setup(cfg.env, load_split(cfg.env.split, cfg.env, progress=False), v.house_yaw_deg,
                               work / f"houses_{v.house_yaw_deg:g}deg")
-        cfg_dict = to_dict(cfg)
-        tasks = [FrameTask(cfg_dict, str(work), asdict(v), i) for v in variants for i in indices]
-        records = []
-        log = stack.enter_context(open(work / "episodes.jsonl", "w")) if out else None  # a line per finished episode
-        bar = stack.enter_context(tqdm(total=len(tasks), disable=not progress, desc="frame study", unit="ep"))
-        for _, rec in backend.map_unordered(run_frame_task, tasks):
-            records.append(rec)
-            if log:
-                log.write(json.dumps(rec) + "\n")
-                log.flush()
-            bar.update(1)
-        records.sort(key=lambda r: (names.index(r["variant"]), r["index"]))
-        summary = {}
-        for v in variants:
-            rs = [r for r in records if r["variant"] == v.name]
-            summary[v.name] = {"success": float(np.mean([r["success"] for r in rs])),
-                               "successes": int(sum(r["success"] for r in rs)),
-                               "spl": float(np.mean([r["spl"] for r in rs])), "n": len(rs), **asdict(v)}
+        jobs = [EpisodeJob(cfg, list(indices), work / v.name, env_maker=VARIANT_ENV,
+                           env_args={"variant": asdict(v), "work_dir": str(work)}) for v in variants]
+        summaries = run_jobs(jobs, force=force, progress=progress, plots=False)
+        summary = {v.name: {"success": s["success"], "successes": int(round(s["success"] * s["count"])),
+                            "spl": s["spl"], "n": s["count"], "success_sem": s["success_sem"],
+                            "spl_sem": s["spl_sem"], "failed": s["failed"], **asdict(v)}
+                   for v, s in zip(variants, summaries)}
         if results is not None:
             results.write_json("summary.json", summary)
             buf = io.StringIO(newline="")
@@ -325,19 +289,30 @@ def lockstep_map_stats(cfg, index: int, variants: list[FrameVariant], steps: int
     return rows
 
 
-def main_start_pose(args) -> None:
-    """`calnav start-pose`: the PEANUT agent on ``--episodes`` under each ``--variants`` frame."""
-    from envs.episodes import load_split, parse_episode_range
-    from eval.config import load_config
+def start_pose_configs(args) -> list:
+    """The config ``calnav start-pose`` runs (``--workers N`` as ``run.workers=N`` only when given:
+    it never silently replaces the config's)."""
+    from eval.config import load_config, with_shorthand
 
-    variants = parse_variants(args.variants)           # every check before anything runs
+    parse_variants(args.variants)           # every check before anything runs
     if args.workers is not None and args.workers < 1:
         raise ValueError(f"--workers must be >= 1, got {args.workers}")
-    # the shorthand only when given: it never silently replaces the config's run.workers
-    shorthand = [f"run.workers={args.workers}"] if args.workers is not None else []
-    cfg = load_config(args.config, [*shorthand, *args.overrides])
+    overrides = list(args.overrides)
+    if args.workers is not None:
+        overrides = with_shorthand(overrides, "run.workers", args.workers, "--workers")
+    cfg = load_config(args.config, overrides)
     if cfg.run.agent != "peanut":
         raise ValueError(f"start-pose runs the peanut agent (its maps live in the start frame), got run.agent={cfg.run.agent}")
+    return [cfg]
+
+
+def main_start_pose(args, configs) -> None:
+    """`calnav start-pose`: the PEANUT agent on ``--episodes`` under each ``--variants`` frame.
+    ``configs``: ``start_pose_configs(args)``, checked by the preflight."""
+    from envs.episodes import load_split, parse_episode_range
+
+    variants = parse_variants(args.variants)
+    cfg = configs[0]
     indices = list(parse_episode_range(str(args.episodes), len(load_split(cfg.env.split, cfg.env))))
     out = Path(args.output)
     summary = run_frame_study(cfg, indices, variants, out, force=args.force)

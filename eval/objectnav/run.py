@@ -22,7 +22,7 @@ import re
 import time
 import traceback
 from contextlib import ExitStack
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from eval.config import Config, build_dataclass, load_config, to_dict
@@ -79,23 +79,36 @@ class EpisodeTask:
     agent: str
     index: int
     video_dir: str | None = None
+    env_maker: str = ""           # EpisodeJob.env_maker
+    env_args: dict = field(default_factory=dict)
 
 
-def _warm_env_agent(cfg_dict: dict, agent_name: str):
-    """This process's env and agent for a config, built once and reused while tasks keep the
-    same config (a pool or Ray worker stays warm, as an episode loop would)."""
+def _make_env(cfg: Config, env_maker: str, env_args: dict):
+    """The job's gym env: calnav's ObjectNav env of ``cfg.env``, or ``env_maker(cfg, **env_args)``."""
     import gymnasium as gym
 
     import envs  # noqa: F401  (registers the env)
+
+    if not env_maker:
+        return gym.make("calnav/ObjectNav-v0", split=cfg.env.split, config=cfg.env)
+    import importlib
+
+    module, _, function = env_maker.partition(":")
+    return getattr(importlib.import_module(module), function)(cfg, **env_args)
+
+
+def _warm_env_agent(cfg_dict: dict, agent_name: str, env_maker: str = "", env_args: dict | None = None):
+    """This process's env and agent for a config, built once and reused while tasks keep the
+    same config (a pool or Ray worker stays warm, as an episode loop would)."""
     from eval.objectnav.agents import make_agent
 
-    key = json.dumps([cfg_dict, agent_name], sort_keys=True)
+    key = json.dumps([cfg_dict, agent_name, env_maker, env_args or {}], sort_keys=True)
     if _worker_state.get("key") != key:
         if "env" in _worker_state:
             _worker_state["env"].close()
         _worker_state.clear()
         cfg = build_dataclass(Config, cfg_dict)
-        env = gym.make("calnav/ObjectNav-v0", split=cfg.env.split, config=cfg.env)
+        env = _make_env(cfg, env_maker, env_args or {})
         _worker_state.update(key=key, env=env, agent=make_agent(agent_name, env, cfg))
     return _worker_state["env"], _worker_state["agent"]
 
@@ -106,7 +119,7 @@ def run_episode_task(task: EpisodeTask) -> dict:
     from eval.backends import ray_node_id
 
     try:
-        env, agent = _warm_env_agent(task.cfg_dict, task.agent)
+        env, agent = _warm_env_agent(task.cfg_dict, task.agent, task.env_maker, task.env_args)
         record = run_one_episode(env, agent, task.index, task.video_dir)
     except Exception as exc:  # report the episode, keep the run going
         record = {"index": task.index, "status": "error", "error": f"{type(exc).__name__}: {exc}",
@@ -141,6 +154,11 @@ class EpisodeJob:
     indices: list[int]
     out: Path
     video: int = 0
+    # "module:function" building the env as function(cfg, **env_args) (picklable arguments), for
+    # a study that changes the world around the same config (the start-pose study's frames and
+    # rotated houses); "" = calnav's ObjectNav env of cfg.env
+    env_maker: str = ""
+    env_args: dict = field(default_factory=dict)
 
 
 def run_objectnav(cfg: Config, indices: list[int], out: Path, force: bool = False,
@@ -185,7 +203,8 @@ def run_jobs(jobs: list[EpisodeJob], force: bool = False, progress: bool = True,
             records.append(done)
             duplicates.append(resumed.duplicates)
             cfg_dict, videos = to_dict(job.cfg), set(job.indices[:max(0, job.video)])
-            tasks += [EpisodeTask(j, cfg_dict, job.cfg.run.agent, i, str(job.out / "videos") if i in videos else None)
+            tasks += [EpisodeTask(j, cfg_dict, job.cfg.run.agent, i, str(job.out / "videos") if i in videos else None,
+                                  job.env_maker, job.env_args)
                       for i in job.indices if i not in done]
         total = sum(len(job.indices) for job in jobs)
         name = jobs[0].cfg.run.agent if len(jobs) == 1 else f"{len(jobs)} configs"
@@ -220,40 +239,49 @@ def run_jobs(jobs: list[EpisodeJob], force: bool = False, progress: bool = True,
 
 def agent_overrides(args, overrides: list[str]) -> list[str]:
     """``overrides`` plus ``run.agent=NAME`` when ``--agent NAME`` was given (its shorthand)."""
+    from eval.config import with_shorthand
+
     agent = getattr(args, "agent", None)
-    return [*overrides, f"run.agent={agent}"] if agent else list(overrides)
+    return with_shorthand(list(overrides), "run.agent", agent, "--agent") if agent else list(overrides)
 
 
-def _job_from_args(args, overrides: list[str], out: Path | None) -> EpisodeJob:
-    """Load the config with ``overrides`` (and --agent) and resolve --episodes into a job
-    writing to ``out`` (default: run.output_dir)."""
+def objectnav_configs(args) -> list[Config]:
+    """Every config ``calnav objectnav`` runs for ``args``: the one, or each multirun combination
+    of comma-separated overrides in order (``--agent NAME`` adds ``run.agent=NAME``)."""
+    from eval.config import expand_multirun
+
+    if getattr(args, "video", 0) < 0:
+        raise ValueError(f"--video must be >= 0, got {args.video}")
+    combos = expand_multirun(list(args.overrides)) if getattr(args, "multirun", False) else [list(args.overrides)]
+    return [load_config(args.config, agent_overrides(args, combo)) for combo in combos]
+
+
+def _job(args, cfg: Config, out: Path | None) -> EpisodeJob:
+    """``cfg``'s job: --episodes resolved on its split, writing to ``out`` (default: run.output_dir)."""
     from envs.episodes import load_split, parse_episode_range
 
-    cfg = load_config(args.config, agent_overrides(args, overrides))
     episodes = load_split(cfg.env.split, cfg.env)
     indices = list(parse_episode_range(str(args.episodes), len(episodes)))
     return EpisodeJob(cfg, indices, Path(out or cfg.run.output_dir), getattr(args, "video", 0))
 
 
-def main_objectnav(args) -> None:
-    from eval.config import expand_multirun
-
-    if getattr(args, "video", 0) < 0:
-        raise ValueError(f"--video must be >= 0, got {args.video}")
+def main_objectnav(args, configs: list[Config]) -> None:
+    """``configs``: ``objectnav_configs(args)``, checked by the preflight."""
     if not getattr(args, "multirun", False):
-        job = _job_from_args(args, args.overrides, args.output)
+        job = _job(args, configs[0], args.output)
         summary = run_jobs([job], force=args.force)[0]
         print(format_metrics_table([(summary["agent"], summary)], first_header="Agent"))
         print(f"results: {job.out}/episodes.jsonl, {job.out}/summary.json, {job.out}/plots/")
         return
+    from eval.config import expand_multirun
     from eval.objectnav.report import combo_dirname, combo_values, varied_keys, write_comparison
 
     combos = expand_multirun(list(args.overrides))
     keys = varied_keys(list(args.overrides))
-    root = Path(args.output or load_config(args.config, agent_overrides(args, combos[0])).run.output_dir)
+    root = Path(args.output or configs[0].run.output_dir)
     values = [combo_values(combo, keys) for combo in combos]
-    # every combination is loaded (validated) before any runs; then all their episodes run at once
-    jobs = [_job_from_args(args, combo, root / combo_dirname(v)) for combo, v in zip(combos, values)]
+    # every combination was loaded (validated) before any runs; then all their episodes run at once
+    jobs = [_job(args, cfg, root / combo_dirname(v)) for cfg, v in zip(configs, values)]
     with ResultsDir(root, files=()):  # one multirun per root: its comparison covers its own runs
         summaries = run_jobs(jobs, force=args.force)
         with writing(root / "comparison.md"):

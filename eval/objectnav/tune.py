@@ -222,7 +222,15 @@ def format_tune_table(rows: list[dict], best: dict) -> str:
     return "\n".join(lines)
 
 
-def main_tune(args) -> None:
+def tune_configs(args) -> list:
+    """The config ``calnav tune`` runs: the base every grid point adds its two tuned keys to
+    (they name no file, so the preflight checks the base)."""
+    return [load_config(args.config, list(args.overrides))]
+
+
+def main_tune(args, configs) -> None:
+    """``configs``: ``tune_configs(args)``, checked by the preflight; ``run_tune`` loads each
+    grid point from the same config file and overrides."""
     out = Path(args.output)
     rows, best = run_tune(args.config, args.overrides, args.episodes, args.thresholds, args.min_areas,
                           args.metric, out, force=args.force, extend=args.extend)

@@ -95,15 +95,22 @@ def draw_episode(env, path_xy: np.ndarray, frames: list[dict], out_dir: Path) ->
     return top, strip
 
 
-def main_view_episode(args) -> None:
+def view_episode_configs(args) -> list:
+    """The config ``calnav view-episode`` runs."""
+    from eval.config import load_config
+
+    return [load_config(args.config, args.overrides)]
+
+
+def main_view_episode(args, configs) -> None:
+    """``configs``: ``view_episode_configs(args)``, checked by the preflight."""
     import gymnasium as gym
 
     import envs  # noqa: F401
     from eval.objectnav.agents import make_agent
-    from eval.config import load_config
     from eval.results_dir import check_output_dir
 
-    cfg = load_config(args.config, args.overrides)
+    cfg = configs[0]
     check_output_dir(args.output)
     env = gym.make("calnav/ObjectNav-v0", split=cfg.env.split, config=cfg.env)
     n = len(env.unwrapped.episodes)

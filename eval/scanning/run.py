@@ -13,7 +13,6 @@ from __future__ import annotations
 import csv
 import dataclasses
 import io
-import json
 import time
 from pathlib import Path
 
@@ -70,13 +69,19 @@ def markdown(means: list[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def main_scan_houses(args) -> None:
+def scan_houses_configs(args) -> list:
+    """The config ``calnav scan-houses`` runs: the given one with ``env.dataset.style=scanned``."""
+    return [load_config(args.config, [*args.overrides, "env.dataset.style=scanned"])]
+
+
+def main_scan_houses(args, configs) -> None:
+    """``configs``: ``scan_houses_configs(args)``, checked by the preflight."""
     from tqdm import tqdm
 
     from envs.scenes import split_scene_ids
     from eval.backends import make_backend
 
-    cfg = load_config(args.config, [*args.overrides, "env.dataset.style=scanned"])
+    cfg = configs[0]
     splits = [s for s in str(args.splits).split(",") if s]
     ids = []
     for split in splits:   # an unknown split is a one-line error here, before anything is written

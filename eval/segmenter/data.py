@@ -126,6 +126,13 @@ class SegmenterExperimentConfig:
     train: TrainConfig = field(default_factory=TrainConfig)
 
 
+def segmenter_configs(args) -> list[SegmenterExperimentConfig]:
+    """The config ``calnav train-segmenter`` / ``eval-segmenter`` runs."""
+    from eval.config import load_config
+
+    return [load_config(args.config, args.overrides, cls=SegmenterExperimentConfig)]
+
+
 @dataclass
 class SegData:
     """Rendered frames (see the module docstring for shapes and dtypes)."""

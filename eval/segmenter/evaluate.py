@@ -17,7 +17,6 @@ from pathlib import Path
 
 import numpy as np
 
-from eval.config import load_config
 from eval.results_dir import check_output_file, writing
 from eval.segmenter.data import EVAL_SEED_OFFSET, SegmenterExperimentConfig, load_or_render
 from mapping.metrics import CalibrationStats
@@ -83,8 +82,9 @@ def format_report(m: dict) -> str:
     return "\n".join(lines)
 
 
-def main_eval_segmenter(args) -> None:
-    cfg = load_config(args.config, args.overrides, cls=SegmenterExperimentConfig)
+def main_eval_segmenter(args, configs: list[SegmenterExperimentConfig]) -> None:
+    """``configs``: ``eval.segmenter.data.segmenter_configs(args)``, checked by the preflight."""
+    cfg = configs[0]
     if args.output:
         check_output_file(args.output)
     metrics = evaluate(cfg, args.model, args.split, args.frames)

@@ -35,7 +35,7 @@ from agent.segmenters.base import resolve_device
 from agent.segmenters.learned import LEARNED_MODELS, default_weights_path, save_weights
 from agent.segmenters.network import NetSpec, SegNet, count_parameters
 from common.atomic import atomic_path
-from eval.config import load_config, to_dict
+from eval.config import to_dict
 from eval.results_dir import check_output_file
 from eval.segmenter.data import (VAL_SEED_OFFSET, SegData, SegmenterExperimentConfig, TrainConfig,
                                  load_or_render)
@@ -270,8 +270,9 @@ def train(cfg: SegmenterExperimentConfig, model: str, output: Path | str, resume
     return card
 
 
-def main_train_segmenter(args) -> None:
-    cfg = load_config(args.config, args.overrides, cls=SegmenterExperimentConfig)
+def main_train_segmenter(args, configs: list[SegmenterExperimentConfig]) -> None:
+    """``configs``: ``eval.segmenter.data.segmenter_configs(args)``, checked by the preflight."""
+    cfg = configs[0]
     output = Path(args.output) if args.output else default_weights_path(args.model)
     check_output_file(output)   # written after training: a bad path fails now, not after 20 minutes
     parts = ["calnav", "train-segmenter", "--model", args.model, "--config", str(args.config), *args.overrides]

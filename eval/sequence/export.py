@@ -155,15 +155,23 @@ def export_house(cfg, scene_id: str, out: Path, seed: int, max_edge_m: float = D
     return n
 
 
-def main_export_sequence(args) -> None:
+def export_sequence_configs(args) -> list:
+    """The config ``calnav export-sequence`` runs: ``--resolution`` and ``--frames`` as
+    ``env.resolution`` and ``scan.frames``, under the overrides."""
     from eval.calibration.config import CalibrateMapConfig
-    from eval.calibration.record import scene_seed
     from eval.config import load_config
-    from eval.results_dir import check_output_dir
 
     overrides = [f"env.resolution={args.resolution}", *([f"scan.frames={args.frames}"] if args.frames else []),
                  *args.overrides]
-    cfg = load_config(args.config, overrides, cls=CalibrateMapConfig)
+    return [load_config(args.config, overrides, cls=CalibrateMapConfig)]
+
+
+def main_export_sequence(args, configs) -> None:
+    """``configs``: ``export_sequence_configs(args)``, checked by the preflight."""
+    from eval.calibration.record import scene_seed
+    from eval.results_dir import check_output_dir
+
+    cfg = configs[0]
     if not args.max_edge > 0:
         raise ValueError(f"--max-edge must be > 0 metres, got {args.max_edge}")
     out = check_output_dir(args.output)

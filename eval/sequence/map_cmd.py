@@ -96,10 +96,16 @@ def write_map(out: Path, coords: np.ndarray, probs: np.ndarray, class_names, met
     PlyData([PlyElement.describe(v, "vertex")]).write(str(out / "map.ply"))
 
 
-def main_map(args) -> None:
+def map_configs(args) -> list[MapSequenceConfig]:
+    """The config ``calnav map`` runs."""
     from eval.config import load_config
 
-    cfg = load_config(args.config or DEFAULT_CONFIG, list(args.overrides), cls=MapSequenceConfig)
+    return [load_config(args.config or DEFAULT_CONFIG, list(args.overrides), cls=MapSequenceConfig)]
+
+
+def main_map(args, configs: list[MapSequenceConfig]) -> None:
+    """``configs``: ``map_configs(args)``, checked by the preflight."""
+    cfg = configs[0]
     seq = Sequence(args.sequence_dir, args.layout, cfg.sequence)
     source = logits_source(seq, cfg, args.segmenter, args.logits, args.classes)
     names = tuple(source.class_names)

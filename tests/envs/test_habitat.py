@@ -224,3 +224,22 @@ def test_stand_ins_only_where_habitat_sim_is_missing():
 
     with pytest.raises(ImportError, match="needs habitat-sim"):
         EnvBatchRenderer()
+
+
+def test_habitat_benchmark_runs_the_configs_the_preflight_checked(tmp_path, monkeypatch):
+    """As every other command (tests/eval/test_preflight.py): calnav's config and habitat-lab's
+    are loaded once, checked, and handed to the command as they are."""
+    from tests.eval.test_preflight import assert_runs_the_checked_configs
+
+    checked = assert_runs_the_checked_configs(["habitat-benchmark", "--output", str(tmp_path / "hb")], monkeypatch)
+    assert type(checked[0]).__name__ == "Config" and len(checked) == 2
+
+
+def test_habitat_benchmark_gt_segmenter_without_semantic_sensor_is_one_line(tmp_path, capsys):
+    """The default habitat config has no semantic sensor: the peanut agent with the gt
+    segmenter used to die in habitat-lab's loop with a KeyError traceback."""
+    out = tmp_path / "hb"
+    assert main(["habitat-benchmark", "--agent", "peanut", "--episodes", "0:1", "--output", str(out),
+                 "agent.segmenter=gt"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "reads the ground-truth semantic observation" in err[0] and not out.exists()

@@ -202,7 +202,7 @@ def test_cache_that_is_a_file_is_one_line_before_writing(tmp_path, capsys, monke
 def test_ctrl_c_is_one_line_that_says_how_to_resume(tmp_path, capsys, monkeypatch):
     import eval.objectnav.run as run
 
-    def interrupted(args):
+    def interrupted(args, configs):
         raise KeyboardInterrupt
 
     monkeypatch.setattr(run, "main_objectnav", interrupted)
@@ -239,3 +239,19 @@ def test_output_directory_that_is_a_file_is_one_line(tmp_path, capsys, command):
         rc = main([*command, "--output", str(out)])
         err = capsys.readouterr().err.strip().splitlines()
         assert rc == 2 and len(err) == 1 and "is a file, not a directory" in err[0], err
+
+
+@pytest.mark.parametrize("argv", [
+    ["objectnav", "--agent", "oracle", "run.agent=peanut"],
+    ["habitat-benchmark", "--agent", "oracle", "run.agent=peanut"],
+    ["start-pose", "--workers", "2", "run.workers=1"],
+    ["calibrate-map", "--sequences", "list.txt", "sequences.list=other.txt"],
+])
+def test_a_shorthand_never_silently_overrides_the_same_key(tmp_path, capsys, argv):
+    """Issue 26: ``--agent`` / ``--workers`` / ``--sequences`` and the key they stand for, both
+    given: one line naming both, nothing written (the shorthand used to win silently)."""
+    out = tmp_path / "out"
+    assert main([*argv, "--output", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "both set" in err[0] and "give one of them" in err[0], err
+    assert not out.exists()

@@ -95,7 +95,43 @@ def test_start_pose_cli_writes_its_results_directory_and_refuses_another_config(
     summary = json.loads((out / "summary.json").read_text())
     assert set(summary) == {"world", "start"} and all(s["n"] == 1 for s in summary.values())
     assert (out / "summary.csv").read_text().startswith("variant,successes,n,success,spl")
-    assert len((out / "episodes.jsonl").read_text().splitlines()) == 2
+    for v in ("world", "start"):   # each variant is a results directory of the shared episode runner
+        assert len((out / v / "episodes.jsonl").read_text().splitlines()) == 1
+        assert json.loads((out / v / "summary.json").read_text())["count"] == 1
     assert main([*args, *tiny, "env.max_episode_steps=20"]) == 2
     assert "different config" in capsys.readouterr().err
     assert main([*args, "--force", *tiny, "env.max_episode_steps=20"]) == 0
+
+
+def test_start_pose_crash_is_a_record_and_a_rerun_resumes(tmp_path, monkeypatch):
+    """The frame study runs through the episode runner every ObjectNav command uses: a crashing
+    episode is an error record (it used to kill the whole study), counted as a failure in the
+    shared summary, retried by the rerun; finished episodes are not run again (the study used
+    to truncate its episodes.jsonl on every run)."""
+    import json
+
+    import eval.objectnav.run as run
+    from eval.cli import main
+
+    out = tmp_path / "sp"
+    tiny = ["env.resolution=64x48", "agent.map_resolution=64x48", "agent.segmenter=gt", "env.max_episode_steps=20",
+            "env.dataset.val_scenes=1", "env.dataset.episodes_per_scene=2"]
+    args = ["start-pose", "--episodes", "2", "--variants", "start", "--workers", "1", "--output", str(out), *tiny]
+    real, calls = run.run_one_episode, []
+
+    def crash_on_1(env, agent, index, video_dir=None):
+        calls.append(index)
+        if index == 1 and len(calls) <= 2:
+            raise RuntimeError("boom")
+        return real(env, agent, index, video_dir)
+
+    monkeypatch.setattr(run, "run_one_episode", crash_on_1)
+    assert main(args) == 0
+    recs = [json.loads(x) for x in (out / "start" / "episodes.jsonl").read_text().splitlines()]
+    assert sorted(r["status"] for r in recs) == ["error", "ok"] and "boom" in recs[-1]["error"]
+    summary = json.loads((out / "summary.json").read_text())["start"]
+    assert summary["n"] == 2 and summary["failed"] == 1 and summary["successes"] <= 1
+    assert main(args) == 0 and calls == [0, 1, 1]   # only the crashed episode runs again
+    recs = [json.loads(x) for x in (out / "start" / "episodes.jsonl").read_text().splitlines()]
+    assert sorted(r["index"] for r in recs) == [0, 1] and all(r["status"] == "ok" for r in recs)
+    assert json.loads((out / "summary.json").read_text())["start"]["failed"] == 0

@@ -1,5 +1,6 @@
-"""Issue 15: every file a config names is opened and validated before a run writes anything or
-starts a worker (``eval.preflight``), for objectnav, tune, calibrate-map and fit-glfs."""
+"""Every file a config names is opened and validated before a run writes anything or starts a
+worker (``eval.preflight``), for every command of the registry ``eval.cli.COMMANDS``, on exactly
+the configs the command then runs."""
 from __future__ import annotations
 
 import json
@@ -116,3 +117,77 @@ def test_calibrate_map_and_fit_glfs_refuse_bad_weights_before_writing(tmp_path, 
                  "--work-dir", str(work)]) == 2
     assert "valid choices: gt, noisy, learned_rgb, learned_rgbd" in capsys.readouterr().err
     assert not work.exists()
+
+
+def _argv(command: str, tmp_path) -> list[str]:
+    """A minimal valid command line for each registered command (outputs under tmp_path)."""
+    out = str(tmp_path / "out")
+    return {
+        "map": ["map", str(tmp_path), "--layout", "scannet", "--segmenter", "gt", "--output", out],
+        "fit-glfs": ["fit-glfs", "--segmenter", "gt", "--output", str(tmp_path / "g.json")],
+        "train-segmenter": ["train-segmenter", "--model", "learned_rgb"],
+        "eval-segmenter": ["eval-segmenter", "--model", "gt"],
+        "export-sequence": ["export-sequence", "--output", out],
+        "compare": ["compare", out, "--output", out],
+        "calibrate-map": ["calibrate-map", "--quick", "--sequences", str(tmp_path / "list.txt")],
+    }.get(command, [command, "--output", out])
+
+
+def assert_runs_the_checked_configs(argv: list[str], monkeypatch) -> list:
+    """Run ``calnav *argv`` with the command's main and the preflight's per-config check spied
+    on; assert the main received exactly the config objects the preflight checked. Returns them."""
+    import importlib
+
+    import eval.preflight
+    from eval.cli import COMMANDS
+
+    entry = COMMANDS[argv[0]]
+    checked, received = [], []
+    monkeypatch.setattr(eval.preflight, "check_run_resources", lambda cfg: checked.append(cfg))
+    monkeypatch.setattr(importlib.import_module(entry.module), entry.main,
+                        lambda args, configs: received.append(configs))
+    assert main(argv) == 0
+    assert len(received) == 1 and [id(c) for c in received[0]] == [id(c) for c in checked]
+    assert bool(checked) == (entry.configs is not None), f"{argv[0]}: checked {checked}"
+    return checked
+
+
+@pytest.mark.parametrize("command", sorted(set(__import__("eval.cli", fromlist=["COMMANDS"]).COMMANDS)
+                                           - {"habitat-benchmark"}))   # in tests/envs/test_habitat.py
+def test_every_command_runs_the_configs_the_preflight_checked(tmp_path, monkeypatch, command):
+    """The CLI loads a command's configs once, the preflight checks them and the command's main
+    receives the very same objects (before, preflight reloaded configs by its own rules: it
+    dropped ``calibrate-map --sequences`` and covered 4 of 15 commands)."""
+    (tmp_path / "list.txt").write_text(f"test {tmp_path}\n")
+    checked = assert_runs_the_checked_configs(_argv(command, tmp_path), monkeypatch)
+    if command == "calibrate-map":   # the shorthand reaches the checked config
+        assert checked[0].sequences.list == str(tmp_path / "list.txt")
+
+
+@pytest.mark.parametrize("command", [
+    ["view-episode"], ["start-pose"], ["scan-houses", "--houses", "1"],
+    ["export-sequence"], ["map", "SEQ", "--layout", "scannet", "--segmenter", "gt"],
+])
+def test_commands_refuse_a_missing_glfs_file_before_writing(tmp_path, capsys, command):
+    """Commands the preflight did not cover before: a config naming a missing file is one line
+    and nothing is written."""
+    out = tmp_path / "out"
+    argv = [a.replace("SEQ", str(tmp_path)) for a in command]
+    code = main([*argv, "--output", str(out), f"mapping.glfs_params={tmp_path / 'none.json'}"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and "GLFS params file not found" in err[0]
+    assert not out.exists()
+
+
+def test_a_segmenter_that_reads_ground_truth_needs_a_semantic_sensor(tmp_path, capsys):
+    """`agent.segmenter=gt` without the semantic sensor: every episode used to crash on its first
+    step (habitat-benchmark's default habitat config: a KeyError traceback); now one line, before
+    anything is written. The oracle and the learned segmenters need no semantic sensor."""
+    out = tmp_path / "run"
+    code = main(["objectnav", "--output", str(out), "--episodes", "1", *SMALL, "env.semantic_sensor=false",
+                 "agent.segmenter=gt"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and "reads the ground-truth semantic observation" in err[0]
+    assert "configs/habitat_objectnav_semantic.yaml" in err[0] and not out.exists()
+    check_run_resources(load_config(None, ["env.semantic_sensor=false", "agent.segmenter=learned_rgb"]))
+    check_run_resources(load_config(None, ["env.semantic_sensor=false", "run.agent=oracle"]))
