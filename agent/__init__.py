@@ -4,7 +4,7 @@ agent (``agent.policy.PeanutAgent``, ``calnav objectnav --agent peanut``), one f
 | stage | file | what it does |
 |---|---|---|
 | config | ``config.py`` | ``AgentConfig`` (YAML section ``agent``), every default with its unit |
-| perception | ``perception.py`` | subsample to 160x120 and segment: ``Frame`` (depth, logits, labels, intrinsics) |
+| perception | ``perception.py`` | subsample to 160x120 and segment: ``mapping.frame.SegmentedFrame`` (depth, k, logits, rgb) |
 | maps | ``semantic_map.py`` | ``MapChannels``, ``MapState`` (2D map + the episode's 3D voxel map) and ``SemanticMapModule``: fuse into the voxel map, incremental ground projection |
 | grid geometry | ``projection.py`` | back-projection, cell indices, free rays, discs, dilation |
 | goal detection | ``goal_detection.py`` | threshold + largest connected component with a minimum area |

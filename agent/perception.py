@@ -1,4 +1,4 @@
-"""Perception: subsample the frame to the mapping resolution and segment it (segmenter by name
+"""Perception: subsample the observation to the mapping resolution and segment it (segmenter by name
 from ``agent.segmenters``). It keeps no map: fusing the segmentation into the 3D voxel map and
 projecting it to the 2D map is ``agent.semantic_map``'s job.
 
@@ -9,27 +9,13 @@ simulator's ``camera_pose`` when present (``noisy`` anchors its errors in the wo
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from agent.config import AgentConfig
 from agent.segmenters import make_segmenter
 from agent.sensors import SensorModel
 from envs.task import CAMERA_POSE, RGB, SEMANTIC, require_keys
-
-
-@dataclass
-class Frame:
-    """One segmented frame at the mapping resolution (h, w): depth (h, w) float32 m (0 =
-    invalid), logits (h, w, K) float32 segmenter scores, labels (h, w) int64 their arg-max,
-    intrinsics (3, 3) at (w, h), rgb (h, w, 3) uint8."""
-
-    depth: np.ndarray
-    logits: np.ndarray
-    labels: np.ndarray
-    intrinsics: np.ndarray
-    rgb: np.ndarray
+from mapping.frame import SegmentedFrame
 
 
 def subsample_stride(width: int, height: int, target: tuple[int, int]) -> int:
@@ -47,7 +33,7 @@ def subsample_intrinsics(k: np.ndarray, stride: int) -> np.ndarray:
 
 
 class Perception:
-    """The segmenter, stateless across frames. ``observe(obs) -> Frame``."""
+    """The segmenter, stateless across frames. ``observe(obs) -> SegmentedFrame`` (``mapping.frame``)."""
 
     def __init__(self, cfg: AgentConfig, sensors: SensorModel, device: str = "cpu"):
         self.cfg = cfg
@@ -56,7 +42,7 @@ class Perception:
         self.num_classes = self.segmenter.num_classes
         self.class_names: tuple[str, ...] = tuple(self.segmenter.class_names)
 
-    def observe(self, obs: dict) -> Frame:
+    def observe(self, obs: dict) -> SegmentedFrame:
         """Subsample and segment one observation."""
         depth = self.sensors.depth_m(obs)
         h, w = depth.shape
@@ -73,4 +59,4 @@ class Perception:
             if CAMERA_POSE in obs:  # the simulated segmenter's input, never the agent's
                 extra["pose"] = np.asarray(obs[CAMERA_POSE], np.float64)
         logits = self.segmenter(rgb, depth, **extra)
-        return Frame(depth, logits, logits.argmax(axis=-1), k, rgb)
+        return SegmentedFrame(depth, k, logits, rgb)

@@ -12,7 +12,7 @@ fused projection cannot alias whatever the start pose (``cell_m`` should be a mu
 layers; ``MapState.semantic`` (K, n, n) float32 is the confidence that class l is at a cell.
 
 Per frame (``update``), with the segmented frame at the mapping resolution
-(``agent.perception.Frame``: depth (h, w) m, logits (h, w, K)):
+(``mapping.frame.SegmentedFrame``: depth (h, w) m, logits (h, w, K)):
 
 - ``fused``: the frame is fused into the 3D voxel map; the voxels hit by this frame's depth
   (the only ones whose fused value changed) are re-read and re-projected: each voxel keeps its
@@ -40,9 +40,9 @@ import numpy as np
 
 from agent import projection as pj
 from agent.config import AgentConfig
-from agent.perception import Frame
 from agent.segmenters import softmax
 from mapping.config import MappingConfig
+from mapping.frame import SegmentedFrame
 from mapping.voxel_map import SemanticVoxelMap, single_threaded_torch
 
 
@@ -179,14 +179,14 @@ class SemanticMapModule:
             voxels = SemanticVoxelMap(self.num_classes, self.mapping_cfg, class_names=self.class_names)
         return MapState.empty(start_xy, self.cfg, self.num_classes, voxels, lattice_m=self.voxel_size_m)
 
-    def update(self, state: MapState, frame: Frame, pose: np.ndarray) -> None:
+    def update(self, state: MapState, frame: SegmentedFrame, pose: np.ndarray) -> None:
         """Fuse (when ``state.voxels``) and project one frame; pose (4, 4) world-from-camera."""
         if state.voxels is not None:
-            state.voxels.integrate(frame.depth, frame.intrinsics, pose, logits=frame.logits, rgb=frame.rgb)
-            self.project(state, frame.depth, None, frame.intrinsics, pose, state.voxels)
+            state.voxels.integrate(frame.depth, frame.k, pose, logits=frame.logits, rgb=frame.rgb)
+            self.project(state, frame.depth, None, frame.k, pose, state.voxels)
         else:
             probs = softmax(frame.logits, self.mapping_cfg.temperature)
-            self.project(state, frame.depth, probs, frame.intrinsics, pose, None)
+            self.project(state, frame.depth, probs, frame.k, pose, None)
 
     def project(self, state: MapState, depth: np.ndarray, probs: np.ndarray | None, intrinsics: np.ndarray,
                 pose: np.ndarray, vmap: SemanticVoxelMap | None = None) -> None:

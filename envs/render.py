@@ -135,7 +135,7 @@ def look_at_pose(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
 
 
 @dataclass
-class Frame:
+class RenderedView:
     """One rendered view.
 
     rgb: (H, W, 3) uint8. depth: (H, W) float32 z-depth in metres, 0 where invalid (miss,
@@ -159,7 +159,7 @@ def build_raycasting_scene(scene: Scene) -> o3d.t.geometry.RaycastingScene:
 
 
 class Renderer:
-    """Renders ``Frame``s of one scene with one camera. Not thread-safe (reuses buffers).
+    """Renders ``RenderedView``s of one scene with one camera. Not thread-safe (reuses buffers).
 
     scene: the ``Scene``; camera: the ``Camera``; min/max_depth_m: valid depth range, metres;
     rgb_noise_std: Gaussian RGB noise std in uint8 levels; depth_noise_std: Gaussian depth
@@ -251,7 +251,7 @@ class Renderer:
         return self._rays_t
 
     def render(self, pose: np.ndarray, rng: np.random.Generator | None = None,
-               normals: bool = False) -> Frame:
+               normals: bool = False) -> RenderedView:
         """Render the view from ``pose`` ((4, 4) float64 world-from-camera, OpenCV axes).
 
         rng: noise generator for this frame (default: the renderer's own seeded one);
@@ -263,7 +263,7 @@ class Renderer:
         prim = hit["primitive_ids"].numpy()           # (H, W) uint32, INVALID_ID on a miss
         nrm = hit["primitive_normals"].numpy()        # (H, W, 3) float32
         h, w = t.shape
-        frame = Frame(rgb=np.empty((h, w, 3), np.uint8), depth=np.empty((h, w), np.float32),
+        frame = RenderedView(rgb=np.empty((h, w, 3), np.uint8), depth=np.empty((h, w), np.float32),
                       semantic=np.empty((h, w), np.int16), instance=np.empty((h, w), np.int32))
         rng = self.rng if rng is None else rng
         rgb_noise = None
@@ -290,7 +290,7 @@ class Renderer:
             frame.normal = np.where((prim != INVALID_ID)[..., None], nrm, np.float32(0.0))
         return frame
 
-    def _post(self, rows: slice, t: np.ndarray, prim: np.ndarray, nrm: np.ndarray, frame: Frame,
+    def _post(self, rows: slice, t: np.ndarray, prim: np.ndarray, nrm: np.ndarray, frame: RenderedView,
               rgb_noise: np.ndarray | None) -> None:
         """Per-pixel work for image rows ``rows``: depth, labels and colour into ``frame``."""
         s = {k: v[rows] for k, v in self._scratch.items()}

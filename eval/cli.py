@@ -45,7 +45,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_config_args(p, "configs/objectnav.yaml")
     p.add_argument("--episodes", default="0:14", help="N (first N) or A:B (a range) of the split's episodes")
     p.add_argument("--variants", default="world,start,start_offset,start_rotated,house_yaw37",
-                   help="comma-separated variants (eval.objectnav.frames.VARIANTS)")
+                   help="comma-separated variants (eval.objectnav.start_pose.VARIANTS)")
     p.add_argument("--workers", type=int, default=None,
                    help="worker processes (shorthand for run.workers; default: the config's)")
     p.add_argument("--output", default="runs/start_pose", help="results directory")
@@ -191,7 +191,7 @@ class Command:
 
 COMMANDS: dict[str, Command] = {
     "objectnav": Command("eval.objectnav.run", "main_objectnav", "objectnav_configs"),
-    "start-pose": Command("eval.objectnav.frames", "main_start_pose", "start_pose_configs"),
+    "start-pose": Command("eval.objectnav.start_pose", "main_start_pose", "start_pose_configs"),
     "habitat-benchmark": Command("eval.habitat.run", "main_habitat_benchmark", "habitat_benchmark_configs"),
     "view-episode": Command("eval.objectnav.view_episode", "main_view_episode", "view_episode_configs"),
     "scan-houses": Command("eval.scanning.run", "main_scan_houses", "scan_houses_configs"),

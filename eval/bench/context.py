@@ -56,7 +56,7 @@ class BenchContext:
         return Renderer(self.scene, cam, min_depth_m=cfg.min_depth_m, max_depth_m=cfg.max_depth_m)
 
     def frames(self, width: int, height: int) -> list:
-        """Rendered ``envs.render.Frame`` for every pose, cached per resolution."""
+        """``envs.render.RenderedView`` for every pose, cached per resolution."""
         key = (width, height)
         if key not in self._frames:
             r = self.renderer(width, height)

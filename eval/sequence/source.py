@@ -6,27 +6,12 @@ background thread (``common.prefetch``); the one fusion loop (``fuse_frames``) u
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Iterable, Iterator
 
 import numpy as np
 
+from mapping.frame import SegmentedFrame
 from mapping.sequences import LogitsDir, Registration, Sequence, SequenceFrame
-
-
-@dataclass
-class MapFrame:
-    """One frame at the depth camera, ready for ``SemanticVoxelMap.integrate``: index (frame
-    number), depth (h, w) float32 m, k (3, 3), pose (4, 4) world-from-camera, logits (h, w, K)
-    float32, rgb (h, w, 3) uint8, semantic (h, w) int class ids (-1 void) or None."""
-
-    index: int
-    depth: np.ndarray
-    k: np.ndarray
-    pose: np.ndarray
-    logits: np.ndarray
-    rgb: np.ndarray
-    semantic: np.ndarray | None = None
 
 
 class SegmenterLogits:
@@ -56,16 +41,16 @@ class PrecomputedLogits:
         return arr if arr.shape[:2] == depth_hw else reg.logits(arr)
 
 
-def map_frames(seq: Sequence, logits_source) -> Iterator[MapFrame]:
-    """The sequence's frames at the depth camera with their logits (invalid poses skipped)."""
+def map_frames(seq: Sequence, logits_source) -> Iterator[SegmentedFrame]:
+    """The sequence's frames registered to the depth camera and segmented (invalid poses skipped)."""
     reg = Registration(seq.k_color, seq.color_size, seq.k_depth, seq.depth_size)
     for fr in seq.frames():
         rgb = reg.rgb(fr.rgb)
         sem = None if fr.semantic is None else reg.labels(fr.semantic)
-        yield MapFrame(fr.index, fr.depth, fr.k_depth, fr.pose, logits_source(fr, rgb, sem, reg), rgb, sem)
+        yield SegmentedFrame(fr.depth, fr.k_depth, logits_source(fr, rgb, sem, reg), rgb, fr.pose, sem, fr.index)
 
 
-def fuse_frames(vmap, frames: Iterable[MapFrame], total: int | None = None, progress: bool = False) -> int:
+def fuse_frames(vmap, frames: Iterable[SegmentedFrame], total: int | None = None, progress: bool = False) -> int:
     """Integrate every frame into ``vmap`` (a ``SemanticVoxelMap``); returns the frame count."""
     from tqdm import tqdm
 

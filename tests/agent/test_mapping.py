@@ -5,9 +5,9 @@ from agent.collision import CollisionTracker, collision_points, is_collision
 from agent.config import AgentConfig
 from agent.exploration import choose_frontier, frontier_mask
 from agent.goal_detection import detect_goal, largest_component
-from agent.perception import Frame
 from agent.semantic_map import MapChannels, MapState, SemanticMapModule, VoxelVotes
 from mapping.config import MappingConfig
+from mapping.frame import SegmentedFrame
 from envs.task import Action
 from agent import projection as pj
 
@@ -196,7 +196,7 @@ def test_map_module_marks_obstacles_and_explored_from_a_wall():
     k = np.array([[20.0, 0, 16], [0, 20.0, 12], [0, 0, 1]])
     depth = np.full((24, 32), 2.0, np.float32)
     logits = np.zeros((24, 32, 3), np.float32)  # uniform: softmax gives 1/3 per class
-    frame = Frame(depth, logits, logits.argmax(axis=-1), k, np.zeros((24, 32, 3), np.uint8))
+    frame = SegmentedFrame(depth, k, logits, np.zeros((24, 32, 3), np.uint8))
     module.update(state, frame, pose)
     obst = state.channels[MapChannels.OBSTACLE]
     wall_col = state.to_cell(np.array([2.0, 0.0]), cfg.cell_m)[1]

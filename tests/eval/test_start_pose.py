@@ -1,6 +1,6 @@
 """The agent is equally good whatever its start pose: the 2D map cannot alias the fused voxel
 lattice, the maps are the same (up to rasterisation) in any frame, and the study's rotated
-houses are the same houses (eval/objectnav/frames.py)."""
+houses are the same houses (eval/objectnav/start_pose.py)."""
 import math
 
 import numpy as np
@@ -8,7 +8,7 @@ import pytest
 
 from agent import projection as pj
 from eval.config import load_config
-from eval.objectnav.frames import VARIANTS, FrameVariant, frame_obs, lockstep_map_stats, parse_variants, rotated_setup
+from eval.objectnav.start_pose import VARIANTS, PoseVariant, reexpress_obs, lockstep_map_stats, parse_variants, rotated_setup
 
 VOXEL_M = 0.05
 
@@ -28,11 +28,11 @@ def test_lattice_aligned_origin_hand_computed_and_no_aliasing():
 
 def test_frame_obs_round_trips_to_the_world_pose():
     obs = {"gps": np.array([1.0, -2.0], np.float32), "compass": np.array([0.3], np.float32)}
-    w = frame_obs(obs, VARIANTS["world"], np.array([5.0, 7.0]), math.pi / 2)
+    w = reexpress_obs(obs, VARIANTS["world"], np.array([5.0, 7.0]), math.pi / 2)
     # start facing +y: forward 1 -> +y, right -2 (= left 2) -> -x
     np.testing.assert_allclose(w["gps"], [3.0, -8.0], atol=1e-5)            # world (3, 8) as (x, -y)
     assert w["compass"][0] == pytest.approx(0.3 + math.pi / 2, abs=1e-6)
-    shifted = frame_obs(obs, FrameVariant("s", offset_m=(0.5, 0.25), yaw_deg=90.0), (0, 0), 0.0)
+    shifted = reexpress_obs(obs, PoseVariant("s", offset_m=(0.5, 0.25), yaw_deg=90.0), (0, 0), 0.0)
     np.testing.assert_allclose(shifted["gps"], [0.5 - 2.0, -(0.25 + 1.0)], atol=1e-5)
     with pytest.raises(ValueError, match="valid: world, start"):
         parse_variants("start,nope")

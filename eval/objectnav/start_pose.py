@@ -2,7 +2,7 @@
 the house's orientation? (issue 14: the agent maps in the episode-start frame that Habitat's
 gps + compass give, so nothing may depend on where that frame's origin and axes fall.)
 
-A ``FrameVariant`` names how the agent's gps + compass are expressed and how the house lies:
+A ``PoseVariant`` names how the agent's gps + compass are expressed and how the house lies:
 
 - ``base``: ``start`` (Habitat's: origin at the start, x along the start heading) or
   ``world`` (the simulator's world frame: the old privileged protocol's poses);
@@ -12,8 +12,8 @@ A ``FrameVariant`` names how the agent's gps + compass are expressed and how the
 - ``house_yaw_deg``: the house mesh, the start poses and the goals are rotated about the
   world origin (walls no longer axis-aligned in the world; ``rotated_setup``).
 
-``frame_obs`` does the change of frame on one observation; ``FrameWrapper`` applies it in a
-gymnasium env; ``run_frame_study`` runs episodes x variants through the episode runner every
+``reexpress_obs`` does the change of frame on one observation; ``PoseVariantWrapper`` applies it in a
+gymnasium env; ``run_start_pose_study`` runs episodes x variants through the episode runner every
 ObjectNav command uses (``eval.objectnav.run.run_jobs``: the ``run.backend`` backend, one
 resumable results directory per variant with its ``episodes.jsonl`` and ``summary.json``) and
 writes ``summary.json`` / ``summary.csv`` (Success as successes / N and mean SPL per variant) /
@@ -32,11 +32,11 @@ from pathlib import Path
 
 import numpy as np
 
-FRAME_BASES = ("start", "world")
+POSE_BASES = ("start", "world")
 
 
 @dataclass(frozen=True)
-class FrameVariant:
+class PoseVariant:
     """How the agent's poses are expressed (see module docstring). offset_m (x, y) metres;
     yaw_deg / house_yaw_deg degrees, counter-clockwise."""
 
@@ -47,26 +47,26 @@ class FrameVariant:
     house_yaw_deg: float = 0.0
 
     def __post_init__(self) -> None:
-        if self.base not in FRAME_BASES:
-            raise ValueError(f"unknown frame base {self.base!r}; valid: {', '.join(FRAME_BASES)}")
+        if self.base not in POSE_BASES:
+            raise ValueError(f"unknown frame base {self.base!r}; valid: {', '.join(POSE_BASES)}")
 
 
 # The study's variants, by name (``calnav start-pose --variants``). Offsets and yaws are
 # arbitrary values, none a multiple of the 5 cm cell or of 90 degrees.
-VARIANTS: dict[str, FrameVariant] = {v.name: v for v in (
-    FrameVariant("world", "world"),                                      # the old privileged protocol's frame
-    FrameVariant("start"),                                               # Habitat's gps + compass
-    FrameVariant("start_offset", offset_m=(0.013, 0.027)),               # origin shifted by less than a cell
-    FrameVariant("start_offset_far", offset_m=(100.013, -100.013)),      # origin 141 m away
-    FrameVariant("start_rotated", offset_m=(3.217, -1.709), yaw_deg=23.0),  # a rotated, shifted frame
-    FrameVariant("world_offset_far", "world", offset_m=(100.013, -100.013)),
-    FrameVariant("house_yaw37", house_yaw_deg=37.0),                     # houses rotated: walls off the axes
-    FrameVariant("house_yaw118", house_yaw_deg=118.0),
+VARIANTS: dict[str, PoseVariant] = {v.name: v for v in (
+    PoseVariant("world", "world"),                                      # the old privileged protocol's frame
+    PoseVariant("start"),                                               # Habitat's gps + compass
+    PoseVariant("start_offset", offset_m=(0.013, 0.027)),               # origin shifted by less than a cell
+    PoseVariant("start_offset_far", offset_m=(100.013, -100.013)),      # origin 141 m away
+    PoseVariant("start_rotated", offset_m=(3.217, -1.709), yaw_deg=23.0),  # a rotated, shifted frame
+    PoseVariant("world_offset_far", "world", offset_m=(100.013, -100.013)),
+    PoseVariant("house_yaw37", house_yaw_deg=37.0),                     # houses rotated: walls off the axes
+    PoseVariant("house_yaw118", house_yaw_deg=118.0),
 )}
 DEFAULT_VARIANTS = ("world", "start", "start_offset", "start_rotated", "house_yaw37")
 
 
-def parse_variants(spec: str) -> list[FrameVariant]:
+def parse_variants(spec: str) -> list[PoseVariant]:
     """Comma-separated variant names -> variants (a clear error names the valid ones)."""
     names = [n for n in spec.split(",") if n]
     unknown = [n for n in names if n not in VARIANTS]
@@ -81,7 +81,7 @@ def rot2(theta: float) -> np.ndarray:
     return np.array([[c, -s], [s, c]])
 
 
-def frame_obs(obs: dict, variant: FrameVariant, start_xy, start_yaw: float) -> dict:
+def reexpress_obs(obs: dict, variant: PoseVariant, start_xy, start_yaw: float) -> dict:
     """A copy of ``obs`` whose gps / compass express the agent's pose in ``variant``'s frame.
     start_xy (2,) metres / start_yaw rad: the episode's world start pose (for base ``world``)."""
     from envs.task import COMPASS, GPS, gps_compass_to_xy_yaw, wrap_angle
@@ -97,21 +97,21 @@ def frame_obs(obs: dict, variant: FrameVariant, start_xy, start_yaw: float) -> d
     return out
 
 
-def _frame_wrapper_class():
+def _variant_wrapper_class():
     import gymnasium as gym
 
-    class FrameWrapper(gym.ObservationWrapper):
-        """Expresses gps / compass in a ``FrameVariant``'s frame (the episode is unchanged)."""
+    class PoseVariantWrapper(gym.ObservationWrapper):
+        """Expresses gps / compass in a ``PoseVariant``'s frame (the episode is unchanged)."""
 
-        def __init__(self, env, variant: FrameVariant):
+        def __init__(self, env, variant: PoseVariant):
             super().__init__(env)
             self.variant = variant
 
         def observation(self, obs):
             ep = self.env.unwrapped.episode
-            return frame_obs(obs, self.variant, ep.start_position, ep.start_yaw)
+            return reexpress_obs(obs, self.variant, ep.start_position, ep.start_yaw)
 
-    return FrameWrapper
+    return PoseVariantWrapper
 
 
 def rotate_scene(scene, yaw_rad: float):
@@ -151,7 +151,7 @@ def rotated_setup(env_cfg, episodes: list, yaw_deg: float, scene_dir: Path):
     return cfg, [rotate_episode(ep, yaw) for ep in episodes]
 
 
-def make_env(cfg, variant: FrameVariant, work_dir: Path):
+def make_env(cfg, variant: PoseVariant, work_dir: Path):
     """The gym env of ``cfg.env``'s split for ``variant`` (rotated houses under work_dir)."""
     import gymnasium as gym
 
@@ -163,21 +163,21 @@ def make_env(cfg, variant: FrameVariant, work_dir: Path):
         env_cfg, episodes = rotated_setup(env_cfg, episodes, variant.house_yaw_deg,
                                           work_dir / f"houses_{variant.house_yaw_deg:g}deg")
     env = gym.make("calnav/ObjectNav-v0", split=env_cfg.split, config=env_cfg, episodes=episodes)
-    return _frame_wrapper_class()(env, variant)
+    return _variant_wrapper_class()(env, variant)
 
 
 # ---------------------------------------------------------------------------- episodes x variants
-FRAME_RESULTS = ("episodes.jsonl", "summary.json", "summary.csv", "summary.png")  # what --force discards
-VARIANT_ENV = "eval.objectnav.frames:variant_env"   # the episode runner's env maker for a variant
+STUDY_RESULTS = ("episodes.jsonl", "summary.json", "summary.csv", "summary.png")  # what --force discards
+VARIANT_ENV = "eval.objectnav.start_pose:variant_env"   # the episode runner's env maker for a variant
 
 
 def variant_env(cfg, variant: dict, work_dir: str):
     """``make_env`` for the episode runner (``eval.objectnav.run``): the variant as a plain dict
     (picklable for any backend)."""
-    return make_env(cfg, FrameVariant(**{**variant, "offset_m": tuple(variant["offset_m"])}), Path(work_dir))
+    return make_env(cfg, PoseVariant(**{**variant, "offset_m": tuple(variant["offset_m"])}), Path(work_dir))
 
 
-def run_frame_study(cfg, indices: list[int], variants: list[FrameVariant], out: Path | None,
+def run_start_pose_study(cfg, indices: list[int], variants: list[PoseVariant], out: Path | None,
                     progress: bool = True, force: bool = False) -> dict[str, dict]:
     """Run every (variant, episode) with the PEANUT agent of ``cfg`` through the episode runner
     (``eval.objectnav.run.run_jobs``: the ``run.backend`` backend, resumable records, crashed
@@ -196,8 +196,8 @@ def run_frame_study(cfg, indices: list[int], variants: list[FrameVariant], out: 
     if len(set(names)) != len(names):
         raise ValueError(f"frame variants need distinct names, got {names}")
     with ExitStack() as stack:
-        results = stack.enter_context(ResultsDir(out, cfg, force=force, discard=FRAME_RESULTS)) if out else None
-        work = Path(out) if out else Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="calnav_frames_")))
+        results = stack.enter_context(ResultsDir(out, cfg, force=force, discard=STUDY_RESULTS)) if out else None
+        work = Path(out) if out else Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="calnav_start_pose_")))
         for v in variants:   # write rotated houses once, before the workers start
             if v.house_yaw_deg:
                 rotated_setup(cfg.env, load_split(cfg.env.split, cfg.env, progress=False), v.house_yaw_deg,
@@ -223,7 +223,7 @@ def run_frame_study(cfg, indices: list[int], variants: list[FrameVariant], out: 
 
 
 def plot_summary(summary: dict[str, dict], path: Path) -> None:
-    """Bar plot of Success and SPL per variant (summary from ``run_frame_study``)."""
+    """Bar plot of Success and SPL per variant (summary from ``run_start_pose_study``)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -260,7 +260,7 @@ def map_stats(agent) -> dict[str, float]:
             "mode": agent.info.mode if agent.info is not None else ""}
 
 
-def lockstep_map_stats(cfg, index: int, variants: list[FrameVariant], steps: int) -> list[dict]:
+def lockstep_map_stats(cfg, index: int, variants: list[PoseVariant], steps: int) -> list[dict]:
     """Drive episode ``index`` with the first variant's agent; every variant's agent sees the
     same frames (its own gps / compass frame) and maps them. Returns one row per step and
     variant: {step, variant, action, **map_stats}. House rotations are not supported here
@@ -277,10 +277,10 @@ def lockstep_map_stats(cfg, index: int, variants: list[FrameVariant], steps: int
     ep = env.episode
     agents = [PeanutAgent(cfg) for _ in variants]
     for a, v in zip(agents, variants):
-        a.reset(frame_obs(obs, v, ep.start_position, ep.start_yaw))
+        a.reset(reexpress_obs(obs, v, ep.start_position, ep.start_yaw))
     rows = []
     for step in range(steps):
-        actions = [a.act(frame_obs(obs, v, ep.start_position, ep.start_yaw)) for a, v in zip(agents, variants)]
+        actions = [a.act(reexpress_obs(obs, v, ep.start_position, ep.start_yaw)) for a, v in zip(agents, variants)]
         rows += [{"step": step, "variant": v.name, "action": act, **map_stats(a)}
                  for a, v, act in zip(agents, variants, actions)]
         obs, _, term, trunc, _ = env.step(actions[0])
@@ -315,7 +315,7 @@ def main_start_pose(args, configs) -> None:
     cfg = configs[0]
     indices = list(parse_episode_range(str(args.episodes), len(load_split(cfg.env.split, cfg.env))))
     out = Path(args.output)
-    summary = run_frame_study(cfg, indices, variants, out, force=args.force)
+    summary = run_start_pose_study(cfg, indices, variants, out, force=args.force)
     print("| variant | Success | SPL | N |\n|---|---|---|---|")
     for name, s in summary.items():
         print(f"| {name} | {s['successes']}/{s['n']} | {s['spl']:.3f} | {s['n']} |")
