@@ -9,15 +9,14 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
-import math
 import re
-import types
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal, Union
+from typing import Any, Literal
 
 import yaml
+from pydantic import ConfigDict, TypeAdapter, ValidationError
 
 from agent.config import AgentConfig
 from envs.config import EnvConfig
@@ -31,7 +30,7 @@ class ConfigError(ValueError):
 
 
 # "WxH" sizes (160x120). YAML 1.1 reads "0x0" / "0x10" as hexadecimal integers (0, 16), so the
-# loader keeps text of this form a string and the tuple coercion splits it.
+# loader keeps text of this form a string and ``_prepare`` splits it for a size (tuple) field.
 WXH_RE = re.compile(r"^\d+x\d+$")
 
 
@@ -53,6 +52,7 @@ class StrictLoader(yaml.SafeLoader):
                                   "write each key once")
             seen[key] = line
         return super().construct_mapping(node, deep=deep)
+
 
 
 StrictLoader.yaml_implicit_resolvers = {k: list(v) for k, v in yaml.SafeLoader.yaml_implicit_resolvers.items()}
@@ -112,104 +112,129 @@ class Config:
     agent: AgentConfig = field(default_factory=AgentConfig)
 
 
-# ---------------------------------------------------------------- coercion
-def _describe(tp: Any) -> str:
-    origin = typing.get_origin(tp)
-    if origin is Literal:
-        return "one of " + ", ".join(repr(a) for a in typing.get_args(tp))
-    return getattr(tp, "__name__", str(tp))
+# ---------------------------------------------------------------- validation (pydantic)
+# The config sections are plain dataclasses owned by their packages (envs, mapping, agent, ...);
+# pydantic validates a nested dict against them (types, Literal choices, finite numbers, then
+# each section's own __post_init__ range checks) and ``_config_error`` turns its first error into
+# calnav's one line naming the key and the valid keys or choices. The validation settings are
+# attached here, once per dataclass, so the packages stay free of pydantic.
+PYDANTIC_CONFIG = ConfigDict(extra="forbid", allow_inf_nan=False, coerce_numbers_to_str=True)
+_ADAPTERS: dict[type, TypeAdapter] = {}
+
+# pydantic error type -> what calnav says was expected
+_EXPECTED = {
+    "float_parsing": "a number", "float_type": "a number", "finite_number": "a finite number",
+    "int_parsing": "an integer", "int_type": "an integer", "int_from_float": "an integer",
+    "bool_parsing": "true or false", "bool_type": "true or false",
+    "tuple_type": "a list (or 'WxH')", "list_type": "a list", "dict_type": "a mapping",
+    "string_type": "a string", "dataclass_type": "a mapping", "dataclass_exact_type": "a mapping",
+}
 
 
-def _coerce(value: Any, tp: Any, key: str) -> Any:
-    """Convert a YAML/CLI value to type ``tp`` or raise ConfigError naming ``key``."""
-    origin = typing.get_origin(tp)
-    args = typing.get_args(tp)
-    if origin is Literal:
-        if value not in args:
-            raise ConfigError(f"bad value for {key}: {value!r}; valid choices: {', '.join(map(str, args))}")
-        return value
-    if origin in (Union, types.UnionType):
-        if value is None and type(None) in args:
-            return None
-        for a in args:
-            if a is type(None):
-                continue
-            try:
-                return _coerce(value, a, key)
-            except ConfigError:
-                pass  # try the next member; the error below names them all
-        raise ConfigError(f"bad value for {key}: {value!r}; expected {' or '.join(_describe(a) for a in args)}")
-    if origin is tuple:
-        if isinstance(value, str) and "x" in value and len(args) == 2:  # "160x120"
-            value = value.split("x")
-        if not isinstance(value, (list, tuple)):
-            raise ConfigError(f"bad value for {key}: {value!r}; expected a list (or 'WxH')")
-        if len(args) == 2 and args[1] is Ellipsis:
-            return tuple(_coerce(v, args[0], key) for v in value)
-        if len(value) != len(args):
-            raise ConfigError(f"bad value for {key}: {value!r}; expected {len(args)} items")
-        return tuple(_coerce(v, a, key) for v, a in zip(value, args))
-    if origin is list:
-        if not isinstance(value, (list, tuple)):
-            raise ConfigError(f"bad value for {key}: {value!r}; expected a list")
-        return [_coerce(v, args[0], key) for v in value]
-    if origin is dict:
-        if not isinstance(value, dict):
-            raise ConfigError(f"bad value for {key}: {value!r}; expected a mapping")
-        return {k: _coerce(v, args[1], f"{key}.{k}") for k, v in value.items()}
-    if dataclasses.is_dataclass(tp):
-        if not isinstance(value, dict):
-            raise ConfigError(f"bad value for {key}: {value!r}; expected a mapping of {tp.__name__} keys")
-        return build_dataclass(tp, value, key)
-    if tp is bool:
-        if isinstance(value, bool):
-            return value
-        if isinstance(value, str) and value.lower() in ("true", "false", "yes", "no", "1", "0"):
-            return value.lower() in ("true", "yes", "1")
-        raise ConfigError(f"bad value for {key}: {value!r}; expected true or false")
-    if tp is int:
-        if isinstance(value, bool) or not isinstance(value, (int, str)):
-            raise ConfigError(f"bad value for {key}: {value!r}; expected an integer")
-        try:
-            return int(value)
-        except ValueError:
-            raise ConfigError(f"bad value for {key}: {value!r}; expected an integer") from None
-    if tp is float:
-        if isinstance(value, bool):
-            raise ConfigError(f"bad value for {key}: {value!r}; expected a number")
-        try:
-            number = float(value)
-        except (TypeError, ValueError):
-            raise ConfigError(f"bad value for {key}: {value!r}; expected a number") from None
-        if not math.isfinite(number):   # by construction: no config key takes NaN or inf
-            raise ConfigError(f"bad value for {key}: {value!r}; expected a finite number")
-        return number
-    if tp is str:
-        if isinstance(value, (dict, list)):
-            raise ConfigError(f"bad value for {key}: {value!r}; expected a string")
-        return str(value)
-    if tp is Any:
-        return value
-    raise ConfigError(f"{key}: unsupported config type {tp!r}")
+def _with_pydantic_config(cls: type) -> None:
+    """Attach PYDANTIC_CONFIG to ``cls`` and every dataclass its fields hold."""
+    if "__pydantic_config__" in cls.__dict__:
+        return
+    cls.__pydantic_config__ = PYDANTIC_CONFIG
+    for tp in typing.get_type_hints(cls).values():
+        for t in (tp, *typing.get_args(tp)):
+            if dataclasses.is_dataclass(t):
+                _with_pydantic_config(t)
+
+
+def _adapter(cls: type) -> TypeAdapter:
+    if cls not in _ADAPTERS:
+        _with_pydantic_config(cls)
+        _ADAPTERS[cls] = TypeAdapter(cls)
+    return _ADAPTERS[cls]
+
+
+def _field_path(cls: type, loc: tuple) -> tuple[list[str], type | None, Any]:
+    """Walk ``loc`` (a pydantic error location) through ``cls``'s fields: (the config key's
+    parts, the dataclass holding the last one, the last one's type). Union member tags and list
+    indices in ``loc`` are not keys."""
+    parts, holder, tp = [], cls, cls
+    for item in loc:
+        if dataclasses.is_dataclass(tp) and isinstance(item, str):
+            hints = typing.get_type_hints(tp)
+            holder = tp
+            parts.append(item)
+            tp = hints.get(item)
+            if tp is None:
+                break
+            continue
+        if isinstance(item, int):       # a list element
+            args = typing.get_args(tp)
+            tp = args[0] if args else None
+            parts[-1] = f"{parts[-1]}[{item}]" if parts else f"[{item}]"
+            continue
+        members = [a for a in typing.get_args(tp) if a is not type(None)]   # a union member's tag
+        tp = next((a for a in members if getattr(a, "__name__", str(a)) in str(item)), None)
+    return parts, holder, tp
+
+
+def _prepare(cls: type, data: dict, prefix: str) -> dict:
+    """What pydantic's lax mode would read differently from calnav's configs: a ``WxH`` string
+    for a size (2-tuple) field is split, and true / false for a number is refused (pydantic
+    would take it as 1 / 0)."""
+    hints, out = typing.get_type_hints(cls), dict(data)
+    for name, value in data.items():
+        tp, key = hints.get(name), f"{prefix}.{name}" if prefix else name
+        if typing.get_origin(tp) is tuple and isinstance(value, str) and WXH_RE.match(value):
+            out[name] = value.split("x")
+        elif tp in (int, float) and isinstance(value, bool):
+            raise ConfigError(f"bad value for {key}: {value!r}; expected {_EXPECTED[f'{tp.__name__}_type']}")
+        elif dataclasses.is_dataclass(tp) and isinstance(value, dict):
+            out[name] = _prepare(tp, value, key)
+    return out
+
+
+# which of pydantic's errors to report first: an unknown key explains a "missing" one beside it
+_ERROR_ORDER = {"unexpected_keyword_argument": 0, "missing": 2}
+
+
+def _config_error(cls: type, exc: ValidationError, prefix: str) -> ConfigError:
+    """calnav's one-line message for pydantic's first error."""
+    err = min(exc.errors(include_url=False), key=lambda e: _ERROR_ORDER.get(e["type"], 1))
+    cause = err.get("ctx", {}).get("error")
+    if isinstance(cause, ConfigError):   # raised by a nested build_dataclass (a section's variants)
+        return cause
+    parts, holder, tp = _field_path(cls, err["loc"])
+    key = ".".join(p for p in [prefix, *parts] if p)
+    kind, value = err["type"], err.get("input")
+    if kind == "unexpected_keyword_argument":
+        section = ".".join(p for p in [prefix, *parts[:-1]] if p)
+        where = f"under '{section}'" if section else "at the top level"
+        names = ", ".join(f.name for f in dataclasses.fields(holder))
+        return ConfigError(f"unknown config key '{key}'; valid keys {where}: {names}")
+    if kind == "literal_error":
+        choices = ", ".join(map(str, typing.get_args(tp))) if typing.get_origin(tp) is Literal else \
+            err["ctx"]["expected"]
+        return ConfigError(f"bad value for {key}: {value!r}; valid choices: {choices}")
+    if kind == "missing":
+        return ConfigError(f"missing config key '{key}'")
+    if kind == "value_error":            # a section's own __post_init__ range check
+        return ConfigError(f"{key or cls.__name__}: {err['ctx']['error']}")
+    if kind in ("too_short", "too_long"):
+        return ConfigError(f"bad value for {key}: {value!r}; expected {len(typing.get_args(tp))} items")
+    expected = _EXPECTED.get(kind)
+    if expected is None:
+        return ConfigError(f"bad value for {key}: {value!r}; {err['msg']}")
+    if expected == "a mapping" and dataclasses.is_dataclass(tp):
+        expected = f"a mapping of {tp.__name__} keys"
+    return ConfigError(f"bad value for {key}: {value!r}; expected {expected}")
 
 
 def build_dataclass(cls: type, data: dict, prefix: str = "") -> Any:
-    """Build ``cls`` from a (possibly partial) nested dict, validating every key and value."""
-    hints = typing.get_type_hints(cls)
-    names = [f.name for f in dataclasses.fields(cls)]
-    kwargs = {}
-    for key, value in data.items():
-        full = f"{prefix}.{key}" if prefix else key
-        if key not in names:
-            where = f"under '{prefix}'" if prefix else "at the top level"
-            raise ConfigError(f"unknown config key '{full}'; valid keys {where}: {', '.join(names)}")
-        kwargs[key] = _coerce(value, hints[key], full)
+    """Build ``cls`` from a (possibly partial) nested dict, validating every key and value
+    (``prefix``: the dotted key ``data`` sits under, for messages)."""
+    if not isinstance(data, dict):
+        raise ConfigError(f"bad value for {prefix or cls.__name__}: {data!r}; expected a mapping of "
+                          f"{cls.__name__} keys")
     try:
-        return cls(**kwargs)
-    except ConfigError:
-        raise
-    except (ValueError, TypeError) as exc:  # a section's own __post_init__ validation
-        raise ConfigError(f"{prefix or cls.__name__}: {exc}") from exc
+        return _adapter(cls).validate_python(_prepare(cls, data, prefix))
+    except ValidationError as exc:
+        raise _config_error(cls, exc, prefix) from None
 
 
 def _set_dotted(tree: dict, dotted: str, value: Any) -> None:

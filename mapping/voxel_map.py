@@ -32,7 +32,8 @@ from mapping import frame_geometry as fg
 from mapping.config import MappingConfig
 from mapping.fusion import ObservationTerms, get_strategy
 from mapping.glfs import GLFSParams
-from mapping.map_readout import MapReadouts, PointCloud  # noqa: F401  (PointCloud re-exported)
+from mapping import map_readout
+from mapping.map_readout import PointCloud
 from mapping.scaling import as_temperature, scale_logits
 from mapping.weighting import WeightingParams, needs_geometry, resolve, sample_weights
 
@@ -78,7 +79,7 @@ def single_threaded_torch():
             torch.set_num_threads(old)
 
 
-class SemanticVoxelMap(MapReadouts):
+class SemanticVoxelMap:
     """A TSDF + semantic voxel map. ``num_classes`` K; ``cfg`` the mapping config.
 
     glfs_params: GLFS tau/G/eps/M (for ``glfs``, and M for ``lut`` weighting); default from
@@ -121,7 +122,6 @@ class SemanticVoxelMap(MapReadouts):
         self._stamp = np.empty(0, np.int32)
         self._grids: dict = {}
         self.frames_integrated = 0
-        self._scene_cache = None
 
     def _set_fusion_params(self, params: GLFSParams | None, temperature) -> None:
         """Temperature, GLFS gates and weighting parameters (the LUT from the GLFS params)."""
@@ -146,25 +146,26 @@ class SemanticVoxelMap(MapReadouts):
         edges = {"distance_edges": params.distance_edges, "angle_edges_deg": params.angle_edges_deg} if params else {}
         self._wparams = WeightingParams.from_config(cfg, lut=torch.as_tensor(params.M) if params else None, **edges)
 
-    # ----------------------------------------------------------------- buffers
-    def _view(self, name: str) -> np.ndarray:
+    # ----------------------------------------------------------------- storage interface
+    # (what the read-outs, ``mapping.map_readout``, may use; flat = a voxel's row in the buffers)
+    def attribute(self, name: str) -> np.ndarray:
         """(capacity * res^3, C) float32 numpy view of an attribute (shares the grid's memory)."""
         a = self.vbg.attribute(name).numpy()
         return a.reshape(-1, a.shape[-1])
 
-    def _counts(self, flat: np.ndarray) -> np.ndarray:
+    def observation_counts(self, flat: np.ndarray) -> np.ndarray:
         """(n,) float32 semantic observation count of voxels at flat buffer indices."""
-        return self._view(SEM)[flat, self._count_ch]
+        return self.attribute(SEM)[flat, self._count_ch]
 
-    def _readout(self, flat: np.ndarray) -> np.ndarray:
+    def fused_probs(self, flat: np.ndarray) -> np.ndarray:
         """(n, K) float32 fused probabilities of voxels at flat buffer indices ``flat``."""
         idx = torch.from_numpy(np.asarray(flat, dtype=np.int64))
-        rows = torch.from_numpy(self._view(SEM)).index_select(0, idx)
+        rows = torch.from_numpy(self.attribute(SEM)).index_select(0, idx)
         acc = {a: rows[:, sl] for a, sl in self._slices.items()}
         with torch.no_grad():
             return self.strategy.readout(acc, g=self._g, eps=self._eps).numpy()
 
-    def _lookup(self, keys: np.ndarray) -> np.ndarray:
+    def flat_indices(self, keys: np.ndarray) -> np.ndarray:
         """(n,) int64 flat buffer index of integer voxel keys (n, 3), -1 where not allocated."""
         keys = np.asarray(keys, dtype=np.int32).reshape(-1, 3)
         if len(keys) == 0:
@@ -315,13 +316,36 @@ class SemanticVoxelMap(MapReadouts):
             inc = self.strategy.increments(ObservationTerms(z_scaled, cfg.laplace_mu), wt)
             idx = torch.from_numpy(flat)
             val = torch.cat([inc[a] for a in self._slices] + [torch.ones(len(flat), 1)], dim=1)
-            torch.from_numpy(self._view(SEM)).index_add_(0, idx, val)
+            torch.from_numpy(self.attribute(SEM)).index_add_(0, idx, val)
         if self.obs_cache is not None:
             self.obs_cache.record(keys, rows.numpy(), dist, angle, ext)
 
     @property
-    def _o3d_weight_threshold(self) -> float:
+    def o3d_weight_threshold(self) -> float:
+        """Open3D's (strict) weight threshold for "at least ``cfg.min_tsdf_weight`` observations"."""
         return max(0.0, self.cfg.min_tsdf_weight - WEIGHT_STRICT_OFFSET)
+
+    # ----------------------------------------------------------------- read-outs (mapping.map_readout)
+    def voxels(self) -> tuple[np.ndarray, np.ndarray]:
+        """Surface voxels with semantics: coords (N, 3) float32 m, probs (N, K) float32."""
+        return map_readout.voxels(self)
+
+    def query(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Fused probs (n, K) of the voxels nearest ``points`` (n, 3) m and their observed mask (n,)."""
+        return map_readout.query(self, points)
+
+    def voxel_normals(self, coords: np.ndarray) -> np.ndarray:
+        """(N, 3) float32 unit TSDF-gradient normals at voxel centres ``coords`` (N, 3) m."""
+        return map_readout.voxel_normals(self, coords)
+
+    def point_cloud(self) -> PointCloud:
+        """Iso-surface points with semantics: points, colours, normals, probs."""
+        return map_readout.point_cloud(self)
+
+    def render_semantics(self, intrinsics: np.ndarray, pose: np.ndarray, width: int,
+                         height: int) -> tuple[np.ndarray, np.ndarray]:
+        """probs (H, W, K) float32 and valid (H, W) bool seen by a camera (see ``map_readout``)."""
+        return map_readout.render_semantics(self, intrinsics, pose, width, height)
 
     # ----------------------------------------------------------------- stats
     def memory_bytes(self, allocated: bool = False) -> int:

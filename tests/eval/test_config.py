@@ -200,3 +200,28 @@ def test_binary_or_unreadable_config_names_the_file(tmp_path):
                 load_config(locked)
     finally:
         locked.chmod(0o644)
+
+
+def test_pydantic_validation_keeps_calnavs_messages():
+    """The loader validates with pydantic (docs/configuration.md says why); the messages stay one
+    line naming the key and what it takes, and pydantic's lax readings that would be wrong
+    numbers are refused."""
+    from eval.calibration.config import CalibrateMapConfig
+
+    with pytest.raises(ConfigError, match=r"bad value for run.seed: True; expected an integer"):
+        load_config(None, ["run.seed=true"])               # pydantic alone would read seed 1
+    with pytest.raises(ConfigError, match=r"bad value for env.hfov_deg: False; expected a number"):
+        load_config(None, ["env.hfov_deg=false"])
+    with pytest.raises(ConfigError, match=r"bad value for mapping.glfs_params: None; expected a string"):
+        load_config(None, ["mapping.glfs_params=null"])    # used to become the path "None"
+    with pytest.raises(ConfigError, match=r"bad value for run.seed: 3.5; expected an integer"):
+        load_config(None, ["run.seed=3.5"])
+    assert load_config(None, ["run.seed=3.0"]).run.seed == 3   # an exact integer
+    with pytest.raises(ConfigError, match=r"unknown config key 'study.glfs_variants\[0\].nme'; valid keys under "
+                                          r"'study.glfs_variants\[0\]': name, overrides"):
+        load_config(None, ["study.glfs_variants=[{nme: a}]"], cls=CalibrateMapConfig)
+    with pytest.raises(ConfigError, match=r"^bad value for study.glfs_variants.a.overrides.eta: 'nan'; expected a finite"):
+        load_config(None, ["study.glfs_variants=[{name: a, overrides: {eta: nan}}]"], cls=CalibrateMapConfig)
+    with pytest.raises(ConfigError, match=r"bad value for env.resolution: \[1, 2, 3\]; expected 2 items"):
+        load_config(None, ["env.resolution=[1,2,3]"])
+    assert load_config(None, ["run.output_dir=64x48"]).run.output_dir == "64x48"   # WxH only for sizes

@@ -304,3 +304,23 @@ def test_a_rejected_frame_leaves_the_map_bit_identical(room, bad):
     _assert_same(before, _snapshot(m))
     m.integrate(depth, k, pose, onehot_logits(labels, kk))  # the same frame, sound, still goes in
     assert m.frames_integrated == 2
+
+
+def test_readouts_use_only_the_maps_storage_interface():
+    """The seam between SemanticVoxelMap and its read-outs (mapping/map_readout.py): the
+    read-outs touch only the documented storage interface, never the fusion internals (it used
+    to be a mixin reaching into the host's private members)."""
+    import ast
+    from pathlib import Path
+
+    import mapping.map_readout as readout
+    from mapping.voxel_map import SemanticVoxelMap
+
+    interface = {"cfg", "vbg", "num_classes", "frames_integrated", "attribute", "observation_counts",
+                 "fused_probs", "flat_indices", "o3d_weight_threshold"}
+    tree = ast.parse(Path(readout.__file__).read_text())
+    used = {n.attr for n in ast.walk(tree)
+            if isinstance(n, ast.Attribute) and isinstance(n.value, ast.Name) and n.value.id == "vmap"}
+    assert used and used <= interface, f"read-outs use {sorted(used - interface)} beyond the storage interface"
+    assert all(hasattr(SemanticVoxelMap, name) for name in interface - {"cfg", "vbg", "num_classes",
+                                                                       "frames_integrated"})
