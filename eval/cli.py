@@ -65,8 +65,9 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("view-episode", help="top-down map PNG and a frame strip of one episode")
     _add_config_args(p, "configs/objectnav.yaml")
     p.add_argument("--episode", type=int, default=0, help="episode index within the split")
-    p.add_argument("--agent", default="oracle",
-                   help="agent whose path is drawn: oracle (default; the shortest path) or peanut")
+    p.add_argument("--agent", default=None, metavar="NAME",
+                   help="agent whose path is drawn: oracle (default; the shortest path) or peanut; shorthand for "
+                        "run.agent=NAME")
     p.add_argument("--output", default="runs/view", help="output directory")
 
     p = sub.add_parser("scan-houses", help="scan (and cache) the houses of splits for env.dataset.style=scanned; "
@@ -179,6 +180,8 @@ class Command:
     main: str                 # main(args, configs) -> None, in module
     configs: str | None       # configs(args) -> list of configs, in module (or "other.module:function");
                               # None: the command reads no calnav config
+    # the preflight's checks (eval.preflight.CHECKS) for what this command uses of its configs
+    checks: tuple[str, ...] = ("run", "agent", "study", "mapping")
 
     def load(self):
         """(main, configs loader), imported now."""
@@ -194,7 +197,8 @@ COMMANDS: dict[str, Command] = {
     "start-pose": Command("eval.objectnav.start_pose", "main_start_pose", "start_pose_configs"),
     "habitat-benchmark": Command("eval.habitat.run", "main_habitat_benchmark", "habitat_benchmark_configs"),
     "view-episode": Command("eval.objectnav.view_episode", "main_view_episode", "view_episode_configs"),
-    "scan-houses": Command("eval.scanning.run", "main_scan_houses", "scan_houses_configs"),
+    "scan-houses": Command("eval.scanning.run", "main_scan_houses", "scan_houses_configs",
+                           checks=("run",)),   # runs no agent: builds scans (splits checked by it)
     "bench": Command("eval.bench.run", "main_bench", None),              # fixed workloads, no config
     "train-segmenter": Command("eval.segmenter.train", "main_train_segmenter",
                                "eval.segmenter.data:segmenter_configs"),
@@ -203,7 +207,8 @@ COMMANDS: dict[str, Command] = {
     "calibrate-map": Command("eval.calibration.study", "main_calibrate_map", "calibrate_map_configs"),
     "fit-glfs": Command("eval.calibration.study", "main_fit_glfs", "fit_glfs_configs"),
     "map": Command("eval.sequence.map_cmd", "main_map", "map_configs"),
-    "export-sequence": Command("eval.sequence.export", "main_export_sequence", "export_sequence_configs"),
+    "export-sequence": Command("eval.sequence.export", "main_export_sequence", "export_sequence_configs",
+                               checks=("run",)),   # segments nothing; its --scene is loaded first
     "tune": Command("eval.objectnav.tune", "main_tune", "tune_configs"),
     "compare": Command("eval.objectnav.compare", "main_compare", None),  # reads finished runs' configs
     "demo": Command("eval.objectnav.demo", "main_demo", "demo_configs"),
@@ -231,9 +236,10 @@ def main(argv: list[str] | None = None) -> int:
         check_cache_dir()   # every command reads or writes the cache
         from eval.preflight import check_configs
 
-        command_main, load_configs = COMMANDS[args.command].load()
+        command = COMMANDS[args.command]
+        command_main, load_configs = command.load()
         configs = load_configs(args)   # every config the command runs (all multirun combinations)
-        check_configs(configs)         # every file and service they name, before anything is written
+        check_configs(configs, command.checks)   # every file and service they name, before anything is written
         command_main(args, configs)
     except (ConfigError, ValueError, FileNotFoundError, ResultsError) as exc:
         print(f"calnav {args.command}: error: {exc}", file=sys.stderr)

@@ -163,6 +163,10 @@ def _field_path(cls: type, loc: tuple) -> tuple[list[str], type | None, Any]:
             if tp is None:
                 break
             continue
+        if typing.get_origin(tp) is dict:   # a mapping's key
+            parts.append(str(item))
+            tp = typing.get_args(tp)[1]
+            continue
         if isinstance(item, int):       # a list element
             args = typing.get_args(tp)
             tp = args[0] if args else None
@@ -184,6 +188,13 @@ def _prepare(cls: type, data: dict, prefix: str) -> dict:
             out[name] = value.split("x")
         elif tp in (int, float) and isinstance(value, bool):
             raise ConfigError(f"bad value for {key}: {value!r}; expected {_EXPECTED[f'{tp.__name__}_type']}")
+        elif typing.get_origin(tp) in (list, tuple) and isinstance(value, (list, tuple)):
+            items = typing.get_args(tp)
+            for i, v in enumerate(value):   # a number list's items: list[float], tuple[int, int], tuple[float, ...]
+                item_tp = items[0] if len(items) == 1 or items[-1] is Ellipsis else items[min(i, len(items) - 1)]
+                if item_tp in (int, float) and isinstance(v, bool):
+                    raise ConfigError(f"bad value for {key}: {value!r}; expected a list of "
+                                      f"{'integers' if item_tp is int else 'numbers'}")
         elif dataclasses.is_dataclass(tp) and isinstance(value, dict):
             out[name] = _prepare(tp, value, key)
     return out
@@ -211,6 +222,10 @@ def _config_error(cls: type, exc: ValidationError, prefix: str) -> ConfigError:
         choices = ", ".join(map(str, typing.get_args(tp))) if typing.get_origin(tp) is Literal else \
             err["ctx"]["expected"]
         return ConfigError(f"bad value for {key}: {value!r}; valid choices: {choices}")
+    if kind == "missing" and isinstance(err["loc"][-1], int):   # a fixed-length tuple given too few items
+        parts, _, tp = _field_path(cls, err["loc"][:-1])
+        key = ".".join(p for p in [prefix, *parts] if p)
+        return ConfigError(f"bad value for {key}: {value!r}; expected {len(typing.get_args(tp))} items")
     if kind == "missing":
         return ConfigError(f"missing config key '{key}'")
     if kind == "value_error":            # a section's own __post_init__ range check

@@ -29,24 +29,31 @@ from dataclasses import is_dataclass
 from typing import Any, Iterable
 
 
-def check_run_resources(cfg: Any) -> None:
-    """Validate the files and services ``cfg`` (any command's config dataclass) names; raises
-    ValueError / FileNotFoundError naming the file and what is wrong with it."""
+CHECKS: tuple[str, ...] = ("run", "agent", "study", "mapping")   # the sections checked, by default all
+
+
+def check_run_resources(cfg: Any, checks: tuple[str, ...] = CHECKS) -> None:
+    """Validate the files and services ``cfg`` (any command's config dataclass) names, in the
+    sections of ``checks`` (those the command uses); raises ValueError / FileNotFoundError naming
+    the file and what is wrong with it."""
     from agent.segmenters import check_segmenter
     from eval.backends import check_backend
     from mapping.glfs import GLFSParams
 
+    unknown = set(checks) - set(CHECKS)
+    if unknown:
+        raise ValueError(f"unknown preflight checks {sorted(unknown)}; valid: {', '.join(CHECKS)}")
     if not is_dataclass(cfg):
         return
     run = getattr(cfg, "run", None)
-    if run is not None:
+    if run is not None and "run" in checks:
         check_backend(run.backend, run.ray_address)   # run.backend=ray without Ray: the install command
         if run.device != "cpu":
             from agent.segmenters.base import resolve_device
 
             resolve_device(run.device)
     names = None
-    agent = getattr(cfg, "agent", None)
+    agent = getattr(cfg, "agent", None) if "agent" in checks else None
     if agent is not None:
         names = check_segmenter(agent.segmenter, agent.segmenter_config, run.device if run else None)
         _check_sensors_feed_the_segmenter(cfg)
@@ -54,11 +61,11 @@ def check_run_resources(cfg: Any) -> None:
             from envs.scenes import split_scene_ids
 
             split_scene_ids(cfg.env.split, cfg.env.dataset)
-    study = getattr(cfg, "study", None)
+    study = getattr(cfg, "study", None) if "study" in checks else None
     if study is not None:
         for name in study.segmenters:
             check_segmenter(name, device=run.device if run else None)
-    mapping = getattr(cfg, "mapping", None)
+    mapping = getattr(cfg, "mapping", None) if "mapping" in checks else None
     if mapping is not None and mapping.glfs_params:   # a study fits its own GLFS; a named file must still be sound
         GLFSParams.load(mapping.glfs_params, class_names=names)
     if study is not None:
@@ -80,7 +87,7 @@ def _check_sensors_feed_the_segmenter(cfg: Any) -> None:
                          "configs/habitat_objectnav_semantic.yaml)")
 
 
-def check_configs(configs: Iterable[Any]) -> None:
+def check_configs(configs: Iterable[Any], checks: tuple[str, ...] = CHECKS) -> None:
     """``check_run_resources`` for every config a command will run (all multirun combinations)."""
     for cfg in configs:
-        check_run_resources(cfg)
+        check_run_resources(cfg, checks)

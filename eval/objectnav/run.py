@@ -154,7 +154,8 @@ class EpisodeJob:
     indices: list[int]
     out: Path
     video: int = 0
-    # "module:function" building the env as function(cfg, **env_args) (picklable arguments), for
+    # "module:function" building the env as function(cfg, **env_args) (JSON-serialisable arguments:
+    # they key the worker's warm env), for
     # a study that changes the world around the same config (the start-pose study's frames and
     # rotated houses); "" = calnav's ObjectNav env of cfg.env
     env_maker: str = ""

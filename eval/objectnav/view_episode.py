@@ -96,10 +96,16 @@ def draw_episode(env, path_xy: np.ndarray, frames: list[dict], out_dir: Path) ->
 
 
 def view_episode_configs(args) -> list:
-    """The config ``calnav view-episode`` runs."""
-    from eval.config import load_config
+    """The config ``calnav view-episode`` runs: its ``run.agent`` is the agent drawn (``--agent``,
+    else a ``run.agent`` override, else the oracle), so the preflight checks that agent."""
+    from eval.config import load_config, parse_override, with_shorthand
 
-    return [load_config(args.config, args.overrides)]
+    overrides = list(args.overrides)
+    if args.agent is not None:
+        overrides = with_shorthand(overrides, "run.agent", args.agent, "--agent")
+    elif not any(parse_override(o)[0] == "run.agent" for o in overrides):
+        overrides.append("run.agent=oracle")   # the default drawing: the shortest path
+    return [load_config(args.config, overrides)]
 
 
 def main_view_episode(args, configs) -> None:
@@ -117,7 +123,7 @@ def main_view_episode(args, configs) -> None:
     if not 0 <= args.episode < n:
         raise ValueError(f"--episode {args.episode} is outside the split, which has episodes 0:{n}")
     obs, info = env.reset(options={"episode_index": args.episode})
-    agent = make_agent(args.agent, env, cfg)
+    agent = make_agent(cfg.run.agent, env, cfg)
     agent.reset(obs)
     path, frames = [env.unwrapped.position.copy()], [obs]
     done = False

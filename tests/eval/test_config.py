@@ -225,3 +225,12 @@ def test_pydantic_validation_keeps_calnavs_messages():
     with pytest.raises(ConfigError, match=r"bad value for env.resolution: \[1, 2, 3\]; expected 2 items"):
         load_config(None, ["env.resolution=[1,2,3]"])
     assert load_config(None, ["run.output_dir=64x48"]).run.output_dir == "64x48"   # WxH only for sizes
+    # review findings: bools inside number lists, too few tuple items, mapping keys in the key path
+    with pytest.raises(ConfigError, match=r"bad value for study.authors_miou_exclude: \[True, 2\]; expected a list of integers"):
+        load_config(None, ["study.authors_miou_exclude=[true, 2]"], cls=CalibrateMapConfig)
+    with pytest.raises(ConfigError, match=r"bad value for env.resolution: \[True, 120\]; expected a list of integers"):
+        load_config(None, ["env.resolution=[true,120]"])
+    with pytest.raises(ConfigError, match=r"bad value for env.resolution: \[160\]; expected 2 items"):
+        load_config(None, ["env.resolution=[160]"])
+    with pytest.raises(ConfigError, match=r"bad value for agent.segmenter_config.confusions.a\[0\]: None; expected a string"):
+        load_config(None, ["agent.segmenter_config.confusions={a: [null]}"])

@@ -143,7 +143,7 @@ def assert_runs_the_checked_configs(argv: list[str], monkeypatch) -> list:
 
     entry = COMMANDS[argv[0]]
     checked, received = [], []
-    monkeypatch.setattr(eval.preflight, "check_run_resources", lambda cfg: checked.append(cfg))
+    monkeypatch.setattr(eval.preflight, "check_run_resources", lambda cfg, checks=(): checked.append(cfg))
     monkeypatch.setattr(importlib.import_module(entry.module), entry.main,
                         lambda args, configs: received.append(configs))
     assert main(argv) == 0
@@ -165,8 +165,7 @@ def test_every_command_runs_the_configs_the_preflight_checked(tmp_path, monkeypa
 
 
 @pytest.mark.parametrize("command", [
-    ["view-episode"], ["start-pose"], ["scan-houses", "--houses", "1"],
-    ["export-sequence"], ["map", "SEQ", "--layout", "scannet", "--segmenter", "gt"],
+    ["view-episode", "--agent", "peanut"], ["start-pose"], ["map", "SEQ", "--layout", "scannet", "--segmenter", "gt"],
 ])
 def test_commands_refuse_a_missing_glfs_file_before_writing(tmp_path, capsys, command):
     """Commands the preflight did not cover before: a config naming a missing file is one line
@@ -177,6 +176,29 @@ def test_commands_refuse_a_missing_glfs_file_before_writing(tmp_path, capsys, co
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and "GLFS params file not found" in err[0]
     assert not out.exists()
+
+
+def test_preflight_checks_only_what_a_command_uses(tmp_path, capsys):
+    """export-sequence segments nothing and scan-houses runs no agent: a study segmenter, a GLFS
+    file or a scene folder without every split does not stop them (each command declares its
+    checks in the registry); view-episode checks the agent it draws, not the config's."""
+    scenes = tmp_path / "scenes"
+    (scenes / "val").mkdir(parents=True)
+    from envs.primitives import box_room_scene
+
+    box_room_scene(name="myhouse").save(scenes / "val" / "myhouse.npz")
+    out = tmp_path / "exp"
+    assert main(["export-sequence", "--scene", "myhouse", "--frames", "3", "--resolution", "64x48",
+                 "--output", str(out), f"env.dataset.scene_dir={scenes}",
+                 f"mapping.glfs_params={tmp_path / 'none.json'}"]) == 0
+    assert (out / "pose").is_dir()
+    # the default --agent oracle neither segments nor needs a semantic sensor or a device
+    view = tmp_path / "view"
+    assert main(["view-episode", "--output", str(view), *SMALL, "agent.segmenter=gt",
+                 "env.semantic_sensor=false"]) == 0
+    assert main(["view-episode", "--agent", "peanut", "--output", str(view), *SMALL, "agent.segmenter=gt",
+                 "env.semantic_sensor=false"]) == 2
+    assert "reads the ground-truth semantic observation" in capsys.readouterr().err
 
 
 def test_a_segmenter_that_reads_ground_truth_needs_a_semantic_sensor(tmp_path, capsys):
