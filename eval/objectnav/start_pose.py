@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import csv
 import io
+import json
 import math
 import tempfile
 from dataclasses import asdict, dataclass, replace
@@ -177,6 +178,28 @@ def variant_env(cfg, variant: dict, work_dir: str):
     return make_env(cfg, PoseVariant(**{**variant, "offset_m": tuple(variant["offset_m"])}), Path(work_dir))
 
 
+def _claim_variant_dir(path: Path, variant: PoseVariant, force: bool) -> None:
+    """Write the variant's definition beside its records (``variant.json``); a directory holding
+    another definition of the same name (``VARIANTS`` edited) is refused, or with ``force`` its
+    records are discarded: the run config alone does not say which frame they were run in."""
+    from common.atomic import write_json_atomic
+    from eval.results_dir import RECORDS_NAME, ResultsError, writing
+
+    want = json.loads(json.dumps(asdict(variant)))
+    marker = path / "variant.json"
+    if marker.is_file():
+        have = json.loads(marker.read_text())
+        if have != want:
+            if not force:
+                raise ResultsError(f"{path} holds episodes of another definition of variant {variant.name!r} "
+                                   f"({have}, now {want}); pass --force to discard them")
+            for name in (RECORDS_NAME, "summary.json"):
+                (path / name).unlink(missing_ok=True)
+    with writing(marker):
+        path.mkdir(parents=True, exist_ok=True)
+        write_json_atomic(marker, want)
+
+
 def run_start_pose_study(cfg, indices: list[int], variants: list[PoseVariant], out: Path | None,
                     progress: bool = True, force: bool = False) -> dict[str, dict]:
     """Run every (variant, episode) with the PEANUT agent of ``cfg`` through the episode runner
@@ -202,6 +225,8 @@ def run_start_pose_study(cfg, indices: list[int], variants: list[PoseVariant], o
             if v.house_yaw_deg:
                 rotated_setup(cfg.env, load_split(cfg.env.split, cfg.env, progress=False), v.house_yaw_deg,
                               work / f"houses_{v.house_yaw_deg:g}deg")
+        for v in variants:   # a variant's directory holds that definition's episodes only
+            _claim_variant_dir(work / v.name, v, force)
         jobs = [EpisodeJob(cfg, list(indices), work / v.name, env_maker=VARIANT_ENV,
                            env_args={"variant": asdict(v), "work_dir": str(work)}) for v in variants]
         summaries = run_jobs(jobs, force=force, progress=progress, plots=False)

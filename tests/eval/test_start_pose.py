@@ -135,3 +135,26 @@ def test_start_pose_crash_is_a_record_and_a_rerun_resumes(tmp_path, monkeypatch)
     recs = [json.loads(x) for x in (out / "start" / "episodes.jsonl").read_text().splitlines()]
     assert sorted(r["index"] for r in recs) == [0, 1] and all(r["status"] == "ok" for r in recs)
     assert json.loads((out / "summary.json").read_text())["start"]["failed"] == 0
+
+
+def test_a_changed_variant_definition_is_not_resumed(tmp_path, capsys, monkeypatch):
+    """A variant's directory records its definition (variant.json): if VARIANTS is edited, the
+    old episodes are not reused under the new definition (refused; --force discards them)."""
+    import json
+
+    import eval.objectnav.start_pose as sp
+    from eval.cli import main
+
+    out = tmp_path / "sp"
+    tiny = ["env.resolution=64x48", "agent.map_resolution=64x48", "agent.segmenter=gt", "env.max_episode_steps=10",
+            "env.dataset.val_scenes=1", "env.dataset.episodes_per_scene=2"]
+    args = ["start-pose", "--episodes", "1", "--variants", "start_offset", "--workers", "1", "--output", str(out), *tiny]
+    assert main(args) == 0
+    assert json.loads((out / "start_offset" / "variant.json").read_text())["offset_m"] == [0.013, 0.027]
+    monkeypatch.setitem(sp.VARIANTS, "start_offset", sp.PoseVariant("start_offset", offset_m=(0.5, 0.5)))
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert "another definition of variant 'start_offset'" in err and "--force" in err
+    assert main([*args, "--force"]) == 0
+    assert json.loads((out / "start_offset" / "variant.json").read_text())["offset_m"] == [0.5, 0.5]
+    assert len((out / "start_offset" / "episodes.jsonl").read_text().splitlines()) == 1
