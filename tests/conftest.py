@@ -24,6 +24,28 @@ def require_habitat() -> None:
                     allow_module_level=True)
 
 
+def read_records(run_dir) -> dict[int, dict]:
+    """A results directory's episodes.jsonl as {episode index: record}."""
+    import json
+    from pathlib import Path
+
+    return {r["index"]: r for r in map(json.loads, (Path(run_dir) / "episodes.jsonl").read_text().splitlines())}
+
+
+def assert_same_records(a: dict[int, dict], b: dict[int, dict], tol: float) -> None:
+    """Two runs' records agree episode by episode: the same fields, floats within ``tol``, the
+    rest (steps, collisions, stop reason: the same actions) equal; wall time aside."""
+    for i in a:
+        h, c = dict(a[i]), dict(b[i])
+        h.pop("wall_time_s"), c.pop("wall_time_s")
+        assert h.keys() == c.keys()
+        for k in h:
+            if isinstance(h[k], float):
+                assert abs(h[k] - c[k]) < tol, (i, k, h[k], c[k])
+            else:
+                assert h[k] == c[k], (i, k, h[k], c[k])
+
+
 def small_or_full(small, full):
     """`make test` runs end-to-end checks in a small form; `make test-full` at full size."""
     return full if FULL else small

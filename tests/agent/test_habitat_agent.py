@@ -6,12 +6,11 @@ observation keys: ``agent.sensors``, ``envs.task.HABITAT_KEYS``); without part 1
 skipped, saying so.
 """
 import importlib.util
-import json
 
 import numpy as np
 import pytest
 
-from tests.conftest import require_habitat
+from tests.conftest import assert_same_records, read_records, require_habitat
 
 require_habitat()
 if importlib.util.find_spec("agent.sensors") is None:
@@ -111,16 +110,7 @@ def test_peanut_through_habitat_benchmark_equals_objectnav(tmp_path, capsys):
     assert main(["objectnav", "--agent", "peanut", "--episodes", "0:2", "--output", str(tmp_path / "cal"),
                  "agent.segmenter=gt", "run.workers=1", f"env.resolution={W}x{H}", "env.normalize_depth=true",
                  *CALNAV_SMALL]) == 0
-    read = lambda d: {r["index"]: r for r in map(json.loads, (d / "episodes.jsonl").read_text().splitlines())}  # noqa: E731
-    hab, cal = read(out), read(tmp_path / "cal")
+    hab, cal = read_records(out), read_records(tmp_path / "cal")
     assert sorted(hab) == sorted(cal) == [0, 1] and all(r["status"] == "ok" for r in hab.values())
     assert all(r["steps"] > 12 for r in hab.values())  # the opening spin (12 turns) and then some
-    for i in hab:
-        h, c = dict(hab[i]), dict(cal[i])
-        h.pop("wall_time_s"), c.pop("wall_time_s")
-        assert h.keys() == c.keys()
-        for k in h:
-            if isinstance(h[k], float):
-                assert abs(h[k] - c[k]) < 1e-5, (i, k, h[k], c[k])
-            else:
-                assert h[k] == c[k], (i, k, h[k], c[k])  # steps, collisions, stop reason: same actions
+    assert_same_records(hab, cal, 1e-5)

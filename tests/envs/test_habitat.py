@@ -11,7 +11,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from tests.conftest import require_habitat
+from tests.conftest import assert_same_records, read_records, require_habitat
 
 require_habitat()
 
@@ -165,18 +165,9 @@ def test_habitat_benchmark_agrees_with_objectnav(tmp_path, capsys):
     assert _run("habitat-benchmark", tmp_path / "hab", *HABITAT_SMALL) == 0
     assert "oracle (habitat-lab)" in capsys.readouterr().out
     assert _run("objectnav", tmp_path / "cal", f"env.resolution={W}x{H}") == 0
-    read = lambda d: {r["index"]: r for r in map(json.loads, (d / "episodes.jsonl").read_text().splitlines())}  # noqa: E731
-    hab, cal = read(tmp_path / "hab"), read(tmp_path / "cal")
+    hab, cal = read_records(tmp_path / "hab"), read_records(tmp_path / "cal")
     assert sorted(hab) == sorted(cal) == [0, 1, 2]
-    for i in hab:
-        h, c = dict(hab[i]), dict(cal[i])
-        h.pop("wall_time_s"), c.pop("wall_time_s")
-        assert h.keys() == c.keys()
-        for k in h:
-            if isinstance(h[k], float):
-                assert abs(h[k] - c[k]) < TOL, (i, k, h[k], c[k])
-            else:
-                assert h[k] == c[k], (i, k, h[k], c[k])  # steps, collisions, stop reason: same actions
+    assert_same_records(hab, cal, TOL)
     s = json.loads((tmp_path / "hab" / "summary.json").read_text())
     assert s["count"] == 3 and s["success"] == 1.0 and (tmp_path / "hab" / "habitat_config.yaml").exists()
     # resuming skips finished episodes; another habitat config in the same directory is refused
