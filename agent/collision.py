@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from agent.config import AgentConfig
-from envs.task import Action
+from calnav.agent.config import AgentConfig
+from calnav.envs.task import Action
 
 
 def collision_points(xy: np.ndarray, yaw: float, cfg: AgentConfig) -> np.ndarray:

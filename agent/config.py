@@ -15,7 +15,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Literal
 
-from agent.segmenters.base import SegmenterConfig
+from calnav.agent.segmenters.base import SegmenterConfig
 
 MapType = Literal["fused", "ndf"]
 MAP_TYPES: tuple[str, ...] = MapType.__args__  # type: ignore[attr-defined]

@@ -17,9 +17,9 @@ from typing import Sequence
 import cv2
 import numpy as np
 
-from agent.config import AgentConfig
-from agent.planner import free_crop, geodesic_distance
-from agent.projection import dilate
+from calnav.agent.config import AgentConfig
+from calnav.agent.planner import free_crop, geodesic_distance
+from calnav.agent.projection import dilate
 
 # Goal category -> classes usually in the same room (procedural houses' room priors).
 COOCCURRENCE: dict[str, tuple[str, ...]] = {

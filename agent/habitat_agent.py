@@ -27,9 +27,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from agent.policy import PeanutAgent
-from common.habitat_import import import_habitat
-from envs.task import HABITAT_KEYS, SEMANTIC, Action
+from calnav.agent.policy import PeanutAgent
+from calnav.common.habitat_import import import_habitat
+from calnav.envs.task import HABITAT_KEYS, SEMANTIC, Action
 
 habitat = import_habitat()
 

@@ -11,11 +11,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from agent.config import AgentConfig
-from agent.segmenters import make_segmenter
-from agent.sensors import SensorModel
-from envs.task import CAMERA_POSE, RGB, SEMANTIC, require_keys
-from mapping.frame import SegmentedFrame
+from calnav.agent.config import AgentConfig
+from calnav.agent.segmenters import make_segmenter
+from calnav.agent.sensors import SensorModel
+from calnav.envs.task import CAMERA_POSE, RGB, SEMANTIC, require_keys
+from calnav.mapping.frame import SegmentedFrame
 
 
 def subsample_stride(width: int, height: int, target: tuple[int, int]) -> int:

@@ -13,9 +13,9 @@ from dataclasses import dataclass
 import numpy as np
 from skimage.graph import MCP_Geometric
 
-from agent.config import AgentConfig
-from agent.projection import dilate, disc_offsets
-from envs.task import Action
+from calnav.agent.config import AgentConfig
+from calnav.agent.projection import dilate, disc_offsets
+from calnav.envs.task import Action
 
 CROP_MARGIN_CELLS = 4  # extra cells around the free area's bounding box
 

@@ -20,16 +20,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from agent.collision import CollisionTracker, collision_points, is_collision
-from agent.config import AgentConfig
-from agent.exploration import choose_frontier, prior_mask
-from agent.goal_detection import GoalDetection, detect_goal
-from agent.perception import Perception
-from agent.planner import Plan, Planner, heading_to
-from agent.projection import cell_of, dilate
-from agent.semantic_map import MapChannels, MapState, SemanticMapModule
-from agent.sensors import SensorModel
-from envs.task import OBJECTGOAL, Action
+from calnav.agent.collision import CollisionTracker, collision_points, is_collision
+from calnav.agent.config import AgentConfig
+from calnav.agent.exploration import choose_frontier, prior_mask
+from calnav.agent.goal_detection import GoalDetection, detect_goal
+from calnav.agent.perception import Perception
+from calnav.agent.planner import Plan, Planner, heading_to
+from calnav.agent.projection import cell_of, dilate
+from calnav.agent.semantic_map import MapChannels, MapState, SemanticMapModule
+from calnav.agent.sensors import SensorModel
+from calnav.envs.task import OBJECTGOAL, Action
 
 PLAN_MARGIN_M = 1.0  # the planning window: explored bounding box + this margin (unknown = optimistic), metres
 

@@ -38,12 +38,12 @@ from typing import Sequence
 
 import numpy as np
 
-from agent import projection as pj
-from agent.config import AgentConfig
-from agent.segmenters import softmax
-from mapping.config import MappingConfig
-from mapping.frame import SegmentedFrame
-from mapping.voxel_map import SemanticVoxelMap, single_threaded_torch
+from calnav.agent import projection as pj
+from calnav.agent.config import AgentConfig
+from calnav.agent.segmenters import softmax
+from calnav.mapping.config import MappingConfig
+from calnav.mapping.frame import SegmentedFrame
+from calnav.mapping.voxel_map import SemanticVoxelMap, single_threaded_torch
 
 
 class MapChannels(IntEnum):

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from envs.task import (COMPASS, DEPTH, GPS, HABITAT_KEYS, camera_pose, depth_to_metres, gps_compass_to_xy_yaw,
+from calnav.envs.task import (COMPASS, DEPTH, GPS, HABITAT_KEYS, camera_pose, depth_to_metres, gps_compass_to_xy_yaw,
                        pinhole_intrinsics, require_keys)
 
 

@@ -12,7 +12,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from agent.semantic_map import MapChannels
+from calnav.agent.semantic_map import MapChannels
 
 PANEL_HEIGHT = 360          # output panel height, pixels
 MAP_MARGIN_CELLS = 20       # top-down crop margin around the explored area, cells

@@ -16,7 +16,7 @@ from typing import Mapping
 
 import numpy as np
 
-from common.atomic import atomic_path
+from calnav.common.atomic import atomic_path
 
 META_KEY = "meta"
 VERSION_KEY = "format_version"

@@ -7,5 +7,5 @@ ENV_ID = "calnav/ObjectNav-v0"
 
 if ENV_ID not in registry:
     # EpisodeLimit hands gym.make(max_episode_steps=N) to the env (see envs.objectnav_env)
-    register(id=ENV_ID, entry_point="envs.objectnav_env:ObjectNavEnv",
-             additional_wrappers=(WrapperSpec("EpisodeLimit", "envs.objectnav_env:EpisodeLimit", {}),))
+    register(id=ENV_ID, entry_point="calnav.envs.objectnav_env:ObjectNavEnv",
+             additional_wrappers=(WrapperSpec("EpisodeLimit", "calnav.envs.objectnav_env:EpisodeLimit", {}),))

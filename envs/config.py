@@ -5,7 +5,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Literal
 
-from envs.scanning.config import ScanningConfig
+from calnav.envs.scanning.config import ScanningConfig
 
 SplitName = Literal["train", "val", "test"]
 # Scene styles (``envs.scenes.STYLES``; a test keeps them equal): the procedural house as built,

@@ -12,9 +12,9 @@ from typing import Protocol, Sequence
 
 import numpy as np
 
-from envs.furniture_parts import METAL, WOOD, colour
-from envs.primitives import MeshBuilder, box_mesh
-from envs.scene import Texture
+from calnav.envs.furniture_parts import METAL, WOOD, colour
+from calnav.envs.primitives import MeshBuilder, box_mesh
+from calnav.envs.scene import Texture
 
 
 class Cell(Protocol):

@@ -32,11 +32,11 @@ from pathlib import Path
 import numpy as np
 from scipy import ndimage
 
-from common.atomic import atomic_path
-from envs.config import EnvConfig
-from envs.scene import Scene, cache_dir, sample_surface
-from envs.semantics import GOAL_CATEGORIES
-from envs.task import yaw_to_habitat_quaternion  # noqa: F401 (re-exported: the episode files' convention)
+from calnav.common.atomic import atomic_path
+from calnav.envs.config import EnvConfig
+from calnav.envs.scene import Scene, cache_dir, sample_surface
+from calnav.envs.semantics import GOAL_CATEGORIES
+from calnav.envs.task import yaw_to_habitat_quaternion  # noqa: F401 (re-exported: the episode files' convention)
 
 GENERATOR_VERSION = 3  # 2: walls block in the nav grid; 3: starts weighted by distance^1
 TRIVIAL_REJECT_PROB = 0.98        # habitat-lab's rejection rate for near-straight episodes
@@ -322,9 +322,9 @@ def _cached_episodes(path: Path) -> list[ObjectNavEpisode] | None:
 
 def load_split(split: str, env_cfg: EnvConfig, progress: bool = True) -> list[ObjectNavEpisode]:
     """All episodes of a split, generating (and caching) missing or damaged scenes' episodes first."""
-    from envs.scenes import generation_seed, load_scene, split_scene_ids
-    from envs.navigation import NavGrid
-    from envs.render import Camera, Renderer
+    from calnav.envs.scenes import generation_seed, load_scene, split_scene_ids
+    from calnav.envs.navigation import NavGrid
+    from calnav.envs.render import Camera, Renderer
 
     if split not in ("train", "val", "test"):
         raise ValueError(f"unknown split {split!r}; valid splits: train, val, test")

@@ -15,10 +15,10 @@ from typing import Callable, Protocol
 
 import numpy as np
 
-from envs.furniture import (bathtub, bed, cabinet, chair, counter, desk, plant, shelf, sink, sofa, stool, table, toilet, tv)
-from envs.furniture_parts import Model
-from envs.primitives import MeshBuilder
-from envs.scene import Room
+from calnav.envs.furniture import (bathtub, bed, cabinet, chair, counter, desk, plant, shelf, sink, sofa, stool, table, toilet, tv)
+from calnav.envs.furniture_parts import Model
+from calnav.envs.primitives import MeshBuilder
+from calnav.envs.scene import Room
 
 TOP_TRIES = 10   # positions tried for an object on a support surface
 

@@ -12,9 +12,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from envs.furniture_parts import (BEDDING, BOOKS, CERAMIC, FOLIAGE, METAL, POT, SCREEN, STONE, THIN_SEGMENTS,
+from calnav.envs.furniture_parts import (BEDDING, BOOKS, CERAMIC, FOLIAGE, METAL, POT, SCREEN, STONE, THIN_SEGMENTS,
                                   UPHOLSTERY, WOOD, Model, Parts, basin, colour, door_fronts, faucet, legs)
-from envs.scene import Texture
+from calnav.envs.scene import Texture
 
 # --------------------------------------------------------------------------- seating
 def chair(rng: np.random.Generator, armchair: bool = False) -> Model:

@@ -10,8 +10,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from envs.primitives import box_mesh, cone_mesh, cylinder_mesh, sphere_mesh
-from envs.scene import Texture
+from calnav.envs.primitives import box_mesh, cone_mesh, cylinder_mesh, sphere_mesh
+from calnav.envs.scene import Texture
 
 CYL_SEGMENTS = 14      # sides of round parts (pots, bowls, round tops)
 THIN_SEGMENTS = 8      # sides of thin round parts (legs, stems, faucets)

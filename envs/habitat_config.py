@@ -19,9 +19,9 @@ import json
 from dataclasses import asdict, replace
 from pathlib import Path
 
-from common.atomic import write_text_atomic
-from envs.config import DatasetConfig, EnvConfig
-from envs.episodes import dataset_key, load_split, split_dir
+from calnav.common.atomic import write_text_atomic
+from calnav.envs.config import DatasetConfig, EnvConfig
+from calnav.envs.episodes import dataset_key, load_split, split_dir
 
 DESCRIPTOR = "calnav_env.json"          # beside <split>.json.gz: the EnvConfig of the episodes
 DESCRIPTOR_FORMAT = "calnav-habitat-dataset"
@@ -130,7 +130,7 @@ def read_descriptor(scene_path: str) -> tuple[EnvConfig, str]:
         raise ValueError(f"{desc} is not a calnav {DESCRIPTOR_FORMAT} v{DESCRIPTOR_VERSION} file")
     env = dict(data["env"])
     env_cfg = EnvConfig(**{**env, "resolution": tuple(env["resolution"]), "dataset": DatasetConfig(**env["dataset"])})
-    from envs.scenes import split_scene_ids
+    from calnav.envs.scenes import split_scene_ids
 
     valid = split_scene_ids(env_cfg.split, env_cfg.dataset)
     if p.name not in valid:
@@ -156,7 +156,7 @@ def habitat_config(env_base: EnvConfig | None = None, overrides: list[str] | Non
     ``overrides`` (``habitat.*`` keys), its dataset pointed at calnav's episodes of the
     config's split (generated on first use). ``env_base``: calnav's ``env`` section for the
     calnav-owned settings. ValueError on an unknown habitat key."""
-    from common.habitat_import import import_habitat
+    from calnav.common.habitat_import import import_habitat
 
     habitat = import_habitat()
     from hydra.errors import HydraException

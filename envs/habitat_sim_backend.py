@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from common.habitat_import import import_habitat
+from calnav.common.habitat_import import import_habitat
 
 habitat = import_habitat()
 
@@ -45,13 +45,13 @@ from habitat.core.simulator import (AgentState, DepthSensor, RGBSensor, Semantic
                                     Simulator)
 from habitat.sims.habitat_simulator.actions import HabitatSimActions  # noqa: E402
 
-from envs.config import EnvConfig  # noqa: E402
-from envs.episodes import habitat_quaternion_to_yaw, view_point_mask, yaw_to_habitat_quaternion  # noqa: E402
-from envs.habitat_config import (check_same_episodes, env_overrides_from_sim, read_descriptor,  # noqa: E402
+from calnav.envs.config import EnvConfig  # noqa: E402
+from calnav.envs.episodes import habitat_quaternion_to_yaw, view_point_mask, yaw_to_habitat_quaternion  # noqa: E402
+from calnav.envs.habitat_config import (check_same_episodes, env_overrides_from_sim, read_descriptor,  # noqa: E402
                                  sensor_configs)
-from envs.motion import apply_action, tilt  # noqa: E402
-from envs.semantics import NUM_CLASSES  # noqa: E402
-from envs.task import Action  # noqa: E402
+from calnav.envs.motion import apply_action, tilt  # noqa: E402
+from calnav.envs.semantics import NUM_CLASSES  # noqa: E402
+from calnav.envs.task import Action  # noqa: E402
 
 SIM_NAME = "CalnavSim-v0"
 # Rendering range before the depth sensor clips: habitat-sim renders unclipped z-depth, and the
@@ -174,9 +174,9 @@ class CalnavSim(Simulator):
             self._start = (self.navgrid.to_world(np.argwhere(self.navgrid.navigable)[0]), 0.0, 0.0)
 
     def _load_scene(self, scene_id: str, env: EnvConfig) -> None:
-        from envs.navigation import NavGrid
-        from envs.render import Camera, Renderer
-        from envs.scenes import load_scene
+        from calnav.envs.navigation import NavGrid
+        from calnav.envs.render import Camera, Renderer
+        from calnav.envs.scenes import load_scene
 
         self.scene = load_scene(scene_id, env.dataset)
         self.camera = Camera.from_config(env)
@@ -232,7 +232,7 @@ class CalnavSim(Simulator):
         return self.navgrid.geodesic_field(view_point_mask(self.navgrid, _xy(pts)))
 
     def get_sensor_observations(self):
-        from envs.render import camera_pose
+        from calnav.envs.render import camera_pose
 
         pose = camera_pose(self.position, self.yaw, self.scene.floor_z + self.env_config.camera_height_m, self.pitch)
         frame = self.renderer.render(pose)

@@ -29,11 +29,11 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from envs.doors import Doorway, add_door_leaf, door_zones, leaf_pose, overlap
-from envs.furniture_parts import colour
-from envs.furnish import ROOM_RECIPES, emit_group, find_pose
-from envs.primitives import MeshBuilder
-from envs.scene import Room, Scene, Texture
+from calnav.envs.doors import Doorway, add_door_leaf, door_zones, leaf_pose, overlap
+from calnav.envs.furniture_parts import colour
+from calnav.envs.furnish import ROOM_RECIPES, emit_group, find_pose
+from calnav.envs.primitives import MeshBuilder
+from calnav.envs.scene import Room, Scene, Texture
 
 GENERATOR_VERSION = 1  # bump when generated houses change for a given (seed, spec): invalidates caches
 ROOM_KINDS = ("bedroom", "bathroom", "living_room", "kitchen", "office", "hallway")

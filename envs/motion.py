@@ -10,7 +10,7 @@ import math
 
 import numpy as np
 
-from envs.task import Action
+from calnav.envs.task import Action
 
 MAX_PITCH_RAD = math.radians(90)  # the camera tilts at most straight up / down
 

@@ -13,8 +13,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import ndimage, sparse
 
-from envs.geodesics import GeodesicField, grid_graph
-from envs.scene import Scene, sample_surface
+from calnav.envs.geodesics import GeodesicField, grid_graph
+from calnav.envs.scene import Scene, sample_surface
 
 FLOOR_TOL_M = 0.03          # a ray's first hit counts as floor within this of floor_z, metres
 RAYS_PER_CELL_SIDE = 3      # sub-sampled ray points per cell side (1.7 cm apart: thin legs show)
@@ -157,7 +157,7 @@ class NavGrid:
         furniture) would give episodes with no path and infinite geodesics.
         Raises ValueError if nothing is navigable.
         """
-        from envs.render import build_raycasting_scene
+        from calnav.envs.render import build_raycasting_scene
 
         if "floor" not in scene.class_names:
             raise ValueError(f"scene {scene.name!r} has no 'floor' class; cannot find navigable floor")

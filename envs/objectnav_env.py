@@ -28,12 +28,12 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from envs.config import EnvConfig
-from envs.episodes import ObjectNavEpisode, goal_mask, load_split
-from envs.measures import TaskState, objectnav_measurements
-from envs.motion import apply_action
-from envs.semantics import GOAL_CATEGORIES, NUM_CLASSES
-from envs.task import (CAMERA_INTRINSICS, CAMERA_POSE, COMPASS, DEPTH, GPS, OBJECTGOAL, RGB, SEMANTIC, Action,
+from calnav.envs.config import EnvConfig
+from calnav.envs.episodes import ObjectNavEpisode, goal_mask, load_split
+from calnav.envs.measures import TaskState, objectnav_measurements
+from calnav.envs.motion import apply_action
+from calnav.envs.semantics import GOAL_CATEGORIES, NUM_CLASSES
+from calnav.envs.task import (CAMERA_INTRINSICS, CAMERA_POSE, COMPASS, DEPTH, GPS, OBJECTGOAL, RGB, SEMANTIC, Action,
                        check_action, normalize_depth_m, num_actions, observation_specs, xy_yaw_to_gps_compass)
 
 SLACK_REWARD = -0.01
@@ -73,7 +73,7 @@ class ObjectNavEnv(gym.Env):
 
     # ----------------------------------------------------------------- spaces
     def _build_spaces(self) -> None:
-        from envs.render import Camera
+        from calnav.envs.render import Camera
 
         cfg = self.config
         w, h = cfg.resolution
@@ -87,9 +87,9 @@ class ObjectNavEnv(gym.Env):
     def _load_scene(self, scene_id: str) -> None:
         if scene_id == self._scene_id:
             return
-        from envs.navigation import NavGrid
-        from envs.render import Renderer
-        from envs.scenes import load_scene
+        from calnav.envs.navigation import NavGrid
+        from calnav.envs.render import Renderer
+        from calnav.envs.scenes import load_scene
 
         cfg = self.config
         self.scene = load_scene(scene_id, cfg.dataset)
@@ -190,7 +190,7 @@ class ObjectNavEnv(gym.Env):
 
     # ---------------------------------------------------------------- helpers
     def camera_pose(self) -> np.ndarray:
-        from envs.render import camera_pose
+        from calnav.envs.render import camera_pose
 
         return camera_pose(self.position, self.yaw, self.scene.floor_z + self.config.camera_height_m,
                            self.pitch)

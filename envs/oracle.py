@@ -14,8 +14,8 @@ import math
 
 import numpy as np
 
-from envs.config import EnvConfig
-from envs.task import Action
+from calnav.envs.config import EnvConfig
+from calnav.envs.task import Action
 
 STOP_RADIUS_FRACTION = 0.99   # STOP once DistanceToGoal < this fraction of the success distance
 TURN_COST_M = 1e-3            # tie-breaker: a turn costs as much as 1 mm of path
@@ -147,7 +147,7 @@ def scan_trajectory(navgrid, env_cfg: EnvConfig, n_poses: int, seed: int = 0,
                     look_around_every: int = 8) -> list[np.ndarray]:
     """(4, 4) world-from-camera poses of an agent walking shortest paths between far-apart
     points of the house and looking around (a full turn) every ``look_around_every`` steps."""
-    from envs.render import camera_pose
+    from calnav.envs.render import camera_pose
 
     rng = np.random.default_rng(seed)
     follower = ShortestPathFollower(navgrid, env_cfg)

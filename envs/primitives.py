@@ -7,8 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from envs.scene import Room, Scene, Texture
-from envs.semantics import CLASS_NAMES, VOID
+from calnav.envs.scene import Room, Scene, Texture
+from calnav.envs.semantics import CLASS_NAMES, VOID
 
 # Unit cube corners and its 12 outward-facing triangles (counter-clockwise seen from outside).
 _CUBE_CORNERS = np.array(

@@ -29,8 +29,8 @@ from dataclasses import dataclass
 import numpy as np
 import open3d as o3d
 
-from envs.scene import Scene, Texture
-from envs.task import camera_pose, pinhole_intrinsics  # noqa: F401  (camera_pose re-exported: the contract owns it)
+from calnav.envs.scene import Scene, Texture
+from calnav.envs.task import camera_pose, pinhole_intrinsics  # noqa: F401  (camera_pose re-exported: the contract owns it)
 
 # --- lighting: a fixed directional "sun" baked per triangle (faces are flat, so n.l is a
 # per-triangle constant). |n.l| so back faces (e.g. a wall seen from behind) still shade.

@@ -35,9 +35,9 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from common.ply_labels import class_ids_of, class_index, int_keyed, read_label_table
-from envs.scene import Scene, SceneError, Texture
-from envs.semantics import CLASS_ID, CLASS_NAMES, NUM_CLASSES, VOID
+from calnav.common.ply_labels import class_ids_of, class_index, int_keyed, read_label_table
+from calnav.envs.scene import Scene, SceneError, Texture
+from calnav.envs.semantics import CLASS_ID, CLASS_NAMES, NUM_CLASSES, VOID
 
 INSTANCE_PROPERTIES = ("instance", "objectId", "object_id", "instance_id", "objectid")
 FLOOR_PERCENTILE = 2.0     # floor height = this percentile of floor-vertex z (robust to stray points), percent

@@ -16,8 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from common.npz import load_versioned_npz, save_versioned_npz
-from envs.semantics import CLASS_NAMES, VOID
+from calnav.common.npz import load_versioned_npz, save_versioned_npz
+from calnav.envs.semantics import CLASS_NAMES, VOID
 
 FORMAT_VERSION = 1
 

@@ -42,11 +42,11 @@ import warnings
 from collections import OrderedDict
 from pathlib import Path
 
-from common.atomic import atomic_path, is_temp_file
-from envs.config import DatasetConfig
-from envs.house import HouseSpec, generate_house
-from envs.scan import load_labelled_ply
-from envs.scene import Scene, SceneError, cache_dir
+from calnav.common.atomic import atomic_path, is_temp_file
+from calnav.envs.config import DatasetConfig
+from calnav.envs.house import HouseSpec, generate_house
+from calnav.envs.scan import load_labelled_ply
+from calnav.envs.scene import Scene, SceneError, cache_dir
 
 SPLITS = ("train", "val", "test", "calib")
 STYLES = ("clean", "scanned")               # DatasetConfig.style choices (envs.config.StyleName)
@@ -203,7 +203,7 @@ def scene_cache_path(scene_id: str, dataset_cfg: DatasetConfig | None = None, sp
 def scanned_cache_path(scene_id: str, dataset_cfg: DatasetConfig | None = None,
                        spec: HouseSpec | None = None) -> Path:
     """Where the scanned version of the procedural scene ``scene_id`` is (or will be) cached."""
-    from envs.scanning.config import SCANNER_VERSION
+    from calnav.envs.scanning.config import SCANNER_VERSION
 
     cfg = dataset_cfg or DatasetConfig()
     clean = scene_cache_path(scene_id, cfg, spec)
@@ -281,7 +281,7 @@ def _load_procedural(scene_id: str, path: Path, seed: int, spec: HouseSpec) -> S
 
 def _load_scanned(path: Path, clean_loader, seed: int, cfg: DatasetConfig) -> Scene:
     """The cached scan at ``path``, or scan the clean house (``clean_loader()``) and cache it."""
-    from envs.scanning.scanner import scan_house
+    from calnav.envs.scanning.scanner import scan_house
 
     if path.exists():
         try:

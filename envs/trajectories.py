@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from envs.render import camera_pose
+from calnav.envs.render import camera_pose
 
 
 @dataclass

@@ -13,8 +13,8 @@ from dataclasses import dataclass
 # before torch is imported.
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
-from eval.config import ConfigError
-from eval.results_dir import ResultsError
+from calnav.eval.config import ConfigError
+from calnav.eval.results_dir import ResultsError
 
 
 def _add_config_args(p: argparse.ArgumentParser, default_config: str) -> None:
@@ -193,25 +193,25 @@ class Command:
 
 
 COMMANDS: dict[str, Command] = {
-    "objectnav": Command("eval.objectnav.run", "main_objectnav", "objectnav_configs"),
-    "start-pose": Command("eval.objectnav.start_pose", "main_start_pose", "start_pose_configs"),
-    "habitat-benchmark": Command("eval.habitat.run", "main_habitat_benchmark", "habitat_benchmark_configs"),
-    "view-episode": Command("eval.objectnav.view_episode", "main_view_episode", "view_episode_configs"),
-    "scan-houses": Command("eval.scanning.run", "main_scan_houses", "scan_houses_configs",
+    "objectnav": Command("calnav.eval.objectnav.run", "main_objectnav", "objectnav_configs"),
+    "start-pose": Command("calnav.eval.objectnav.start_pose", "main_start_pose", "start_pose_configs"),
+    "habitat-benchmark": Command("calnav.eval.habitat.run", "main_habitat_benchmark", "habitat_benchmark_configs"),
+    "view-episode": Command("calnav.eval.objectnav.view_episode", "main_view_episode", "view_episode_configs"),
+    "scan-houses": Command("calnav.eval.scanning.run", "main_scan_houses", "scan_houses_configs",
                            checks=("run",)),   # runs no agent: builds scans (splits checked by it)
-    "bench": Command("eval.bench.run", "main_bench", None),              # fixed workloads, no config
-    "train-segmenter": Command("eval.segmenter.train", "main_train_segmenter",
-                               "eval.segmenter.data:segmenter_configs"),
-    "eval-segmenter": Command("eval.segmenter.evaluate", "main_eval_segmenter",
-                              "eval.segmenter.data:segmenter_configs"),
-    "calibrate-map": Command("eval.calibration.study", "main_calibrate_map", "calibrate_map_configs"),
-    "fit-glfs": Command("eval.calibration.study", "main_fit_glfs", "fit_glfs_configs"),
-    "map": Command("eval.sequence.map_cmd", "main_map", "map_configs"),
-    "export-sequence": Command("eval.sequence.export", "main_export_sequence", "export_sequence_configs",
+    "bench": Command("calnav.eval.bench.run", "main_bench", None),              # fixed workloads, no config
+    "train-segmenter": Command("calnav.eval.segmenter.train", "main_train_segmenter",
+                               "calnav.eval.segmenter.data:segmenter_configs"),
+    "eval-segmenter": Command("calnav.eval.segmenter.evaluate", "main_eval_segmenter",
+                              "calnav.eval.segmenter.data:segmenter_configs"),
+    "calibrate-map": Command("calnav.eval.calibration.study", "main_calibrate_map", "calibrate_map_configs"),
+    "fit-glfs": Command("calnav.eval.calibration.study", "main_fit_glfs", "fit_glfs_configs"),
+    "map": Command("calnav.eval.sequence.map_cmd", "main_map", "map_configs"),
+    "export-sequence": Command("calnav.eval.sequence.export", "main_export_sequence", "export_sequence_configs",
                                checks=("run",)),   # segments nothing; its --scene is loaded first
-    "tune": Command("eval.objectnav.tune", "main_tune", "tune_configs"),
-    "compare": Command("eval.objectnav.compare", "main_compare", None),  # reads finished runs' configs
-    "demo": Command("eval.objectnav.demo", "main_demo", "demo_configs"),
+    "tune": Command("calnav.eval.objectnav.tune", "main_tune", "tune_configs"),
+    "compare": Command("calnav.eval.objectnav.compare", "main_compare", None),  # reads finished runs' configs
+    "demo": Command("calnav.eval.objectnav.demo", "main_demo", "demo_configs"),
 }
 
 
@@ -231,10 +231,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     try:
-        from envs.scene import check_cache_dir
+        from calnav.envs.scene import check_cache_dir
 
         check_cache_dir()   # every command reads or writes the cache
-        from eval.preflight import check_configs
+        from calnav.eval.preflight import check_configs
 
         command = COMMANDS[args.command]
         command_main, load_configs = command.load()

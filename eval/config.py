@@ -18,9 +18,9 @@ from typing import Any, Literal
 import yaml
 from pydantic import ConfigDict, TypeAdapter, ValidationError
 
-from agent.config import AgentConfig
-from envs.config import EnvConfig
-from mapping.config import MappingConfig
+from calnav.agent.config import AgentConfig
+from calnav.envs.config import EnvConfig
+from calnav.mapping.config import MappingConfig
 
 CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs"
 

@@ -36,9 +36,9 @@ def check_run_resources(cfg: Any, checks: tuple[str, ...] = CHECKS) -> None:
     """Validate the files and services ``cfg`` (any command's config dataclass) names, in the
     sections of ``checks`` (those the command uses); raises ValueError / FileNotFoundError naming
     the file and what is wrong with it."""
-    from agent.segmenters import check_segmenter
-    from eval.backends import check_backend
-    from mapping.glfs import GLFSParams
+    from calnav.agent.segmenters import check_segmenter
+    from calnav.eval.backends import check_backend
+    from calnav.mapping.glfs import GLFSParams
 
     unknown = set(checks) - set(CHECKS)
     if unknown:
@@ -49,7 +49,7 @@ def check_run_resources(cfg: Any, checks: tuple[str, ...] = CHECKS) -> None:
     if run is not None and "run" in checks:
         check_backend(run.backend, run.ray_address)   # run.backend=ray without Ray: the install command
         if run.device != "cpu":
-            from agent.segmenters.base import resolve_device
+            from calnav.agent.segmenters.base import resolve_device
 
             resolve_device(run.device)
     names = None
@@ -58,7 +58,7 @@ def check_run_resources(cfg: Any, checks: tuple[str, ...] = CHECKS) -> None:
         names = check_segmenter(agent.segmenter, agent.segmenter_config, run.device if run else None)
         _check_sensors_feed_the_segmenter(cfg)
         if cfg.env.dataset.scene_dir:
-            from envs.scenes import split_scene_ids
+            from calnav.envs.scenes import split_scene_ids
 
             split_scene_ids(cfg.env.split, cfg.env.dataset)
     study = getattr(cfg, "study", None) if "study" in checks else None
@@ -69,7 +69,7 @@ def check_run_resources(cfg: Any, checks: tuple[str, ...] = CHECKS) -> None:
     if mapping is not None and mapping.glfs_params:   # a study fits its own GLFS; a named file must still be sound
         GLFSParams.load(mapping.glfs_params, class_names=names)
     if study is not None:
-        from eval.calibration.record import role_scene_ids
+        from calnav.eval.calibration.record import role_scene_ids
 
         role_scene_ids(cfg)
 
@@ -77,7 +77,7 @@ def check_run_resources(cfg: Any, checks: tuple[str, ...] = CHECKS) -> None:
 def _check_sensors_feed_the_segmenter(cfg: Any) -> None:
     """A map agent whose segmenter reads the ground-truth semantic image needs a semantic sensor
     (else every episode crashes on its first step: a table of errors, or a habitat-lab traceback)."""
-    from agent.segmenters import segmenter_needs_semantic
+    from calnav.agent.segmenters import segmenter_needs_semantic
 
     if cfg.run.agent == "peanut" and not cfg.env.semantic_sensor and segmenter_needs_semantic(cfg.agent.segmenter):
         raise ValueError(f"agent.segmenter={cfg.agent.segmenter} reads the ground-truth semantic observation, but "

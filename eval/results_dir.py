@@ -38,8 +38,8 @@ from typing import Callable, Iterable, Iterator
 
 import yaml
 
-from common.atomic import write_text_atomic
-from eval.stats import METRICS
+from calnav.common.atomic import write_text_atomic
+from calnav.eval.stats import METRICS
 
 # Dotted config keys that do not change results: a rerun with other values may resume the same
 # directory, and `calnav compare` never makes them columns.
@@ -206,7 +206,7 @@ class ResultsDir:
 
     def _holds_other_config(self) -> bool:
         """Whether the directory's config.yaml (if any) differs from ``cfg`` beyond the neutral keys."""
-        from eval.config import dump_yaml
+        from calnav.eval.config import dump_yaml
 
         saved = self.path / CONFIG_NAME
         if not saved.exists():
@@ -220,7 +220,7 @@ class ResultsDir:
                                              != strip_neutral(yaml.safe_load(dump_yaml(self.cfg)), self.neutral_keys))
 
     def _check_config(self) -> None:
-        from eval.config import dump_yaml
+        from calnav.eval.config import dump_yaml
 
         if self._holds_other_config():
             if not self.force:

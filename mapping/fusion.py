@@ -31,8 +31,8 @@ from typing import Callable, Mapping
 
 import torch
 
-from mapping.config import LAPLACE_MU  # noqa: F401  (re-exported: the smoothing constant's default)
-from mapping.scaling import as_temperature, scale_logits
+from calnav.mapping.config import LAPLACE_MU  # noqa: F401  (re-exported: the smoothing constant's default)
+from calnav.mapping.scaling import as_temperature, scale_logits
 
 ACCUMULATOR_NAMES: tuple[str, ...] = ("A", "B", "W")
 

@@ -17,9 +17,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from common.atomic import write_json_atomic
-from common.npz import check_format_version, load_versioned_npz, save_versioned_npz
-from mapping.weighting import ANGLE_EDGES_DEG, DISTANCE_EDGES_M
+from calnav.common.atomic import write_json_atomic
+from calnav.common.npz import check_format_version, load_versioned_npz, save_versioned_npz
+from calnav.mapping.weighting import ANGLE_EDGES_DEG, DISTANCE_EDGES_M
 
 FORMAT_VERSION = 1
 REPO_ROOT = Path(__file__).resolve().parents[1]

@@ -59,7 +59,7 @@ class LabelledMesh:
         intrinsics: (3, 3) pinhole, OpenCV pixel-centre convention (pixel (u, v) is centred at
         image coordinate (u, v), as ``envs.render``); pose: (4, 4) world-from-camera, OpenCV axes.
         """
-        from mapping.frame_geometry import o3d_ray_intrinsics
+        from calnav.mapping.frame_geometry import o3d_ray_intrinsics
 
         o3c = self._o3c
         extrinsic = np.linalg.inv(np.asarray(pose, dtype=np.float64))

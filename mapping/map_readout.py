@@ -14,8 +14,8 @@ import open3d as o3d
 import open3d.core as o3c
 import torch
 
-from mapping import frame_geometry as fg
-from mapping.config import MappingConfig
+from calnav.mapping import frame_geometry as fg
+from calnav.mapping.config import MappingConfig
 
 TRILINEAR_CORNERS = np.array([[i, j, k] for k in (0, 1) for j in (0, 1) for i in (0, 1)], np.int32)
 

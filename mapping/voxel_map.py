@@ -28,14 +28,14 @@ import open3d as o3d
 import open3d.core as o3c
 import torch
 
-from mapping import frame_geometry as fg
-from mapping.config import MappingConfig
-from mapping.fusion import ObservationTerms, get_strategy
-from mapping.glfs import GLFSParams
-from mapping import map_readout
-from mapping.map_readout import PointCloud
-from mapping.scaling import as_temperature, scale_logits
-from mapping.weighting import WeightingParams, needs_geometry, resolve, sample_weights
+from calnav.mapping import frame_geometry as fg
+from calnav.mapping.config import MappingConfig
+from calnav.mapping.fusion import ObservationTerms, get_strategy
+from calnav.mapping.glfs import GLFSParams
+from calnav.mapping import map_readout
+from calnav.mapping.map_readout import PointCloud
+from calnav.mapping.scaling import as_temperature, scale_logits
+from calnav.mapping.weighting import WeightingParams, needs_geometry, resolve, sample_weights
 
 BASE_ATTRS = (("tsdf", 1), ("weight", 1), ("color", 3))
 SEM = "semantic"

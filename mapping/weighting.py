@@ -23,7 +23,7 @@ from typing import Callable
 
 import torch
 
-from mapping.config import MappingConfig
+from calnav.mapping.config import MappingConfig
 
 DISTANCE_EDGES_M: tuple[float, ...] = (0.0, 1.0, 2.0, 3.0, 4.0, 5.0)  # authors' LUT bins
 ANGLE_EDGES_DEG: tuple[float, ...] = (0.0, 30.0, 60.0, 90.0)

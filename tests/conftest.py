@@ -54,7 +54,7 @@ def small_or_full(small, full):
 @pytest.fixture(scope="session")
 def small_env_config():
     """An EnvConfig with a small val/test split and low resolution, for fast env tests."""
-    from eval.config import load_config
+    from calnav.eval.config import load_config
 
     return load_config(None, [
         "env.resolution=64x48", "env.dataset.val_scenes=2", "env.dataset.test_scenes=2",

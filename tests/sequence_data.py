@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from agent.segmenters.base import default_class_names
+from calnav.agent.segmenters.base import default_class_names
 
 CLASSES = default_class_names()
 WALL, FLOOR, CEILING, TABLE = (CLASSES.index(n) for n in ("wall", "floor", "ceiling", "table"))
@@ -41,7 +41,7 @@ def intrinsics(width: int, height: int, f_ratio: float = 0.8) -> np.ndarray:
 
 def poses(n: int) -> list[np.ndarray]:
     """Cameras at 1.3 m height turning around the room centre, looking slightly down."""
-    from envs.render import look_at_pose
+    from calnav.envs.render import look_at_pose
 
     out = []
     for i in range(n):
@@ -53,7 +53,7 @@ def poses(n: int) -> list[np.ndarray]:
 
 def render_frames(n: int, width: int = 40, height: int = 30):
     """[(rgb (H, W, 3) uint8, depth (H, W) float32 m, labels (H, W) int64, pose)] and K."""
-    from mapping.ground_truth import LabelledMesh
+    from calnav.mapping.ground_truth import LabelledMesh
 
     v, t, c = room_mesh()
     mesh = LabelledMesh(v, t, c)
@@ -71,7 +71,7 @@ def write_scannet(root: Path, n: int = 6, width: int = 40, height: int = 30, max
                   bad_pose: int | None = None) -> Path:
     """A ScanNet-layout recording of the room under ``root`` (frame ``bad_pose`` gets ScanNet's
     -inf pose); returns root."""
-    from eval.sequence.export import ScanNetWriter, write_ground_truth
+    from calnav.eval.sequence.export import ScanNetWriter, write_ground_truth
 
     frames, k = render_frames(n, width, height)
     writer = ScanNetWriter(root, k, k)

@@ -49,9 +49,10 @@ def _module_name(path: Path) -> str:
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 
 
-def _imports(path: Path) -> set[str]:
+def _imports(path: Path, raw: bool = False) -> set[str]:
     """Absolute module names imported anywhere in ``path`` (``from a import b`` gives ``a`` and
-    ``a.b``, as b may be a submodule). Relative imports stay inside their package: skipped."""
+    ``a.b``, as b may be a submodule), named inside calnav (``calnav.mapping.fusion`` ->
+    ``mapping.fusion``) unless ``raw``. Relative imports stay inside their package: skipped."""
     out: set[str] = set()
     for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"), filename=str(path))):
         if isinstance(node, ast.Import):
@@ -59,12 +60,22 @@ def _imports(path: Path) -> set[str]:
         elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
             out.add(node.module)
             out.update(f"{node.module}.{alias.name}" for alias in node.names if alias.name != "*")
-    return out
+    return out if raw else {name.removeprefix("calnav.") for name in out}
 
 
 def _package_files(package: str) -> dict[str, set[str]]:
     """{module name: imported module names} of every .py file of ``package``."""
     return {_module_name(p): _imports(p) for p in sorted((REPO_ROOT / package).rglob("*.py"))}
+
+
+def test_project_modules_are_imported_as_calnav_subpackages():
+    """Installed, the packages live under ``calnav`` (``calnav.mapping``): a bare ``import mapping``
+    would find another distribution's ``mapping`` or nothing."""
+    bad = sorted(f"{path.relative_to(REPO_ROOT)} imports {name}"
+                 for path in sorted(REPO_ROOT.glob("*/**/*.py")) if path.parts[len(REPO_ROOT.parts)] != ".venv"
+                 and path.parts[len(REPO_ROOT.parts)] in PACKAGES + ("tests",)
+                 for name in _imports(path, raw=True) if _top(name) in PACKAGES)
+    assert not bad, "import them as calnav.<package>:\n" + "\n".join(bad)
 
 
 @pytest.fixture(scope="module")
@@ -238,7 +249,8 @@ def test_importing_the_packages_does_not_import_habitat():
     import subprocess
     import sys
 
-    code = ("import sys, envs, envs.objectnav_env, agent.policy, eval.cli, eval.habitat.run; "
+    code = ("import sys, calnav.envs, calnav.envs.objectnav_env, calnav.agent.policy, calnav.eval.cli, "
+            "calnav.eval.habitat.run; "
             "print(sorted(m for m in sys.modules if m.split('.')[0] in ('habitat', 'habitat_sim')))")
     out = subprocess.run([sys.executable, "-c", code], cwd=REPO_ROOT, capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from typing import Callable
 
-from agent.segmenters.base import Segmenter, SegmenterConfig, default_class_names, resolve_device, softmax
+from calnav.agent.segmenters.base import Segmenter, SegmenterConfig, default_class_names, resolve_device, softmax
 
 __all__ = ["SEGMENTERS", "SEGMENTER_NAMES", "Segmenter", "SegmenterConfig", "check_segmenter", "make_segmenter",
            "segmenter_needs_semantic", "softmax"]
@@ -21,16 +21,16 @@ def _ground_truth(name: str, cfg: SegmenterConfig, device: str | None, class_nam
         resolve_device(device or cfg.device)
     names = tuple(class_names) if class_names is not None else default_class_names()
     if name == "gt":
-        from agent.segmenters.ground_truth import GroundTruthSegmenter
+        from calnav.agent.segmenters.ground_truth import GroundTruthSegmenter
 
         return GroundTruthSegmenter(cfg, names)
-    from agent.segmenters.noisy import NoisySegmenter
+    from calnav.agent.segmenters.noisy import NoisySegmenter
 
     return NoisySegmenter(cfg, names)
 
 
 def _learned(name: str, cfg: SegmenterConfig, device: str | None, class_names) -> Segmenter:
-    from agent.segmenters.learned import LearnedSegmenter
+    from calnav.agent.segmenters.learned import LearnedSegmenter
 
     return LearnedSegmenter(name, cfg, device)
 
@@ -50,8 +50,8 @@ def segmenter_needs_semantic(name: str) -> bool:
         raise ValueError(f"unknown segmenter {name!r}; valid names: {', '.join(SEGMENTER_NAMES)}")
     if SEGMENTERS[name] is not _ground_truth:
         return False   # the learned segmenters read rgb (and depth)
-    from agent.segmenters.ground_truth import GroundTruthSegmenter
-    from agent.segmenters.noisy import NoisySegmenter
+    from calnav.agent.segmenters.ground_truth import GroundTruthSegmenter
+    from calnav.agent.segmenters.noisy import NoisySegmenter
 
     return {"gt": GroundTruthSegmenter, "noisy": NoisySegmenter}[name].needs_semantic
 
@@ -68,7 +68,7 @@ def check_segmenter(name: str, cfg: SegmenterConfig | None = None, device: str |
         resolve_device(device or cfg.device)
     if SEGMENTERS[name] is _ground_truth:
         return default_class_names()
-    from agent.segmenters.learned import check_weights, default_weights_path
+    from calnav.agent.segmenters.learned import check_weights, default_weights_path
 
     return check_weights(cfg.weights or default_weights_path(name), name)
 

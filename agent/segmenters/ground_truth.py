@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from agent.segmenters.base import Segmenter, SegmenterConfig, check_frame, check_label_image
+from calnav.agent.segmenters.base import Segmenter, SegmenterConfig, check_frame, check_label_image
 
 FLOAT32_TINY = float(np.finfo(np.float32).tiny)  # keeps log((1 - conf) / (K - 1)) finite at conf = 1
 

@@ -21,9 +21,9 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from common.atomic import atomic_path
-from agent.segmenters.base import WEIGHTS_DIR, Segmenter, SegmenterConfig, check_frame, resolve_device
-from agent.segmenters.network import NetSpec, SegNet, fuse_batchnorm
+from calnav.common.atomic import atomic_path
+from calnav.agent.segmenters.base import WEIGHTS_DIR, Segmenter, SegmenterConfig, check_frame, resolve_device
+from calnav.agent.segmenters.network import NetSpec, SegNet, fuse_batchnorm
 
 WEIGHTS_FORMAT = 1
 LEARNED_MODELS: tuple[str, ...] = ("learned_rgb", "learned_rgbd")

@@ -40,7 +40,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from agent.segmenters.base import Segmenter, SegmenterConfig, check_frame, check_label_image
+from calnav.agent.segmenters.base import Segmenter, SegmenterConfig, check_frame, check_label_image
 
 # Salts keep the hashed choices of different error types independent.
 SALT_CELL, SALT_ALT, SALT_INST, SALT_PARTNER, SALT_ARC, SALT_CLASS_KEY = range(1, 7)

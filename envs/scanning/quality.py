@@ -17,10 +17,10 @@ from __future__ import annotations
 import numpy as np
 import open3d.core as o3c
 
-from envs.render import build_raycasting_scene
-from envs.scanning.scanner import footprint_m2
-from envs.scene import Scene, sample_surface
-from envs.semantics import CLASS_ID, VOID
+from calnav.envs.render import build_raycasting_scene
+from calnav.envs.scanning.scanner import footprint_m2
+from calnav.envs.scene import Scene, sample_surface
+from calnav.envs.semantics import CLASS_ID, VOID
 
 COVER_DISTANCE_M = 0.05         # a clean surface point is covered by a scan surface this close, metres
 OBSERVABLE_CLEARANCE_M = 0.3    # free space needed in front of a clean surface point to count it, metres

@@ -12,9 +12,9 @@ import numpy as np
 import open3d as o3d
 import open3d.core as o3c
 
-from envs.scanning.config import ScanningConfig
-from envs.scene import Scene
-from envs.semantics import NUM_CLASSES, VOID
+from calnav.envs.scanning.config import ScanningConfig
+from calnav.envs.scene import Scene
+from calnav.envs.semantics import NUM_CLASSES, VOID
 
 BLOCK_RESOLUTION = 8          # voxels per TSDF block side (8^3 blocks: little waste on thin walls)
 INITIAL_BLOCKS = 40_000       # blocks allocated up front (the hashmap grows when a house needs more)
@@ -118,8 +118,8 @@ def transfer_labels(clean: Scene, vertices: np.ndarray, triangles: np.ndarray, m
     instance voted together, so an instance keeps one class; all three differ: the first
     vertex's). Returns ((F,) int16 class, (F,) int32 instance).
     """
-    from envs.render import build_raycasting_scene
-    from envs.scan import per_face_majority
+    from calnav.envs.render import build_raycasting_scene
+    from calnav.envs.scan import per_face_majority
 
     rc = raycasting_scene if raycasting_scene is not None else build_raycasting_scene(clean)
     ans = rc.compute_closest_points(o3c.Tensor(np.asarray(vertices, dtype=np.float32)))

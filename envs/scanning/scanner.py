@@ -14,14 +14,14 @@ import dataclasses
 
 import numpy as np
 
-from envs.config import EnvConfig
-from envs.navigation import NavGrid
-from envs.render import Camera, Renderer
-from envs.scanning.config import SCANNER_VERSION, ScanningConfig
-from envs.scanning.reconstruct import TSDFScan, tidy_mesh, transfer_labels
-from envs.scanning.sensor import camera_rgb, noisy_depth
-from envs.scene import Scene, SceneError, Texture
-from envs.trajectories import ScanConfig, scan_poses
+from calnav.envs.config import EnvConfig
+from calnav.envs.navigation import NavGrid
+from calnav.envs.render import Camera, Renderer
+from calnav.envs.scanning.config import SCANNER_VERSION, ScanningConfig
+from calnav.envs.scanning.reconstruct import TSDFScan, tidy_mesh, transfer_labels
+from calnav.envs.scanning.sensor import camera_rgb, noisy_depth
+from calnav.envs.scene import Scene, SceneError, Texture
+from calnav.envs.trajectories import ScanConfig, scan_poses
 
 BAKED = "baked"   # Scene.meta["lighting"] of meshes whose colours include the lighting
 RENDER_RANGE_MARGIN_M = 1.0   # true depth is rendered this far past the sensor's range (noise may pull it in)

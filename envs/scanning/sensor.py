@@ -26,7 +26,7 @@ from functools import lru_cache
 import cv2
 import numpy as np
 
-from envs.scanning.config import ScanningConfig
+from calnav.envs.scanning.config import ScanningConfig
 
 LUMA = np.array([0.299, 0.587, 0.114], dtype=np.float32)   # ITU-R BT.601 luminance weights
 

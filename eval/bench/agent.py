@@ -45,9 +45,9 @@ def agent_loop(ctx, overrides: tuple[str, ...] = ()) -> tuple[float, float, floa
     the module docstring; ``overrides`` change the config (e.g. env.dataset.style=scanned)."""
     import gymnasium as gym
 
-    import envs  # noqa: F401  (registers the env)
-    from agent.policy import PeanutAgent
-    from eval.config import load_config
+    import calnav.envs  # noqa: F401  (registers the env)
+    from calnav.agent.policy import PeanutAgent
+    from calnav.eval.config import load_config
 
     cfg = load_config(None, ["env.resolution=160x120", "agent.segmenter=gt", *overrides])
     cfg.agent = dataclasses.replace(cfg.agent, goal_threshold=EXPLORE_ONLY_THRESHOLD)

@@ -29,8 +29,8 @@ def run(ctx) -> dict[str, float]:
     except ImportError:
         print("[bench] backends: ray is not installed (pip install -e \".[ray]\"); skipped")
         return {}
-    from eval.config import load_config
-    from eval.objectnav.run import EpisodeJob, run_jobs
+    from calnav.eval.config import load_config
+    from calnav.eval.objectnav.run import EpisodeJob, run_jobs
 
     n = QUICK_EPISODES if ctx.quick else EPISODES
     times = {}

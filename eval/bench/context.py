@@ -24,19 +24,19 @@ class BenchContext:
 
     @cached_property
     def scene(self):
-        from envs.scenes import load_scene, procedural_scene_id
+        from calnav.envs.scenes import load_scene, procedural_scene_id
 
         return load_scene(procedural_scene_id("val", self.scene_seed))
 
     @cached_property
     def env_config(self):
-        from envs.config import EnvConfig
+        from calnav.envs.config import EnvConfig
 
         return EnvConfig()
 
     @cached_property
     def navgrid(self):
-        from envs.navigation import NavGrid
+        from calnav.envs.navigation import NavGrid
 
         return NavGrid.build(self.scene, self.env_config)
 
@@ -44,12 +44,12 @@ class BenchContext:
     def poses(self) -> list[np.ndarray]:
         """(4, 4) world-from-camera poses along a shortest path between two far-apart points,
         turning in place every few steps to look around (as an exploring agent does)."""
-        from envs.oracle import scan_trajectory
+        from calnav.envs.oracle import scan_trajectory
 
         return scan_trajectory(self.navgrid, self.env_config, n_poses=self.n_poses, seed=self.scene_seed)
 
     def renderer(self, width: int, height: int):
-        from envs.render import Camera, Renderer
+        from calnav.envs.render import Camera, Renderer
 
         cfg = self.env_config
         cam = Camera(width=width, height=height, hfov_deg=cfg.hfov_deg)

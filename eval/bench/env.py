@@ -20,7 +20,7 @@ import time
 
 import numpy as np
 
-from eval.bench.context import BenchContext, timeit_ms
+from calnav.eval.bench.context import BenchContext, timeit_ms
 
 RESOLUTIONS: tuple[tuple[int, int], ...] = ((640, 480), (160, 120))
 TURN_EVERY = 4  # the stepping agent turns every this many steps (as an exploring agent does)
@@ -46,7 +46,7 @@ def _render_vs_cast(renderer, poses: list[np.ndarray], n: int) -> tuple[float, f
 
 def _step_ms(ctx: BenchContext, renderer, repeats: int) -> float:
     """Median ms of one agent step (move/turn on the NavGrid + render)."""
-    from envs.render import camera_pose
+    from calnav.envs.render import camera_pose
 
     cfg, grid = ctx.env_config, ctx.navgrid
     rng = np.random.default_rng(ctx.scene_seed)
@@ -67,7 +67,7 @@ def _step_ms(ctx: BenchContext, renderer, repeats: int) -> float:
 
 
 def run(ctx: BenchContext) -> dict[str, float]:
-    from envs.navigation import NavGrid
+    from calnav.envs.navigation import NavGrid
 
     scene, cfg, poses = ctx.scene, ctx.env_config, ctx.poses
     n = 12 if ctx.quick else 60
@@ -81,7 +81,7 @@ def run(ctx: BenchContext) -> dict[str, float]:
             out["env.render_ratio_640x480"] = render_ms / cast_ms
         out[f"env.steps_per_s_{w}x{h}"] = 1e3 / _step_ms(ctx, r, n)
 
-    from envs.house import generate_house
+    from calnav.envs.house import generate_house
 
     seeds = itertools.count(500)   # a new house per repeat
     out["env.house_gen_ms"] = timeit_ms(lambda: generate_house(next(seeds)), repeats=1 if ctx.quick else 3, warmup=0)

@@ -54,7 +54,7 @@ def frames_from_context(ctx, width: int, height: int, num_classes: int) -> Bench
 
 
 def run(ctx) -> dict[str, float]:
-    from envs.semantics import NUM_CLASSES
+    from calnav.envs.semantics import NUM_CLASSES
 
     data = {res: frames_from_context(ctx, *res, NUM_CLASSES) for res in (REFERENCE_RES, LOW_RES)}
     return measure(data, NUM_CLASSES)
@@ -92,10 +92,10 @@ def measure(data: dict[tuple[int, int], BenchFrames], num_classes: int, cfg=None
     cfg: base ``MappingConfig`` (default: the defaults); its ``fusion`` is replaced per map."""
     import dataclasses
 
-    from mapping.config import MappingConfig
-    from mapping.fusion import STRATEGIES
-    from mapping.frame_geometry import invert_rigid
-    from mapping.voxel_map import SemanticVoxelMap
+    from calnav.mapping.config import MappingConfig
+    from calnav.mapping.fusion import STRATEGIES
+    from calnav.mapping.frame_geometry import invert_rigid
+    from calnav.mapping.voxel_map import SemanticVoxelMap
 
     out: dict[str, float] = {}
     rng = np.random.default_rng(SEED)

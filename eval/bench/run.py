@@ -11,8 +11,8 @@ import time
 from pathlib import Path
 from typing import Callable
 
-from eval.bench import agent, backends, env, fusion, scan, segmenter, sequence, start_pose
-from eval.bench.context import BenchContext
+from calnav.eval.bench import agent, backends, env, fusion, scan, segmenter, sequence, start_pose
+from calnav.eval.bench.context import BenchContext
 
 SECTIONS: dict[str, Callable[[BenchContext], dict[str, float]]] = {
     "env": env.run,

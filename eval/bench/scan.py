@@ -15,7 +15,7 @@ import time
 
 import numpy as np
 
-from eval.bench.context import BenchContext
+from calnav.eval.bench.context import BenchContext
 
 # --quick: a coarse scan that still covers the house (~4 s; the agent loop needs its goals in view)
 QUICK_SCAN = dict(frames=600, resolution=(96, 72), voxel_m=0.05, min_weight=1.0, stop_spacing_m=3.0,
@@ -23,12 +23,12 @@ QUICK_SCAN = dict(frames=600, resolution=(96, 72), voxel_m=0.05, min_weight=1.0,
 
 
 def run(ctx: BenchContext) -> dict[str, float]:
-    from envs.render import Camera, Renderer
-    from envs.scanning.config import ScanningConfig
-    from envs.scanning.scanner import footprint_m2, scan_house
-    from envs.scenes import procedural_scene_id
-    from envs.scenes import scene_seed as house_seed
-    from eval.bench.agent import agent_loop
+    from calnav.envs.render import Camera, Renderer
+    from calnav.envs.scanning.config import ScanningConfig
+    from calnav.envs.scanning.scanner import footprint_m2, scan_house
+    from calnav.envs.scenes import procedural_scene_id
+    from calnav.envs.scenes import scene_seed as house_seed
+    from calnav.eval.bench.agent import agent_loop
 
     scene_id = procedural_scene_id("val", ctx.scene_seed)
     cfg = ScanningConfig(**QUICK_SCAN) if ctx.quick else ScanningConfig()

@@ -16,7 +16,7 @@ Models whose weight file is missing are skipped with a message (the figures are 
 """
 from __future__ import annotations
 
-from eval.bench.context import timeit_ms
+from calnav.eval.bench.context import timeit_ms
 
 MODELS = ("learned_rgb", "learned_rgbd")
 WARMUP = 3                   # calls before timing (allocator and oneDNN kernel caches warm up)
@@ -29,7 +29,7 @@ def run(ctx) -> dict[str, float]:
     import numpy as np
     import torch
 
-    from agent.segmenters import SegmenterConfig, make_segmenter
+    from calnav.agent.segmenters import SegmenterConfig, make_segmenter
 
     out: dict[str, float] = {}
     n_frames = 4 if ctx.quick else 20

@@ -22,12 +22,12 @@ from pathlib import Path
 
 import numpy as np
 
-from eval.bench.fusion import REFERENCE_RES
+from calnav.eval.bench.fusion import REFERENCE_RES
 
 
 def write_context_sequence(ctx, root: Path, width: int, height: int) -> None:
     """The context's frames at ``width`` x ``height`` in ScanNet layout under ``root``."""
-    from eval.sequence.export import ScanNetWriter
+    from calnav.eval.sequence.export import ScanNetWriter
 
     k = np.asarray(ctx.renderer(width, height).camera.intrinsics, dtype=np.float64)
     writer = ScanNetWriter(root, k, k)
@@ -37,12 +37,12 @@ def write_context_sequence(ctx, root: Path, width: int, height: int) -> None:
 
 def measure(root: Path, res: str) -> dict[str, float]:
     """Figures of the ScanNet-layout sequence at ``root`` (``res`` names its size, "WxH")."""
-    from agent.segmenters import make_segmenter
-    from eval.sequence.map_cmd import map_sequence
-    from eval.sequence.source import SegmenterLogits
-    from mapping.config import MappingConfig
-    from mapping.sequences import Registration, Sequence
-    from mapping.voxel_map import SemanticVoxelMap
+    from calnav.agent.segmenters import make_segmenter
+    from calnav.eval.sequence.map_cmd import map_sequence
+    from calnav.eval.sequence.source import SegmenterLogits
+    from calnav.mapping.config import MappingConfig
+    from calnav.mapping.sequences import Registration, Sequence
+    from calnav.mapping.voxel_map import SemanticVoxelMap
 
     seq = Sequence(root, "scannet")
     source = SegmenterLogits(make_segmenter("gt"), seq)

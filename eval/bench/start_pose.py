@@ -21,8 +21,8 @@ OVERRIDES = ["env.resolution=160x120", "agent.segmenter=learned_rgb", "mapping.f
 
 
 def run(ctx) -> dict[str, float]:
-    from eval.config import load_config
-    from eval.objectnav.start_pose import DEFAULT_VARIANTS, VARIANTS, run_start_pose_study
+    from calnav.eval.config import load_config
+    from calnav.eval.objectnav.start_pose import DEFAULT_VARIANTS, VARIANTS, run_start_pose_study
 
     cfg = load_config(None, [*OVERRIDES, "run.workers=2"])
     n = QUICK_EPISODES if ctx.quick else EPISODES

@@ -6,13 +6,13 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
-from agent.config import SegmenterName
-from envs.config import EnvConfig
-from envs.trajectories import ScanConfig
-from eval.config import RunConfig, build_dataclass, to_dict
-from mapping.config import FUSION_NAMES, MappingConfig
-from mapping.calibration.glfs_train import GLFSTrainConfig
-from mapping.sequences import LayoutName, SequenceConfig
+from calnav.agent.config import SegmenterName
+from calnav.envs.config import EnvConfig
+from calnav.envs.trajectories import ScanConfig
+from calnav.eval.config import RunConfig, build_dataclass, to_dict
+from calnav.mapping.config import FUSION_NAMES, MappingConfig
+from calnav.mapping.calibration.glfs_train import GLFSTrainConfig
+from calnav.mapping.sequences import LayoutName, SequenceConfig
 
 CALIBRATIONS: tuple[str, ...] = ("none", "temperature_2d", "temperature_3d", "vector_3d")
 LEARNED_SEGMENTERS: tuple[str, ...] = ("learned_rgb", "learned_rgbd")

@@ -43,8 +43,8 @@ def _view_stats(probs: np.ndarray, valid: np.ndarray, truth: np.ndarray) -> dict
 
 def build_maps(cfg, scene_id: str, seed: int, segmenter, glfs_params) -> tuple:
     """(scene, poses (F, 4, 4), {label: SemanticVoxelMap}) of one scanned house."""
-    from eval.calibration.record import SEGMENT_BATCH, HouseScan
-    from mapping.voxel_map import SemanticVoxelMap
+    from calnav.eval.calibration.record import SEGMENT_BATCH, HouseScan
+    from calnav.mapping.voxel_map import SemanticVoxelMap
 
     scan = HouseScan(cfg, scene_id, seed)
     scene, intrinsics, poses = scan.scene, scan.intrinsics, np.asarray(scan.poses)
@@ -64,8 +64,8 @@ def build_maps(cfg, scene_id: str, seed: int, segmenter, glfs_params) -> tuple:
 def render_views(cfg, scene, poses: np.ndarray, maps: dict, n_views: int, resolution: tuple[int, int]) -> list[dict]:
     """The ``n_views`` candidate poses with the most wrong pixels, rendered at ``resolution``:
     [{"pose_index", "truth" (H, W), label: (probs, valid), "stats": {label: _view_stats}}]."""
-    from envs.render import Camera
-    from mapping.ground_truth import LabelledMesh
+    from calnav.envs.render import Camera
+    from calnav.mapping.ground_truth import LabelledMesh
 
     mesh = LabelledMesh(scene.vertices, scene.triangles, scene.tri_class)
     depth_max = cfg.mapping.depth_max_m
@@ -99,7 +99,7 @@ def plot_qualitative(views: list[dict], class_names, path: Path, title: str, lab
     import matplotlib.pyplot as plt
     from matplotlib.patches import Patch
 
-    from envs.semantics import PALETTE
+    from calnav.envs.semantics import PALETTE
 
     cols = 1 + 3 * len(labels)
     fig, axes = plt.subplots(len(views), cols, figsize=(2.3 * cols, 1.95 * len(views) + 1.2), squeeze=False)

@@ -29,7 +29,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.lines import Line2D  # noqa: E402
 
-from mapping.metrics import ReliabilityTable  # noqa: E402
+from calnav.mapping.metrics import ReliabilityTable  # noqa: E402
 
 STRATEGY_MARKERS = {"rbu": "o", "averaging": "s", "histogram": "^", "geometric_mean": "D", "glfs": "*"}
 FALLBACK_MARKER = "X"

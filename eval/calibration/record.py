@@ -20,11 +20,11 @@ from pathlib import Path
 
 import numpy as np
 
-from common.atomic import atomic_path, write_bytes_atomic
-from common.prefetch import prefetched
-from eval.calibration.config import CalibrateMapConfig
-from mapping.calibration.obs_cache import ObsCache
-from mapping.sequences import LAYOUT_NAMES, Registration, Sequence, SequenceFrame, vertex_ground_truth
+from calnav.common.atomic import atomic_path, write_bytes_atomic
+from calnav.common.prefetch import prefetched
+from calnav.eval.calibration.config import CalibrateMapConfig
+from calnav.mapping.calibration.obs_cache import ObsCache
+from calnav.mapping.sequences import LAYOUT_NAMES, Registration, Sequence, SequenceFrame, vertex_ground_truth
 
 SEGMENT_BATCH = 16   # frames per segmenter forward pass
 ROLES = ("calib_train", "calib_val", "test")
@@ -34,7 +34,7 @@ def role_scene_ids(cfg: CalibrateMapConfig) -> dict[str, list[str]]:
     """{role: scene ids}: procedural houses from the ``calib`` / ``test`` splits, the user
     scene folders train / val / test when ``env.dataset.scene_dir`` is set, or the recorded
     sequences of ``sequences.list`` (all of them: the study's house counts do not apply)."""
-    from envs.scenes import split_scene_ids
+    from calnav.envs.scenes import split_scene_ids
 
     st, ds = cfg.study, cfg.env.dataset
     if cfg.sequences.list:
@@ -76,10 +76,10 @@ class HouseScan:
     from the house mesh. ``RecordedScan`` is the same for a recording."""
 
     def __init__(self, cfg: CalibrateMapConfig, scene_id: str, seed: int):
-        from envs.navigation import NavGrid
-        from envs.render import Camera, Renderer
-        from envs.scenes import load_scene
-        from envs.trajectories import scan_poses
+        from calnav.envs.navigation import NavGrid
+        from calnav.envs.render import Camera, Renderer
+        from calnav.envs.scenes import load_scene
+        from calnav.envs.trajectories import scan_poses
 
         env = cfg.env
         self.scene = scene = load_scene(scene_id, dataset_for(cfg))
@@ -168,7 +168,7 @@ class RecordedScan:
                 batch = []
 
     def label(self, cache) -> None:
-        from mapping.ground_truth import nearest_vertex_labels
+        from calnav.mapping.ground_truth import nearest_vertex_labels
 
         cache.set_labels(nearest_vertex_labels(cache.coords, self.vertices, self.vertex_class,
                                                self.seq.cfg.label_distance_m))
@@ -176,7 +176,7 @@ class RecordedScan:
 
 def recorded_scan(cfg, scene_id: str) -> RecordedScan | None:
     """The ``RecordedScan`` of ``scene_id`` when ``cfg.sequences.list`` lists it, else None."""
-    from agent.segmenters.base import default_class_names
+    from calnav.agent.segmenters.base import default_class_names
 
     if not cfg.sequences.list:
         return None
@@ -201,7 +201,7 @@ def _save_pixels(path: Path, logits: np.ndarray, labels: np.ndarray) -> None:
 def record_scene(cfg: CalibrateMapConfig, scene_id: str, segmenters: dict, out_dir: Path, seed: int) -> list[str]:
     """Scan ``scene_id`` and write the cache and pixel files of every segmenter in
     ``segmenters`` ({name: Segmenter}) that has none yet. Returns the names recorded."""
-    from mapping.voxel_map import SemanticVoxelMap
+    from calnav.mapping.voxel_map import SemanticVoxelMap
 
     todo = [n for n in segmenters if not all(p.exists() for p in scene_files(out_dir, n, scene_id))]
     if not todo:
@@ -271,8 +271,8 @@ def record_task(task: RecordTask) -> dict[str, bytes]:
     workers on other nodes need no shared disk."""
     import tempfile
 
-    from agent.segmenters import make_segmenter
-    from eval.config import build_dataclass
+    from calnav.agent.segmenters import make_segmenter
+    from calnav.eval.config import build_dataclass
 
     cfg = build_dataclass(CalibrateMapConfig, task.cfg_dict)
     segs = {}
@@ -295,8 +295,8 @@ def record_houses(cfg: CalibrateMapConfig, scene_seeds: dict[str, int], segmente
     house done), so a killed study resumes."""
     from tqdm import tqdm
 
-    from eval.backends import make_backend
-    from eval.config import to_dict
+    from calnav.eval.backends import make_backend
+    from calnav.eval.config import to_dict
 
     backend = make_backend(cfg.run)
     cfg_dict, tasks = to_dict(cfg), []

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from common.atomic import atomic_path
+from calnav.common.atomic import atomic_path
 
 COLUMNS = ("segmenter", "strategy", "calibration", "miou", "miou_authors", "ece", "tl_ece", "mece", "brier",
            "pixel_mece", "n_voxels")
@@ -117,7 +117,7 @@ def write_report(out: Path, rows: list[dict], stats_by_segmenter: dict, class_na
                  glfs_histories: dict | None = None) -> dict[str, dict]:
     """Write CSV, Markdown and plots for ``rows`` (all segmenters so far); ``glfs_histories``
     {segmenter: {variant: TrainHistory.to_dict()}} for the trade-off plot. Returns the GLFS pick."""
-    from eval.calibration.plots import (plot_calibration_vs_accuracy, plot_error_vs_confidence, plot_glfs_tradeoff,
+    from calnav.eval.calibration.plots import (plot_calibration_vs_accuracy, plot_error_vs_confidence, plot_glfs_tradeoff,
                                         plot_reliability, plot_reliability_per_class)
 
     out.mkdir(parents=True, exist_ok=True)

@@ -29,17 +29,17 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from common.atomic import atomic_path, write_json_atomic
-from eval.backends import check_backend
-from eval.calibration.config import CalibrateMapConfig, GLFSVariant
-from eval.calibration.record import ROLES, load_role, record_houses, role_scene_ids, scene_seed
-from eval.config import ConfigError, load_config, with_shorthand
-from eval.results_dir import ResultsDir, check_output_file, writing
-from mapping import metrics
-from mapping.calibration.fit import MapObjective, fit_temperature_2d, fit_temperature_3d, fit_vector_3d
-from mapping.calibration.flat_obs import FlatObservations
-from mapping.glfs import GLFSParams
-from mapping.calibration.glfs_train import GLFSModel, train_glfs
+from calnav.common.atomic import atomic_path, write_json_atomic
+from calnav.eval.backends import check_backend
+from calnav.eval.calibration.config import CalibrateMapConfig, GLFSVariant
+from calnav.eval.calibration.record import ROLES, load_role, record_houses, role_scene_ids, scene_seed
+from calnav.eval.config import ConfigError, load_config, with_shorthand
+from calnav.eval.results_dir import ResultsDir, check_output_file, writing
+from calnav.mapping import metrics
+from calnav.mapping.calibration.fit import MapObjective, fit_temperature_2d, fit_temperature_3d, fit_vector_3d
+from calnav.mapping.calibration.flat_obs import FlatObservations
+from calnav.mapping.glfs import GLFSParams
+from calnav.mapping.calibration.glfs_train import GLFSModel, train_glfs
 
 QUICK_OVERRIDES = (   # --quick: a <= 5 minute smoke run of the whole pipeline on 2 cores
     "study.calib_train_scenes=3", "study.calib_val_scenes=1", "study.test_scenes=3", "scan.frames=200",
@@ -93,7 +93,7 @@ def fit_segmenter(cfg: CalibrateMapConfig, out: Path, segmenter: str, ids: dict[
                   progress: bool = True) -> Fits:
     from tqdm import tqdm
 
-    from eval.calibration.tau_curve import temperature_curve
+    from calnav.eval.calibration.tau_curve import temperature_curve
 
     st = cfg.study
     fits = Fits(out / "fits" / segmenter)
@@ -212,9 +212,9 @@ def run_calibrate_map(cfg: CalibrateMapConfig, out: Path, force: bool = False, p
     """Run (or resume) the whole study; returns the result rows (also written to ``out``)."""
     from tqdm import tqdm
 
-    from agent.segmenters import make_segmenter
-    from eval.calibration.report import write_report
-    from eval.calibration.tau_curve import write_tau_curves
+    from calnav.agent.segmenters import make_segmenter
+    from calnav.eval.calibration.report import write_report
+    from calnav.eval.calibration.tau_curve import write_tau_curves
 
     ids = role_scene_ids(cfg)
     _check_roles(ids)
@@ -255,7 +255,7 @@ def run_calibrate_map(cfg: CalibrateMapConfig, out: Path, force: bool = False, p
 def qualitative(cfg: CalibrateMapConfig, out: Path, segmenter: str, seg, scene_id: str, fits: Fits,
                 variant: str) -> None:
     """The RBU-vs-GLFS views of one test house (skipped when already written for ``variant``)."""
-    from eval.calibration.figures import write_qualitative
+    from calnav.eval.calibration.figures import write_qualitative
 
     done = out / f"qualitative_{segmenter}.json"
     if done.exists() and json.loads(done.read_text()).get("glfs_variant") == variant:
@@ -278,7 +278,7 @@ def main_calibrate_map(args, configs: list[CalibrateMapConfig]) -> None:
     cfg = configs[0]
     out = Path(args.output or (cfg.run.output_dir + "_quick" if args.quick else cfg.run.output_dir))
     rows = run_calibrate_map(cfg, out, force=args.force)
-    from eval.calibration.report import format_table
+    from calnav.eval.calibration.report import format_table
 
     print(format_table(rows))
     print(f"\nresults: {out / 'results.csv'}, {out / 'results.md'}, plots in {out}")
@@ -295,7 +295,7 @@ def main_fit_glfs(args, configs: list[CalibrateMapConfig]) -> None:
     variant (``--variant``, default the first of ``study.glfs_variants``). ``configs``:
     ``fit_glfs_configs(args)``, checked by the preflight."""
     check_output_file(args.output)   # written at the end: a bad path must not cost the training first
-    from agent.segmenters import make_segmenter
+    from calnav.agent.segmenters import make_segmenter
 
     cfg = configs[0]
     variants = {v.name: v for v in cfg.study.glfs_variants}

@@ -16,10 +16,10 @@ from pathlib import Path
 
 import numpy as np
 
-from common.atomic import atomic_path
-from eval.calibration.config import TAU_CURVE_RANGE
-from mapping.calibration.fit import MapObjective
-from mapping.calibration.flat_obs import FlatObservations
+from calnav.common.atomic import atomic_path
+from calnav.eval.calibration.config import TAU_CURVE_RANGE
+from calnav.mapping.calibration.fit import MapObjective
+from calnav.mapping.calibration.flat_obs import FlatObservations
 
 CSV_COLUMNS = ("segmenter", "strategy", "temperature", "mece", "miou")
 
@@ -30,7 +30,7 @@ def temperature_curve(flat: FlatObservations, strategies: list[str], points: int
     maps fused from ``flat`` at each temperature (mIoU too: a temperature can move argmaxes)."""
     from tqdm import tqdm
 
-    from mapping import metrics
+    from calnav.mapping import metrics
 
     taus = np.exp(np.linspace(math.log(tau_range[0]), math.log(tau_range[1]), points))
     labels = flat.labels.numpy()

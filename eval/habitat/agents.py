@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from typing import Callable
 
-from common.habitat_import import import_habitat
+from calnav.common.habitat_import import import_habitat
 
 habitat = import_habitat()
 
@@ -23,13 +23,13 @@ class HabitatOracleAgent(habitat.Agent):
         self.env, self.env_cfg = env, env_cfg
 
     def reset(self) -> None:
-        from envs.oracle import ShortestPathFollower
+        from calnav.envs.oracle import ShortestPathFollower
 
         self.follower = ShortestPathFollower(self.env.sim.navgrid, self.env_cfg)
         self.steps = 0
 
     def act(self, observations) -> int:
-        from envs.task import Action
+        from calnav.envs.task import Action
 
         sim, ep = self.env.sim, self.env.current_episode
         self.steps += 1
@@ -44,7 +44,7 @@ def _oracle(env, cfg):
 
 
 def _peanut(env, cfg):
-    from agent.habitat_agent import HabitatPeanutAgent
+    from calnav.agent.habitat_agent import HabitatPeanutAgent
 
     return HabitatPeanutAgent(cfg, cfg.run.device)
 

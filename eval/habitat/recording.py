@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from common.habitat_import import import_habitat
+from calnav.common.habitat_import import import_habitat
 
 habitat = import_habitat()
 

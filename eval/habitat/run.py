@@ -20,10 +20,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from eval.config import ConfigError, load_config
-from eval.objectnav.run import RUN_RESULTS, agent_overrides, check_not_all_failed, crashed
-from eval.results_dir import ResultsDir, writing
-from eval.stats import format_metrics_table, summarize
+from calnav.eval.config import ConfigError, load_config
+from calnav.eval.objectnav.run import RUN_RESULTS, agent_overrides, check_not_all_failed, crashed
+from calnav.eval.results_dir import ResultsDir, writing
+from calnav.eval.stats import format_metrics_table, summarize
 
 HABITAT_PREFIX = "habitat."
 HABITAT_CONFIG_FILE = "habitat_config.yaml"
@@ -31,7 +31,7 @@ HABITAT_CONFIG_FILE = "habitat_config.yaml"
 
 def split_overrides(overrides: list[str]) -> tuple[list[str], list[str]]:
     """(habitat.* overrides, calnav overrides); a calnav ``env.<habitat-owned key>`` is an error."""
-    from envs.habitat_config import HABITAT_OWNED
+    from calnav.envs.habitat_config import HABITAT_OWNED
 
     hab = [o for o in overrides if o.startswith(HABITAT_PREFIX)]
     own = [o for o in overrides if not o.startswith(HABITAT_PREFIX)]
@@ -64,12 +64,12 @@ def run_habitat_benchmark(cfg, habitat_cfg, indices: list[int], out: Path, force
     through ``habitat.Benchmark``; returns the summary dict (also in ``out/summary.json``).
     The directory is owned by ``eval.results_dir`` as ``calnav objectnav``'s is (lock, config
     check, records file with crashed episodes retried)."""
-    import envs.habitat_sim_backend  # noqa: F401  (registers CalnavSim-v0)
+    import calnav.envs.habitat_sim_backend  # noqa: F401  (registers CalnavSim-v0)
     from omegaconf import OmegaConf
 
-    from envs.episodes import load_split
-    from eval.habitat.agents import habitat, make_habitat_agent
-    from eval.habitat.recording import EnvBenchmark, RecordingEnv, episode_index
+    from calnav.envs.episodes import load_split
+    from calnav.eval.habitat.agents import habitat, make_habitat_agent
+    from calnav.eval.habitat.recording import EnvBenchmark, RecordingEnv, episode_index
 
     habitat_text = OmegaConf.to_yaml(habitat_cfg, resolve=True)
     agent_name = cfg.run.agent
@@ -104,7 +104,7 @@ def run_habitat_benchmark(cfg, habitat_cfg, indices: list[int], out: Path, force
         summary["duplicates"] = resumed.duplicates
         results.write_json("summary.json", summary)
         if plots and ordered:
-            from eval.objectnav.report import plot_run
+            from calnav.eval.objectnav.report import plot_run
 
             with writing(out / "plots"):
                 plot_run(summary, out, title=f"{agent_name} (habitat-lab)")
@@ -114,7 +114,7 @@ def run_habitat_benchmark(cfg, habitat_cfg, indices: list[int], out: Path, force
 
 def load_configs(args, overrides: list[str]):
     """(calnav Config, habitat config) from the parsed args; one-line errors on bad keys."""
-    from envs.habitat_config import habitat_config
+    from calnav.envs.habitat_config import habitat_config
 
     hab, own = split_overrides(list(overrides))
     cfg = load_config(args.config, agent_overrides(args, own))
@@ -126,7 +126,7 @@ def load_configs(args, overrides: list[str]):
 def habitat_benchmark_configs(args) -> list:
     """What ``calnav habitat-benchmark`` runs: [calnav config, habitat-lab config] (the second is
     validated by habitat-lab's own loader)."""
-    from common.habitat_import import HabitatMissing
+    from calnav.common.habitat_import import HabitatMissing
 
     try:
         return list(load_configs(args, args.overrides))
@@ -136,7 +136,7 @@ def habitat_benchmark_configs(args) -> list:
 
 def main_habitat_benchmark(args, configs) -> None:
     """``configs``: ``habitat_benchmark_configs(args)``, checked by the preflight."""
-    from envs.episodes import load_split, parse_episode_range
+    from calnav.envs.episodes import load_split, parse_episode_range
 
     cfg, habitat_cfg = configs
     episodes = load_split(cfg.env.split, cfg.env)

@@ -7,14 +7,14 @@ AgentFactory = Callable[..., object]
 
 
 def _oracle(env, cfg):
-    from envs.oracle import OracleAgent
+    from calnav.envs.oracle import OracleAgent
 
     return OracleAgent(env)
 
 
 def _peanut(env, cfg):
     """The semantic-map agent; it gets only the config (observations come through act)."""
-    from agent.policy import PeanutAgent
+    from calnav.agent.policy import PeanutAgent
 
     return PeanutAgent(cfg, cfg.run.device)
 

@@ -17,9 +17,9 @@ import csv
 import math
 from pathlib import Path
 
-from eval.config import ConfigError
-from eval.results_dir import NEUTRAL_KEYS, read_records
-from eval.stats import METRIC_LABELS, failure_modes, paired_difference, summarize
+from calnav.eval.config import ConfigError
+from calnav.eval.results_dir import NEUTRAL_KEYS, read_records
+from calnav.eval.stats import METRIC_LABELS, failure_modes, paired_difference, summarize
 
 PAIRED_METRICS: tuple[str, ...] = ("spl", "success")
 
@@ -126,7 +126,7 @@ def paired_markdown(base_name: str, rows: list[dict]) -> str:
 
 
 def failures_markdown(names: list[str], loaded: list[tuple[dict, list[dict]]]) -> str:
-    from envs.config import EnvConfig
+    from calnav.envs.config import EnvConfig
 
     default_steps = EnvConfig().max_episode_steps  # for a config that does not name it
     lines = ["| Run | Failed | False STOP | Out of steps | Crashed | N |", "|---|---|---|---|---|---|"]
@@ -139,7 +139,7 @@ def failures_markdown(names: list[str], loaded: list[tuple[dict, list[dict]]]) -
 
 def main_compare(args, configs=()) -> None:
     """``configs`` is empty: compare reads the finished runs' own ``config.yaml`` files."""
-    from eval.objectnav.report import write_comparison
+    from calnav.eval.objectnav.report import write_comparison
 
     paths = [Path(p) for p in args.runs]
     if len(paths) < 2:

@@ -6,8 +6,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from eval.config import load_config
-from eval.stats import format_metrics_table
+from calnav.eval.config import load_config
+from calnav.eval.stats import format_metrics_table
 
 def demo_configs(args) -> list:
     """The config ``calnav demo`` runs: ``configs/demo.yaml`` writing to ``--output``."""
@@ -16,8 +16,8 @@ def demo_configs(args) -> list:
 
 def main_demo(args, configs) -> None:
     """``configs``: ``demo_configs(args)``, checked by the preflight."""
-    from envs.episodes import load_split, parse_episode_range
-    from eval.objectnav.run import run_objectnav
+    from calnav.envs.episodes import load_split, parse_episode_range
+    from calnav.eval.objectnav.run import run_objectnav
 
     cfg = configs[0]
     episodes = load_split(cfg.env.split, cfg.env)

@@ -16,7 +16,7 @@ import csv
 import math
 from pathlib import Path
 
-from eval.stats import METRIC_LABELS
+from calnav.eval.stats import METRIC_LABELS
 
 # Table II column order: SPL first, as in the paper.
 TABLE_METRICS: tuple[str, ...] = ("spl", "success", "softspl", "distance_to_goal")

@@ -25,9 +25,9 @@ from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from eval.config import Config, build_dataclass, load_config, to_dict
-from eval.results_dir import RECORDS_NAME, AllEpisodesFailed, ResultsDir, writing
-from eval.stats import format_metrics_table, summarize
+from calnav.eval.config import Config, build_dataclass, load_config, to_dict
+from calnav.eval.results_dir import RECORDS_NAME, AllEpisodesFailed, ResultsDir, writing
+from calnav.eval.stats import format_metrics_table, summarize
 
 # What --force deletes from a directory that holds another config's results.
 RUN_RESULTS: tuple[str, ...] = (RECORDS_NAME, "summary.json", "plots", "videos")
@@ -47,7 +47,7 @@ def run_one_episode(env, agent, index: int, video_dir: Path | None = None) -> di
     agent.reset(obs)
     video = None
     if video_dir is not None:
-        from agent.visualize import EpisodeVideo, render_panel
+        from calnav.agent.visualize import EpisodeVideo, render_panel
 
         name = re.sub(r"[^\w.-]", "_", env.unwrapped.episode.episode_id)  # ':' is not portable
         video = EpisodeVideo(Path(video_dir) / f"{name}.mp4")
@@ -87,7 +87,7 @@ def _make_env(cfg: Config, env_maker: str, env_args: dict):
     """The job's gym env: calnav's ObjectNav env of ``cfg.env``, or ``env_maker(cfg, **env_args)``."""
     import gymnasium as gym
 
-    import envs  # noqa: F401  (registers the env)
+    import calnav.envs  # noqa: F401  (registers the env)
 
     if not env_maker:
         return gym.make("calnav/ObjectNav-v0", split=cfg.env.split, config=cfg.env)
@@ -100,7 +100,7 @@ def _make_env(cfg: Config, env_maker: str, env_args: dict):
 def _warm_env_agent(cfg_dict: dict, agent_name: str, env_maker: str = "", env_args: dict | None = None):
     """This process's env and agent for a config, built once and reused while tasks keep the
     same config (a pool or Ray worker stays warm, as an episode loop would)."""
-    from eval.objectnav.agents import make_agent
+    from calnav.eval.objectnav.agents import make_agent
 
     key = json.dumps([cfg_dict, agent_name, env_maker, env_args or {}], sort_keys=True)
     if _worker_state.get("key") != key:
@@ -116,7 +116,7 @@ def _warm_env_agent(cfg_dict: dict, agent_name: str, env_maker: str = "", env_ar
 def run_episode_task(task: EpisodeTask) -> dict:
     """Run one task in this process (any backend); a crash becomes an error record so the run
     keeps going."""
-    from eval.backends import ray_node_id
+    from calnav.eval.backends import ray_node_id
 
     try:
         env, agent = _warm_env_agent(task.cfg_dict, task.agent, task.env_maker, task.env_args)
@@ -180,7 +180,7 @@ def run_jobs(jobs: list[EpisodeJob], force: bool = False, progress: bool = True,
     episode of a job crashed (after all records and summaries are written)."""
     from tqdm import tqdm
 
-    from eval.backends import make_backend
+    from calnav.eval.backends import make_backend
 
     run_cfg = jobs[0].cfg.run
     for job in jobs:  # every check before anything is written
@@ -227,7 +227,7 @@ def run_jobs(jobs: list[EpisodeJob], force: bool = False, progress: bool = True,
             summary["duplicates"] = dup  # found (and dropped) in the records file
             results.write_json("summary.json", summary)
             if plots and ordered:
-                from eval.objectnav.report import plot_run
+                from calnav.eval.objectnav.report import plot_run
 
                 with writing(job.out / "plots"):
                     plot_run(summary, job.out, title=job.cfg.run.agent)
@@ -240,7 +240,7 @@ def run_jobs(jobs: list[EpisodeJob], force: bool = False, progress: bool = True,
 
 def agent_overrides(args, overrides: list[str]) -> list[str]:
     """``overrides`` plus ``run.agent=NAME`` when ``--agent NAME`` was given (its shorthand)."""
-    from eval.config import with_shorthand
+    from calnav.eval.config import with_shorthand
 
     agent = getattr(args, "agent", None)
     return with_shorthand(list(overrides), "run.agent", agent, "--agent") if agent else list(overrides)
@@ -249,7 +249,7 @@ def agent_overrides(args, overrides: list[str]) -> list[str]:
 def objectnav_configs(args) -> list[Config]:
     """Every config ``calnav objectnav`` runs for ``args``: the one, or each multirun combination
     of comma-separated overrides in order (``--agent NAME`` adds ``run.agent=NAME``)."""
-    from eval.config import expand_multirun
+    from calnav.eval.config import expand_multirun
 
     if getattr(args, "video", 0) < 0:
         raise ValueError(f"--video must be >= 0, got {args.video}")
@@ -259,7 +259,7 @@ def objectnav_configs(args) -> list[Config]:
 
 def _job(args, cfg: Config, out: Path | None) -> EpisodeJob:
     """``cfg``'s job: --episodes resolved on its split, writing to ``out`` (default: run.output_dir)."""
-    from envs.episodes import load_split, parse_episode_range
+    from calnav.envs.episodes import load_split, parse_episode_range
 
     episodes = load_split(cfg.env.split, cfg.env)
     indices = list(parse_episode_range(str(args.episodes), len(episodes)))
@@ -274,8 +274,8 @@ def main_objectnav(args, configs: list[Config]) -> None:
         print(format_metrics_table([(summary["agent"], summary)], first_header="Agent"))
         print(f"results: {job.out}/episodes.jsonl, {job.out}/summary.json, {job.out}/plots/")
         return
-    from eval.config import expand_multirun
-    from eval.objectnav.report import combo_dirname, combo_values, varied_keys, write_comparison
+    from calnav.eval.config import expand_multirun
+    from calnav.eval.objectnav.report import combo_dirname, combo_values, varied_keys, write_comparison
 
     combos = expand_multirun(list(args.overrides))
     keys = varied_keys(list(args.overrides))

@@ -85,7 +85,7 @@ def rot2(theta: float) -> np.ndarray:
 def reexpress_obs(obs: dict, variant: PoseVariant, start_xy, start_yaw: float) -> dict:
     """A copy of ``obs`` whose gps / compass express the agent's pose in ``variant``'s frame.
     start_xy (2,) metres / start_yaw rad: the episode's world start pose (for base ``world``)."""
-    from envs.task import COMPASS, GPS, gps_compass_to_xy_yaw, wrap_angle
+    from calnav.envs.task import COMPASS, GPS, gps_compass_to_xy_yaw, wrap_angle
 
     xy, yaw = gps_compass_to_xy_yaw(obs[GPS], obs[COMPASS])
     if variant.base == "world":
@@ -126,7 +126,7 @@ def rotate_scene(scene, yaw_rad: float):
 
 def rotate_episode(ep, yaw_rad: float):
     """The episode with its start pose and goals rotated like ``rotate_scene``."""
-    from envs.task import yaw_to_habitat_quaternion
+    from calnav.envs.task import yaw_to_habitat_quaternion
 
     r2 = rot2(yaw_rad)
     r3 = np.eye(3)
@@ -140,7 +140,7 @@ def rotate_episode(ep, yaw_rad: float):
 def rotated_setup(env_cfg, episodes: list, yaw_deg: float, scene_dir: Path):
     """(env config reading the rotated houses from ``scene_dir``, rotated episodes): every
     scene of ``episodes`` is rotated by yaw_deg and saved as ``scene_dir/<scene_id>.npz``."""
-    from envs.scenes import load_scene
+    from calnav.envs.scenes import load_scene
 
     yaw = math.radians(yaw_deg)
     scene_dir.mkdir(parents=True, exist_ok=True)
@@ -156,8 +156,8 @@ def make_env(cfg, variant: PoseVariant, work_dir: Path):
     """The gym env of ``cfg.env``'s split for ``variant`` (rotated houses under work_dir)."""
     import gymnasium as gym
 
-    import envs  # noqa: F401  (registers the env)
-    from envs.episodes import load_split
+    import calnav.envs  # noqa: F401  (registers the env)
+    from calnav.envs.episodes import load_split
 
     env_cfg, episodes = cfg.env, load_split(cfg.env.split, cfg.env, progress=False)
     if variant.house_yaw_deg:
@@ -169,7 +169,7 @@ def make_env(cfg, variant: PoseVariant, work_dir: Path):
 
 # ---------------------------------------------------------------------------- episodes x variants
 STUDY_RESULTS = ("episodes.jsonl", "summary.json", "summary.csv", "summary.png")  # what --force discards
-VARIANT_ENV = "eval.objectnav.start_pose:variant_env"   # the episode runner's env maker for a variant
+VARIANT_ENV = "calnav.eval.objectnav.start_pose:variant_env"   # the episode runner's env maker for a variant
 
 
 def variant_env(cfg, variant: dict, work_dir: str):
@@ -182,8 +182,8 @@ def _claim_variant_dir(path: Path, variant: PoseVariant, force: bool) -> None:
     """Write the variant's definition beside its records (``variant.json``); a directory holding
     another definition of the same name (``VARIANTS`` edited) is refused, or with ``force`` its
     records are discarded: the run config alone does not say which frame they were run in."""
-    from common.atomic import write_json_atomic
-    from eval.results_dir import RECORDS_NAME, ResultsError, writing
+    from calnav.common.atomic import write_json_atomic
+    from calnav.eval.results_dir import RECORDS_NAME, ResultsError, writing
 
     want = json.loads(json.dumps(asdict(variant)))
     marker = path / "variant.json"
@@ -211,9 +211,9 @@ def run_start_pose_study(cfg, indices: list[int], variants: list[PoseVariant], o
     success_sem, spl_sem, variant fields}. ``out`` None: a temporary directory."""
     from contextlib import ExitStack
 
-    from envs.episodes import load_split
-    from eval.objectnav.run import EpisodeJob, run_jobs
-    from eval.results_dir import ResultsDir, writing
+    from calnav.envs.episodes import load_split
+    from calnav.eval.objectnav.run import EpisodeJob, run_jobs
+    from calnav.eval.results_dir import ResultsDir, writing
 
     names = [v.name for v in variants]
     if len(set(names)) != len(names):
@@ -273,7 +273,7 @@ def map_stats(agent) -> dict[str, float]:
     """Frame-independent statistics of an agent's maps after a step: cell counts of each 2D
     channel, of goal-class cells with any vote and above the goal threshold, the detected goal
     component's area, and the decision mode."""
-    from agent.semantic_map import MapChannels
+    from calnav.agent.semantic_map import MapChannels
 
     st, cfg = agent.state, agent.cfg
     goal = st.semantic[agent.goal_id]
@@ -292,8 +292,8 @@ def lockstep_map_stats(cfg, index: int, variants: list[PoseVariant], steps: int)
     (they change the frames themselves)."""
     import gymnasium as gym
 
-    import envs  # noqa: F401
-    from agent.policy import PeanutAgent
+    import calnav.envs  # noqa: F401
+    from calnav.agent.policy import PeanutAgent
 
     if any(v.house_yaw_deg for v in variants):
         raise ValueError("lockstep_map_stats compares frames of one house: house_yaw_deg must be 0")
@@ -317,7 +317,7 @@ def lockstep_map_stats(cfg, index: int, variants: list[PoseVariant], steps: int)
 def start_pose_configs(args) -> list:
     """The config ``calnav start-pose`` runs (``--workers N`` as ``run.workers=N`` only when given:
     it never silently replaces the config's)."""
-    from eval.config import load_config, with_shorthand
+    from calnav.eval.config import load_config, with_shorthand
 
     parse_variants(args.variants)           # every check before anything runs
     if args.workers is not None and args.workers < 1:
@@ -334,7 +334,7 @@ def start_pose_configs(args) -> list:
 def main_start_pose(args, configs) -> None:
     """`calnav start-pose`: the PEANUT agent on ``--episodes`` under each ``--variants`` frame.
     ``configs``: ``start_pose_configs(args)``, checked by the preflight."""
-    from envs.episodes import load_split, parse_episode_range
+    from calnav.envs.episodes import load_split, parse_episode_range
 
     variants = parse_variants(args.variants)
     cfg = configs[0]

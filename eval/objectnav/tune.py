@@ -20,8 +20,8 @@ import io
 import math
 from pathlib import Path
 
-from eval.config import Config, ConfigError, dump_yaml, load_config, parse_override
-from eval.results_dir import ResultsDir
+from calnav.eval.config import Config, ConfigError, dump_yaml, load_config, parse_override
+from calnav.eval.results_dir import ResultsDir
 
 TUNE_METRICS: tuple[str, ...] = ("spl", "success", "softspl")  # all higher-is-better
 TUNED_KEYS: tuple[str, ...] = ("agent.goal_threshold", "agent.goal_min_area_cells")
@@ -152,9 +152,9 @@ def run_tune(config_path: str | None, overrides: list[str], episodes: str, thres
     up to this many extra thresholds (``edge_extension``) while the best one is on an edge.
 
     Returns (rows, best row); every row holds the tune.csv columns."""
-    from envs.episodes import load_split, parse_episode_range
+    from calnav.envs.episodes import load_split, parse_episode_range
 
-    from eval.objectnav.run import EpisodeJob, run_jobs
+    from calnav.eval.objectnav.run import EpisodeJob, run_jobs
 
     if metric not in TUNE_METRICS:
         raise ConfigError(f"unknown tuning metric {metric!r}; valid: {', '.join(TUNE_METRICS)}")

@@ -15,7 +15,7 @@ TOP_VIEW_CUT_M = 2.0  # the floor plan shows surfaces below this height (no ceil
 def top_down_class_map(scene, navgrid) -> np.ndarray:
     """(H, W) int class id of the highest surface below ``TOP_VIEW_CUT_M`` in each nav cell
     (-1 where there is none): a floor plan with walls, furniture and floors, no ceiling."""
-    from envs.scene import sample_surface
+    from calnav.envs.scene import sample_surface
 
     keep = scene.tri_class >= 0
     if "ceiling" in scene.class_names:
@@ -45,7 +45,7 @@ def draw_episode(env, path_xy: np.ndarray, frames: list[dict], out_dir: Path) ->
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from envs.semantics import CLASS_NAMES, colorize
+    from calnav.envs.semantics import CLASS_NAMES, colorize
 
     e = env.unwrapped
     nav, ep = e.navgrid, e.episode
@@ -98,7 +98,7 @@ def draw_episode(env, path_xy: np.ndarray, frames: list[dict], out_dir: Path) ->
 def view_episode_configs(args) -> list:
     """The config ``calnav view-episode`` runs: its ``run.agent`` is the agent drawn (``--agent``,
     else a ``run.agent`` override, else the oracle), so the preflight checks that agent."""
-    from eval.config import load_config, parse_override, with_shorthand
+    from calnav.eval.config import load_config, parse_override, with_shorthand
 
     overrides = list(args.overrides)
     if args.agent is not None:
@@ -112,9 +112,9 @@ def main_view_episode(args, configs) -> None:
     """``configs``: ``view_episode_configs(args)``, checked by the preflight."""
     import gymnasium as gym
 
-    import envs  # noqa: F401
-    from eval.objectnav.agents import make_agent
-    from eval.results_dir import check_output_dir
+    import calnav.envs  # noqa: F401
+    from calnav.eval.objectnav.agents import make_agent
+    from calnav.eval.results_dir import check_output_dir
 
     cfg = configs[0]
     check_output_dir(args.output)

@@ -18,8 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from eval.config import load_config
-from eval.results_dir import ResultsDir, writing
+from calnav.eval.config import load_config
+from calnav.eval.results_dir import ResultsDir, writing
 
 # the real apartment of the scanned-worlds issue (ScanNet, _vh_clean_2): 153k triangles over 8 x 9 m,
 # 40 % of them unlabelled; its missing-area and surface-error figures were not measured (no clean twin)
@@ -31,10 +31,10 @@ COLUMNS = ("scene_id", "split", "seconds", "triangles", "triangles_per_m2", "flo
 def scan_one(item: tuple[str, dict]) -> dict:
     """Scan (or read from the cache) one house and score it; a top-level function, so it runs
     in any backend's worker. item: (scene_id, DatasetConfig as a dict)."""
-    from envs.config import DatasetConfig
-    from envs.scanning.config import ScanningConfig
-    from envs.scanning.quality import scan_quality
-    from envs.scenes import load_scene, parse_scene_id
+    from calnav.envs.config import DatasetConfig
+    from calnav.envs.scanning.config import ScanningConfig
+    from calnav.envs.scanning.quality import scan_quality
+    from calnav.envs.scenes import load_scene, parse_scene_id
 
     scene_id, ds_dict = item
     ds = DatasetConfig(**{**ds_dict, "scanning": ScanningConfig(**ds_dict["scanning"])})
@@ -78,8 +78,8 @@ def main_scan_houses(args, configs) -> None:
     """``configs``: ``scan_houses_configs(args)``, checked by the preflight."""
     from tqdm import tqdm
 
-    from envs.scenes import split_scene_ids
-    from eval.backends import make_backend
+    from calnav.envs.scenes import split_scene_ids
+    from calnav.eval.backends import make_backend
 
     cfg = configs[0]
     splits = [s for s in str(args.splits).split(",") if s]
@@ -106,7 +106,7 @@ def main_scan_houses(args, configs) -> None:
         writer = csv.DictWriter(buf, fieldnames=COLUMNS)
         writer.writeheader()
         writer.writerows({c: r[c] for c in COLUMNS} for r in rows)
-        from common.atomic import write_json_atomic, write_text_atomic
+        from calnav.common.atomic import write_json_atomic, write_text_atomic
 
         with writing(out / "quality.csv"):
             write_text_atomic(out / "quality.csv", buf.getvalue())

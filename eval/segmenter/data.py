@@ -37,11 +37,11 @@ from typing import Iterator, Literal
 
 import numpy as np
 
-from agent.segmenters.base import SegmenterConfig
-from common.atomic import atomic_path
-from envs.config import EnvConfig
-from envs.semantics import STRUCTURE_CLASSES as STRUCTURE_NAMES
-from eval.config import RunConfig
+from calnav.agent.segmenters.base import SegmenterConfig
+from calnav.common.atomic import atomic_path
+from calnav.envs.config import EnvConfig
+from calnav.envs.semantics import STRUCTURE_CLASSES as STRUCTURE_NAMES
+from calnav.eval.config import RunConfig
 
 DATA_VERSION = 1                # bump when rendering changes, so stale caches are not reused
 EVAL_SEED_OFFSET = 1000         # eval poses use data.seed + this (never the training poses)
@@ -128,7 +128,7 @@ class SegmenterExperimentConfig:
 
 def segmenter_configs(args) -> list[SegmenterExperimentConfig]:
     """The config ``calnav train-segmenter`` / ``eval-segmenter`` runs."""
-    from eval.config import load_config
+    from calnav.eval.config import load_config
 
     return [load_config(args.config, args.overrides, cls=SegmenterExperimentConfig)]
 
@@ -155,7 +155,7 @@ class SegData:
 # --------------------------------------------------------------------------- rendering
 def walk_poses(navgrid, env_cfg: EnvConfig, data_cfg: SegDataConfig, rng: np.random.Generator) -> Iterator[np.ndarray]:
     """Endless (4, 4) world-from-camera poses of consecutive random walks on ``navgrid``."""
-    from envs.render import camera_pose
+    from calnav.envs.render import camera_pose
 
     turn = np.deg2rad(env_cfg.turn_angle_deg)
     sigma = np.deg2rad(data_cfg.pitch_jitter_deg)
@@ -179,9 +179,9 @@ def render_frames(env_cfg: EnvConfig, data_cfg: SegDataConfig, split: str, frame
     ``rebalance``: drop most object-sparse frames (training sets)."""
     from tqdm import tqdm
 
-    from envs.navigation import NavGrid
-    from envs.render import Camera, Renderer
-    from envs.scenes import load_scene, split_scene_ids
+    from calnav.envs.navigation import NavGrid
+    from calnav.envs.render import Camera, Renderer
+    from calnav.envs.scenes import load_scene, split_scene_ids
 
     ids = split_scene_ids(split, env_cfg.dataset)
     if data_cfg.scenes:
@@ -233,7 +233,7 @@ def render_frames(env_cfg: EnvConfig, data_cfg: SegDataConfig, split: str, frame
 
 def cache_path(env_cfg: EnvConfig, data_cfg: SegDataConfig, split: str, frames: int, seed: int,
                with_instance: bool, rebalance: bool = False) -> Path:
-    from envs.scene import cache_dir
+    from calnav.envs.scene import cache_dir
 
     env_part = {k: getattr(env_cfg, k) for k in ("hfov_deg", "camera_height_m", "min_depth_m", "max_depth_m",
                                                  "turn_angle_deg", "forward_step_m", "agent_radius_m",

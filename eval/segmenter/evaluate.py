@@ -17,9 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
-from eval.results_dir import check_output_file, writing
-from eval.segmenter.data import EVAL_SEED_OFFSET, SegmenterExperimentConfig, load_or_render
-from mapping.metrics import CalibrationStats
+from calnav.eval.results_dir import check_output_file, writing
+from calnav.eval.segmenter.data import EVAL_SEED_OFFSET, SegmenterExperimentConfig, load_or_render
+from calnav.mapping.metrics import CalibrationStats
 
 BATCH = 16                     # frames per segment_batch call
 
@@ -29,8 +29,8 @@ def evaluate(cfg: SegmenterExperimentConfig, model: str, split: str = "test", fr
     """Score segmenter ``model`` on ``frames`` frames of ``split``; returns the metrics dict."""
     from tqdm import tqdm
 
-    from agent.segmenters import make_segmenter, softmax
-    from envs.semantics import CLASS_NAMES, GOAL_CATEGORIES, STRUCTURE_CLASSES
+    from calnav.agent.segmenters import make_segmenter, softmax
+    from calnav.envs.semantics import CLASS_NAMES, GOAL_CATEGORIES, STRUCTURE_CLASSES
 
     if frames < 1:
         raise ValueError(f"--frames must be >= 1, got {frames}")

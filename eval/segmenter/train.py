@@ -31,15 +31,15 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from agent.segmenters.base import resolve_device
-from agent.segmenters.learned import LEARNED_MODELS, default_weights_path, save_weights
-from agent.segmenters.network import NetSpec, SegNet, count_parameters
-from common.atomic import atomic_path
-from eval.config import to_dict
-from eval.results_dir import check_output_file
-from eval.segmenter.data import (VAL_SEED_OFFSET, SegData, SegmenterExperimentConfig, TrainConfig,
+from calnav.agent.segmenters.base import resolve_device
+from calnav.agent.segmenters.learned import LEARNED_MODELS, default_weights_path, save_weights
+from calnav.agent.segmenters.network import NetSpec, SegNet, count_parameters
+from calnav.common.atomic import atomic_path
+from calnav.eval.config import to_dict
+from calnav.eval.results_dir import check_output_file
+from calnav.eval.segmenter.data import (VAL_SEED_OFFSET, SegData, SegmenterExperimentConfig, TrainConfig,
                                  load_or_render)
-from mapping.metrics import CalibrationStats
+from calnav.mapping.metrics import CalibrationStats
 
 ENET_C = 1.02                 # ENet class weights 1 / ln(c + frequency)
 LOSS_EMA = 0.95               # smoothing of the loss shown in the progress bar
@@ -146,7 +146,7 @@ def score(net: SegNet, data: SegData, device: torch.device, k: int) -> dict[str,
 
 
 def checkpoint_path(cfg: SegmenterExperimentConfig, model: str) -> Path:
-    from envs.scene import cache_dir
+    from calnav.envs.scene import cache_dir
 
     d = to_dict(cfg)
     d["run"].pop("output_dir", None), d["run"].pop("workers", None), d["train"].pop("threads", None)
@@ -168,7 +168,7 @@ def train(cfg: SegmenterExperimentConfig, model: str, output: Path | str, resume
     epoch (an interrupted run, to be continued with ``resume=True``)."""
     from tqdm import tqdm
 
-    from envs.semantics import CLASS_NAMES
+    from calnav.envs.semantics import CLASS_NAMES
 
     if model not in LEARNED_MODELS:
         raise ValueError(f"cannot train {model!r}; trainable models: {', '.join(LEARNED_MODELS)}")

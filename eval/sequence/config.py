@@ -4,10 +4,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from agent.segmenters.base import SegmenterConfig
-from eval.config import RunConfig
-from mapping.config import MappingConfig
-from mapping.sequences import SequenceConfig
+from calnav.agent.segmenters.base import SegmenterConfig
+from calnav.eval.config import RunConfig
+from calnav.mapping.config import MappingConfig
+from calnav.mapping.sequences import SequenceConfig
 
 
 @dataclass

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mapping.sequences import SEMANTIC_OFFSET
+from calnav.mapping.sequences import SEMANTIC_OFFSET
 
 DEFAULT_SCENE = "house_val_0000"
 DEFAULT_RESOLUTION = "640x480"
@@ -139,7 +139,7 @@ def export_house(cfg, scene_id: str, out: Path, seed: int, max_edge_m: float = D
     ``out`` in ScanNet layout; returns the number of frames."""
     from tqdm import tqdm
 
-    from eval.calibration.record import HouseScan
+    from calnav.eval.calibration.record import HouseScan
 
     src = HouseScan(cfg, scene_id, seed)
     writer = ScanNetWriter(out, src.intrinsics, src.intrinsics)
@@ -158,8 +158,8 @@ def export_house(cfg, scene_id: str, out: Path, seed: int, max_edge_m: float = D
 def export_sequence_configs(args) -> list:
     """The config ``calnav export-sequence`` runs: ``--resolution`` and ``--frames`` as
     ``env.resolution`` and ``scan.frames``, under the overrides."""
-    from eval.calibration.config import CalibrateMapConfig
-    from eval.config import load_config
+    from calnav.eval.calibration.config import CalibrateMapConfig
+    from calnav.eval.config import load_config
 
     overrides = [f"env.resolution={args.resolution}", *([f"scan.frames={args.frames}"] if args.frames else []),
                  *args.overrides]
@@ -168,8 +168,8 @@ def export_sequence_configs(args) -> list:
 
 def main_export_sequence(args, configs) -> None:
     """``configs``: ``export_sequence_configs(args)``, checked by the preflight."""
-    from eval.calibration.record import scene_seed
-    from eval.results_dir import check_output_dir
+    from calnav.eval.calibration.record import scene_seed
+    from calnav.eval.results_dir import check_output_dir
 
     cfg = configs[0]
     if not args.max_edge > 0:
@@ -177,7 +177,7 @@ def main_export_sequence(args, configs) -> None:
     out = check_output_dir(args.output)
     if out.exists() and any(out.iterdir()) and not args.force:
         raise ValueError(f"{out} is not empty; pass --force to write into it or choose another --output")
-    from envs.scenes import load_scene
+    from calnav.envs.scenes import load_scene
 
     load_scene(args.scene, cfg.env.dataset)   # an unknown scene id fails here, before anything is written
     n = export_house(cfg, args.scene, out, scene_seed(args.scene, cfg.run.seed), args.max_edge)

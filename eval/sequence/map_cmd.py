@@ -20,11 +20,11 @@ from pathlib import Path
 
 import numpy as np
 
-from eval.results_dir import ResultsDir, writing
-from eval.sequence.config import MapSequenceConfig
-from common.prefetch import prefetched
-from eval.sequence.source import PrecomputedLogits, SegmenterLogits, fuse_frames, map_frames
-from mapping.sequences import LogitsDir, Sequence, vertex_ground_truth
+from calnav.eval.results_dir import ResultsDir, writing
+from calnav.eval.sequence.config import MapSequenceConfig
+from calnav.common.prefetch import prefetched
+from calnav.eval.sequence.source import PrecomputedLogits, SegmenterLogits, fuse_frames, map_frames
+from calnav.mapping.sequences import LogitsDir, Sequence, vertex_ground_truth
 
 DEFAULT_CONFIG = "configs/map_sequence.yaml"
 MAP_FORMAT_VERSION = 1
@@ -50,7 +50,7 @@ def logits_source(seq: Sequence, cfg: MapSequenceConfig, segmenter: str | None, 
         raise ValueError("pass exactly one of --segmenter NAME and --logits DIR")
     if logits:
         return PrecomputedLogits(LogitsDir(logits, seq, classes))
-    from agent.segmenters import make_segmenter
+    from calnav.agent.segmenters import make_segmenter
 
     seg = make_segmenter(segmenter, cfg.segmenter, device=cfg.run.device)
     seq.use_class_names(seg.class_names)   # label-filt/ frames (ScanNet) for gt / noisy
@@ -60,7 +60,7 @@ def logits_source(seq: Sequence, cfg: MapSequenceConfig, segmenter: str | None, 
 def map_sequence(seq: Sequence, source, mapping_cfg, progress: bool = False, vmap=None) -> MappedSequence:
     """Fuse every frame of ``seq`` with logits from ``source`` into ``vmap`` (default: a new
     ``SemanticVoxelMap`` of ``mapping_cfg``)."""
-    from mapping.voxel_map import SemanticVoxelMap
+    from calnav.mapping.voxel_map import SemanticVoxelMap
 
     if vmap is None:
         vmap = SemanticVoxelMap(len(source.class_names), mapping_cfg, class_names=tuple(source.class_names))
@@ -71,7 +71,7 @@ def map_sequence(seq: Sequence, source, mapping_cfg, progress: bool = False, vma
 
 def score(probs: np.ndarray, labels: np.ndarray, num_classes: int):
     """``mapping.metrics.CalibrationStats`` of the labelled voxels (label -1 ignored)."""
-    from mapping import metrics
+    from calnav.mapping import metrics
 
     return metrics.CalibrationStats(num_classes).update(probs, labels, ignore_index=-1)
 
@@ -80,8 +80,8 @@ def write_map(out: Path, coords: np.ndarray, probs: np.ndarray, class_names, met
     """``map.npz`` and ``map.ply`` (see the module docstring)."""
     from plyfile import PlyData, PlyElement
 
-    from agent.visualize import class_palette
-    from common.npz import save_versioned_npz
+    from calnav.agent.visualize import class_palette
+    from calnav.common.npz import save_versioned_npz
 
     save_versioned_npz(out / "map.npz", {"centres": coords.astype(np.float32), "probs": probs.astype(np.float32)},
                        {"class_names": list(class_names), **meta}, MAP_FORMAT_VERSION)
@@ -98,7 +98,7 @@ def write_map(out: Path, coords: np.ndarray, probs: np.ndarray, class_names, met
 
 def map_configs(args) -> list[MapSequenceConfig]:
     """The config ``calnav map`` runs."""
-    from eval.config import load_config
+    from calnav.eval.config import load_config
 
     return [load_config(args.config or DEFAULT_CONFIG, list(args.overrides), cls=MapSequenceConfig)]
 
@@ -111,7 +111,7 @@ def main_map(args, configs: list[MapSequenceConfig]) -> None:
     names = tuple(source.class_names)
     ply = Path(args.labels_ply) if args.labels_ply else seq.labelled_ply()
     gt = vertex_ground_truth(ply, names, cfg.sequence, seq.root) if ply is not None else None
-    from mapping.voxel_map import SemanticVoxelMap
+    from calnav.mapping.voxel_map import SemanticVoxelMap
 
     vmap = SemanticVoxelMap(len(names), cfg.mapping, class_names=names)   # GLFS parameter file / K checked here
     out = Path(args.output)
@@ -136,8 +136,8 @@ def _write_results(out: Path, cfg, seq, res: MappedSequence, names, ply, gt, arg
     results = {**meta, "seconds": res.seconds, "frames_per_s": res.frames / max(res.seconds, 1e-9),
                "voxels": int(len(coords)), "segmenter": args.segmenter or "", "logits": args.logits or ""}
     if gt is not None:
-        from eval.calibration.plots import plot_reliability, plot_reliability_per_class
-        from mapping.ground_truth import nearest_vertex_labels
+        from calnav.eval.calibration.plots import plot_reliability, plot_reliability_per_class
+        from calnav.mapping.ground_truth import nearest_vertex_labels
 
         labels = nearest_vertex_labels(coords, *gt, cfg.sequence.label_distance_m)
         stats = score(probs, labels, len(names))

@@ -10,8 +10,8 @@ from typing import Iterable, Iterator
 
 import numpy as np
 
-from mapping.frame import SegmentedFrame
-from mapping.sequences import LogitsDir, Registration, Sequence, SequenceFrame
+from calnav.mapping.frame import SegmentedFrame
+from calnav.mapping.sequences import LogitsDir, Registration, Sequence, SequenceFrame
 
 
 class SegmenterLogits:

@@ -26,9 +26,9 @@ from typing import Callable
 import numpy as np
 import torch
 
-from mapping import metrics
-from mapping.calibration.flat_obs import FlatObservations
-from mapping.fusion import fuse_flat, get_strategy
+from calnav.mapping import metrics
+from calnav.mapping.calibration.flat_obs import FlatObservations
+from calnav.mapping.fusion import fuse_flat, get_strategy
 
 TAU_RANGE = (0.01, 200.0)     # the authors' temperature search range
 GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0

@@ -13,7 +13,7 @@ from typing import Iterable, Sequence
 import numpy as np
 import torch
 
-from mapping.calibration.obs_cache import ObsCache
+from calnav.mapping.calibration.obs_cache import ObsCache
 
 
 def csr_select(offsets: np.ndarray, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

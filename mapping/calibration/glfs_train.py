@@ -27,13 +27,13 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from mapping import metrics
-from mapping.calibration.flat_obs import FlatObservations
-from mapping.calibration.selection import SELECTION_RULES, CheckpointSelector, ValidationScore
-from mapping.fusion import fuse_flat
-from mapping.glfs import GLFSParams
-from mapping.calibration.metrics_torch import mdece
-from mapping.weighting import ANGLE_EDGES_DEG, DISTANCE_EDGES_M, WeightingParams, sample_weights
+from calnav.mapping import metrics
+from calnav.mapping.calibration.flat_obs import FlatObservations
+from calnav.mapping.calibration.selection import SELECTION_RULES, CheckpointSelector, ValidationScore
+from calnav.mapping.fusion import fuse_flat
+from calnav.mapping.glfs import GLFSParams
+from calnav.mapping.calibration.metrics_torch import mdece
+from calnav.mapping.weighting import ANGLE_EDGES_DEG, DISTANCE_EDGES_M, WeightingParams, sample_weights
 
 PROB_FLOOR = 1e-6   # log(max(p, floor)) in the NLL: a hard zero probability must not give inf
 CLASS_WEIGHTINGS: tuple[str, ...] = ("log_inverse_frequency", "none")

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from common.npz import load_versioned_npz, save_versioned_npz
+from calnav.common.npz import load_versioned_npz, save_versioned_npz
 
 FORMAT_VERSION = 1
 DEFAULT_CAP = 256
@@ -192,7 +192,7 @@ class ObsCache:
 
     def label_from_mesh(self, vertices, triangles, tri_class, max_dist_m: float | None = None) -> np.ndarray:
         """Ground-truth label per voxel from a labelled mesh (``mapping.ground_truth``)."""
-        from mapping.ground_truth import voxel_labels
+        from calnav.mapping.ground_truth import voxel_labels
 
         self.set_labels(voxel_labels(self.coords, vertices, triangles, tri_class, max_dist_m, self.voxel_size_m))
         return self.labels

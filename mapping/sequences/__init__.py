@@ -30,11 +30,11 @@ pixels falling outside the colour image get void / all-zero (uniform) logits. ``
 is not used: it assumes the principal points scale with the image size, which ScanNet's do not.
 """
 
-from mapping.sequences.labels import LogitsDir, read_class_list, vertex_ground_truth
-from mapping.sequences.readers import (LAYOUT_NAMES, LAYOUTS, SEMANTIC_OFFSET, VOID, LayoutName, Sequence,
+from calnav.mapping.sequences.labels import LogitsDir, read_class_list, vertex_ground_truth
+from calnav.mapping.sequences.readers import (LAYOUT_NAMES, LAYOUTS, SEMANTIC_OFFSET, VOID, LayoutName, Sequence,
                                        SequenceConfig, SequenceFrame, depth_from_raw, read_7scenes,
                                        read_intrinsics, read_scannet)
-from mapping.sequences.registration import Registration
+from calnav.mapping.sequences.registration import Registration
 
 __all__ = ["LAYOUTS", "LAYOUT_NAMES", "SEMANTIC_OFFSET", "VOID", "LayoutName", "LogitsDir", "Registration",
            "Sequence", "SequenceConfig", "SequenceFrame", "depth_from_raw", "read_7scenes", "read_class_list",

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mapping.sequences.readers import VOID, SequenceConfig
+from calnav.mapping.sequences.readers import VOID, SequenceConfig
 
 
 def read_class_list(path) -> tuple[str, ...]:
@@ -87,7 +87,7 @@ def vertex_ground_truth(ply_path, class_names, cfg: SequenceConfig, seq_root=Non
     ``cfg.label_map``: a .json / .tsv / .csv file, ``nyu40`` (ScanNet's NYU40 ids), or "" =
     ``<seq_root>/label_map.json`` when present, else ``nyu40``; names match ``class_names``
     exactly, then by synonym (``common.ply_labels``). Raises ValueError when nothing maps."""
-    from common.ply_labels import NYU40_NAMES, class_ids_of, class_index, int_keyed, read_label_table, read_vertex_labels
+    from calnav.common.ply_labels import NYU40_NAMES, class_ids_of, class_index, int_keyed, read_label_table, read_vertex_labels
 
     vertices, raw = read_vertex_labels(ply_path, cfg.label_property)
     if not np.isfinite(vertices).all():

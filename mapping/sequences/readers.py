@@ -11,7 +11,7 @@ from typing import Iterator, Literal
 import cv2
 import numpy as np
 
-from mapping import frame_geometry as fg
+from calnav.mapping import frame_geometry as fg
 
 LayoutName = Literal["scannet", "7scenes"]
 LAYOUT_NAMES: tuple[str, ...] = LayoutName.__args__  # type: ignore[attr-defined]
@@ -143,7 +143,7 @@ class Sequence:
     def use_class_names(self, class_names) -> None:
         """Map ScanNet's ``label-filt/`` raw ids to indices of ``class_names`` through
         ``cfg.frame_label_map`` (when both exist; ``semantic/`` frames take precedence)."""
-        from common.ply_labels import class_ids_of, class_index, int_keyed, read_label_table
+        from calnav.common.ply_labels import class_ids_of, class_index, int_keyed, read_label_table
 
         if self._has_labels["semantic"] or not self._has_labels["label_raw"] or not self.cfg.frame_label_map:
             return

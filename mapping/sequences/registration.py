@@ -5,7 +5,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from mapping.sequences.readers import VOID
+from calnav.mapping.sequences.readers import VOID
 
 
 class Registration:

@@ -13,13 +13,13 @@ import pytest
 from tests.conftest import assert_same_records, read_records, require_habitat
 
 require_habitat()
-if importlib.util.find_spec("agent.sensors") is None:
+if importlib.util.find_spec("calnav.agent.sensors") is None:
     pytest.skip("needs issue 14 part 1 (PeanutAgent reads Habitat's keys: agent.sensors, envs.task.HABITAT_KEYS)",
                 allow_module_level=True)
 
-from envs.task import Action, depth_to_metres  # noqa: E402
-from eval.cli import main  # noqa: E402
-from eval.config import load_config  # noqa: E402
+from calnav.envs.task import Action, depth_to_metres  # noqa: E402
+from calnav.eval.cli import main  # noqa: E402
+from calnav.eval.config import load_config  # noqa: E402
 
 pytestmark = pytest.mark.habitat
 
@@ -33,7 +33,7 @@ SEMANTIC_CONFIG = "configs/habitat_objectnav_semantic.yaml"
 
 @pytest.fixture(scope="module")
 def setup():
-    from envs.habitat_config import HABITAT_CONFIG, habitat_config
+    from calnav.envs.habitat_config import HABITAT_CONFIG, habitat_config
 
     base = load_config(None, CALNAV_SMALL).env
     path = HABITAT_CONFIG.replace("habitat_objectnav.yaml", "habitat_objectnav_semantic.yaml")
@@ -41,7 +41,7 @@ def setup():
 
 
 def test_action_names_are_the_habitat_tasks(setup):
-    from agent.habitat_agent import habitat_action
+    from calnav.agent.habitat_agent import habitat_action
 
     hcfg, _ = setup
     task_actions = list(hcfg.habitat.task.actions)
@@ -55,10 +55,10 @@ def test_converted_observations_are_calnavs(setup):
     exactly."""
     import gymnasium as gym
 
-    import envs  # noqa: F401
-    import envs.habitat_sim_backend  # noqa: F401
-    from agent.habitat_agent import from_habitat_observations, habitat
-    from envs.task import HABITAT_KEYS, SEMANTIC
+    import calnav.envs  # noqa: F401
+    import calnav.envs.habitat_sim_backend  # noqa: F401
+    from calnav.agent.habitat_agent import from_habitat_observations, habitat
+    from calnav.envs.task import HABITAT_KEYS, SEMANTIC
 
     hcfg, env_cfg = setup
     assert env_cfg.normalize_depth and env_cfg.semantic_sensor
@@ -82,7 +82,7 @@ def test_converted_observations_are_calnavs(setup):
 
 
 def test_reset_waits_for_the_first_observations(setup):
-    from agent.habitat_agent import HabitatPeanutAgent
+    from calnav.agent.habitat_agent import HabitatPeanutAgent
 
     hcfg, env_cfg = setup
     cfg = load_config(None, ["agent.segmenter=gt"])

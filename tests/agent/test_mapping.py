@@ -1,15 +1,15 @@
 """Agent map stages: ground-plane projection, goal detection, frontiers, collision marking."""
 import numpy as np
 
-from agent.collision import CollisionTracker, collision_points, is_collision
-from agent.config import AgentConfig
-from agent.exploration import choose_frontier, frontier_mask
-from agent.goal_detection import detect_goal, largest_component
-from agent.semantic_map import MapChannels, MapState, SemanticMapModule, VoxelVotes
-from mapping.config import MappingConfig
-from mapping.frame import SegmentedFrame
-from envs.task import Action
-from agent import projection as pj
+from calnav.agent.collision import CollisionTracker, collision_points, is_collision
+from calnav.agent.config import AgentConfig
+from calnav.agent.exploration import choose_frontier, frontier_mask
+from calnav.agent.goal_detection import detect_goal, largest_component
+from calnav.agent.semantic_map import MapChannels, MapState, SemanticMapModule, VoxelVotes
+from calnav.mapping.config import MappingConfig
+from calnav.mapping.frame import SegmentedFrame
+from calnav.envs.task import Action
+from calnav.agent import projection as pj
 
 
 def test_project_voxels_gives_per_cell_class_means():
@@ -224,8 +224,8 @@ def test_ndf_projection_keeps_max_over_time_of_thresholded_detections():
 def test_floor_holes_hand_case():
     """A camera 1 m up, pitched 45 deg down, sees no depth: its principal ray meets the floor
     1 m ahead at z-depth sqrt(2); rays above the horizon never meet it."""
-    from agent.projection import floor_holes
-    from envs.task import camera_pose
+    from calnav.agent.projection import floor_holes
+    from calnav.envs.task import camera_pose
 
     k = np.array([[10.0, 0, 5], [0, 10.0, 5], [0, 0, 1]])     # 11 x 11 pixels, centre (5, 5)
     pose = camera_pose(np.zeros(2), 0.0, 1.0, np.deg2rad(-45.0))
@@ -240,8 +240,8 @@ def test_floor_holes_hand_case():
 
 
 def test_holes_block_until_the_floor_is_seen():
-    from agent.semantic_map import MapChannels
-    from envs.task import camera_pose
+    from calnav.agent.semantic_map import MapChannels
+    from calnav.envs.task import camera_pose
 
     cfg = AgentConfig(map_size_m=8.0, hole_margin_m=0.3)
     module = SemanticMapModule(cfg, MappingConfig(voxel_size_m=0.05), ("a", "b", "c"), (0.5, 5.0))

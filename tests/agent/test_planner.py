@@ -3,9 +3,9 @@ import math
 
 import numpy as np
 
-from agent.config import AgentConfig
-from agent.planner import Planner, geodesic_distance, heading_to
-from envs.task import Action
+from calnav.agent.config import AgentConfig
+from calnav.agent.planner import Planner, geodesic_distance, heading_to
+from calnav.envs.task import Action
 
 CFG = AgentConfig(cell_m=0.05, goal_dilation_m=0.1, ring_cells=5)
 STEP_CELLS = 5        # 0.25 m forward step at 5 cm cells

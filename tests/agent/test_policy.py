@@ -3,7 +3,7 @@ generated house with ground-truth segmentation."""
 import numpy as np
 import pytest
 
-from eval.config import ConfigError, load_config
+from calnav.eval.config import ConfigError, load_config
 
 MAX_STEPS = 200          # the test episode is short: a few metres
 NDF_STEPS = 40           # steps of the NDF / uncertainty-aware observation check
@@ -20,8 +20,8 @@ def test_agent_config_keys_and_validation():
 
 
 def test_peanut_is_registered_and_the_default():
-    from eval.objectnav.agents import AGENTS
-    from eval.config import AGENT_NAMES, RunConfig
+    from calnav.eval.objectnav.agents import AGENTS
+    from calnav.eval.config import AGENT_NAMES, RunConfig
 
     assert set(AGENTS) == set(AGENT_NAMES)  # run.agent's choices are exactly the registry's names
     assert RunConfig().agent == "peanut"
@@ -31,7 +31,7 @@ def test_peanut_is_registered_and_the_default():
 def small_setup():
     import gymnasium as gym
 
-    import envs
+    from calnav import envs
 
     cfg = load_config(None, ["env.resolution=160x120", "env.dataset.val_scenes=1", "env.dataset.episodes_per_scene=6",
                              f"env.max_episode_steps={MAX_STEPS}", "agent.map_size_m=24",
@@ -41,7 +41,7 @@ def small_setup():
 
 
 def test_agent_finds_goal_in_small_house(small_setup):
-    from agent.policy import PeanutAgent
+    from calnav.agent.policy import PeanutAgent
 
     cfg, env = small_setup
     episodes = env.unwrapped.episodes
@@ -60,8 +60,8 @@ def test_agent_finds_goal_in_small_house(small_setup):
 def test_agent_reads_only_habitat_observations(small_setup):
     """The same actions from Habitat's keys alone (+ semantic for gt) as from the full
     observation: no decision depends on the privileged camera_pose / camera_intrinsics."""
-    from agent.policy import PeanutAgent
-    from envs.task import HABITAT_KEYS, SEMANTIC
+    from calnav.agent.policy import PeanutAgent
+    from calnav.envs.task import HABITAT_KEYS, SEMANTIC
 
     cfg, env = small_setup
     episodes = env.unwrapped.episodes
@@ -85,9 +85,9 @@ def test_ndf_uncertainty_aware_agent_and_video_panel_on_habitat_observations(sma
     the video panel draws from such an agent (first NDF_STEPS steps)."""
     import dataclasses
 
-    from agent.policy import PeanutAgent
-    from agent.visualize import render_panel
-    from envs.task import HABITAT_KEYS, SEMANTIC
+    from calnav.agent.policy import PeanutAgent
+    from calnav.agent.visualize import render_panel
+    from calnav.envs.task import HABITAT_KEYS, SEMANTIC
 
     cfg, env = small_setup
     cfg = dataclasses.replace(cfg, agent=dataclasses.replace(cfg.agent, map_type="ndf", uncertainty_aware=True))
@@ -126,7 +126,7 @@ class TrapWorld:
                 "semantic": np.full((h, w), -1, np.int16)}
 
     def step(self, action: int, index: int) -> None:
-        from envs.task import Action, wrap_angle
+        from calnav.envs.task import Action, wrap_angle
 
         if action == Action.TURN_LEFT:
             self.yaw = wrap_angle(self.yaw + self.turn)
@@ -141,8 +141,8 @@ class TrapWorld:
 def test_agent_escapes_a_trap_it_cannot_see(open_heading_deg):
     """Blind and blocked in all headings but one, the agent still leaves within a bounded number
     of steps (opening spin + the no-progress watchdog + one full escape), and keeps moving."""
-    from agent.policy import PeanutAgent
-    from envs.task import Action
+    from calnav.agent.policy import PeanutAgent
+    from calnav.envs.task import Action
 
     cfg = load_config(None, ["env.resolution=64x48", "agent.map_resolution=64x48", "agent.map_size_m=16",
                              "mapping.initial_alloc_mb=16"])

@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 import torch
 
-from agent.segmenters import SEGMENTER_NAMES, SegmenterConfig, make_segmenter
-from agent.segmenters.base import default_class_names
-from agent.segmenters.learned import LEARNED_MODELS, default_weights_path, save_weights
-from agent.segmenters.network import NetSpec, SegNet
-from envs.render import camera_pose
-from envs.semantics import CLASS_NAMES, GOAL_CATEGORIES, STRUCTURE_CLASSES, class_id
+from calnav.agent.segmenters import SEGMENTER_NAMES, SegmenterConfig, make_segmenter
+from calnav.agent.segmenters.base import default_class_names
+from calnav.agent.segmenters.learned import LEARNED_MODELS, default_weights_path, save_weights
+from calnav.agent.segmenters.network import NetSpec, SegNet
+from calnav.envs.render import camera_pose
+from calnav.envs.semantics import CLASS_NAMES, GOAL_CATEGORIES, STRUCTURE_CLASSES, class_id
 
 K = len(CLASS_NAMES)
 RES = (64, 48)
@@ -27,7 +27,7 @@ def softmax(z):
 @pytest.fixture(scope="session")
 def frames(small_env_config):
     """Four rendered 64x48 val frames with instance images and poses."""
-    from eval.segmenter.data import SegDataConfig, render_frames
+    from calnav.eval.segmenter.data import SegDataConfig, render_frames
 
     return render_frames(small_env_config, SegDataConfig(resolution=RES, scenes=1, walk_steps=2), "val",
                          frames=4, seed=3, with_instance=True, progress=False)

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from common.atomic import atomic_path, is_temp_file, temp_path, write_json_atomic, write_text_atomic
+from calnav.common.atomic import atomic_path, is_temp_file, temp_path, write_json_atomic, write_text_atomic
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 PACKAGES = ("common", "envs", "mapping", "agent", "eval")

@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from common.npz import NpzFormatError, check_format_version, load_versioned_npz, save_versioned_npz
+from calnav.common.npz import NpzFormatError, check_format_version, load_versioned_npz, save_versioned_npz
 
 
 def test_round_trip(tmp_path):

@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
 
-import envs
+from calnav import envs
 from tests.conftest import small_or_full
-from envs.oracle import OracleAgent, ShortestPathFollower
-from envs.semantics import NUM_CLASSES
-from envs.task import Action
-from eval.config import load_config
+from calnav.envs.oracle import OracleAgent, ShortestPathFollower
+from calnav.envs.semantics import NUM_CLASSES
+from calnav.envs.task import Action
+from calnav.eval.config import load_config
 
 
 @pytest.fixture(scope="module")

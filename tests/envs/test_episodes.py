@@ -8,15 +8,15 @@ import open3d as o3d
 import pytest
 
 from tests.conftest import small_or_full
-from envs.config import EnvConfig
-from envs.episodes import (episodes_from_habitat, episodes_to_habitat, generate_scene_episodes,
+from calnav.envs.config import EnvConfig
+from calnav.envs.episodes import (episodes_from_habitat, episodes_to_habitat, generate_scene_episodes,
                            goal_mask, habitat_quaternion_to_yaw, load_split, parse_episode_range,
                            split_dir, yaw_to_habitat_quaternion)
-from envs.navigation import NavGrid
-from envs.primitives import box_room_scene
-from envs.render import Camera, Renderer
-from envs.scenes import load_scene
-from eval.config import load_config
+from calnav.envs.navigation import NavGrid
+from calnav.envs.primitives import box_room_scene
+from calnav.envs.render import Camera, Renderer
+from calnav.envs.scenes import load_scene
+from calnav.eval.config import load_config
 
 
 def _scene_tools(scene, cfg):
@@ -135,7 +135,7 @@ def test_scene_without_goal_instance_is_an_error():
 
 
 def _small_split(small_env_config):
-    from envs.episodes import split_dir
+    from calnav.envs.episodes import split_dir
 
     eps = load_split("val", small_env_config, progress=False)
     return eps, split_dir("val", small_env_config) / "content"
@@ -158,7 +158,7 @@ def test_damaged_episode_cache_is_regenerated(small_env_config, damage):
 
 
 def test_damaged_episode_file_is_named(tmp_path):
-    from envs.episodes import read_episode_file
+    from calnav.envs.episodes import read_episode_file
 
     path = tmp_path / "given.json.gz"
     with gzip.open(path, "wt") as f:
@@ -173,7 +173,7 @@ def test_damaged_episode_file_is_named(tmp_path):
 def test_old_episode_files_get_the_iou_key_and_nothing_else_changes(small_env_config):
     """habitat-lab's ObjectViewLocation needs ``iou`` on every view point: files cached before
     calnav wrote it get it on load, and the episodes read back the same."""
-    from envs.episodes import read_json_gz, write_json_gz
+    from calnav.envs.episodes import read_json_gz, write_json_gz
 
     cfg = small_env_config
     before = load_split("val", cfg, progress=False)

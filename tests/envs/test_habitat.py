@@ -15,9 +15,9 @@ from tests.conftest import assert_same_records, read_records, require_habitat
 
 require_habitat()
 
-from envs.task import Action  # noqa: E402
-from eval.cli import main  # noqa: E402
-from eval.config import load_config  # noqa: E402
+from calnav.envs.task import Action  # noqa: E402
+from calnav.eval.cli import main  # noqa: E402
+from calnav.eval.config import load_config  # noqa: E402
 
 pytestmark = pytest.mark.habitat
 
@@ -34,8 +34,8 @@ SCRIPT = ([Action.TURN_LEFT] * 2 + [Action.LOOK_UP, Action.LOOK_DOWN, Action.LOO
 @pytest.fixture(scope="module")
 def setup():
     """(habitat config, calnav EnvConfig, calnav episodes) of the small val split."""
-    from envs.episodes import load_split
-    from envs.habitat_config import habitat_config
+    from calnav.envs.episodes import load_split
+    from calnav.envs.habitat_config import habitat_config
 
     base = load_config(None, CALNAV_SMALL).env
     hcfg, env = habitat_config(base, HABITAT_SMALL, progress=False)
@@ -43,8 +43,8 @@ def setup():
 
 
 def _habitat_env(hcfg):
-    import envs.habitat_sim_backend  # noqa: F401  (registers CalnavSim-v0)
-    from common.habitat_import import import_habitat
+    import calnav.envs.habitat_sim_backend  # noqa: F401  (registers CalnavSim-v0)
+    from calnav.common.habitat_import import import_habitat
 
     return import_habitat().Env(config=hcfg)
 
@@ -61,8 +61,8 @@ def test_env_config_follows_the_habitat_config(setup):
 @pytest.mark.parametrize("name", ["habitat_objectnav.yaml", "habitat_objectnav_semantic.yaml"])
 def test_shipped_habitat_configs_compose(name):
     """Each extends habitat-lab's HM3D ObjectNav benchmark config: its values, calnav's simulator."""
-    from common.habitat_import import import_habitat
-    from envs.habitat_config import HABITAT_CONFIG
+    from calnav.common.habitat_import import import_habitat
+    from calnav.envs.habitat_config import HABITAT_CONFIG
 
     cfg = import_habitat().get_config(HABITAT_CONFIG.replace("habitat_objectnav.yaml", name)).habitat
     sensors = cfg.simulator.agents.main_agent.sim_sensors
@@ -78,8 +78,8 @@ def test_shipped_habitat_configs_compose(name):
 def test_episode_files_load_with_objectnav_dataset_v1(setup):
     from habitat.datasets.object_nav.object_nav_dataset import ObjectNavDatasetV1
 
-    from envs.episodes import habitat_quaternion_to_yaw
-    from envs.semantics import GOAL_CATEGORIES
+    from calnav.envs.episodes import habitat_quaternion_to_yaw
+    from calnav.envs.semantics import GOAL_CATEGORIES
 
     hcfg, _, calnav = setup
     ds = ObjectNavDatasetV1(hcfg.habitat.dataset)
@@ -98,7 +98,7 @@ def _pair(setup, index):
     """(habitat.Env, calnav env) both at calnav episode ``index``."""
     import gymnasium as gym
 
-    import envs  # noqa: F401
+    import calnav.envs  # noqa: F401
 
     hcfg, env_cfg, calnav = setup
     henv = _habitat_env(hcfg)
@@ -131,7 +131,7 @@ def test_stock_sensors_and_measures_equal_calnavs(setup, source):
     """Step for step: GPS / compass / goal / rgb and DistanceToGoal / Success / SPL / SoftSPL
     equal calnav's env (gps / compass exactly, the rest to 1e-5), on a scripted episode (looks, collisions, a STOP far from the
     goal) and on the oracle's actions (a STOP at the goal: Success 1, SPL > 0)."""
-    from envs.oracle import OracleAgent
+    from calnav.envs.oracle import OracleAgent
 
     hcfg, env_cfg, _ = setup
     henv, cenv = _pair(setup, 1)
@@ -190,7 +190,7 @@ def test_bad_input(tmp_path, capsys, setup):
     assert "env.success_distance_m must be > 0 metres, got nan" in capsys.readouterr().err
     assert not any((tmp_path / d).exists() for d in "abcd")
 
-    from common.habitat_import import import_habitat
+    from calnav.common.habitat_import import import_habitat
 
     hcfg, _, _ = setup
     cfg = hcfg.copy()
@@ -204,7 +204,7 @@ def test_bad_input(tmp_path, capsys, setup):
 def test_stand_ins_only_where_habitat_sim_is_missing():
     import sys
 
-    from common.habitat_import import STUB_MARKER, STUBBED_MODULES, habitat_sim_available, import_habitat
+    from calnav.common.habitat_import import STUB_MARKER, STUBBED_MODULES, habitat_sim_available, import_habitat
 
     import_habitat()
     if habitat_sim_available():

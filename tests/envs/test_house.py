@@ -7,8 +7,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import ndimage
 
-from envs.house import ROOM_KINDS, HouseSpec, generate_house
-from envs.semantics import CLASS_ID, CLASS_NAMES, GOAL_CATEGORIES, STRUCTURE_IDS
+from calnav.envs.house import ROOM_KINDS, HouseSpec, generate_house
+from calnav.envs.semantics import CLASS_ID, CLASS_NAMES, GOAL_CATEGORIES, STRUCTURE_IDS
 
 SPEC = HouseSpec()
 N_HOUSES = 20
@@ -187,7 +187,7 @@ def test_every_room_is_reachable(houses):
 
 def test_reachability_check_can_fail():
     """A house whose doorways are walled up again must fail the reachability check."""
-    from envs.primitives import MeshBuilder
+    from calnav.envs.primitives import MeshBuilder
 
     s = generate_house(3)
     b = MeshBuilder("sealed")
@@ -226,8 +226,8 @@ def test_any_seed_gives_a_valid_house(seed):
 
 def test_fits_rule():
     """The placement rule that keeps rooms traversable, on a 4 x 3 m room with a 0.6 m gap."""
-    from envs.furnish import fits
-    from envs.scene import Room
+    from calnav.envs.furnish import fits
+    from calnav.envs.scene import Room
 
     room, gap = Room("office", 0, 0, 4, 3), 0.6
     assert fits(np.array([0, 0, 1, 0.5]), room, [], [], gap)             # flush in a corner

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from envs.measures import Measurements, Measure, TaskState, objectnav_measurements
+from calnav.envs.measures import Measurements, Measure, TaskState, objectnav_measurements
 
 
 def straight_line_task(goal_x: float):

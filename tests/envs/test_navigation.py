@@ -4,10 +4,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from envs.config import EnvConfig
-from envs.navigation import GeodesicField, NavGrid
-from envs.primitives import MeshBuilder, box_room_scene
-from envs.scene import Scene, Texture
+from calnav.envs.config import EnvConfig
+from calnav.envs.navigation import GeodesicField, NavGrid
+from calnav.envs.primitives import MeshBuilder, box_room_scene
+from calnav.envs.scene import Scene, Texture
 
 CFG = EnvConfig()
 R = CFG.agent_radius_m
@@ -273,8 +273,8 @@ def test_field_cache(l_grid):
 def test_house_walls_block():
     """Regression: ray tests alone let the agent through walls whose top face coincides with
     the ceiling. Every wall surface point in the agent's height band must be off the grid."""
-    from envs.scene import sample_surface
-    from envs.scenes import load_scene
+    from calnav.envs.scene import sample_surface
+    from calnav.envs.scenes import load_scene
 
     scene = load_scene("house_val_0000")
     cfg = EnvConfig()

@@ -6,10 +6,10 @@ from functools import cached_property
 import numpy as np
 import pytest
 
-from envs.config import EnvConfig
-from envs.primitives import box_room_scene
-from envs.render import Camera, Renderer, camera_pose, look_at_pose
-from envs.semantics import class_id
+from calnav.envs.config import EnvConfig
+from calnav.envs.primitives import box_room_scene
+from calnav.envs.render import Camera, Renderer, camera_pose, look_at_pose
+from calnav.envs.semantics import class_id
 
 HFOV = 79.0
 CAM_H = 0.88
@@ -206,8 +206,8 @@ def test_bad_inputs_raise(room):
 
 
 def test_bench_env_section_runs():
-    from eval.bench import env as bench_env
-    from eval.bench.context import BenchContext
+    from calnav.eval.bench import env as bench_env
+    from calnav.eval.bench.context import BenchContext
 
     class Ctx(BenchContext):
         @cached_property

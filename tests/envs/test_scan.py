@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 from plyfile import PlyData, PlyElement
 
-from envs.primitives import box_mesh
-from envs.scan import load_labelled_ply
-from envs.scene import SceneError
-from envs.semantics import CLASS_ID, VOID
+from calnav.envs.primitives import box_mesh
+from calnav.envs.scan import load_labelled_ply
+from calnav.envs.scene import SceneError
+from calnav.envs.semantics import CLASS_ID, VOID
 
 FLOOR_RAW, CHAIR_RAW, JUNK_RAW = 1, 5, 99        # raw label ids as a scanner would write them
 LABEL_MAP = {FLOOR_RAW: "floor", CHAIR_RAW: "chair"}

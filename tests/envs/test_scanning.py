@@ -9,15 +9,15 @@ import math
 import numpy as np
 import pytest
 
-from envs.config import DatasetConfig, EnvConfig
-from envs.primitives import box_room_scene
-from envs.render import Camera, Renderer, look_at_pose
-from envs.scanning.config import ScanningConfig
-from envs.scanning.quality import scan_quality
-from envs.scanning.scanner import scan_house
-from envs.scanning.sensor import (axial_sigma_m, camera_rgb, incidence_deg, noisy_depth, occlusion_shadow,
+from calnav.envs.config import DatasetConfig, EnvConfig
+from calnav.envs.primitives import box_room_scene
+from calnav.envs.render import Camera, Renderer, look_at_pose
+from calnav.envs.scanning.config import ScanningConfig
+from calnav.envs.scanning.quality import scan_quality
+from calnav.envs.scanning.scanner import scan_house
+from calnav.envs.scanning.sensor import (axial_sigma_m, camera_rgb, incidence_deg, noisy_depth, occlusion_shadow,
                                   quantise_depth)
-from envs.semantics import CLASS_ID, VOID
+from calnav.envs.semantics import CLASS_ID, VOID
 
 QUIET = dict(lateral_jitter_px=0.0, axial_noise_m=0.0, axial_noise_quad=0.0, disparity_step_px=0.0,
              random_dropout=0.0, absorb_dropout=0.0, edge_width_px=0, grazing_max_deg=89.9)
@@ -220,14 +220,14 @@ def _fast_dataset(**scanning) -> DatasetConfig:
 
 @pytest.fixture(scope="module")
 def scanned_house():
-    from envs.scenes import clear_scene_lru, load_scene
+    from calnav.envs.scenes import clear_scene_lru, load_scene
 
     clear_scene_lru()
     return load_scene("house_val_0000", _fast_dataset())
 
 
 def test_load_scene_scanned_is_cached_and_a_normal_scene(scanned_house):
-    from envs.scenes import clear_scene_lru, load_scene, scanned_cache_path
+    from calnav.envs.scenes import clear_scene_lru, load_scene, scanned_cache_path
 
     ds = _fast_dataset()
     assert scanned_house.meta["style"] == "scanned" and scanned_house.name == "house_val_0000"
@@ -244,8 +244,8 @@ def test_load_scene_scanned_is_cached_and_a_normal_scene(scanned_house):
 def test_scan_and_clean_caches_hold_their_own_style(tmp_path, monkeypatch):
     """Scanning a house first generates its clean twin: each lands at its own cache path (a
     clean house written at the scan's path would be read back as the scan by a concurrent worker)."""
-    from envs.scene import Scene
-    from envs.scenes import clear_scene_lru, load_scene, scanned_cache_path, scene_cache_path
+    from calnav.envs.scene import Scene
+    from calnav.envs.scenes import clear_scene_lru, load_scene, scanned_cache_path, scene_cache_path
 
     monkeypatch.setenv("CALNAV_CACHE", str(tmp_path))
     clear_scene_lru()
@@ -257,13 +257,13 @@ def test_scan_and_clean_caches_hold_their_own_style(tmp_path, monkeypatch):
 
 
 def test_scanned_house_navigates_and_makes_habitat_episodes(scanned_house):
-    from envs.episodes import generate_scene_episodes
-    from envs.navigation import NavGrid
+    from calnav.envs.episodes import generate_scene_episodes
+    from calnav.envs.navigation import NavGrid
 
     env = EnvConfig(resolution=(64, 48), dataset=_fast_dataset())
     renderer = Renderer(scanned_house, Camera.from_config(env))
     grid = NavGrid.build(scanned_house, env, renderer.raycasting_scene)
-    from envs.scenes import load_scene
+    from calnav.envs.scenes import load_scene
 
     clean = NavGrid.build(load_scene("house_val_0000", env.dataset, style="clean"), env)
     assert grid.navigable.sum() > 0.4 * clean.navigable.sum()   # a coarse, short scan: most of the floor
@@ -280,8 +280,8 @@ def test_segmenter_training_frames_mix_in_scans(scanned_house):
     """data.scanned_fraction: that share of a house's training frames comes from its scan (each
     reproduced by rendering the scan at the recorded pose), the clean frames are the ones a
     fraction of 0 draws, and evaluation sets ignore the key (they follow env.dataset.style)."""
-    from envs.scenes import load_scene
-    from eval.segmenter.data import SegDataConfig, cache_path, render_frames
+    from calnav.envs.scenes import load_scene
+    from calnav.eval.segmenter.data import SegDataConfig, cache_path, render_frames
 
     env = EnvConfig(dataset=dataclasses.replace(_fast_dataset(), style="clean"))
     mixed_cfg = SegDataConfig(resolution=(48, 36), walk_steps=3, keep_sparse_prob=1.0, scanned_fraction=0.5)
@@ -318,7 +318,7 @@ def test_segmenter_training_frames_mix_in_scans(scanned_house):
     ("env.dataset.scanning.resolution=8x8", "scanning.resolution must be between"),
 ])
 def test_bad_scan_settings_are_one_line_errors(override, message):
-    from eval.config import ConfigError, load_config
+    from calnav.eval.config import ConfigError, load_config
 
     with pytest.raises(ConfigError) as err:
         load_config(None, override.split())
@@ -326,8 +326,8 @@ def test_bad_scan_settings_are_one_line_errors(override, message):
 
 
 def test_scanned_style_of_a_user_scan_directory_is_refused(tmp_path):
-    from eval.config import ConfigError, load_config
-    from envs.scenes import load_scene
+    from calnav.eval.config import ConfigError, load_config
+    from calnav.envs.scenes import load_scene
 
     with pytest.raises(ConfigError, match="already are scans"):
         load_config(None, [f"env.dataset.scene_dir={tmp_path}", "env.dataset.style=scanned"])
@@ -340,8 +340,8 @@ def test_scanned_style_of_a_user_scan_directory_is_refused(tmp_path):
 def test_style_names_match():
     import typing
 
-    from envs.config import StyleName
-    from envs.scenes import STYLES
+    from calnav.envs.config import StyleName
+    from calnav.envs.scenes import STYLES
 
     assert typing.get_args(StyleName) == STYLES
 
@@ -349,7 +349,7 @@ def test_style_names_match():
 @pytest.mark.parametrize("override", ["env.dataset.style=photoreal", "env.dataset.scanning.depth_noise=1",
                                       "env.dataset.scanning.voxel_m=0", "env.dataset.scanning.axial_noise_m=-1"])
 def test_objectnav_refuses_bad_scan_settings_before_writing(tmp_path, capsys, override):
-    from eval.cli import main
+    from calnav.eval.cli import main
 
     out = tmp_path / "run"
     assert main(["objectnav", "--episodes", "1", "--output", str(out), override]) == 2
@@ -358,7 +358,7 @@ def test_objectnav_refuses_bad_scan_settings_before_writing(tmp_path, capsys, ov
 
 
 def test_scanned_style_of_a_user_directory_refused_by_the_cli(tmp_path, capsys):
-    from eval.cli import main
+    from calnav.eval.cli import main
 
     out = tmp_path / "run"
     assert main(["objectnav", "--output", str(out), f"env.dataset.scene_dir={tmp_path}", "env.dataset.style=scanned"]) == 2

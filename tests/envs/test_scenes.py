@@ -6,13 +6,13 @@ import json
 import numpy as np
 import pytest
 
-from envs import scenes
-from envs.config import DatasetConfig
-from envs.house import HouseSpec
-from envs.primitives import box_room_scene
-from envs.scenes import (SPLITS, load_scene, parse_scene_id, procedural_scene_id, scene_cache_path, scene_seed,
+from calnav.envs import scenes
+from calnav.envs.config import DatasetConfig
+from calnav.envs.house import HouseSpec
+from calnav.envs.primitives import box_room_scene
+from calnav.envs.scenes import (SPLITS, load_scene, parse_scene_id, procedural_scene_id, scene_cache_path, scene_seed,
                          split_scene_ids)
-from envs.semantics import CLASS_ID
+from calnav.envs.semantics import CLASS_ID
 
 ARRAYS = ("vertices", "triangles", "tri_class", "tri_instance", "tri_albedo", "tri_texture")
 LABEL_MAP = {"1": "floor", "5": "chair"}
@@ -22,7 +22,7 @@ def _write_scan(path, up_axis: str = "z") -> None:
     """A labelled PLY: a 4 x 4 m floor (raw label 1) and a 0.5 m box chair (raw label 5)."""
     from plyfile import PlyData, PlyElement
 
-    from envs.primitives import box_mesh
+    from calnav.envs.primitives import box_mesh
 
     bv, bt = box_mesh((0.5, 0.5, 0.25), (0.5, 0.5, 0.5))
     v = np.vstack([[[-2, -2, 0], [2, -2, 0], [2, 2, 0], [-2, 2, 0]], bv])
@@ -156,8 +156,8 @@ def test_user_scene_dir_with_split_folders(tmp_path):
 def test_scan_with_any_file_name_gets_episodes(tmp_path):
     """README: put *.ply / *.npz scenes in a folder and set env.dataset.scene_dir; a scan called
     room.ply (not named like a procedural house) must work end to end."""
-    from envs.episodes import load_split
-    from eval.config import load_config
+    from calnav.envs.episodes import load_split
+    from calnav.eval.config import load_config
 
     d = tmp_path / "scans"
     d.mkdir()

@@ -6,10 +6,10 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-import envs
-from agent.sensors import SensorModel
-from envs.render import Camera
-from envs.task import (CAMERA_POSE, DEPTH, HABITAT_KEYS, camera_pose, depth_to_metres, gps_compass_to_xy_yaw,
+from calnav import envs
+from calnav.agent.sensors import SensorModel
+from calnav.envs.render import Camera
+from calnav.envs.task import (CAMERA_POSE, DEPTH, HABITAT_KEYS, camera_pose, depth_to_metres, gps_compass_to_xy_yaw,
                        normalize_depth_m, observation_specs, pinhole_intrinsics, xy_yaw_to_gps_compass,
                        yaw_to_habitat_quaternion)
 

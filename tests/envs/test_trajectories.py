@@ -4,10 +4,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from envs.config import EnvConfig
-from envs.navigation import NavGrid
-from envs.scenes import load_scene
-from envs.trajectories import ScanConfig, scan_poses
+from calnav.envs.config import EnvConfig
+from calnav.envs.navigation import NavGrid
+from calnav.envs.scenes import load_scene
+from calnav.envs.trajectories import ScanConfig, scan_poses
 
 
 @pytest.fixture(scope="module")

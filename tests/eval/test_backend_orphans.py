@@ -24,7 +24,7 @@ HELPER = textwrap.dedent("""
 """)
 DRIVER = textwrap.dedent("""
     import sys
-    from eval.backends import LocalBackend
+    from calnav.eval.backends import LocalBackend
     from calnav_orphan_helper import report_and_sleep
     if __name__ == "__main__":   # spawn re-imports this file in each worker
         for _ in LocalBackend(2).map_unordered(report_and_sleep, [sys.argv[1]] * 2):

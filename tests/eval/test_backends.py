@@ -13,10 +13,10 @@ from pathlib import Path
 
 import pytest
 
-from eval.backends import BACKENDS, LocalBackend, check_backend
-from eval.cli import main
-from eval.config import BackendName, load_config
-from eval.objectnav.run import EpisodeJob, run_jobs
+from calnav.eval.backends import BACKENDS, LocalBackend, check_backend
+from calnav.eval.cli import main
+from calnav.eval.config import BackendName, load_config
+from calnav.eval.objectnav.run import EpisodeJob, run_jobs
 
 
 SMALL = ["env.resolution=64x48", "env.dataset.val_scenes=2", "env.dataset.episodes_per_scene=3"]
@@ -73,7 +73,7 @@ def test_unreachable_ray_address_fails_before_writing(tmp_path, capsys):
     pytest.importorskip("ray", reason="the ray extra is installed by `make test`")
     import time
 
-    from eval.cli import main
+    from calnav.eval.cli import main
 
     out = tmp_path / "run"
     t0 = time.monotonic()
@@ -87,9 +87,9 @@ def test_unreachable_ray_address_fails_before_writing(tmp_path, capsys):
 
 
 def test_local_and_ray_map_the_same_results(local_ray):
-    from eval.backends import RayBackend
+    from calnav.eval.backends import RayBackend
 
-    from envs.semantics import CLASS_NAMES, class_id   # a plain function importable on every worker
+    from calnav.envs.semantics import CLASS_NAMES, class_id   # a plain function importable on every worker
 
     local = dict(LocalBackend(workers=2).map_unordered(class_id, CLASS_NAMES))
     remote = dict(RayBackend(workers=2).map_unordered(class_id, CLASS_NAMES))
@@ -169,7 +169,7 @@ def test_a_killed_ray_driver_resumes_without_duplicates(tmp_path):
     pytest.importorskip("ray", reason="the ray extra is installed by `make test`")
     out = tmp_path / "driver"
     env = {**os.environ, "PYTHONPATH": str(REPO)}
-    cmd = [sys.executable, "-c", "import sys; from eval.cli import main; sys.exit(main(sys.argv[1:]))",
+    cmd = [sys.executable, "-c", "import sys; from calnav.eval.cli import main; sys.exit(main(sys.argv[1:]))",
            "objectnav", "--agent", "oracle", "--episodes", "0:6", "--output", str(out), *SMALL,
            "run.backend=ray", "run.workers=1"]
     proc = subprocess.Popen(cmd, env=env, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
@@ -192,8 +192,8 @@ def test_calibration_houses_recorded_on_ray_match_local_bytes(local_ray, tmp_pat
     bytes hold the same arrays as the local backend's (npz bytes differ only by zip times)."""
     import numpy as np
 
-    from eval.calibration.config import CalibrateMapConfig
-    from eval.calibration.record import record_houses, scene_files
+    from calnav.eval.calibration.config import CalibrateMapConfig
+    from calnav.eval.calibration.record import record_houses, scene_files
 
     tiny = ["study.segmenters=[learned_rgb]", "study.calib_train_scenes=1", "study.calib_val_scenes=1",
             "study.test_scenes=1", "scan.frames=12"]

@@ -7,8 +7,8 @@ import matplotlib.image as mpimg
 import numpy as np
 import pytest
 
-from mapping import metrics as M
-from eval.calibration import plots as P
+from calnav.mapping import metrics as M
+from calnav.eval.calibration import plots as P
 
 # K = 2, n_bins = 4 (edges 0, .25, .5, .75, 1; bins 0 and 1 are empty since K = 2 => h >= .5):
 #   probs        label  pred  conf  bin  correct
@@ -122,7 +122,7 @@ def _rows():
 
 
 def test_glfs_pick_rule_hand_computed():
-    from eval.calibration.report import glfs_pick
+    from calnav.eval.calibration.report import glfs_pick
 
     picks = glfs_pick(_rows())
     # a: within 0.5 points of 0.70 -> constrained (0.6955) and val_miou (0.699); lowest mECE: constrained
@@ -150,7 +150,7 @@ def test_glfs_tradeoff_and_error_plots(tmp_path):
 
 
 def test_tau_curve_minima_and_files(tmp_path):
-    from eval.calibration.tau_curve import curve_minima, write_tau_curves
+    from calnav.eval.calibration.tau_curve import curve_minima, write_tau_curves
 
     # minima: index 1 (0.2 < 0.5, 0.3), the plateau 4-5 once (at 4), and the right end (0.05 < 0.4)
     assert curve_minima([1, 2, 3, 4, 5, 6, 7, 8], [0.5, 0.2, 0.3, 0.35, 0.1, 0.1, 0.4, 0.05]) == [1, 4, 7]

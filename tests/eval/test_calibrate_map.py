@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from tests.conftest import small_or_full
-from eval.cli import main
+from calnav.eval.cli import main
 
 pytestmark = pytest.mark.e2e
 
@@ -84,10 +84,10 @@ def test_calibrate_map_writes_results_resumes_and_refuses_another_config(tmp_pat
 
 
 def test_fit_glfs_writes_params_a_map_can_use(tmp_path):
-    from agent.segmenters.base import default_class_names
-    from mapping.config import MappingConfig
-    from mapping.glfs import GLFSParams
-    from mapping.voxel_map import SemanticVoxelMap
+    from calnav.agent.segmenters.base import default_class_names
+    from calnav.mapping.config import MappingConfig
+    from calnav.mapping.glfs import GLFSParams
+    from calnav.mapping.voxel_map import SemanticVoxelMap
 
     dest = tmp_path / "glfs_rgb.json"
     assert main(["fit-glfs", "--segmenter", "learned_rgb", "--output", str(dest), "--work-dir", str(tmp_path / "w"),

@@ -5,8 +5,8 @@ import json
 
 import pytest
 
-from eval.cli import main
-from eval.stats import format_metrics_table, mean_sem, summarize
+from calnav.eval.cli import main
+from calnav.eval.stats import format_metrics_table, mean_sem, summarize
 
 SMALL = ["env.resolution=32x24", "env.dataset.val_scenes=2", "env.dataset.episodes_per_scene=3"]
 
@@ -167,7 +167,7 @@ def test_objectnav_multirun_dirs_resume_and_comparison(tmp_path, capsys):
 
 
 def test_overrides_on_both_sides_of_an_option_are_accepted():
-    from eval.cli import parse_args
+    from calnav.eval.cli import parse_args
 
     args = parse_args(["objectnav", "a.b=1", "--episodes", "0:2", "c.d=2", "--force"])
     assert args.command == "objectnav" and args.overrides == ["a.b=1", "c.d=2"]
@@ -200,7 +200,7 @@ def test_cache_that_is_a_file_is_one_line_before_writing(tmp_path, capsys, monke
 
 
 def test_ctrl_c_is_one_line_that_says_how_to_resume(tmp_path, capsys, monkeypatch):
-    import eval.objectnav.run as run
+    import calnav.eval.objectnav.run as run
 
     def interrupted(args, configs):
         raise KeyboardInterrupt

@@ -8,9 +8,9 @@ import math
 import pytest
 import yaml
 
-from eval.objectnav.compare import cell_value, differing_keys, flatten, main_compare
-from eval.config import ConfigError
-from eval.stats import failure_modes, paired_difference
+from calnav.eval.objectnav.compare import cell_value, differing_keys, flatten, main_compare
+from calnav.eval.config import ConfigError
+from calnav.eval.stats import failure_modes, paired_difference
 
 
 def _rec(i, success, spl, status="ok"):

@@ -3,7 +3,7 @@ import os
 
 import pytest
 
-from eval.config import (CONFIG_DIR, Config, ConfigError, dump_yaml, expand_multirun, load_config,
+from calnav.eval.config import (CONFIG_DIR, Config, ConfigError, dump_yaml, expand_multirun, load_config,
                          parse_override)
 
 
@@ -18,9 +18,9 @@ def test_defaults_and_dotted_overrides():
 
 
 def test_every_shipped_config_loads():
-    from eval.calibration.config import CalibrateMapConfig
-    from eval.segmenter.data import SegmenterExperimentConfig
-    from eval.sequence.config import MapSequenceConfig
+    from calnav.eval.calibration.config import CalibrateMapConfig
+    from calnav.eval.segmenter.data import SegmenterExperimentConfig
+    from calnav.eval.sequence.config import MapSequenceConfig
 
     # experiments with their own schema
     special = {"segmenter.yaml": SegmenterExperimentConfig, "calibrate_map.yaml": CalibrateMapConfig,
@@ -124,7 +124,7 @@ def test_segmenter_names_are_checked_at_load_time():
     with pytest.raises(ConfigError, match=r"bad value for agent.segmenter: 'learnd_rgb'; valid choices: "
                                           r"gt, noisy, learned_rgb, learned_rgbd"):
         load_config(None, ["agent.segmenter=learnd_rgb"])
-    from eval.calibration.config import CalibrateMapConfig
+    from calnav.eval.calibration.config import CalibrateMapConfig
 
     with pytest.raises(ConfigError, match=r"study.segmenters.*'learnd_rgb'.*valid choices"):
         load_config(None, ["study.segmenters=[learnd_rgb]"], cls=CalibrateMapConfig)
@@ -133,8 +133,8 @@ def test_segmenter_names_are_checked_at_load_time():
 def test_segmenter_choices_are_the_registry_names():
     import typing
 
-    from agent.config import SegmenterName
-    from agent.segmenters import SEGMENTER_NAMES, SEGMENTERS
+    from calnav.agent.config import SegmenterName
+    from calnav.agent.segmenters import SEGMENTER_NAMES, SEGMENTERS
 
     assert set(typing.get_args(SegmenterName)) == set(SEGMENTERS) == set(SEGMENTER_NAMES)
 
@@ -142,8 +142,8 @@ def test_segmenter_choices_are_the_registry_names():
 def test_env_fields_of_view_are_ones_the_map_accepts():
     """A camera the voxel map would refuse mid-run (field of view outside (1, 179) deg) is a
     config error; the bounds are the map's."""
-    from envs.config import FOV_BOUNDS_DEG
-    from mapping.frame_geometry import MAX_FOV_DEG, MIN_FOV_DEG
+    from calnav.envs.config import FOV_BOUNDS_DEG
+    from calnav.mapping.frame_geometry import MAX_FOV_DEG, MIN_FOV_DEG
 
     assert FOV_BOUNDS_DEG == (MIN_FOV_DEG, MAX_FOV_DEG)
     with pytest.raises(ConfigError, match=r"env.hfov_deg must be in \(1, 179\) degrees, got 179.5"):
@@ -176,7 +176,7 @@ def test_non_finite_and_out_of_range_numbers_are_refused(override, message):
 
 
 def test_glfs_eta_nan_and_a_zero_grid_are_refused():
-    from eval.calibration.config import CalibrateMapConfig
+    from calnav.eval.calibration.config import CalibrateMapConfig
 
     with pytest.raises(ConfigError, match="glfs.eta.*expected a finite number"):
         load_config(None, ["glfs.eta=nan"], cls=CalibrateMapConfig)
@@ -206,7 +206,7 @@ def test_pydantic_validation_keeps_calnavs_messages():
     """The loader validates with pydantic (docs/configuration.md says why); the messages stay one
     line naming the key and what it takes, and pydantic's lax readings that would be wrong
     numbers are refused."""
-    from eval.calibration.config import CalibrateMapConfig
+    from calnav.eval.calibration.config import CalibrateMapConfig
 
     with pytest.raises(ConfigError, match=r"bad value for run.seed: True; expected an integer"):
         load_config(None, ["run.seed=true"])               # pydantic alone would read seed 1

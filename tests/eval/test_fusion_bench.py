@@ -2,12 +2,12 @@
 import numpy as np
 import pytest
 
-from envs.primitives import box_room_scene
-from eval.bench.fusion import BenchFrames, measure
-from eval.config import ConfigError, load_config
-from mapping.config import MappingConfig
-from mapping.fusion import STRATEGIES
-from mapping.ground_truth import LabelledMesh
+from calnav.envs.primitives import box_room_scene
+from calnav.eval.bench.fusion import BenchFrames, measure
+from calnav.eval.config import ConfigError, load_config
+from calnav.mapping.config import MappingConfig
+from calnav.mapping.fusion import STRATEGIES
+from calnav.mapping.ground_truth import LabelledMesh
 from tests.mapping.test_voxel_map import VIEWS, intrinsics, look_at
 
 

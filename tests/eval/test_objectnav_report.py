@@ -4,10 +4,10 @@ import csv
 
 import pytest
 
-from eval.config import expand_multirun
-from eval.objectnav.report import (combo_dirname, combo_values, comparison_markdown, plot_run, varied_keys,
+from calnav.eval.config import expand_multirun
+from calnav.eval.objectnav.report import (combo_dirname, combo_values, comparison_markdown, plot_run, varied_keys,
                                    write_comparison)
-from eval.stats import summarize
+from calnav.eval.stats import summarize
 
 
 def _rec(cat, success, spl, soft, dtg):

@@ -8,10 +8,10 @@ import math
 
 import pytest
 
-from agent.segmenters.base import WEIGHTS_DIR
-from eval.cli import main
-from eval.config import load_config
-from eval.preflight import check_run_resources
+from calnav.agent.segmenters.base import WEIGHTS_DIR
+from calnav.eval.cli import main
+from calnav.eval.config import load_config
+from calnav.eval.preflight import check_run_resources
 
 SHIPPED_GLFS = WEIGHTS_DIR / "glfs_learned_rgb.json"
 SMALL = ["env.resolution=32x24", "env.dataset.val_scenes=2", "env.dataset.episodes_per_scene=3"]
@@ -138,12 +138,12 @@ def assert_runs_the_checked_configs(argv: list[str], monkeypatch) -> list:
     on; assert the main received exactly the config objects the preflight checked. Returns them."""
     import importlib
 
-    import eval.preflight
-    from eval.cli import COMMANDS
+    import calnav.eval.preflight as preflight
+    from calnav.eval.cli import COMMANDS
 
     entry = COMMANDS[argv[0]]
     checked, received = [], []
-    monkeypatch.setattr(eval.preflight, "check_run_resources", lambda cfg, checks=(): checked.append(cfg))
+    monkeypatch.setattr(preflight, "check_run_resources", lambda cfg, checks=(): checked.append(cfg))
     monkeypatch.setattr(importlib.import_module(entry.module), entry.main,
                         lambda args, configs: received.append(configs))
     assert main(argv) == 0
@@ -152,7 +152,7 @@ def assert_runs_the_checked_configs(argv: list[str], monkeypatch) -> list:
     return checked
 
 
-@pytest.mark.parametrize("command", sorted(set(__import__("eval.cli", fromlist=["COMMANDS"]).COMMANDS)
+@pytest.mark.parametrize("command", sorted(set(__import__("calnav.eval.cli", fromlist=["COMMANDS"]).COMMANDS)
                                            - {"habitat-benchmark"}))   # in tests/envs/test_habitat.py
 def test_every_command_runs_the_configs_the_preflight_checked(tmp_path, monkeypatch, command):
     """The CLI loads a command's configs once, the preflight checks them and the command's main
@@ -184,7 +184,7 @@ def test_preflight_checks_only_what_a_command_uses(tmp_path, capsys):
     checks in the registry); view-episode checks the agent it draws, not the config's."""
     scenes = tmp_path / "scenes"
     (scenes / "val").mkdir(parents=True)
-    from envs.primitives import box_room_scene
+    from calnav.envs.primitives import box_room_scene
 
     box_room_scene(name="myhouse").save(scenes / "val" / "myhouse.npz")
     out = tmp_path / "exp"

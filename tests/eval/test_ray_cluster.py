@@ -29,7 +29,7 @@ def test_two_node_ray_cluster_runs_episodes_on_both_nodes(tmp_path, monkeypatch)
         cluster.wait_for_nodes()
         out = tmp_path / "cluster"
         env = {**os.environ, "PYTHONPATH": str(REPO)}
-        cmd = [sys.executable, "-c", "import sys; from eval.cli import main; sys.exit(main(sys.argv[1:]))",
+        cmd = [sys.executable, "-c", "import sys; from calnav.eval.cli import main; sys.exit(main(sys.argv[1:]))",
                "objectnav", "--agent", "oracle", "--episodes", "0:6", "--output", str(out), *SMALL,
                "run.backend=ray", f"run.ray_address={cluster.address}"]
         run = subprocess.run(cmd, env=env, cwd=REPO, capture_output=True, text=True, timeout=600)

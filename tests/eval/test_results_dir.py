@@ -13,12 +13,12 @@ from pathlib import Path
 
 import pytest
 
-from eval.cli import main
-from eval.results_dir import RECORDS_NAME as RECORDS, ResultsDir, ResultsError, read_records
+from calnav.eval.cli import main
+from calnav.eval.results_dir import RECORDS_NAME as RECORDS, ResultsDir, ResultsError, read_records
 
 SMALL = ["env.resolution=32x24", "env.dataset.val_scenes=2", "env.dataset.episodes_per_scene=3"]
 REPO_ROOT = Path(__file__).resolve().parents[2]
-LOCK_HOLDER = ("import sys, time; from eval.results_dir import ResultsDir; ResultsDir(sys.argv[1]).open(); "
+LOCK_HOLDER = ("import sys, time; from calnav.eval.results_dir import ResultsDir; ResultsDir(sys.argv[1]).open(); "
                "print('locked', flush=True); time.sleep(600)")
 
 pytestmark = pytest.mark.e2e
@@ -200,7 +200,7 @@ def test_read_only_file_system_gives_a_one_line_error(tmp_path, capsys):
 
 
 def test_run_whose_episodes_all_crash_exits_nonzero_with_the_first_error(tmp_path, capsys, monkeypatch):
-    import eval.objectnav.run as run
+    import calnav.eval.objectnav.run as run
 
     def crash(env, agent, index, video_dir=None):
         raise RuntimeError(f"bad glfs params (episode {index})")
@@ -217,8 +217,8 @@ def test_run_whose_episodes_all_crash_exits_nonzero_with_the_first_error(tmp_pat
 def test_config_check_ignores_neutral_keys_and_force_discards(tmp_path):
     """One meaning everywhere (objectnav and calibrate-map configs alike): resolved dicts are
     compared without run.workers / run.output_dir; --force deletes only the ``discard`` names."""
-    from eval.calibration.config import CalibrateMapConfig
-    from eval.config import load_config
+    from calnav.eval.calibration.config import CalibrateMapConfig
+    from calnav.eval.config import load_config
 
     for cls, name in ((None, "objectnav"), (CalibrateMapConfig, "calibrate")):
         kw = {"cls": cls} if cls else {}
@@ -241,7 +241,7 @@ def test_config_check_ignores_neutral_keys_and_force_discards(tmp_path):
 
 def test_check_finds_a_held_directory_and_another_config_without_writing(tmp_path):
     """ResultsDir.check (calnav map: checked before fusing, opened after) refuses what open would."""
-    from eval.config import load_config
+    from calnav.eval.config import load_config
 
     path = tmp_path / "r"
     held = ResultsDir(path, load_config(None, ["run.seed=1"])).open()

@@ -8,15 +8,15 @@ import json
 import numpy as np
 import pytest
 
-from eval.cli import main
+from calnav.eval.cli import main
 from tests.sequence_data import CLASSES, write_scannet
 
 ROUND_TRIP = ["--frames", "8", "--resolution", "64x48", "--max-edge", "0.1"]
 
 
 def _npz(path):
-    from common.npz import load_versioned_npz
-    from eval.sequence.map_cmd import MAP_FORMAT_VERSION
+    from calnav.common.npz import load_versioned_npz
+    from calnav.eval.sequence.map_cmd import MAP_FORMAT_VERSION
 
     return load_versioned_npz(path, MAP_FORMAT_VERSION)
 
@@ -25,16 +25,16 @@ def test_export_round_trip_matches_mapping_the_frames_in_memory(tmp_path):
     """Exported frames read back through the ScanNet reader give the same fused map and metrics
     as the rendered frames fused in memory (gt logits from the semantic frames, which do not
     depend on the lossy JPEG colour; millimetre depth on both sides)."""
-    from agent.segmenters import make_segmenter
-    from eval.calibration.config import CalibrateMapConfig
-    from eval.calibration.record import HouseScan, scene_seed
-    from eval.config import load_config
-    from eval.sequence.export import densify, depth_to_mm
-    from eval.sequence.map_cmd import score
-    from mapping.config import MappingConfig
-    from mapping.ground_truth import nearest_vertex_labels
-    from mapping.sequences import SequenceConfig, depth_from_raw
-    from mapping.voxel_map import SemanticVoxelMap
+    from calnav.agent.segmenters import make_segmenter
+    from calnav.eval.calibration.config import CalibrateMapConfig
+    from calnav.eval.calibration.record import HouseScan, scene_seed
+    from calnav.eval.config import load_config
+    from calnav.eval.sequence.export import densify, depth_to_mm
+    from calnav.eval.sequence.map_cmd import score
+    from calnav.mapping.config import MappingConfig
+    from calnav.mapping.ground_truth import nearest_vertex_labels
+    from calnav.mapping.sequences import SequenceConfig, depth_from_raw
+    from calnav.mapping.voxel_map import SemanticVoxelMap
 
     exp, out = tmp_path / "exp", tmp_path / "map"
     assert main(["export-sequence", *ROUND_TRIP, "--output", str(exp)]) == 0
@@ -66,8 +66,8 @@ def test_export_round_trip_matches_mapping_the_frames_in_memory(tmp_path):
 
 
 def test_precomputed_logits_give_the_segmenters_map(tmp_path):
-    from agent.segmenters import make_segmenter
-    from mapping.sequences import Sequence
+    from calnav.agent.segmenters import make_segmenter
+    from calnav.mapping.sequences import Sequence
 
     root = write_scannet(tmp_path / "seq", n=4, bad_pose=1)
     seg = make_segmenter("gt")
@@ -158,7 +158,7 @@ def test_calibrate_map_runs_on_recorded_sequences(tmp_path):
 
 
 def test_bench_sequence_section_figures(tmp_path):
-    from eval.bench.sequence import measure
+    from calnav.eval.bench.sequence import measure
 
     root = write_scannet(tmp_path / "seq", n=4)
     out = measure(root, "40x30")
@@ -210,8 +210,8 @@ def _break(root, logits, defect: str) -> None:
 ])
 def test_map_per_frame_defects_are_named_and_nothing_is_written(tmp_path, capsys, defect, message):
     """Issue 26: per-frame problems were tracebacks, unnamed, or found after map.npz was written."""
-    from agent.segmenters import make_segmenter
-    from mapping.sequences import Sequence
+    from calnav.agent.segmenters import make_segmenter
+    from calnav.mapping.sequences import Sequence
 
     root = write_scannet(tmp_path / "seq", n=3)
     logits = tmp_path / "logits"

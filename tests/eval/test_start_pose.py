@@ -6,9 +6,9 @@ import math
 import numpy as np
 import pytest
 
-from agent import projection as pj
-from eval.config import load_config
-from eval.objectnav.start_pose import VARIANTS, PoseVariant, reexpress_obs, lockstep_map_stats, parse_variants, rotated_setup
+from calnav.agent import projection as pj
+from calnav.eval.config import load_config
+from calnav.eval.objectnav.start_pose import VARIANTS, PoseVariant, reexpress_obs, lockstep_map_stats, parse_variants, rotated_setup
 
 VOXEL_M = 0.05
 
@@ -62,8 +62,8 @@ def test_maps_agree_across_frames(small_cfg):
 def test_rotated_house_is_the_same_house(small_cfg, tmp_path):
     import gymnasium as gym
 
-    import envs
-    from envs.episodes import load_split
+    from calnav import envs
+    from calnav.envs.episodes import load_split
 
     env_cfg = small_cfg.env
     episodes = load_split("val", env_cfg, progress=False)[:1]
@@ -85,7 +85,7 @@ def test_start_pose_cli_writes_its_results_directory_and_refuses_another_config(
     (config check, --force, atomic summaries), like every other command's."""
     import json
 
-    from eval.cli import main
+    from calnav.eval.cli import main
 
     out = tmp_path / "sp"
     tiny = ["env.resolution=64x48", "agent.map_resolution=64x48", "agent.segmenter=gt", "env.max_episode_steps=30",
@@ -110,8 +110,8 @@ def test_start_pose_crash_is_a_record_and_a_rerun_resumes(tmp_path, monkeypatch)
     to truncate its episodes.jsonl on every run)."""
     import json
 
-    import eval.objectnav.run as run
-    from eval.cli import main
+    import calnav.eval.objectnav.run as run
+    from calnav.eval.cli import main
 
     out = tmp_path / "sp"
     tiny = ["env.resolution=64x48", "agent.map_resolution=64x48", "agent.segmenter=gt", "env.max_episode_steps=20",
@@ -142,8 +142,8 @@ def test_a_changed_variant_definition_is_not_resumed(tmp_path, capsys, monkeypat
     old episodes are not reused under the new definition (refused; --force discards them)."""
     import json
 
-    import eval.objectnav.start_pose as sp
-    from eval.cli import main
+    import calnav.eval.objectnav.start_pose as sp
+    from calnav.eval.cli import main
 
     out = tmp_path / "sp"
     tiny = ["env.resolution=64x48", "agent.map_resolution=64x48", "agent.segmenter=gt", "env.max_episode_steps=10",

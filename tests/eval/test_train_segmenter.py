@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 import torch
 
-from eval.config import load_config
-from eval.segmenter.data import SegmenterExperimentConfig, cache_path, load_or_render
+from calnav.eval.config import load_config
+from calnav.eval.segmenter.data import SegmenterExperimentConfig, cache_path, load_or_render
 
 TINY = ["data.frames=16", "data.scenes=2", "data.resolution=64x48", "data.walk_steps=4",
         "data.scanned_fraction=0", "train.epochs=4", "train.batch_size=8", "train.val_frames=4", "train.lr=0.01",
@@ -23,7 +23,7 @@ def cfg():
 
 @pytest.fixture(scope="module")
 def trained(cfg, tmp_path_factory):
-    from eval.segmenter.train import train
+    from calnav.eval.segmenter.train import train
 
     out = tmp_path_factory.mktemp("seg") / "rgbd.pt"
     card = train(cfg, "learned_rgbd", out, progress=False, command="test")
@@ -42,7 +42,7 @@ def test_training_lowers_the_loss_and_writes_a_card(trained):
 
 
 def test_trained_weights_load_into_the_segmenter(trained, cfg):
-    from agent.segmenters import SegmenterConfig, make_segmenter
+    from calnav.agent.segmenters import SegmenterConfig, make_segmenter
 
     out, _ = trained
     seg = make_segmenter("learned_rgbd", SegmenterConfig(weights=str(out)))
@@ -53,7 +53,7 @@ def test_trained_weights_load_into_the_segmenter(trained, cfg):
 
 
 def test_resume_is_bit_identical(trained, cfg, tmp_path):
-    from eval.segmenter.train import checkpoint_path, train
+    from calnav.eval.segmenter.train import checkpoint_path, train
 
     full, _ = trained
     part = tmp_path / "part.pt"
@@ -81,7 +81,7 @@ def test_dataset_cache_is_reused(cfg):
 
 
 def test_eval_segmenter_cli_writes_metrics(tmp_path):
-    from eval.cli import main
+    from calnav.eval.cli import main
 
     out = tmp_path / "gt.json"
     rc = main(["eval-segmenter", "--model", "gt", "--split", "test", "--frames", "3", "--output", str(out),
@@ -98,7 +98,7 @@ def test_eval_segmenter_cli_writes_metrics(tmp_path):
 
 
 def test_train_rejects_unknown_model(cfg, tmp_path):
-    from eval.segmenter.train import train
+    from calnav.eval.segmenter.train import train
 
     with pytest.raises(ValueError, match="trainable models"):
         train(cfg, "gt", tmp_path / "x.pt", progress=False)
@@ -107,7 +107,7 @@ def test_train_rejects_unknown_model(cfg, tmp_path):
 def test_gaussian_blur_hand_case():
     """sigma 1 px: radius 2, 1-D weights exp(-x^2 / 2) / 2.48373 for x = -2..2; an impulse spreads
     into their outer product (centre 0.40262^2 = 0.16210), a constant image is unchanged."""
-    from eval.segmenter.train import gaussian_blur
+    from calnav.eval.segmenter.train import gaussian_blur
 
     img = torch.zeros(1, 3, 9, 9)
     img[:, :, 4, 4] = 1.0
@@ -124,7 +124,7 @@ def test_augmentation_blurs_the_chosen_share(cfg):
     """train.blur_prob = 1 blurs every image (an impulse spreads); 0 leaves the stream untouched."""
     import dataclasses
 
-    from eval.segmenter.train import augment
+    from calnav.eval.segmenter.train import augment
 
     rgb = torch.zeros(4, 3, 12, 12)
     rgb[:, :, 6, 6] = 0.5

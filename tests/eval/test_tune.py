@@ -5,9 +5,9 @@ import math
 
 import pytest
 
-from eval.cli import main
-from eval.config import ConfigError, load_config
-from eval.objectnav.tune import edge_extension, parse_min_areas, parse_thresholds, point_name, select_best
+from calnav.eval.cli import main
+from calnav.eval.config import ConfigError, load_config
+from calnav.eval.objectnav.tune import edge_extension, parse_min_areas, parse_thresholds, point_name, select_best
 
 # A tiny, fast peanut set-up: low resolution, one small house, short episodes.
 SMALL = ["env.resolution=64x48", "env.dataset.val_scenes=1", "env.dataset.episodes_per_scene=2",

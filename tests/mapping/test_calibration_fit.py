@@ -5,12 +5,12 @@ import numpy as np
 import pytest
 import torch
 
-from mapping import metrics
-from mapping.calibration.fit import MapObjective, fit_temperature_2d, fit_temperature_3d, fit_vector_3d
-from mapping.calibration.flat_obs import FlatObservations
-from mapping.fusion import STRATEGIES, fuse, fuse_flat
-from mapping.calibration.glfs_train import GLFSModel, GLFSTrainConfig, glfs_loss, class_weights, train_glfs
-from mapping.calibration.obs_cache import ObsCache
+from calnav.mapping import metrics
+from calnav.mapping.calibration.fit import MapObjective, fit_temperature_2d, fit_temperature_3d, fit_vector_3d
+from calnav.mapping.calibration.flat_obs import FlatObservations
+from calnav.mapping.fusion import STRATEGIES, fuse, fuse_flat
+from calnav.mapping.calibration.glfs_train import GLFSModel, GLFSTrainConfig, glfs_loss, class_weights, train_glfs
+from calnav.mapping.calibration.obs_cache import ObsCache
 
 K = 5
 

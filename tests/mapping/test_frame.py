@@ -1,7 +1,7 @@
 """mapping.frame.SegmentedFrame: the one frame type the mapping pipeline starts from."""
 import numpy as np
 
-from mapping.frame import SegmentedFrame
+from calnav.mapping.frame import SegmentedFrame
 
 
 def test_labels_are_the_argmax_computed_once():

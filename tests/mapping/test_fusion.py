@@ -9,8 +9,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from mapping.config import FUSION_NAMES
-from mapping.fusion import LAPLACE_MU, STRATEGIES, fuse, get_strategy
+from calnav.mapping.config import FUSION_NAMES
+from calnav.mapping.fusion import LAPLACE_MU, STRATEGIES, fuse, get_strategy
 
 NAMES = tuple(STRATEGIES)
 GATES = {"glfs": {"g": 0.4, "eps": 0.3}}
@@ -183,7 +183,7 @@ def test_bad_input_raises_clear_errors():
 def test_half_precision_logits_fuse_in_float32(name, half):
     """fp16 / bf16 logits (as the observation caches store them) fuse like the float32 tensor
     of the same values, and the result is float32."""
-    from mapping.fusion import fuse_flat
+    from calnav.mapping.fusion import fuse_flat
 
     gen = torch.Generator().manual_seed(3)
     z = (3 * torch.randn(4, 5, 6, generator=gen)).to(half)

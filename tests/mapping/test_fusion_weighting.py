@@ -3,10 +3,10 @@ import numpy as np
 import pytest
 import torch
 
-from mapping.config import WEIGHTING_NAMES, MappingConfig
-from mapping.glfs import GLFSParams
-from mapping.scaling import as_temperature
-from mapping.weighting import WEIGHTINGS, WeightingParams, bin_index, resolve, sample_weights
+from calnav.mapping.config import WEIGHTING_NAMES, MappingConfig
+from calnav.mapping.glfs import GLFSParams
+from calnav.mapping.scaling import as_temperature
+from calnav.mapping.weighting import WEIGHTINGS, WeightingParams, bin_index, resolve, sample_weights
 
 K = 4
 

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 import torch
 
-from mapping.calibration.flat_obs import FlatObservations
-from mapping.calibration.glfs_train import GLFSTrainConfig, _check_points, class_weights, train_glfs
-from mapping.calibration.selection import CheckpointSelector, ValidationScore
+from calnav.mapping.calibration.flat_obs import FlatObservations
+from calnav.mapping.calibration.glfs_train import GLFSTrainConfig, _check_points, class_weights, train_glfs
+from calnav.mapping.calibration.selection import CheckpointSelector, ValidationScore
 
 # A hand-made validation history; check 0 is the initial parameters (mIoU 0.600).
 #   check  loss   mIoU    mECE
@@ -113,7 +113,7 @@ def test_train_glfs_keeps_the_checkpoint_its_rule_picks(rule):
         ok = [i for i in range(n) if hist.val_miou[i] >= hist.val_miou[0] - 0.005 - 1e-12]
         assert b in ok and hist.val_mece[b] == pytest.approx(min(hist.val_mece[i] for i in ok), abs=1e-5)
     # the returned parameters are the kept checkpoint's
-    from mapping.calibration.glfs_train import GLFSModel, validation_score
+    from calnav.mapping.calibration.glfs_train import GLFSModel, validation_score
     s = validation_score(GLFSModel.from_params(params), val, class_weights(train.class_frequency()), cfg.eta)
     assert s.miou == pytest.approx(hist.val_miou[b], abs=1e-6) and s.mece == pytest.approx(hist.val_mece[b], abs=1e-6)
 

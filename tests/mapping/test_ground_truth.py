@@ -2,9 +2,9 @@
 import numpy as np
 import pytest
 
-from envs.primitives import box_room_scene
-from envs.semantics import CLASS_ID
-from mapping.ground_truth import LabelledMesh, voxel_labels
+from calnav.envs.primitives import box_room_scene
+from calnav.envs.semantics import CLASS_ID
+from calnav.mapping.ground_truth import LabelledMesh, voxel_labels
 
 
 @pytest.fixture(scope="module")

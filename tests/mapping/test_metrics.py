@@ -3,7 +3,7 @@ case, ignore_index, bin edges, streaming == one-shot, a naive cross-check, and b
 import numpy as np
 import pytest
 
-from mapping import metrics as M
+from calnav.mapping import metrics as M
 
 # Case A (K = 2, one sample per bin):
 #   probs              label  pred  conf  bin  correct
@@ -178,7 +178,7 @@ def test_bad_options():
 def test_dece_approaches_ece_as_temperatures_vanish():
     import torch
 
-    from mapping.calibration.metrics_torch import dece, mdece
+    from calnav.mapping.calibration.metrics_torch import dece, mdece
 
     # under-confident at low confidence, over-confident at high: bin gaps change sign, so soft
     # binning (large t_b) really differs from hard binning

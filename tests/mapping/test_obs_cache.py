@@ -3,8 +3,8 @@ import numpy as np
 import pytest
 import torch
 
-from mapping.fusion import fuse
-from mapping.calibration.obs_cache import ObsCache
+from calnav.mapping.fusion import fuse
+from calnav.mapping.calibration.obs_cache import ObsCache
 
 K = 3
 VOX = 0.05

@@ -8,8 +8,8 @@ import cv2
 import numpy as np
 import pytest
 
-from mapping import frame_geometry as fg
-from mapping.sequences import (LogitsDir, Registration, Sequence, SequenceConfig, depth_from_raw,
+from calnav.mapping import frame_geometry as fg
+from calnav.mapping.sequences import (LogitsDir, Registration, Sequence, SequenceConfig, depth_from_raw,
                                vertex_ground_truth)
 from tests.sequence_data import CLASSES, FLOOR, TABLE, WALL, intrinsics, render_frames, write_scannet
 
@@ -58,8 +58,8 @@ def test_check_pose_rejects_a_reflection():
 
 
 def test_integrate_accepts_a_near_rigid_pose():
-    from mapping.config import MappingConfig
-    from mapping.voxel_map import SemanticVoxelMap
+    from calnav.mapping.config import MappingConfig
+    from calnav.mapping.voxel_map import SemanticVoxelMap
 
     frames, k = render_frames(1)
     rgb, depth, labels, pose = frames[0]
@@ -96,7 +96,7 @@ def test_registration_hand_case():
 
 # ----------------------------------------------------------------- readers
 def test_scannet_reader_reads_back_what_was_written_and_skips_invalid_poses(tmp_path):
-    from eval.sequence.export import depth_to_mm
+    from calnav.eval.sequence.export import depth_to_mm
 
     root = write_scannet(tmp_path / "seq", n=4, bad_pose=2)
     frames, k = render_frames(4)
@@ -179,7 +179,7 @@ def test_an_8bit_depth_frame_is_refused_with_its_frame_number(tmp_path):
 
 def test_class_list_with_a_repeated_name_is_refused(tmp_path):
     """Issue 26: a classes.json naming a class twice gave mIoU 0.748 instead of 0.957 with exit 0."""
-    from mapping.sequences.labels import read_class_list
+    from calnav.mapping.sequences.labels import read_class_list
 
     path = tmp_path / "classes.json"
     path.write_text(json.dumps(["wall", "floor", "chair", "floor"]))
@@ -210,7 +210,7 @@ def test_logits_dir_checks_class_count_and_size(tmp_path):
 
 # ------------------------------------------------------------ ground truth
 def test_nearest_vertex_labels_hand_case():
-    from mapping.ground_truth import nearest_vertex_labels
+    from calnav.mapping.ground_truth import nearest_vertex_labels
 
     verts = np.array([[0, 0, 0], [1, 0, 0], [0.5, 0, 0]], float)
     labels = np.array([3, 5, -1])                 # the middle vertex is unannotated
@@ -249,7 +249,7 @@ def test_vertex_ground_truth_label_maps(tmp_path):
 
 
 def test_densify_bounds_edges_and_keeps_area_and_classes():
-    from eval.sequence.export import densify
+    from calnav.eval.sequence.export import densify
 
     v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [5, 5, 5]], float)
     t = np.array([[0, 1, 2], [1, 3, 2]])
@@ -270,7 +270,7 @@ def test_densify_bounds_edges_and_keeps_area_and_classes():
 def test_prefetched_keeps_order_reraises_and_stops_its_thread():
     import threading
 
-    from common.prefetch import prefetched
+    from calnav.common.prefetch import prefetched
 
     assert list(prefetched(iter(range(7)))) == list(range(7))
 
@@ -293,7 +293,7 @@ def test_prefetched_keeps_order_reraises_and_stops_its_thread():
 def test_scannet_label_filt_frames_map_through_the_label_table(tmp_path):
     """ScanNet's label-filt/N.png hold raw ScanNet ids; with sequence.frame_label_map (e.g.
     scannetv2-labels.combined.tsv) and a class list they become per-frame class labels."""
-    from mapping.sequences import read_scannet
+    from calnav.mapping.sequences import read_scannet
 
     root = write_scannet(tmp_path / "seq", n=2)
     frames, _ = render_frames(2)

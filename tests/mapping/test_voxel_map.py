@@ -5,14 +5,14 @@ import numpy as np
 import pytest
 import torch
 
-from envs.primitives import box_room_scene
-from mapping.config import MappingConfig
-from mapping.fusion import STRATEGIES, fuse
-from mapping.glfs import GLFSParams
-from mapping.ground_truth import LabelledMesh
-from mapping.calibration.obs_cache import ObsCache
-from mapping.voxel_map import SemanticVoxelMap
-from mapping.weighting import WeightingParams, sample_weights
+from calnav.envs.primitives import box_room_scene
+from calnav.mapping.config import MappingConfig
+from calnav.mapping.fusion import STRATEGIES, fuse
+from calnav.mapping.glfs import GLFSParams
+from calnav.mapping.ground_truth import LabelledMesh
+from calnav.mapping.calibration.obs_cache import ObsCache
+from calnav.mapping.voxel_map import SemanticVoxelMap
+from calnav.mapping.weighting import WeightingParams, sample_weights
 
 W, H, HFOV_DEG = 160, 120, 79.0
 # Shift the room by a fraction of a voxel so that no voxel centre lies exactly on two surfaces
@@ -165,7 +165,7 @@ def test_readouts(room):
 
 
 def test_incidence_angles_of_a_tilted_plane():
-    from mapping.frame_geometry import incidence_angles
+    from calnav.mapping.frame_geometry import incidence_angles
 
     k = intrinsics(64, 48)
     v, u = np.mgrid[0:48, 0:64]
@@ -260,7 +260,7 @@ def test_bad_input(room):
 
 def _snapshot(m: SemanticVoxelMap) -> dict:
     """Copies of every voxel attribute, the hashmap's keys and slots, and the frame count."""
-    from mapping.voxel_map import BASE_ATTRS, SEM
+    from calnav.mapping.voxel_map import BASE_ATTRS, SEM
 
     hm = m.vbg.hashmap()
     out = {name: m.vbg.attribute(name).numpy().copy() for name in [a for a, _ in BASE_ATTRS] + [SEM]}
@@ -313,8 +313,8 @@ def test_readouts_use_only_the_maps_storage_interface():
     import ast
     from pathlib import Path
 
-    import mapping.map_readout as readout
-    from mapping.voxel_map import SemanticVoxelMap
+    import calnav.mapping.map_readout as readout
+    from calnav.mapping.voxel_map import SemanticVoxelMap
 
     interface = {"cfg", "vbg", "num_classes", "frames_integrated", "attribute", "observation_counts",
                  "fused_probs", "flat_indices", "o3d_weight_threshold"}
