@@ -15,20 +15,19 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Literal
 
+from calnav.agent.segmenters import check_segmenter_spec
 from calnav.agent.segmenters.base import SegmenterConfig
 
 MapType = Literal["fused", "ndf"]
 MAP_TYPES: tuple[str, ...] = MapType.__args__  # type: ignore[attr-defined]
 SemanticPrior = Literal["none", "cooccurrence"]
-# Names of ``agent.segmenters.SEGMENTERS`` (a test keeps the two equal): the config loader
-# rejects a misspelt segmenter before anything runs, without importing any network.
-SegmenterName = Literal["gt", "noisy", "learned_rgb", "learned_rgbd"]
 
 
 @dataclass
 class AgentConfig:
     # --- perception ---------------------------------------------------------------------------
-    segmenter: SegmenterName = "gt"     # segmenter: gt | noisy | learned_rgb | learned_rgbd (agent.segmenters)
+    segmenter: str = "gt"               # gt | noisy | learned_rgb | learned_rgbd | hf | onnx | torchvision |
+                                        # package.module:factory | a calnav.segmenters plugin (agent.segmenters)
     segmenter_config: SegmenterConfig = field(default_factory=SegmenterConfig)  # its settings
     map_type: MapType = "fused"         # fused (3D calibrated fusion) | ndf (per-frame 2D max baseline)
     map_resolution: tuple[int, int] = (160, 120)  # mapping resolution WxH (depth/logits subsampled), pixels
@@ -76,6 +75,7 @@ class AgentConfig:
     verify_distance_m: float = 1.0      # approach candidates to this range and re-observe, metres
 
     def __post_init__(self) -> None:
+        check_segmenter_spec(self.segmenter)   # a misspelt name fails here, importing nothing of it
         if self.map_type not in MAP_TYPES:
             raise ValueError(f"unknown agent.map_type {self.map_type!r}; valid: {', '.join(MAP_TYPES)}")
         for key in ("cell_m", "map_size_m", "agent_radius_m", "goal_dilation_m", "stop_distance_m",

@@ -90,10 +90,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--output", default=None, help="weight file (default: agent/weights/<model>.pt)")
     p.add_argument("--resume", action="store_true", help="continue from this config's last epoch checkpoint")
 
+    p = sub.add_parser("export-onnx", help="a learned segmenter as an ONNX model for the onnx adapter "
+                                           "(checked against torch before it is written)")
+    p.add_argument("--model", required=True, choices=("learned_rgb", "learned_rgbd"), help="network to export")
+    p.add_argument("--weights", default=None, help="weight file (default: the shipped agent/weights/<model>.pt)")
+    p.add_argument("--output", required=True, help="the .onnx file to write")
+
     p = sub.add_parser("eval-segmenter", help="accuracy / mIoU / ECE / mECE of a segmenter on held-out frames")
     _add_config_args(p, "configs/segmenter.yaml")
-    p.add_argument("--model", required=True, choices=("gt", "noisy", "learned_rgb", "learned_rgbd"),
-                   help="segmenter to score")
+    p.add_argument("--model", required=True, metavar="SEGMENTER",
+                   help="segmenter to score: gt | noisy | learned_rgb | learned_rgbd | hf | onnx | torchvision | "
+                        "package.module:factory | a calnav.segmenters plugin (configured by the segmenter section)")
     p.add_argument("--split", default="test", choices=("train", "val", "test"), help="split whose houses are rendered")
     p.add_argument("--frames", type=int, default=500, help="number of frames scored")
     p.add_argument("--output", default=None, help="metrics JSON path (default: print only)")
@@ -112,8 +119,9 @@ def build_parser() -> argparse.ArgumentParser:
                                    "and score it against a labelled mesh")
     p.add_argument("sequence_dir", help="the recording's directory")
     p.add_argument("--layout", required=True, choices=("scannet", "7scenes"), help="file layout of the recording")
-    p.add_argument("--segmenter", default=None, metavar="NAME",
-                   help="calnav segmenter run on every frame (gt | noisy | learned_rgb | learned_rgbd)")
+    p.add_argument("--segmenter", default=None, metavar="SEGMENTER",
+                   help="segmenter run on every frame: gt | noisy | learned_rgb | learned_rgbd | hf | onnx | "
+                        "torchvision | package.module:factory | a calnav.segmenters plugin (segmenter section)")
     p.add_argument("--logits", default=None, metavar="DIR", help="precomputed logits DIR/N.npy|.npz (H, W, K)")
     p.add_argument("--classes", default=None, metavar="FILE",
                    help="class list of --logits (.json list or one name per line; default DIR/classes.json|.txt)")
@@ -138,7 +146,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("fit-glfs", help="record calibration scans and train GLFS parameters for one segmenter")
     _add_config_args(p, "configs/calibrate_map.yaml")
-    p.add_argument("--segmenter", required=True, help="segmenter whose observations GLFS is fitted to")
+    p.add_argument("--segmenter", required=True, metavar="SEGMENTER",
+                   help="segmenter whose observations GLFS is fitted to (any agent.segmenter spec; segmenter section)")
     p.add_argument("--output", required=True, help="GLFS parameter file (.json / .npz) for mapping.glfs_params")
     p.add_argument("--work-dir", default=None, help="where scans are kept (default: run.output_dir)")
     p.add_argument("--variant", default=None,
@@ -204,6 +213,7 @@ COMMANDS: dict[str, Command] = {
                                "calnav.eval.segmenter.data:segmenter_configs"),
     "eval-segmenter": Command("calnav.eval.segmenter.evaluate", "main_eval_segmenter",
                               "calnav.eval.segmenter.data:segmenter_configs"),
+    "export-onnx": Command("calnav.eval.segmenter.export_onnx", "main_export_onnx", None),  # reads a weight file
     "calibrate-map": Command("calnav.eval.calibration.study", "main_calibrate_map", "calibrate_map_configs"),
     "fit-glfs": Command("calnav.eval.calibration.study", "main_fit_glfs", "fit_glfs_configs"),
     "map": Command("calnav.eval.sequence.map_cmd", "main_map", "map_configs"),

@@ -55,7 +55,10 @@ def check_run_resources(cfg: Any, checks: tuple[str, ...] = CHECKS) -> None:
     names = None
     agent = getattr(cfg, "agent", None) if "agent" in checks else None
     if agent is not None:
-        names = check_segmenter(agent.segmenter, agent.segmenter_config, run.device if run else None)
+        from calnav.agent.segmenters.adapter import goal_categories
+
+        names = check_segmenter(agent.segmenter, agent.segmenter_config, run.device if run else None,
+                                probe_size=tuple(cfg.env.resolution), goals=goal_categories())
         _check_sensors_feed_the_segmenter(cfg)
         if cfg.env.dataset.scene_dir:
             from calnav.envs.scenes import split_scene_ids
@@ -64,7 +67,7 @@ def check_run_resources(cfg: Any, checks: tuple[str, ...] = CHECKS) -> None:
     study = getattr(cfg, "study", None) if "study" in checks else None
     if study is not None:
         for name in study.segmenters:
-            check_segmenter(name, device=run.device if run else None)
+            check_segmenter(name, getattr(cfg, "segmenter", None), device=run.device if run else None)
     mapping = getattr(cfg, "mapping", None) if "mapping" in checks else None
     if mapping is not None and mapping.glfs_params:   # a study fits its own GLFS; a named file must still be sound
         GLFSParams.load(mapping.glfs_params, class_names=names)

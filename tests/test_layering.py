@@ -159,7 +159,8 @@ EVAL_SHARED = {"config", "results_dir", "backends", "stats"}  # import only each
 # Declaring a new edge here must keep the table acyclic (test_eval_dependency_table_is_acyclic).
 EVAL_ALLOWED: dict[str, set[str]] = {
     "bench": {"objectnav",     # bench.backends, bench.start_pose time ObjectNav runs and the frame study
-              "sequence"},     # bench.sequence times ScanNet export and the recorded-sequence map
+              "sequence",      # bench.sequence times ScanNet export and the recorded-sequence map
+              "segmenter"},    # bench.adapter times calnav's learned_rgb exported to ONNX
     "calibration": set(),
     "habitat": {"objectnav"},  # the habitat benchmark reuses objectnav.run's bookkeeping and report
     "objectnav": set(),

@@ -1,19 +1,35 @@
 """Semantic segmenters: RGB-D frame -> per-pixel logits (H, W, K). See ``base`` for the
-interface; ``make_segmenter`` builds one by name:
+interface; ``make_segmenter(spec)`` builds one. ``spec`` (``agent.segmenter``) is
 
-- ``gt``: ground truth with a fixed confidence (needs the env's ``semantic`` observation);
-- ``noisy``: ground truth with a controlled, view-correlated, overconfident error model;
-- ``learned_rgb``: compact CNN on RGB (Segformer stand-in), trained in the simulator;
-- ``learned_rgbd``: two-branch RGB + depth CNN (ESANet stand-in).
+- a built-in name: ``gt`` (ground truth with a fixed confidence; needs the env's ``semantic``
+  observation), ``noisy`` (ground truth with a controlled, view-correlated, overconfident
+  error model), ``learned_rgb`` / ``learned_rgbd`` (calnav's CNNs trained in the simulator,
+  stand-ins for Segformer / ESANet), or an adapter for the models people have: ``hf``
+  (transformers), ``onnx`` (onnxruntime), ``torchvision`` -- configured by
+  ``segmenter.model`` and ``segmenter.label_map``;
+- ``package.module:factory``: a user's factory, imported;
+- a name another installed package registers in the entry-point group ``calnav.segmenters``
+  (``[project.entry-points."calnav.segmenters"] mynet = "mypkg.seg:make"``).
+
+A factory is called as ``factory(cfg: SegmenterConfig, device: str)`` and returns an object
+with ``class_names`` and ``segment(rgb, depth) -> (H, W, K) logits`` (``segment_batch`` and
+``needs_depth`` optional); calnav wraps it (``adapter.PluginSegmenter``: output checked on every
+call, ``segmenter.label_map`` applied).
 """
 from __future__ import annotations
 
+import importlib
+import re
+from importlib.metadata import entry_points
 from typing import Callable
 
 from calnav.agent.segmenters.base import Segmenter, SegmenterConfig, default_class_names, resolve_device, softmax
 
-__all__ = ["SEGMENTERS", "SEGMENTER_NAMES", "Segmenter", "SegmenterConfig", "check_segmenter", "make_segmenter",
-           "segmenter_needs_semantic", "softmax"]
+__all__ = ["BUILTIN_SEGMENTERS", "ENTRY_POINT_GROUP", "Segmenter", "SegmenterConfig", "check_segmenter",
+           "check_segmenter_spec", "make_segmenter", "segmenter_needs_semantic", "softmax"]
+
+ENTRY_POINT_GROUP = "calnav.segmenters"
+IMPORT_PATH = re.compile(r"^[A-Za-z_][\w.]*:[A-Za-z_]\w*$")
 
 
 def _ground_truth(name: str, cfg: SegmenterConfig, device: str | None, class_names) -> Segmenter:
@@ -35,55 +51,114 @@ def _learned(name: str, cfg: SegmenterConfig, device: str | None, class_names) -
     return LearnedSegmenter(name, cfg, device)
 
 
-# The registry: name -> builder(name, cfg, device, class_names). ``agent.config.SegmenterName``
-# lists the same names for the config loader (a test keeps the two equal).
-SEGMENTERS: dict[str, Callable[..., Segmenter]] = {
+def _adapter(module: str, cls: str) -> Callable[..., Segmenter]:
+    def build(name: str, cfg: SegmenterConfig, device: str | None, class_names) -> Segmenter:
+        return getattr(importlib.import_module(f"calnav.agent.segmenters.{module}"), cls)(name, cfg, device)
+    return build
+
+
+# The built-in registry: name -> builder(name, cfg, device, class_names).
+BUILTIN_SEGMENTERS: dict[str, Callable[..., Segmenter]] = {
     "gt": _ground_truth, "noisy": _ground_truth, "learned_rgb": _learned, "learned_rgbd": _learned,
+    "hf": _adapter("hf", "HFSegmenter"), "onnx": _adapter("onnx", "ONNXSegmenter"),
+    "torchvision": _adapter("tv", "TorchvisionSegmenter"),
 }
-SEGMENTER_NAMES: tuple[str, ...] = tuple(SEGMENTERS)
 
 
-def segmenter_needs_semantic(name: str) -> bool:
-    """Whether segmenter ``name`` reads the ground-truth ``semantic`` observation (its class's
+def _entry_points() -> dict:
+    return {ep.name: ep for ep in entry_points(group=ENTRY_POINT_GROUP)}
+
+
+def check_segmenter_spec(spec: str) -> str:
+    """``spec`` if it names a segmenter (a built-in name, an installed ``calnav.segmenters``
+    entry point, or the form ``package.module:factory``), without importing anything of it;
+    else ValueError listing the choices."""
+    if spec in BUILTIN_SEGMENTERS or IMPORT_PATH.match(spec) or spec in _entry_points():
+        return spec
+    plugins = sorted(_entry_points())
+    raise ValueError(f"unknown segmenter {spec!r}; valid: {', '.join(BUILTIN_SEGMENTERS)}"
+                     + (f", installed plugins: {', '.join(plugins)}" if plugins else "")
+                     + ", or a factory as package.module:function")
+
+
+def _load_factory(spec: str) -> Callable:
+    """The factory of an import path or entry point; ValueError with one line for every failure."""
+    try:
+        if IMPORT_PATH.match(spec):
+            module, _, attr = spec.partition(":")
+            factory = getattr(importlib.import_module(module), attr)
+        else:
+            factory = _entry_points()[spec].load()
+    except Exception as exc:  # noqa: BLE001 -- any failure of the user's module is reported in one line
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
+        hint = " (install it, or put its folder on PYTHONPATH)" if isinstance(exc, ModuleNotFoundError) else ""
+        raise ValueError(f"segmenter plugin {spec!r} cannot be loaded: {type(exc).__name__}: {first}{hint}") from None
+    if not callable(factory):
+        raise ValueError(f"segmenter plugin {spec!r} is a {type(factory).__name__}, not a factory function")
+    return factory
+
+
+def segmenter_needs_semantic(spec: str) -> bool:
+    """Whether segmenter ``spec`` reads the ground-truth ``semantic`` observation (its class's
     ``needs_semantic``), so a run without that sensor cannot use it."""
-    if name not in SEGMENTERS:
-        raise ValueError(f"unknown segmenter {name!r}; valid names: {', '.join(SEGMENTER_NAMES)}")
-    if SEGMENTERS[name] is not _ground_truth:
-        return False   # the learned segmenters read rgb (and depth)
+    check_segmenter_spec(spec)
+    if BUILTIN_SEGMENTERS.get(spec) is not _ground_truth:
+        return False   # networks and plugins read rgb (and depth)
     from calnav.agent.segmenters.ground_truth import GroundTruthSegmenter
     from calnav.agent.segmenters.noisy import NoisySegmenter
 
-    return {"gt": GroundTruthSegmenter, "noisy": NoisySegmenter}[name].needs_semantic
+    return {"gt": GroundTruthSegmenter, "noisy": NoisySegmenter}[spec].needs_semantic
 
 
-def check_segmenter(name: str, cfg: SegmenterConfig | None = None, device: str | None = None) -> tuple[str, ...]:
-    """Open and validate everything segmenter ``name`` will need (its device; the weight file of
-    a learned one, whose tensors must fit its network; the class list of the ground-truth
-    based ones) without building it, and return its class names. Raises ValueError /
-    FileNotFoundError naming the file: run before a run writes anything or starts workers."""
+def check_segmenter(spec: str, cfg: SegmenterConfig | None = None, device: str | None = None,
+                    probe_size: tuple[int, int] = (160, 120), goals: tuple[str, ...] = ()) -> tuple[str, ...]:
+    """Open and validate everything segmenter ``spec`` will need and return its class names:
+    its device; the weight file of a learned one (tensors must fit its network); the class list
+    of the ground-truth ones; an adapter or plugin is built and run on one probe frame of
+    ``probe_size`` (W, H) (import errors, factory errors, wrong output shape or K, non-finite
+    logits); each of ``goals`` must be a class it predicts (ObjectNav). Raises ValueError /
+    FileNotFoundError in one line: run before a run writes anything or starts workers."""
+    from calnav.agent.segmenters.adapter import check_goals, probe
+
     cfg = cfg or SegmenterConfig()
-    if name not in SEGMENTERS:
-        raise ValueError(f"unknown segmenter {name!r}; valid names: {', '.join(SEGMENTER_NAMES)}")
+    check_segmenter_spec(spec)
     if (device or cfg.device or "cpu") != "cpu":
         resolve_device(device or cfg.device)
-    if SEGMENTERS[name] is _ground_truth:
-        return default_class_names()
-    from calnav.agent.segmenters.learned import check_weights, default_weights_path
+    if BUILTIN_SEGMENTERS.get(spec) in (_ground_truth, _learned):
+        if BUILTIN_SEGMENTERS[spec] is _ground_truth:
+            names = default_class_names()
+        else:
+            from calnav.agent.segmenters.learned import check_weights, default_weights_path
 
-    return check_weights(cfg.weights or default_weights_path(name), name)
+            names = check_weights(cfg.weights or default_weights_path(spec), spec)
+        segmenter = type("Checked", (), {"name": spec, "class_names": names})()
+    else:
+        segmenter = make_segmenter(spec, cfg, device)
+        names = probe(segmenter, probe_size)
+    check_goals(segmenter, goals)
+    return names
 
 
-def make_segmenter(name: str, cfg: SegmenterConfig | None = None, device: str | None = None,
+def make_segmenter(spec: str, cfg: SegmenterConfig | None = None, device: str | None = None,
                    class_names: tuple[str, ...] | None = None) -> Segmenter:
-    """The segmenter ``name`` (one of SEGMENTER_NAMES) configured by ``cfg``.
+    """The segmenter ``spec`` (see the module docstring) configured by ``cfg``.
 
     device: torch device ("cpu", "cuda", "cuda:N"); None = ``cfg.device`` or cpu. A CUDA
     device on a machine without CUDA raises ValueError. class_names: classes of the
     ground-truth based segmenters (default: ``agent/weights/classes.json``, the simulator's
-    list); the learned ones read theirs from the weights file.
+    list); the others carry theirs (weights file, model, label map).
     """
     cfg = cfg or SegmenterConfig()
-    if name not in SEGMENTERS:
-        raise ValueError(f"unknown segmenter {name!r}; valid names: {', '.join(SEGMENTER_NAMES)}")
-    return SEGMENTERS[name](name, cfg, device, class_names)
+    check_segmenter_spec(spec)
+    if spec in BUILTIN_SEGMENTERS:
+        return BUILTIN_SEGMENTERS[spec](spec, cfg, device, class_names)
+    from calnav.agent.segmenters.adapter import PluginSegmenter
 
+    factory = _load_factory(spec)
+    dev = str(resolve_device(device or cfg.device or "cpu"))
+    try:
+        inner = factory(cfg, dev)
+    except Exception as exc:  # noqa: BLE001 -- the user's factory: report it in one line
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
+        raise ValueError(f"segmenter plugin {spec!r}: its factory raised {type(exc).__name__}: {first}") from None
+    return PluginSegmenter(spec, inner, cfg, dev)

@@ -21,6 +21,7 @@ Segmenters built from ground truth (``gt``, ``noisy``) additionally need the env
 from __future__ import annotations
 
 import json
+import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -60,12 +61,18 @@ class SegmenterConfig:
     # --- gt ----------------------------------------------------------------------------------
     gt_confidence: float = 0.9       # probability given to the true class (rest spread evenly); (0, 1]
     # --- learned_rgb / learned_rgbd --------------------------------------------------------
-    weights: str = ""                # weight file; "" = agent/weights/<name>.pt
+    weights: str = ""                # weight file; "" = agent/weights/<name>.pt (learned_*); torchvision: its state-dict file
     resolution: tuple[int, int] = (0, 0)  # network input WxH, pixels; (0, 0) = the training resolution in the weights file
     threads: int = 1                 # torch CPU threads (torch.set_num_threads, process-wide); 0 = leave as is.
                                      # 1: episodes run one worker per core, and on a busy 2-core machine two
                                      # OpenMP threads stall at barriers (measured 2-10 ms -> 400-900 ms per
                                      # frame) unless OMP_WAIT_POLICY=PASSIVE is set before torch loads
+    # --- plugged-in models: hf | onnx | torchvision | a plugin (see agent.segmenters.adapter) ---
+    model: str = ""                  # hf: save_pretrained directory or hub id; onnx: .onnx file; torchvision: architecture name
+    label_map: str = ""              # model classes -> calnav classes: "" = the model's own classes | ade20k | nyu40 |
+                                     # scannet20 | coco_panoptic | a .tsv / .yaml / .json file (agent.segmenters.label_map)
+    input_mean: list[float] = field(default_factory=list)  # onnx / torchvision: per-channel mean of rgb / 255; [] = the model file's, else ImageNet's
+    input_std: list[float] = field(default_factory=list)   # ... and standard deviation (> 0); [] = the model file's, else ImageNet's
     # --- noisy (ground truth + a controlled error model, see agent.segmenters.noisy) --------
     seed: int = 0                    # seeds every per-instance / per-cell random choice
     confusions: dict[str, list[str]] = field(default_factory=default_confusions)  # class -> confusable classes (instances and cells)
@@ -96,6 +103,12 @@ class SegmenterConfig:
             raise ValueError(f"segmenter.confusion_arc_deg must be in [0, 360], got {self.confusion_arc_deg}")
         if self.threads < 0:
             raise ValueError(f"segmenter.threads must be >= 0, got {self.threads}")
+        for key in ("input_mean", "input_std"):
+            values = getattr(self, key)
+            if values and (len(values) != 3 or not all(math.isfinite(v) for v in values)):
+                raise ValueError(f"segmenter.{key} must be [] or 3 finite numbers (r, g, b), got {values}")
+        if any(v <= 0 for v in self.input_std):
+            raise ValueError(f"segmenter.input_std must be > 0, got {self.input_std}")
         w, h = self.resolution
         if (w, h) != (0, 0) and (w < 16 or h < 16):
             raise ValueError(f"segmenter.resolution must be (0, 0) or at least 16x16, got {w}x{h}")

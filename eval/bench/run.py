@@ -11,13 +11,14 @@ import time
 from pathlib import Path
 from typing import Callable
 
-from calnav.eval.bench import agent, backends, env, fusion, scan, segmenter, sequence, start_pose
+from calnav.eval.bench import adapter, agent, backends, env, fusion, scan, segmenter, sequence, start_pose
 from calnav.eval.bench.context import BenchContext
 
 SECTIONS: dict[str, Callable[[BenchContext], dict[str, float]]] = {
     "env": env.run,
     "fusion": fusion.run,
     "segmenter": segmenter.run,
+    "adapter": adapter.run,
     "agent": agent.run,
     "sequence": sequence.run,
     "start_pose": start_pose.run,

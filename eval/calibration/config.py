@@ -6,7 +6,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
-from calnav.agent.config import SegmenterName
+from calnav.agent.segmenters import check_segmenter_spec
+from calnav.agent.segmenters.base import SegmenterConfig
 from calnav.envs.config import EnvConfig
 from calnav.envs.trajectories import ScanConfig
 from calnav.eval.config import RunConfig, build_dataclass, to_dict
@@ -58,7 +59,7 @@ class StudyConfig:
     (seeds disjoint from every other split); test houses are the first ``test_scenes`` of the
     ``test`` split (or the user scene folders train/val/test when env.dataset.scene_dir is set)."""
 
-    segmenters: list[SegmenterName] = field(default_factory=lambda: list(LEARNED_SEGMENTERS))  # learned_rgb | learned_rgbd (gt | noisy also work)
+    segmenters: list[str] = field(default_factory=lambda: list(LEARNED_SEGMENTERS))  # learned_rgb | learned_rgbd (any agent.segmenter spec works: gt, hf, a plugin, ...)
     strategies: list[str] = field(default_factory=lambda: list(FUSION_NAMES))  # fusion strategies compared
     calibrations: list[str] = field(default_factory=lambda: list(CALIBRATIONS))  # none | temperature_2d | temperature_3d | vector_3d
     calib_train_scenes: int = 12     # houses the temperatures and GLFS are fitted on
@@ -80,6 +81,8 @@ class StudyConfig:
     authors_miou_exclude: list[int] = field(default_factory=list)  # class ids left out of the authors'-convention mIoU
 
     def __post_init__(self) -> None:
+        for name in self.segmenters:
+            check_segmenter_spec(name)
         for name in self.strategies:
             if name not in FUSION_NAMES:
                 raise ValueError(f"unknown fusion strategy {name!r}; valid names: {', '.join(FUSION_NAMES)}")
@@ -122,6 +125,7 @@ class CalibrateMapConfig:
     glfs: GLFSTrainConfig = field(default_factory=GLFSTrainConfig)
     sequences: SequenceSetConfig = field(default_factory=SequenceSetConfig)  # recorded sequences instead of houses
     sequence: SequenceConfig = field(default_factory=SequenceConfig)      # how recorded sequences are read
+    segmenter: SegmenterConfig = field(default_factory=SegmenterConfig)   # settings of the segmenters (model, label_map, ...)
 
     def __post_init__(self) -> None:
         self.glfs_configs()    # a bad variant is refused at load time, before anything is written

@@ -279,7 +279,7 @@ def record_task(task: RecordTask) -> dict[str, bytes]:
     for name in task.segmenters:
         key = (name, cfg.run.device)
         if key not in _segmenter_cache:
-            _segmenter_cache[key] = make_segmenter(name, device=cfg.run.device)
+            _segmenter_cache[key] = make_segmenter(name, cfg.segmenter, device=cfg.run.device)
         segs[name] = _segmenter_cache[key]
     with tempfile.TemporaryDirectory(prefix="calnav-record-") as tmp:
         record_scene(cfg, task.scene_id, segs, Path(tmp), task.seed)

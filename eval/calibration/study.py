@@ -219,7 +219,7 @@ def run_calibrate_map(cfg: CalibrateMapConfig, out: Path, force: bool = False, p
     ids = role_scene_ids(cfg)
     _check_roles(ids)
     check_backend(cfg.run.backend, cfg.run.ray_address)
-    segs = {n: make_segmenter(n, device=cfg.run.device) for n in cfg.study.segmenters}
+    segs = {n: make_segmenter(n, cfg.segmenter, device=cfg.run.device) for n in cfg.study.segmenters}
     houses = {sid: scene_seed(sid, cfg.run.seed) for role in ROLES for sid in ids[role]}
     with ResultsDir(out, cfg, force=force, discard=STUDY_RESULTS, files=("results.csv",)):
         record_houses(cfg, houses, tuple(segs), out, progress)
@@ -305,7 +305,7 @@ def main_fit_glfs(args, configs: list[CalibrateMapConfig]) -> None:
     work = Path(args.work_dir or cfg.run.output_dir)
     ids = role_scene_ids(cfg)
     _check_roles(ids, ("calib_train", "calib_val"))
-    make_segmenter(args.segmenter, device=cfg.run.device)  # a bad name or weights file fails here, before any work
+    make_segmenter(args.segmenter, cfg.segmenter, device=cfg.run.device)  # a bad name or weights file fails here, before any work
     check_backend(cfg.run.backend, cfg.run.ray_address)
     houses = {sid: scene_seed(sid, cfg.run.seed) for sid in ids["calib_train"] + ids["calib_val"]}
     with ResultsDir(work, cfg, discard=STUDY_RESULTS, files=(), option="--work-dir"):

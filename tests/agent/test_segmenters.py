@@ -8,7 +8,9 @@ import numpy as np
 import pytest
 import torch
 
-from calnav.agent.segmenters import SEGMENTER_NAMES, SegmenterConfig, make_segmenter
+from calnav.agent.segmenters import BUILTIN_SEGMENTERS, SegmenterConfig, make_segmenter
+
+SEGMENTER_NAMES = ("gt", "noisy", "learned_rgb", "learned_rgbd")   # the built-ins in the simulator's classes
 from calnav.agent.segmenters.base import default_class_names
 from calnav.agent.segmenters.learned import LEARNED_MODELS, default_weights_path, save_weights
 from calnav.agent.segmenters.network import NetSpec, SegNet
@@ -55,8 +57,9 @@ def inputs(frames, i=0):
 
 # ---------------------------------------------------------------------------------- registry
 def test_registry_names_and_unknown_name():
-    assert SEGMENTER_NAMES == ("gt", "noisy", "learned_rgb", "learned_rgbd")
-    with pytest.raises(ValueError, match="valid names: gt, noisy, learned_rgb, learned_rgbd"):
+    assert tuple(BUILTIN_SEGMENTERS) == (*SEGMENTER_NAMES, "hf", "onnx", "torchvision")
+    with pytest.raises(ValueError, match="unknown segmenter 'segformer'; valid: gt, noisy, learned_rgb, learned_rgbd, "
+                                         "hf, onnx, torchvision, or a factory as package.module:function"):
         make_segmenter("segformer")
 
 

@@ -115,7 +115,7 @@ def test_calibrate_map_and_fit_glfs_refuse_bad_weights_before_writing(tmp_path, 
     assert not work.exists()
     assert main(["fit-glfs", "--segmenter", "learnd_rgb", "--output", str(tmp_path / "g.json"),
                  "--work-dir", str(work)]) == 2
-    assert "valid choices: gt, noisy, learned_rgb, learned_rgbd" in capsys.readouterr().err
+    assert "unknown segmenter 'learnd_rgb'; valid: gt, noisy, learned_rgb, learned_rgbd" in capsys.readouterr().err
     assert not work.exists()
 
 
@@ -127,6 +127,7 @@ def _argv(command: str, tmp_path) -> list[str]:
         "fit-glfs": ["fit-glfs", "--segmenter", "gt", "--output", str(tmp_path / "g.json")],
         "train-segmenter": ["train-segmenter", "--model", "learned_rgb"],
         "eval-segmenter": ["eval-segmenter", "--model", "gt"],
+        "export-onnx": ["export-onnx", "--model", "learned_rgb", "--output", str(tmp_path / "m.onnx")],
         "export-sequence": ["export-sequence", "--output", out],
         "compare": ["compare", out, "--output", out],
         "calibrate-map": ["calibrate-map", "--quick", "--sequences", str(tmp_path / "list.txt")],
