@@ -5,7 +5,7 @@ interface; ``make_segmenter(spec)`` builds one. ``spec`` (``agent.segmenter``) i
   observation), ``noisy`` (ground truth with a controlled, view-correlated, overconfident
   error model), ``learned_rgb`` / ``learned_rgbd`` (calnav's CNNs trained in the simulator,
   stand-ins for Segformer / ESANet), or an adapter for the models people have: ``hf``
-  (transformers), ``onnx`` (onnxruntime), ``torchvision`` -- configured by
+  (transformers), ``onnx`` (onnxruntime) -- configured by
   ``segmenter.model`` and ``segmenter.label_map``;
 - ``package.module:factory``: a user's factory, imported;
 - a name another installed package registers in the entry-point group ``calnav.segmenters``
@@ -61,7 +61,6 @@ def _adapter(module: str, cls: str) -> Callable[..., Segmenter]:
 BUILTIN_SEGMENTERS: dict[str, Callable[..., Segmenter]] = {
     "gt": _ground_truth, "noisy": _ground_truth, "learned_rgb": _learned, "learned_rgbd": _learned,
     "hf": _adapter("hf", "HFSegmenter"), "onnx": _adapter("onnx", "ONNXSegmenter"),
-    "torchvision": _adapter("tv", "TorchvisionSegmenter"),
 }
 
 

@@ -1,6 +1,6 @@
 """The shared end of every plugged-in model: its logits -> calnav logits.
 
-``ModelAdapter`` is the base of the adapters (``hf``, ``onnx``, ``torchvision``) and of
+``ModelAdapter`` is the base of the adapters (``hf``, ``onnx``) and of
 ``PluginSegmenter`` (a user's factory). A subclass implements ``model_logits(rgb, depth)`` ->
 (B, K_m, h, w) torch logits at the model's own output resolution; the base checks them (K_m,
 finite), applies ``segmenter.label_map`` (``agent.segmenters.label_map``: probabilities added
@@ -18,7 +18,8 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from calnav.agent.segmenters.base import Segmenter, SegmenterConfig, check_frame, default_class_names, resolve_device
+from calnav.agent.segmenters.base import (BatchSegmenter, Segmenter, SegmenterConfig, check_batch, default_class_names,
+                                         resolve_device)
 from calnav.agent.segmenters.label_map import PROB_FLOOR, LabelMap, mapping_matrix, read_label_map
 
 GENERIC_NAME = re.compile(r"^(LABEL_\d+|class_?\d+|\d+)$")   # placeholder names (a fresh HF config)
@@ -52,7 +53,7 @@ def resolve_label_map(spec: str, model_classes: tuple[str, ...] | None, k_model:
     return label_map
 
 
-class ModelAdapter(Segmenter):
+class ModelAdapter(BatchSegmenter):
     """Base of the plugged-in segmenters; see the module docstring. ``model_classes``: the
     model's class names in output order, or None when it does not carry them (the label map's
     order then names them). ``predicted_classes``: the calnav classes some model class maps to
@@ -80,20 +81,11 @@ class ModelAdapter(Segmenter):
         """rgb (B, H, W, 3) uint8, depth (B, H, W) float32 metres or None -> (B, K_m, h, w)
         logits at the model's output resolution, on any device."""
 
-    def segment(self, rgb: np.ndarray, depth: np.ndarray | None = None, **_unused) -> np.ndarray:
-        """rgb (H, W, 3) uint8, depth (H, W) float32 metres -> (H, W, K) float32 logits."""
-        rgb, depth = check_frame(rgb, depth, need_depth=self.needs_depth)
-        return self.segment_batch(rgb[None], None if depth is None else depth[None])[0]
-
     @torch.inference_mode()
     def segment_batch(self, rgb: np.ndarray, depth: np.ndarray | None = None, **_unused) -> np.ndarray:
         """rgb (B, H, W, 3) uint8, depth (B, H, W) float metres -> (B, H, W, K) float32 logits."""
-        rgb = np.asarray(rgb)
-        if rgb.ndim != 4 or rgb.shape[-1] != 3 or rgb.dtype != np.uint8:
-            raise ValueError(f"rgb must be (B, H, W, 3) uint8, got shape {rgb.shape} dtype {rgb.dtype}")
-        if depth is None and self.needs_depth:
-            raise ValueError(f"segmenter {self.name} needs depth: pass the (B, H, W) float32 depth in metres")
-        z = self.model_logits(rgb, None if depth is None else np.asarray(depth, np.float32))
+        rgb, depth = check_batch(rgb, depth, self.needs_depth, f"segmenter {self.name}")
+        z = self.model_logits(rgb, None if depth is None else depth.astype(np.float32, copy=False))
         return self.to_calnav(z, rgb.shape[1:3])
 
     def to_calnav(self, z: torch.Tensor, size: tuple[int, int]) -> np.ndarray:

@@ -61,18 +61,18 @@ class SegmenterConfig:
     # --- gt ----------------------------------------------------------------------------------
     gt_confidence: float = 0.9       # probability given to the true class (rest spread evenly); (0, 1]
     # --- learned_rgb / learned_rgbd --------------------------------------------------------
-    weights: str = ""                # weight file; "" = agent/weights/<name>.pt (learned_*); torchvision: its state-dict file
+    weights: str = ""                # weight file; "" = agent/weights/<name>.pt (learned_*)
     resolution: tuple[int, int] = (0, 0)  # network input WxH, pixels; (0, 0) = the training resolution in the weights file
     threads: int = 1                 # torch CPU threads (torch.set_num_threads, process-wide); 0 = leave as is.
                                      # 1: episodes run one worker per core, and on a busy 2-core machine two
                                      # OpenMP threads stall at barriers (measured 2-10 ms -> 400-900 ms per
                                      # frame) unless OMP_WAIT_POLICY=PASSIVE is set before torch loads
-    # --- plugged-in models: hf | onnx | torchvision | a plugin (see agent.segmenters.adapter) ---
-    model: str = ""                  # hf: save_pretrained directory or hub id; onnx: .onnx file; torchvision: architecture name
+    # --- plugged-in models: hf | onnx | a plugin (see agent.segmenters.adapter) -----------
+    model: str = ""                  # hf: save_pretrained directory or hub id; onnx: .onnx file
     label_map: str = ""              # model classes -> calnav classes: "" = the model's own classes | ade20k | nyu40 |
                                      # scannet20 | coco_panoptic | a .tsv / .yaml / .json file (agent.segmenters.label_map)
-    input_mean: list[float] = field(default_factory=list)  # onnx / torchvision: per-channel mean of rgb / 255; [] = the model file's, else ImageNet's
-    input_std: list[float] = field(default_factory=list)   # ... and standard deviation (> 0); [] = the model file's, else ImageNet's
+    input_mean: list[float] = field(default_factory=list)  # onnx: per-channel mean of rgb / 255; [] = the model file's, else ImageNet's
+    input_std: list[float] = field(default_factory=list)   # onnx: ... and standard deviation (> 0); [] = the model file's, else ImageNet's
     # --- noisy (ground truth + a controlled error model, see agent.segmenters.noisy) --------
     seed: int = 0                    # seeds every per-instance / per-cell random choice
     confusions: dict[str, list[str]] = field(default_factory=default_confusions)  # class -> confusable classes (instances and cells)
@@ -171,6 +171,24 @@ def check_frame(rgb: np.ndarray, depth: np.ndarray | None, need_depth: bool) -> 
     return rgb, depth.astype(np.float32, copy=False)
 
 
+def check_batch(rgb: np.ndarray, depth: np.ndarray | None, need_depth: bool,
+                name: str) -> tuple[np.ndarray, np.ndarray | None]:
+    """Validate a batch: rgb (B, H, W, 3) uint8, depth (B, H, W) float metres (None allowed
+    unless ``need_depth``; segmenter ``name`` is named in the error). Returns them as arrays."""
+    rgb = np.asarray(rgb)
+    if rgb.ndim != 4 or rgb.shape[-1] != 3 or rgb.dtype != np.uint8:
+        raise ValueError(f"rgb must be (B, H, W, 3) uint8, got shape {rgb.shape} dtype {rgb.dtype}")
+    if depth is None:
+        if need_depth:
+            raise ValueError(f"{name} needs depth: pass the (B, H, W) float32 depth images in metres")
+        return rgb, None
+    depth = np.asarray(depth)
+    if depth.shape != rgb.shape[:3] or not np.issubdtype(depth.dtype, np.floating):
+        raise ValueError(f"depth must be (B, H, W) = {rgb.shape[:3]} float metres, got shape {depth.shape} "
+                         f"dtype {depth.dtype}")
+    return rgb, depth
+
+
 def check_label_image(name: str, image: np.ndarray | None, shape: tuple[int, int]) -> np.ndarray:
     """Validate an (H, W) integer image (``semantic`` / ``instance``) of the frame's size."""
     if image is None:
@@ -217,3 +235,14 @@ class Segmenter(ABC):
                 kw["pose"] = poses[i]
             out.append(self.segment(rgb[i], None if depth is None else depth[i], **kw))
         return np.stack(out) if out else np.zeros((0, *rgb.shape[1:3], self.num_classes), np.float32)
+
+
+class BatchSegmenter(Segmenter):
+    """A segmenter whose work is done a batch at a time: ``segment`` runs ``segment_batch`` on
+    one frame (subclasses implement ``segment_batch`` and call ``check_batch``)."""
+
+    def segment(self, rgb: np.ndarray, depth: np.ndarray | None = None, **_unused) -> np.ndarray:
+        """rgb (H, W, 3) uint8, depth (H, W) float32 metres (0 = invalid) -> logits (H, W, K)
+        float32. Extra keywords (semantic, instance, pose) are ignored."""
+        rgb, depth = check_frame(rgb, depth, need_depth=self.needs_depth)
+        return self.segment_batch(rgb[None], None if depth is None else depth[None])[0]

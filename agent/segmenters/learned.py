@@ -22,7 +22,7 @@ import torch
 import torch.nn.functional as F
 
 from calnav.common.atomic import atomic_path
-from calnav.agent.segmenters.base import WEIGHTS_DIR, Segmenter, SegmenterConfig, check_frame, resolve_device
+from calnav.agent.segmenters.base import WEIGHTS_DIR, BatchSegmenter, SegmenterConfig, check_batch, resolve_device
 from calnav.agent.segmenters.network import NetSpec, SegNet, fuse_batchnorm
 
 WEIGHTS_FORMAT = 1
@@ -106,7 +106,7 @@ def build_network(data: dict, device: torch.device) -> SegNet:
     return net.to(device=device, memory_format=torch.channels_last)
 
 
-class LearnedSegmenter(Segmenter):
+class LearnedSegmenter(BatchSegmenter):
     """A trained ``SegNet``. ``segment(rgb, depth)`` -> (H, W, K) float32 logits; depth is
     required by ``learned_rgbd`` and ignored (may be None) by ``learned_rgb``."""
 
@@ -127,26 +127,11 @@ class LearnedSegmenter(Segmenter):
         self.net = build_network(data, self.device)
         self.needs_depth = bool(self.net.spec.in_depth)
 
-    def segment(self, rgb: np.ndarray, depth: np.ndarray | None = None, **_unused) -> np.ndarray:
-        """rgb (H, W, 3) uint8, depth (H, W) float32 metres (0 = invalid) -> logits (H, W, K)
-        float32. Extra keywords (semantic, instance, pose) are ignored."""
-        rgb, depth = check_frame(rgb, depth, need_depth=self.needs_depth)
-        return self.segment_batch(rgb[None], None if depth is None else depth[None])[0]
-
     @torch.inference_mode()
     def segment_batch(self, rgb: np.ndarray, depth: np.ndarray | None = None, **_unused) -> np.ndarray:
         """rgb (B, H, W, 3) uint8, depth (B, H, W) float metres -> logits (B, H, W, K) float32."""
-        rgb = np.asarray(rgb)
-        if rgb.ndim != 4 or rgb.shape[-1] != 3 or rgb.dtype != np.uint8:
-            raise ValueError(f"rgb must be (B, H, W, 3) uint8, got shape {rgb.shape} dtype {rgb.dtype}")
+        rgb, depth = check_batch(rgb, depth, self.needs_depth, self.name)
         b, h, w = rgb.shape[:3]
-        if self.needs_depth and depth is None:
-            raise ValueError(f"{self.name} needs depth: pass the (B, H, W) float32 depth images in metres")
-        if depth is not None:
-            depth = np.asarray(depth)
-            if depth.shape != (b, h, w) or not np.issubdtype(depth.dtype, np.floating):
-                raise ValueError(f"depth must be (B, H, W) = {(b, h, w)} float metres, got shape {depth.shape} "
-                                 f"dtype {depth.dtype}")
         x = torch.from_numpy(rgb).to(self.device).permute(0, 3, 1, 2).float().mul_(1.0 / 255.0)
         d = None
         if self.needs_depth:

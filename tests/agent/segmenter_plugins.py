@@ -70,3 +70,8 @@ def not_a_segmenter(cfg, device):
 
 
 NOT_CALLABLE = 3
+
+
+def wrapped_learned_rgb(cfg, device):
+    """calnav's learned_rgb behind the plugin interface (RGB only: runs without a depth input)."""
+    return make_segmenter("learned_rgb", cfg, device)

@@ -114,3 +114,16 @@ def test_peanut_through_habitat_benchmark_equals_objectnav(tmp_path, capsys):
     assert sorted(hab) == sorted(cal) == [0, 1] and all(r["status"] == "ok" for r in hab.values())
     assert all(r["steps"] > 12 for r in hab.values())  # the opening spin (12 turns) and then some
     assert_same_records(hab, cal, 1e-5)
+
+
+def test_a_plugged_in_segmenter_through_habitat_benchmark(tmp_path):
+    """A segmenter given by import path runs under habitat-lab's benchmark loop (the plugin wraps
+    learned_rgb: its records equal the built-in's there)."""
+    base = ["habitat-benchmark", "--agent", "peanut", "--episodes", "0:1", "run.workers=1", *CALNAV_SMALL,
+            *HABITAT_SMALL[:4]]   # rgb and depth sensors of the default (semantic-free) config
+    assert main([*base, "--output", str(tmp_path / "plugin"),
+                 "agent.segmenter=tests.agent.segmenter_plugins:wrapped_learned_rgb"]) == 0
+    assert main([*base, "--output", str(tmp_path / "builtin"), "agent.segmenter=learned_rgb"]) == 0
+    plugin = read_records(tmp_path / "plugin")
+    assert plugin[0]["status"] == "ok"
+    assert_same_records(plugin, read_records(tmp_path / "builtin"), 1e-9)

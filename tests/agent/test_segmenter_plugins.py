@@ -173,7 +173,7 @@ def test_hf_segformer_with_the_ade20k_map(hf_dir, sequence, tmp_path):
     expect = F.interpolate(p, size=(48, 64), mode="bilinear", align_corners=False)[0].permute(1, 2, 0).numpy()
     np.testing.assert_allclose(np.exp(out), expect, rtol=1e-4, atol=1e-7)
     np.testing.assert_allclose(np.exp(out).sum(-1), 1.0, rtol=1e-4)
-    hf = [f"agent.segmenter=hf", f"agent.segmenter_config.model={hf_dir}", "agent.segmenter_config.label_map=ade20k"]
+    hf = ["agent.segmenter=hf", f"agent.segmenter_config.model={hf_dir}", "agent.segmenter_config.label_map=ade20k"]
     assert _objectnav(tmp_path / "run", *hf, episodes="0:1") == 0
     assert read_records(tmp_path / "run")[0]["status"] == "ok"
     assert _map(sequence, tmp_path / "map", "hf", f"segmenter.model={hf_dir}", "segmenter.label_map=ade20k") == 0

@@ -57,9 +57,9 @@ def inputs(frames, i=0):
 
 # ---------------------------------------------------------------------------------- registry
 def test_registry_names_and_unknown_name():
-    assert tuple(BUILTIN_SEGMENTERS) == (*SEGMENTER_NAMES, "hf", "onnx", "torchvision")
+    assert tuple(BUILTIN_SEGMENTERS) == (*SEGMENTER_NAMES, "hf", "onnx")
     with pytest.raises(ValueError, match="unknown segmenter 'segformer'; valid: gt, noisy, learned_rgb, learned_rgbd, "
-                                         "hf, onnx, torchvision, or a factory as package.module:function"):
+                                         "hf, onnx, or a factory as package.module:function"):
         make_segmenter("segformer")
 
 

@@ -122,7 +122,7 @@ def test_wxh_is_parsed_from_the_raw_text_and_0x0_is_a_bad_resolution(tmp_path):
 
 def test_segmenter_names_are_checked_at_load_time():
     with pytest.raises(ConfigError, match=r"unknown segmenter 'learnd_rgb'; valid: "
-                                          r"gt, noisy, learned_rgb, learned_rgbd, hf, onnx, torchvision"):
+                                          r"gt, noisy, learned_rgb, learned_rgbd, hf, onnx, or a factory"):
         load_config(None, ["agent.segmenter=learnd_rgb"])
     from calnav.eval.calibration.config import CalibrateMapConfig
 
