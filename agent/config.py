@@ -21,12 +21,13 @@ from calnav.agent.segmenters.base import SegmenterConfig
 MapType = Literal["fused", "ndf"]
 MAP_TYPES: tuple[str, ...] = MapType.__args__  # type: ignore[attr-defined]
 SemanticPrior = Literal["none", "cooccurrence"]
+Exploration = Literal["frontier", "prediction"]
 
 
 @dataclass
 class AgentConfig:
     # --- perception ---------------------------------------------------------------------------
-    segmenter: str = "gt"               # gt | noisy | learned_rgb | learned_rgbd | hf | onnx | torchvision |
+    segmenter: str = "gt"               # gt | noisy | learned_rgb | learned_rgbd | hf | onnx |
                                         # package.module:factory | a calnav.segmenters plugin (agent.segmenters)
     segmenter_config: SegmenterConfig = field(default_factory=SegmenterConfig)  # its settings
     map_type: MapType = "fused"         # fused (3D calibrated fusion) | ndf (per-frame 2D max baseline)
@@ -48,10 +49,13 @@ class AgentConfig:
     # --- exploration ----------------------------------------------------------------------------
     frontier_min_cells: int = 5         # frontier components smaller than this are ignored, cells
     frontier_size_weight_m: float = 0.02  # utility: -distance + this * frontier cells, metres per cell
+    exploration: Exploration = "frontier"  # frontier (frontier size / distance) | prediction (PEANUT's target prediction)
+    predictor_weights: str = ""         # prediction: weight file of calnav train-predictor; "" = agent/weights/predictor.pt
+    prediction_distance_m: float = 5.0  # prediction: value = probability x exp(-geodesic distance / this), metres (PEANUT: 500 cm)
     semantic_prior: SemanticPrior = "none"  # none | cooccurrence (frontiers near co-occurring classes)
     prior_bonus_m: float = 2.0          # cooccurrence: distance bonus of a frontier near a related class, metres
     prior_radius_m: float = 1.5         # cooccurrence: "near" means within this, metres
-    replan_steps: int = 10              # long-term goal re-chosen every this many steps
+    replan_steps: int = 10              # long-term goal (and the prediction) re-chosen every this many steps (PEANUT: 10)
     # --- local planning -----------------------------------------------------------------------
     goal_dilation_m: float = 0.4        # the long-term goal region is dilated by this, metres
     ring_cells: int = 5                 # short-term goal ring radius around the agent, cells
@@ -88,6 +92,8 @@ class AgentConfig:
         for key in ("hole_margin_m", "floor_tolerance_m"):
             if not 0 <= getattr(self, key) <= 2:
                 raise ValueError(f"agent.{key} must be in [0, 2] metres, got {getattr(self, key)}")
+        if not 0 < self.prediction_distance_m <= 100:
+            raise ValueError(f"agent.prediction_distance_m must be in (0, 100] metres, got {self.prediction_distance_m}")
         for key in ("stuck_radius_m", "loop_radius_m"):
             if not 0 < getattr(self, key) < 100:
                 raise ValueError(f"agent.{key} must be in (0, 100) metres, got {getattr(self, key)}")

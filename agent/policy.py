@@ -66,6 +66,13 @@ class PeanutAgent:
                                             (self.sensors.min_depth_m, self.sensors.max_depth_m))
         self.planner = Planner(self.cfg)
         self.collisions = CollisionTracker(self.cfg)
+        self.predictor = None
+        if self.cfg.exploration == "prediction":   # PEANUT's target prediction chooses the long-term goals
+            from calnav.agent.prediction import DEFAULT_PREDICTOR, Predictor, check_predictor
+
+            path = self.cfg.predictor_weights or DEFAULT_PREDICTOR
+            check_predictor(path, self.class_names, self.goal_names(), self.cfg.cell_m)
+            self.predictor = Predictor(path)
         self.state: MapState | None = None
         self.info: StepInfo | None = None
 
@@ -247,9 +254,44 @@ class PeanutAgent:
         rad = int(self.cfg.goal_dilation_m / self.cfg.cell_m)
         self.excluded[max(0, rc[0] - rad):rc[0] + rad + 1, max(0, rc[1] - rad):rc[1] + rad + 1] = True
 
-    def _choose_ltg(self, agent_rc) -> tuple[int, int] | None:
-        """Choose a frontier (window coordinates in and out); remembers it in map coordinates."""
+    def goal_names(self) -> tuple[str, ...]:
+        """The goal categories the agent may be asked for: the segmenter's classes that are
+        ObjectNav goals (the task's ``objectgoal`` ids index the segmenter's classes)."""
+        from calnav.agent.segmenters.adapter import goal_categories
+
+        return tuple(g for g in goal_categories() if g in self.class_names)
+
+    def _predicted_ltg(self, agent_rc) -> tuple[int, int] | None:
+        """PEANUT's long-term goal (window coordinates): the most valuable reachable unexplored
+        cell of the goal's predicted probability (``agent.prediction``); None when the
+        prediction offers nothing (the frontier choice then decides)."""
+        from calnav.agent.planner import geodesic_distance
+        from calnav.agent.prediction import predicted_goal
+
         st, cfg, win = self.state, self.cfg, self.window
+        ch = st.channels
+        maps = {"obstacle": st.obstacles(), "explored": ch[MapChannels.EXPLORED], "visited": ch[MapChannels.VISITED]}
+        r, c = agent_rc[0] + win[0].start, agent_rc[1] + win[1].start
+        prob, corner = self.predictor.probabilities(maps, st.semantic, (r, c), cfg.cell_m, self.goal_name)
+        free = ~dilate(st.obstacles(win), cfg.dilation_cells)   # unknown cells are optimistic
+        source = np.zeros_like(free)
+        source[agent_rc] = True
+        candidates = free & ~ch[MapChannels.EXPLORED][win] & ~self.excluded[win]
+        choice = predicted_goal(prob, corner, win, geodesic_distance(free, source), candidates,
+                                cfg.prediction_distance_m, cfg.cell_m)
+        return None if choice is None else choice[0]
+
+    def _choose_ltg(self, agent_rc) -> tuple[int, int] | None:
+        """Choose a long-term goal (window coordinates in and out): the predicted one with
+        ``exploration: prediction`` when the prediction offers one, else a frontier; remembers
+        it in map coordinates."""
+        st, cfg, win = self.state, self.cfg, self.window
+        if self.predictor is not None:
+            goal = self._predicted_ltg(agent_rc)
+            if goal is not None:
+                self.ltg_age = 0
+                self.ltg = (goal[0] + win[0].start, goal[1] + win[1].start)
+                return goal
         prior = prior_mask(st.semantic[:, win[0], win[1]], self.goal_name, self.class_names, cfg)
         choice = choose_frontier(st.channels[MapChannels.EXPLORED][win], st.traversable(cfg, win), agent_rc, cfg,
                                  prior=prior, exclude=self.excluded[win])

@@ -90,6 +90,26 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--output", default=None, help="weight file (default: agent/weights/<model>.pt)")
     p.add_argument("--resume", action="store_true", help="continue from this config's last epoch checkpoint")
 
+    p = sub.add_parser("collect-maps", help="training maps for the target predictor: the agent explores train houses, "
+                                            "partial maps + ground-truth goal cells every --every steps")
+    _add_config_args(p, "configs/objectnav.yaml")
+    p.add_argument("--split", default="train", choices=("train", "val"), help="houses explored (val: held-out maps)")
+    p.add_argument("--episodes", default="0:200", help="the split's episodes: N or A:B (default 0:200)")
+    p.add_argument("--steps", type=int, default=250, help="steps per episode (default 250)")
+    p.add_argument("--every", type=int, default=25, help="a snapshot every this many steps (default 25, PEANUT's)")
+    p.add_argument("--output", required=True, help="results directory (episodes/<index>.npz; resumable)")
+    p.add_argument("--force", action="store_true", help="discard the maps of a different config in --output")
+
+    p = sub.add_parser("train-predictor", help="train the target predictor on collect-maps output; held-out AUC / AP")
+    p.add_argument("--data", required=True, nargs="+", metavar="DIR", help="collect-maps directories (mixed)")
+    p.add_argument("--output", default=None, help="weight file (default: agent/weights/predictor.pt)")
+    p.add_argument("--val-data", nargs="+", default=None, metavar="DIR",
+                   help="collect-maps directories of held-out houses (--split val) for the metrics; "
+                        "default: --val-fraction of the training houses")
+    p.add_argument("--val-fraction", type=float, default=0.15, help="houses held out when there is no --val-data")
+    p.add_argument("--epochs", type=int, default=12, help="passes over the training maps (default 12)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the split, the initialisation and the batches")
+
     p = sub.add_parser("export-onnx", help="a learned segmenter as an ONNX model for the onnx adapter "
                                            "(checked against torch before it is written)")
     p.add_argument("--model", required=True, choices=("learned_rgb", "learned_rgbd"), help="network to export")
@@ -99,7 +119,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("eval-segmenter", help="accuracy / mIoU / ECE / mECE of a segmenter on held-out frames")
     _add_config_args(p, "configs/segmenter.yaml")
     p.add_argument("--model", required=True, metavar="SEGMENTER",
-                   help="segmenter to score: gt | noisy | learned_rgb | learned_rgbd | hf | onnx | torchvision | "
+                   help="segmenter to score: gt | noisy | learned_rgb | learned_rgbd | hf | onnx | "
                         "package.module:factory | a calnav.segmenters plugin (configured by the segmenter section)")
     p.add_argument("--split", default="test", choices=("train", "val", "test"), help="split whose houses are rendered")
     p.add_argument("--frames", type=int, default=500, help="number of frames scored")
@@ -121,7 +141,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--layout", required=True, choices=("scannet", "7scenes"), help="file layout of the recording")
     p.add_argument("--segmenter", default=None, metavar="SEGMENTER",
                    help="segmenter run on every frame: gt | noisy | learned_rgb | learned_rgbd | hf | onnx | "
-                        "torchvision | package.module:factory | a calnav.segmenters plugin (segmenter section)")
+                        "package.module:factory | a calnav.segmenters plugin (segmenter section)")
     p.add_argument("--logits", default=None, metavar="DIR", help="precomputed logits DIR/N.npy|.npz (H, W, K)")
     p.add_argument("--classes", default=None, metavar="FILE",
                    help="class list of --logits (.json list or one name per line; default DIR/classes.json|.txt)")
@@ -213,6 +233,8 @@ COMMANDS: dict[str, Command] = {
                                "calnav.eval.segmenter.data:segmenter_configs"),
     "eval-segmenter": Command("calnav.eval.segmenter.evaluate", "main_eval_segmenter",
                               "calnav.eval.segmenter.data:segmenter_configs"),
+    "collect-maps": Command("calnav.eval.prediction.collect", "main_collect_maps", "collect_configs"),
+    "train-predictor": Command("calnav.eval.prediction.train", "main_train_predictor", None),  # reads collect-maps output
     "export-onnx": Command("calnav.eval.segmenter.export_onnx", "main_export_onnx", None),  # reads a weight file
     "calibrate-map": Command("calnav.eval.calibration.study", "main_calibrate_map", "calibrate_map_configs"),
     "fit-glfs": Command("calnav.eval.calibration.study", "main_fit_glfs", "fit_glfs_configs"),

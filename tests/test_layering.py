@@ -164,6 +164,7 @@ EVAL_ALLOWED: dict[str, set[str]] = {
     "calibration": set(),
     "habitat": {"objectnav"},  # the habitat benchmark reuses objectnav.run's bookkeeping and report
     "objectnav": set(),
+    "prediction": {"objectnav"},  # collect-maps runs the agent on objectnav.run's warm env / agent workers
     "scanning": set(),
     "segmenter": set(),
     "sequence": {"calibration"},  # export-sequence writes a calibration scan (HouseScan, scene_seed,

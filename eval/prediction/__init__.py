@@ -1,0 +1,1 @@
+"""PEANUT's target prediction: ``collect-maps`` (training maps), ``train-predictor``."""

@@ -1,0 +1,138 @@
+"""``calnav collect-maps``: training data for the target predictor (``agent.prediction``).
+
+The PEANUT-like agent explores the houses of ``--split`` (``train``; ``val`` for held-out maps) with the config's segmenter, map type and
+fusion (exploration only, as PEANUT collects: a STOP becomes a turn, so each episode runs its
+``--steps``), and every ``--every`` steps the predictor's input around the agent is saved with
+the target: for each goal category, the coarse cells its instances occupy in the *whole* house
+(the house's ground-truth mesh, rasterised top-down in the episode's start frame -- the agent
+never sees it). One file per episode, ``episodes/<index>.npz`` (``inputs`` (T, C, S, S) uint8 =
+value x 255, ``targets`` (T, G, S, S) uint8 0/1, ``steps`` (T,)), written atomically as it
+arrives from a worker: an interrupted run resumes where it stopped.
+
+    calnav collect-maps --episodes 0:200 --output runs/maps_glfs agent.segmenter=learned_rgb \\
+        mapping.fusion=glfs mapping.glfs_params=agent/weights/glfs_learned_rgb.json
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from calnav.eval.results_dir import ResultsDir
+
+MAPS_FORMAT = 1
+
+
+@dataclass
+class CollectTask:
+    cfg_dict: dict
+    index: int
+    steps: int
+    every: int
+
+
+def episode_file(out: Path, index: int) -> Path:
+    return Path(out) / "episodes" / f"{index:05d}.npz"
+
+
+def goal_targets(scene, episode, state_origin: np.ndarray, corner: tuple[int, int], spec, map_cell_m: float,
+                 goals: tuple[str, ...]) -> np.ndarray:
+    """(G, S, S) uint8: 1 where an instance of goal ``goals[g]`` lies in the coarse cell, the
+    mesh rasterised top-down in the episode's start frame (x forward, y left: the agent's
+    map frame), on the predictor window whose corner is map cell ``corner`` (row, col)."""
+    import cv2
+
+    from calnav.agent.prediction import pool_factor
+
+    f = pool_factor(spec, map_cell_m)
+    s = spec.window_cells
+    c, sn = np.cos(-episode.start_yaw), np.sin(-episode.start_yaw)
+    out = np.zeros((len(goals), s, s), np.uint8)
+    for g, name in enumerate(goals):
+        if name not in scene.class_names:
+            continue
+        tris = scene.triangles[scene.tri_class == scene.class_names.index(name)]
+        if len(tris) == 0:
+            continue
+        xy = scene.vertices[tris][..., :2].astype(np.float64) - episode.start_position[:2]
+        local = np.stack([c * xy[..., 0] - sn * xy[..., 1], sn * xy[..., 0] + c * xy[..., 1]], -1)
+        # coarse-cell coordinates with cell j spanning [j, j + 1); OpenCV's pixel j spans [j - 0.5, j + 0.5]
+        cols = ((local[..., 0] - state_origin[0]) / map_cell_m - corner[1]) / f - 0.5
+        rows = ((local[..., 1] - state_origin[1]) / map_cell_m - corner[0]) / f - 0.5
+        pts = np.round(np.stack([cols, rows], -1) * 16).astype(np.int32)   # 4 fractional bits
+        cv2.fillPoly(out[g], list(pts), 1, lineType=cv2.LINE_8, shift=4)
+    return out
+
+
+def collect_episode(task: CollectTask) -> dict:
+    """Run one exploring episode on this worker; returns its arrays (see the module docstring)."""
+    from calnav.agent.prediction import PredictorSpec, crop_origin, map_input, pool_factor
+    from calnav.agent.segmenters.adapter import goal_categories
+    from calnav.agent.semantic_map import MapChannels
+    from calnav.envs.task import Action
+    from calnav.eval.config import Config, build_dataclass
+    from calnav.eval.objectnav.run import _warm_env_agent
+
+    cfg = build_dataclass(Config, task.cfg_dict)
+    env, agent = _warm_env_agent(task.cfg_dict, "peanut")
+    goals = goal_categories()
+    spec = PredictorSpec(class_names=tuple(agent.class_names), goal_categories=goals)
+    obs, _ = env.reset(options={"episode_index": task.index})
+    agent.reset(obs)
+    ep, scene = env.unwrapped.episode, env.unwrapped.scene
+    inputs, targets, steps = [], [], []
+    for step in range(1, task.steps + 1):
+        action = agent.act(obs)
+        if action == int(Action.STOP):
+            action = int(Action.TURN_LEFT)   # exploration only: keep mapping the house
+        obs, _, terminated, truncated, _ = env.step(action)
+        if step % task.every == 0:
+            st = agent.state
+            xy, _ = agent.sensors.xy_yaw(obs)
+            rc = st.to_cell(xy, cfg.agent.cell_m)
+            maps = {"obstacle": st.obstacles(), "explored": st.channels[MapChannels.EXPLORED],
+                    "visited": st.channels[MapChannels.VISITED]}
+            x = map_input(maps, st.semantic, rc, spec, cfg.agent.cell_m)
+            inputs.append(np.round(np.clip(x, 0, 1) * 255).astype(np.uint8))
+            corner = crop_origin(rc, spec, pool_factor(spec, cfg.agent.cell_m))
+            targets.append(goal_targets(scene, ep, st.origin, corner, spec, cfg.agent.cell_m, goals))
+            steps.append(step)
+        if terminated or truncated:
+            break
+    return {"inputs": np.stack(inputs), "targets": np.stack(targets), "steps": np.array(steps, np.int32),
+            "meta": {"episode_id": ep.episode_id, "scene": ep.scene_id, "spec": spec.to_dict(),
+                     "map_type": cfg.agent.map_type, "fusion": cfg.mapping.fusion, "segmenter": cfg.agent.segmenter}}
+
+
+def collect_configs(args) -> list:
+    from calnav.eval.config import load_config
+
+    return [load_config(args.config, [f"env.split={args.split}", f"env.max_episode_steps={args.steps + 1}",
+                                      *args.overrides])]
+
+
+def main_collect_maps(args, configs) -> None:
+    """``configs``: ``collect_configs(args)``, checked by the preflight."""
+    from tqdm import tqdm
+
+    from calnav.common.npz import save_versioned_npz
+    from calnav.eval.backends import make_backend
+    from calnav.eval.config import to_dict
+    from calnav.envs.episodes import load_split, parse_episode_range
+
+    cfg = configs[0]
+    if args.steps < 1 or not 1 <= args.every <= args.steps:
+        raise ValueError(f"--steps must be >= 1 and --every in [1, --steps], got {args.steps} / {args.every}")
+    out = Path(args.output)
+    indices = list(parse_episode_range(str(args.episodes), len(load_split(cfg.env.split, cfg.env))))
+    with ResultsDir(out, cfg, force=args.force, discard=("episodes",), files=()):
+        todo = [i for i in indices if not episode_file(out, i).exists()]
+        tasks = [CollectTask(to_dict(cfg), i, args.steps, args.every) for i in todo]
+        bar = tqdm(total=len(indices), initial=len(indices) - len(todo), desc="collect maps", unit="ep")
+        for task, res in make_backend(cfg.run).map_unordered(collect_episode, tasks):
+            save_versioned_npz(episode_file(out, task.index), {k: res[k] for k in ("inputs", "targets", "steps")},
+                               res["meta"], MAPS_FORMAT)
+            bar.update(1)
+        bar.close()
+    print(f"maps: {len(indices)} episodes in {out} ({len(todo)} collected now)")
