@@ -266,17 +266,20 @@ class PeanutAgent:
         cell of the goal's predicted probability (``agent.prediction``); None when the
         prediction offers nothing (the frontier choice then decides)."""
         from calnav.agent.planner import geodesic_distance
-        from calnav.agent.prediction import predicted_goal
+        from calnav.agent.prediction import near_explored, predicted_goal
 
         st, cfg, win = self.state, self.cfg, self.window
         ch = st.channels
         maps = {"obstacle": st.obstacles(), "explored": ch[MapChannels.EXPLORED], "visited": ch[MapChannels.VISITED]}
         r, c = agent_rc[0] + win[0].start, agent_rc[1] + win[1].start
-        prob, corner = self.predictor.probabilities(maps, st.semantic, (r, c), cfg.cell_m, self.goal_name)
+        prob, corner = self.predictor.probabilities(maps, st.semantic, (r, c), cfg.cell_m, self.goal_name,
+                                                    region=st.window(0))
         free = ~dilate(st.obstacles(win), cfg.dilation_cells)   # unknown cells are optimistic
         source = np.zeros_like(free)
         source[agent_rc] = True
-        candidates = free & ~ch[MapChannels.EXPLORED][win] & ~self.excluded[win]
+        explored = ch[MapChannels.EXPLORED][win]
+        near = near_explored(explored, int(round(self.predictor.spec.near_m / cfg.cell_m)))
+        candidates = free & ~explored & near & ~self.excluded[win]
         choice = predicted_goal(prob, corner, win, geodesic_distance(free, source), candidates,
                                 cfg.prediction_distance_m, cfg.cell_m)
         return None if choice is None else choice[0]

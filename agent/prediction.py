@@ -10,7 +10,8 @@ explored fraction of the coarse cell. Output: one logit map per goal category at
 window (stride 4), upsampled bilinearly; sigmoid = probability (PEANUT: BCE, sigmoid).
 
 Use (``predicted_goal``, PEANUT's agent): value = probability x exp(-geodesic distance /
-``distance_m``) over cells not yet explored (and not excluded), the long-term goal its argmax
+``distance_m``) over cells not yet explored (and not excluded) within ``near_m`` of explored
+ones (where the network was trained: ``eval.prediction.train``), the long-term goal its argmax
 (PEANUT: dist_weight_temperature 500 cm, the call every update_goal_freq = 10 steps).
 
 Weights file (``torch.save`` of a plain dict, ``weights_only`` loading): format, spec
@@ -46,6 +47,7 @@ class PredictorSpec:
     goal_categories: tuple[str, ...]
     cell_m: float = 0.2
     window_cells: int = 128
+    near_m: float = 4.0      # trained and used on unexplored cells within this of explored ones (square), metres
     stem: int = 24
     stages: tuple[tuple[int, int], ...] = ((32, 1), (64, 2), (96, 2))
     width: int = 48
@@ -93,6 +95,13 @@ class PredictorNet(nn.Module):
         return F.interpolate(self.head(self.smooth(F.relu(top))), size=size, mode="bilinear", align_corners=False)
 
 
+def near_explored(explored: np.ndarray, cells: int) -> np.ndarray:
+    """Cells within ``cells`` (Chebyshev distance, a square) of an explored cell: (n0, n1) bool."""
+    import cv2
+
+    return cv2.dilate(explored.astype(np.uint8), np.ones((2 * cells + 1, 2 * cells + 1), np.uint8)).astype(bool)
+
+
 def pool_factor(spec: PredictorSpec, map_cell_m: float) -> int:
     """Map cells per coarse cell; ValueError unless cell_m is a whole multiple of the map cell."""
     f = spec.cell_m / map_cell_m
@@ -108,36 +117,52 @@ def crop_origin(agent_rc: tuple[int, int], spec: PredictorSpec, factor: int) -> 
     return agent_rc[0] - half, agent_rc[1] - half
 
 
-def _crop(a: np.ndarray, r0: int, c0: int, side: int) -> np.ndarray:
-    """a (C, n, n) cropped to rows/cols [r0, r0 + side), zero outside the map."""
-    out = np.zeros((a.shape[0], side, side), a.dtype)
+def _crop(a: np.ndarray, r0: int, c0: int, size: tuple[int, int]) -> np.ndarray:
+    """a (C, n, n) cropped to rows [r0, r0 + size[0]) and cols [c0, c0 + size[1]), zero outside
+    the map (a view when the crop lies inside)."""
     n0, n1 = a.shape[1:]
+    if r0 >= 0 and c0 >= 0 and r0 + size[0] <= n0 and c0 + size[1] <= n1:
+        return a[:, r0:r0 + size[0], c0:c0 + size[1]]
+    out = np.zeros((a.shape[0], *size), a.dtype)
     rs, cs = max(r0, 0), max(c0, 0)
-    re, ce = min(r0 + side, n0), min(c0 + side, n1)
+    re, ce = min(r0 + size[0], n0), min(c0 + size[1], n1)
     if rs < re and cs < ce:
         out[:, rs - r0:re - r0, cs - c0:ce - c0] = a[:, rs:re, cs:ce]
     return out
 
 
 def map_input(channels: dict[str, np.ndarray], semantic: np.ndarray, agent_rc: tuple[int, int],
-              spec: PredictorSpec, map_cell_m: float) -> np.ndarray:
+              spec: PredictorSpec, map_cell_m: float, region: tuple[slice, slice] | None = None) -> np.ndarray:
     """The network input (C, S, S) float32 in [0, 1] around ``agent_rc`` (map row, col).
     channels: {'obstacle', 'explored', 'visited'} (n, n) bool maps; semantic (K, n, n) float32
-    confidences of ``spec.class_names``."""
+    confidences of ``spec.class_names``; region: (row slice, col slice) outside which every map
+    is empty (the explored bounding box), so only it is pooled (None: the whole map)."""
     if semantic.shape[0] != len(spec.class_names):
         raise ValueError(f"the map has {semantic.shape[0]} classes, the predictor reads {len(spec.class_names)}")
     f = pool_factor(spec, map_cell_m)
-    side, s = spec.window_cells * f, spec.window_cells
+    s = spec.window_cells
     r0, c0 = crop_origin(agent_rc, spec, f)
-    agent = np.zeros_like(channels["obstacle"])
-    agent[agent_rc] = True
-    binary = _crop(np.stack([channels["obstacle"], agent, channels["visited"]]), r0, c0, side)
-    explored = _crop(channels["explored"][None], r0, c0, side)
-    sem = _crop(semantic, r0, c0, side)
-    pool_max = lambda a: a.reshape(a.shape[0], s, f, s, f).max(axis=(2, 4))            # noqa: E731
-    b = pool_max(binary).astype(np.float32)
-    e = explored.reshape(1, s, f, s, f).mean(axis=(2, 4), dtype=np.float32)
-    return np.concatenate([b[:1], e, b[1:], pool_max(sem).astype(np.float32)])
+    n0, n1 = semantic.shape[1:]
+    rows, cols = region or (slice(0, n0), slice(0, n1))
+    # the coarse cells [i0, i1) x [j0, j1) of the window that overlap the region
+    i0, i1 = max(0, (rows.start - r0) // f), min(s, -(-(rows.stop - r0) // f))
+    j0, j1 = max(0, (cols.start - c0) // f), min(s, -(-(cols.stop - c0) // f))
+    out = np.zeros((spec.in_channels, s, s), np.float32)
+    out[2, (agent_rc[0] - r0) // f, (agent_rc[1] - c0) // f] = 1.0   # the agent's cell
+    if i0 >= i1 or j0 >= j1:
+        return out
+    h, w = i1 - i0, j1 - j0
+    rs, cs = r0 + i0 * f, c0 + j0 * f
+
+    def pooled(a: np.ndarray, how: str) -> np.ndarray:
+        t = torch.from_numpy(np.ascontiguousarray(_crop(a, rs, cs, (h * f, w * f)), np.float32))
+        return (F.max_pool2d if how == "max" else F.avg_pool2d)(t[None], f)[0].numpy()
+
+    out[0, i0:i1, j0:j1] = pooled(channels["obstacle"][None], "max")[0]
+    out[1, i0:i1, j0:j1] = pooled(channels["explored"][None], "mean")[0]
+    out[3, i0:i1, j0:j1] = pooled(channels["visited"][None], "max")[0]
+    out[4:, i0:i1, j0:j1] = pooled(semantic, "max")
+    return out
 
 
 def load_predictor_weights(path: Path | str) -> dict:
@@ -205,11 +230,13 @@ class Predictor:
 
     @torch.inference_mode()
     def probabilities(self, channels: dict[str, np.ndarray], semantic: np.ndarray, agent_rc: tuple[int, int],
-                      map_cell_m: float, goal: str) -> tuple[np.ndarray, tuple[int, int]]:
+                      map_cell_m: float, goal: str, region: tuple[slice, slice] | None = None
+                      ) -> tuple[np.ndarray, tuple[int, int]]:
         """Probability (side, side) float32 of goal category ``goal`` on map cells (side = window
-        cells x pool factor) and the map (row, col) of the window's corner."""
+        cells x pool factor) and the map (row, col) of the window's corner (``map_input`` for
+        ``region``)."""
         f = pool_factor(self.spec, map_cell_m)
-        x = torch.from_numpy(map_input(channels, semantic, agent_rc, self.spec, map_cell_m))[None]
+        x = torch.from_numpy(map_input(channels, semantic, agent_rc, self.spec, map_cell_m, region))[None]
         g = self.spec.goal_categories.index(goal)
         p = torch.sigmoid(self.net(x)[0, g]).numpy()
         return np.repeat(np.repeat(p, f, axis=0), f, axis=1), crop_origin(agent_rc, self.spec, f)

@@ -108,6 +108,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "default: --val-fraction of the training houses")
     p.add_argument("--val-fraction", type=float, default=0.15, help="houses held out when there is no --val-data")
     p.add_argument("--epochs", type=int, default=12, help="passes over the training maps (default 12)")
+    p.add_argument("--pos-weight", type=float, default=20.0,
+                   help="BCE weight of goal cells, [1, 1000] (default 20; PEANUT's released script 1, its weighted "
+                        "runs inverse frequency): goal cells are ~0.1-1 %% of the unexplored cells")
     p.add_argument("--seed", type=int, default=0, help="seed of the split, the initialisation and the batches")
 
     p = sub.add_parser("export-onnx", help="a learned segmenter as an ONNX model for the onnx adapter "

@@ -59,6 +59,11 @@ def check_run_resources(cfg: Any, checks: tuple[str, ...] = CHECKS) -> None:
 
         names = check_segmenter(agent.segmenter, agent.segmenter_config, run.device if run else None,
                                 probe_size=tuple(cfg.env.resolution), goals=goal_categories())
+        if agent.exploration == "prediction" and getattr(run, "agent", "peanut") == "peanut":
+            from calnav.agent.prediction import DEFAULT_PREDICTOR, check_predictor
+
+            check_predictor(agent.predictor_weights or DEFAULT_PREDICTOR, names,
+                            tuple(g for g in goal_categories() if g in names), agent.cell_m)
         _check_sensors_feed_the_segmenter(cfg)
         if cfg.env.dataset.scene_dir:
             from calnav.envs.scenes import split_scene_ids

@@ -10,6 +10,10 @@ whole step limit, the worst case for time and memory:
 - ``agent.act_ms_160x120``: median ``act`` time, ms.
 - ``agent.rss_growth_mb_500_steps``: resident memory after the last step minus after the first,
   MiB (target < 300).
+- ``agent.prediction.hz_160x120`` / ``act_ms_160x120``: the same episode with
+  ``agent.exploration=prediction`` (the shipped ``agent/weights/predictor.pt``; skipped without
+  it); ``agent.prediction.call_ms``: median time of one target prediction (input window +
+  network), called when the long-term goal is re-chosen (every ``agent.replan_steps``).
 """
 from __future__ import annotations
 
@@ -35,14 +39,28 @@ def rss_mb() -> float:
 
 
 def run(ctx) -> dict[str, float]:
+    from calnav.agent.prediction import DEFAULT_PREDICTOR
+
     hz, act_ms, rss_growth, n = agent_loop(ctx)
-    return {"agent.hz_160x120": hz, "agent.act_ms_160x120": act_ms,
-            "agent.rss_growth_mb_500_steps": rss_growth, "agent.bench_steps": float(n)}
+    out = {"agent.hz_160x120": hz, "agent.act_ms_160x120": act_ms,
+           "agent.rss_growth_mb_500_steps": rss_growth, "agent.bench_steps": float(n)}
+    if not DEFAULT_PREDICTOR.is_file():
+        print(f"[bench] agent: skipping the prediction figures: no {DEFAULT_PREDICTOR}", flush=True)
+        return out
+    calls: list[float] = []
+    hz, act_ms, _, _ = agent_loop(ctx, ("agent.exploration=prediction",), predictor_calls=calls)
+    out.update({"agent.prediction.hz_160x120": hz, "agent.prediction.act_ms_160x120": act_ms,
+                "agent.prediction.call_ms": float(np.median(calls)) if calls else float("nan"),
+                "agent.prediction.calls": float(len(calls))})
+    return out
 
 
-def agent_loop(ctx, overrides: tuple[str, ...] = ()) -> tuple[float, float, float, int]:
+def agent_loop(ctx, overrides: tuple[str, ...] = (), predictor_calls: list[float] | None = None
+               ) -> tuple[float, float, float, int]:
     """(steps per second, median act ms, RSS growth MiB, steps) of the explore-only episode of
-    the module docstring; ``overrides`` change the config (e.g. env.dataset.style=scanned)."""
+    the module docstring; ``overrides`` change the config (e.g. env.dataset.style=scanned).
+    ``predictor_calls``: filled with the ms of each target-prediction call (exploration:
+    prediction), the network and its input."""
     import gymnasium as gym
 
     import calnav.envs  # noqa: F401  (registers the env)
@@ -55,6 +73,15 @@ def agent_loop(ctx, overrides: tuple[str, ...] = ()) -> tuple[float, float, floa
     cfg.env = dataclasses.replace(cfg.env, max_episode_steps=steps)
     env = gym.make("calnav/ObjectNav-v0", split="val", config=cfg.env)
     agent = PeanutAgent(cfg)
+    if predictor_calls is not None and agent.predictor is not None:
+        timed = agent.predictor.probabilities
+
+        def probabilities(*args, **kwargs):
+            t = time.perf_counter()
+            result = timed(*args, **kwargs)
+            predictor_calls.append((time.perf_counter() - t) * 1e3)
+            return result
+        agent.predictor.probabilities = probabilities
     obs, _ = env.reset(options={"episode_index": EPISODE})
     agent.reset(obs)
     act_ms, rss0 = [], None

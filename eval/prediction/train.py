@@ -1,10 +1,13 @@
 """``calnav train-predictor``: the target predictor (``agent.prediction``) trained on
 ``calnav collect-maps`` output, with PEANUT's loss -- binary cross-entropy per cell and goal
 category, the target restricted to cells the input has not explored (PEANUT:
-``gt * (1 - explored)``) -- and augmented by the 8 rotations / flips of the square (the maps
-live in an arbitrary start frame). Held-out houses (``--val-fraction`` of the houses, by
-house, so no house is in both) give per-category ROC AUC and average precision over their
-unexplored cells, per ``--data`` directory (one per map type) and overall.
+``gt * (1 - explored)``) -- counted on the unexplored cells within ``PredictorSpec.near_m`` (4 m) of the explored
+area, where the agent chooses its goals (the far ones are mostly outside the house: negatives geometry alone predicts) with goal
+cells weighted ``--pos-weight`` (they are ~0.1-1 % of the cells), and augmented by the 8
+rotations / flips of the square (the maps live in an arbitrary start frame). Held-out houses (``--val-data``, or ``--val-fraction`` of the
+houses, by house, so no house is in both) give per-category ROC AUC and average precision over
+those cells, per directory (one per map type) and overall, beside a geometric baseline
+(closer to the explored area = likelier).
 
     calnav train-predictor --data runs/maps_ndf runs/maps_rbu runs/maps_glfs --output agent/weights/predictor.pt
 """
@@ -66,6 +69,16 @@ def load_maps(dirs: list[str]) -> tuple[list[dict], dict]:
     return episodes, spec
 
 
+def _decision_cells(x, near_cells: int):
+    """(B, S, S) bool: unexplored cells within ``near_cells`` (a square) of an explored one --
+    where the agent chooses its goals (``PredictorSpec.near_m``)."""
+    import torch.nn.functional as F
+
+    explored = x[:, EXPLORED:EXPLORED + 1]
+    near = F.max_pool2d((explored > 0).float(), 2 * near_cells + 1, stride=1, padding=near_cells) > 0
+    return (near & (explored < 0.5))[:, 0]
+
+
 def _tensors(episodes: list[dict]):
     import torch
 
@@ -76,25 +89,35 @@ def _tensors(episodes: list[dict]):
 
 
 def evaluate(net, episodes: list[dict], goals: tuple[str, ...]) -> dict:
-    """Per goal category AUC / AP over the unexplored cells of ``episodes``, and their means."""
+    """Per goal category AUC / AP over the cells where the agent chooses (``_decision_cells``)
+    of ``episodes``, beside the geometric baseline's, and their means."""
     import torch
 
     x, y = _tensors(episodes)
     with torch.inference_mode():
         p = torch.cat([torch.sigmoid(net(x[i:i + 64])) for i in range(0, len(x), 64)])
-    unexplored = (x[:, EXPLORED] < 0.5)
+    from scipy.ndimage import distance_transform_edt
+
+    unexplored = _decision_cells(x, int(round(net.spec.near_m / net.spec.cell_m)))
+    # the geometric baseline: "goals lie near what has been explored" (minus the distance to the
+    # nearest explored cell), which knows no class: what the network adds beyond it is semantics
+    near = torch.from_numpy(np.stack([-distance_transform_edt(u) for u in (x[:, EXPLORED] < 0.5).numpy()])
+                            .astype(np.float32))
     out = {}
     for g, name in enumerate(goals):
-        auc, ap = auc_ap(p[:, g][unexplored].numpy(), y[:, g][unexplored].numpy() > 0.5)
-        out[name] = {"auc": auc, "ap": ap, "positive_rate": float(y[:, g][unexplored].mean())}
-    for key in ("auc", "ap"):
-        vals = [v[key] for v in out.values() if np.isfinite(v[key])]
+        labels = y[:, g][unexplored].numpy() > 0.5
+        auc, ap = auc_ap(p[:, g][unexplored].numpy(), labels)
+        base_auc, base_ap = auc_ap(near[unexplored].numpy(), labels)
+        out[name] = {"auc": auc, "ap": ap, "positive_rate": float(labels.mean()),
+                     "baseline_auc": base_auc, "baseline_ap": base_ap}
+    for key in ("auc", "ap", "baseline_auc", "baseline_ap"):
+        vals = [out[g][key] for g in goals if np.isfinite(out[g][key])]
         out[f"mean_{key}"] = float(np.mean(vals)) if vals else float("nan")
     return out
 
 
 def train(episodes: list[dict], spec_dict: dict, epochs: int, val_fraction: float, seed: int, progress: bool = True,
-          val_episodes: list[dict] | None = None):
+          val_episodes: list[dict] | None = None, pos_weight: float = 1.0):
     """(net, metrics) -- see the module docstring. ``val_episodes``: held-out maps (other houses);
     None = hold out ``val_fraction`` of the training houses."""
     import torch
@@ -120,7 +143,9 @@ def train(episodes: list[dict], spec_dict: dict, epochs: int, val_fraction: floa
     spec = PredictorSpec.from_dict(spec_dict)
     net = PredictorNet(spec)
     x, y = _tensors(train_eps)
+    near_cells = int(round(spec.near_m / spec.cell_m))
     opt = torch.optim.Adam(net.parameters(), lr=LR)
+    weight = torch.full((len(spec.goal_categories), 1, 1), float(pos_weight))
     steps = epochs * ((len(x) + BATCH - 1) // BATCH)
     sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=LR, total_steps=steps, pct_start=0.1)
     history = []
@@ -135,12 +160,16 @@ def train(episodes: list[dict], spec_dict: dict, epochs: int, val_fraction: floa
             xb, yb = torch.rot90(xb, k, (2, 3)), torch.rot90(yb, k, (2, 3))
             if flip:
                 xb, yb = xb.flip(3), yb.flip(3)
-            loss = F.binary_cross_entropy_with_logits(net(xb), yb)
+            # the loss where the answer is not obvious: unexplored cells near the explored area (far
+            # ones -- mostly outside the house -- are negatives the geometry alone predicts)
+            mask = _decision_cells(xb, near_cells).float()[:, None]
+            bce = F.binary_cross_entropy_with_logits(net(xb), yb, pos_weight=weight, reduction="none")
+            loss = (bce * mask).sum() / (mask.sum() * bce.shape[1]).clamp_min(1.0)
             opt.zero_grad()
             loss.backward()
             opt.step()
             sched.step()
-            total += float(loss) * len(idx)
+            total += float(loss.detach()) * len(idx)
         history.append(total / len(x))
     net.eval()
     goals = spec.goal_categories
@@ -154,15 +183,14 @@ def train(episodes: list[dict], spec_dict: dict, epochs: int, val_fraction: floa
 def main_train_predictor(args, configs=()) -> None:
     import sys
 
-    import torch
-
     from calnav.agent.prediction import DEFAULT_PREDICTOR, save_predictor
     from calnav.eval.results_dir import check_output_file, writing
 
     out = Path(args.output or DEFAULT_PREDICTOR)
     check_output_file(out)
-    if args.epochs < 1 or not 0 < args.val_fraction < 1:
-        raise ValueError(f"--epochs must be >= 1 and --val-fraction in (0, 1), got {args.epochs} / {args.val_fraction}")
+    if args.epochs < 1 or not 0 < args.val_fraction < 1 or not 1 <= args.pos_weight <= 1000:
+        raise ValueError(f"--epochs must be >= 1, --val-fraction in (0, 1) and --pos-weight in [1, 1000], got "
+                         f"{args.epochs} / {args.val_fraction} / {args.pos_weight}")
     episodes, spec = load_maps(args.data)
     val_episodes = None
     if args.val_data:
@@ -170,9 +198,11 @@ def main_train_predictor(args, configs=()) -> None:
         if val_spec != spec:
             raise ValueError("--val-data was collected for another predictor input than --data")
     t0 = time.perf_counter()
-    net, metrics = train(episodes, spec, args.epochs, args.val_fraction, args.seed, val_episodes=val_episodes)
+    net, metrics = train(episodes, spec, args.epochs, args.val_fraction, args.seed, val_episodes=val_episodes,
+                         pos_weight=args.pos_weight)
     wall = time.perf_counter() - t0
     meta = {"command": "calnav " + " ".join(sys.argv[1:]), "seed": args.seed, "data": list(args.data),
+            "pos_weight": args.pos_weight,
             "episodes": len(episodes), "epochs": args.epochs, "wall_s": round(wall, 1), **metrics}
     with writing(out):
         out.parent.mkdir(parents=True, exist_ok=True)
@@ -180,4 +210,6 @@ def main_train_predictor(args, configs=()) -> None:
         out.with_suffix(".json").write_text(json.dumps(meta, indent=1) + "\n")
     v = metrics["val"]
     print("held-out houses: " + ", ".join(f"{g} AUC {v[g]['auc']:.3f} AP {v[g]['ap']:.3f}" for g in spec["goal_categories"]))
-    print(f"mean AUC {v['mean_auc']:.3f}, mean AP {v['mean_ap']:.3f}; {len(episodes)} episodes, {wall / 60:.1f} min -> {out}")
+    print(f"mean AUC {v['mean_auc']:.3f}, mean AP {v['mean_ap']:.3f} (distance-to-explored baseline: AUC "
+          f"{v['mean_baseline_auc']:.3f}, AP {v['mean_baseline_ap']:.3f}); {len(episodes)} episodes, "
+          f"{wall / 60:.1f} min -> {out}")

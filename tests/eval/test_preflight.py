@@ -128,6 +128,7 @@ def _argv(command: str, tmp_path) -> list[str]:
         "train-segmenter": ["train-segmenter", "--model", "learned_rgb"],
         "eval-segmenter": ["eval-segmenter", "--model", "gt"],
         "export-onnx": ["export-onnx", "--model", "learned_rgb", "--output", str(tmp_path / "m.onnx")],
+        "train-predictor": ["train-predictor", "--data", str(tmp_path), "--output", str(tmp_path / "p.pt")],
         "export-sequence": ["export-sequence", "--output", out],
         "compare": ["compare", out, "--output", out],
         "calibrate-map": ["calibrate-map", "--quick", "--sequences", str(tmp_path / "list.txt")],
