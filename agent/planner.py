@@ -64,6 +64,12 @@ def geodesic_distance(free: np.ndarray, sources: np.ndarray, cost: np.ndarray | 
     return out
 
 
+def inside(cells: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """The rows of ``cells`` (M, 2) int (row, col) that lie inside a map of ``shape`` (rows,
+    cols). The planning window is rarely square: each axis has its own bound."""
+    return cells[((cells >= 0) & (cells < np.asarray(shape[:2]))).all(axis=1)]
+
+
 def heading_to(agent_rc: tuple[int, int], target_rc, yaw: float) -> float:
     """Signed angle (rad, counter-clockwise positive, in (-pi, pi]) from heading ``yaw`` (rad,
     from world +x = +col) to the direction agent -> target ((row, col) cells; +row = +y)."""
@@ -106,23 +112,19 @@ class Planner:
         pts = np.argwhere(goal)
         if len(pts) == 0:
             return out
-        cells = (pts[:, None, :] + self._goal_kernel[None]).reshape(-1, 2)
-        cells = cells[((cells >= 0) & (cells < goal.shape[0])).all(axis=1)]
+        cells = inside((pts[:, None, :] + self._goal_kernel[None]).reshape(-1, 2), goal.shape)
         out[cells[:, 0], cells[:, 1]] = True
         return out
 
     def plan(self, free: np.ndarray, goal: np.ndarray, agent_rc: tuple[int, int], yaw: float) -> Plan:
-        """free (n, n) bool planning map; goal (n, n) bool goal cells; agent cell; yaw rad."""
-        n = free.shape[0]
+        """free (h, w) bool planning map; goal (h, w) bool goal cells; agent cell; yaw rad."""
         free = free.copy()
-        disc = self._start_disc + agent_rc   # the agent's own footprint is never blocked
-        disc = disc[((disc >= 0) & (disc < n)).all(axis=1)]
+        disc = inside(self._start_disc + agent_rc, free.shape)   # the agent's own footprint is never blocked
         free[disc[:, 0], disc[:, 1]] = True
         region = self.goal_region(goal)
         near_obstacle = dilate(~free, self.cfg.clearance_m / self.cfg.cell_m)
         cost = np.where(near_obstacle, self.cfg.clearance_cost, 1.0)
-        ring = self._ring + agent_rc
-        ring = ring[((ring >= 0) & (ring < n)).all(axis=1)]
+        ring = inside(self._ring + agent_rc, free.shape)
         dist = geodesic_distance(free, region & free | goal, cost, targets=np.vstack([ring, [agent_rc]]))
         here = dist[agent_rc]
         if not np.isfinite(here):

@@ -108,3 +108,22 @@ def test_unreachable_goal_is_reported():
     goal[20, 35] = True
     plan = Planner(CFG).plan(free, goal, (20, 5), 0.0)
     assert not plan.reachable
+
+
+def test_planner_on_non_square_windows():
+    """The planning window is the explored bounding box plus a margin, rarely square. Each axis
+    has its own bound: a tall window with the agent and goal at its right edge (a predicted
+    goal can lie there) plans instead of indexing past the columns, and in a wide window the
+    goal region is dilated beyond column `rows` (it was clipped at the row count)."""
+    cfg = AgentConfig()
+    planner = Planner(cfg)
+    free = np.ones((300, 210), bool)
+    goal = np.zeros_like(free)
+    goal[150, 209] = True
+    plan = planner.plan(free, goal, (100, 207), 0.0)
+    assert plan.reachable
+    wide = np.zeros((100, 300), bool)
+    wide[50, 200] = True
+    region = planner.goal_region(wide)
+    rad = int(cfg.goal_dilation_m / cfg.cell_m)
+    assert region[50, 200 + rad] and region[50, 200 - rad] and region.sum() > 3 * rad * rad
