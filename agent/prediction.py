@@ -167,16 +167,10 @@ def map_input(channels: dict[str, np.ndarray], semantic: np.ndarray, agent_rc: t
 
 def load_predictor_weights(path: Path | str) -> dict:
     """The weight dict of ``path``; FileNotFoundError / ValueError naming the file."""
+    from calnav.common.weights import load_weight_dict
+
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"predictor weights not found: {path}; create them with: calnav train-predictor "
-                                f"--data DIR --output {path}")
-    try:
-        data = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # noqa: BLE001 -- torch raises many types for a corrupt file
-        raise ValueError(f"cannot read predictor weights {path}: {str(exc).strip().splitlines()[0]}") from None
-    if not isinstance(data, dict) or data.get("format") != PREDICTOR_FORMAT:
-        raise ValueError(f"{path} is not a calnav predictor weight file (format {PREDICTOR_FORMAT})")
+    data = load_weight_dict(path, "predictor", PREDICTOR_FORMAT, f"calnav train-predictor --data DIR --output {path}")
     try:
         spec = PredictorSpec.from_dict(data["spec"])
         PredictorNet(spec).load_state_dict({k: v.float() for k, v in data["state_dict"].items()})

@@ -5,6 +5,8 @@ project package (``agent``, ``envs``, ``mapping``, ``eval``).
   contents or through a temporary path for writers such as ``np.savez`` / ``torch.save``.
 - ``common.npz``: save / load a versioned ``.npz`` (arrays + a JSON metadata record carrying
   ``format_version``), with clear errors naming the file.
+- ``common.weights``: versioned torch weight dicts (``torch.load(weights_only=True)`` + a format
+  number), with errors naming the file and the command that makes it.
 - ``common.prefetch``: an iterator's items produced a bounded number ahead by a background
   thread, exceptions re-raised in the consumer.
 """

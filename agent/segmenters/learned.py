@@ -22,6 +22,7 @@ import torch
 import torch.nn.functional as F
 
 from calnav.common.atomic import atomic_path
+from calnav.common.weights import load_weight_dict
 from calnav.agent.segmenters.base import WEIGHTS_DIR, BatchSegmenter, SegmenterConfig, check_batch, resolve_device
 from calnav.agent.segmenters.network import NetSpec, SegNet, fuse_batchnorm
 
@@ -47,15 +48,7 @@ def load_weights(path: Path | str, model: str | None = None) -> dict:
     """The weight dict of ``path``; FileNotFoundError names the path and the command that
     creates it; ValueError when the file is not a calnav segmenter (or is for another model)."""
     path = Path(path)
-    if not path.exists():
-        name = model or "learned_rgb"
-        raise FileNotFoundError(f"segmenter weights not found: {path}; create them with: {train_command(name, path)}")
-    try:
-        data = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # noqa: BLE001 -- torch raises many types for a corrupt file
-        raise ValueError(f"cannot read segmenter weights {path}: {exc}") from exc
-    if not isinstance(data, dict) or data.get("format") != WEIGHTS_FORMAT:
-        raise ValueError(f"{path} is not a calnav segmenter weight file (format {WEIGHTS_FORMAT})")
+    data = load_weight_dict(path, "segmenter", WEIGHTS_FORMAT, train_command(model or "learned_rgb", path))
     if model is not None and data.get("model") != model:
         raise ValueError(f"{path} holds weights for {data.get('model')!r}, not {model!r}")
     return data
