@@ -2,7 +2,8 @@
 
 Per step: segment (``agent.perception``) -> fuse into the 3D map + project to the 2D map
 (``agent.semantic_map``) -> collision check (``agent.collision``) -> goal detection
-(``agent.goal_detection``) -> frontier exploration when no goal (``agent.exploration``) ->
+(``agent.goal_detection``) -> when no goal, frontier exploration (``agent.exploration``) or
+PEANUT's target prediction (``agent.prediction``, ``agent.exploration: prediction``) ->
 local planning (``agent.planner``). The agent reads only Habitat's ObjectNav observations
 (``envs.task.HABITAT_KEYS``: rgb, depth, gps, compass, objectgoal; plus ``semantic`` for the
 ``gt`` / ``noisy`` segmenters, which are built from it) and the task's sensor facts from its
