@@ -230,7 +230,7 @@ class PeanutAgent:
         if reached:  # a frontier still open once reached cannot be seen past (e.g. too close for depth)
             self._exclude_around(self.ltg)
         if local is None or reached or self.ltg_age >= cfg.replan_steps:
-            local = self._choose_ltg(agent_rc)
+            local = self._choose_ltg(agent_rc, free)
         for _ in range(2):  # one retry with a new frontier if the current one is unreachable
             if local is None:
                 break
@@ -241,7 +241,7 @@ class PeanutAgent:
                 self.info = StepInfo("explore", det, plan, local, self.frontiers, win)
                 return plan.action
             self._exclude_around(self.ltg)
-            local = self._choose_ltg(agent_rc)
+            local = self._choose_ltg(agent_rc, free)
         # Nothing reachable to explore: collision marks (or frontiers judged unreachable) may be
         # blocking a doorway, so forget them and look around; the next step re-plans.
         self.state.channels[MapChannels.COLLISION] = False
@@ -258,11 +258,11 @@ class PeanutAgent:
     def goal_names(self) -> tuple[str, ...]:
         """The goal categories the agent may be asked for: the segmenter's classes that are
         ObjectNav goals (the task's ``objectgoal`` ids index the segmenter's classes)."""
-        from calnav.agent.segmenters.adapter import goal_categories
+        from calnav.agent.segmenters.base import goal_categories
 
         return tuple(g for g in goal_categories() if g in self.class_names)
 
-    def _predicted_ltg(self, agent_rc) -> tuple[int, int] | None:
+    def _predicted_ltg(self, agent_rc, free: np.ndarray) -> tuple[int, int] | None:
         """PEANUT's long-term goal (window coordinates): the most valuable reachable unexplored
         cell of the goal's predicted probability (``agent.prediction``); None when the
         prediction offers nothing (the frontier choice then decides)."""
@@ -275,7 +275,6 @@ class PeanutAgent:
         r, c = agent_rc[0] + win[0].start, agent_rc[1] + win[1].start
         prob, corner = self.predictor.probabilities(maps, st.semantic, (r, c), cfg.cell_m, self.goal_name,
                                                     region=st.window(0))
-        free = ~dilate(st.obstacles(win), cfg.dilation_cells)   # unknown cells are optimistic
         source = np.zeros_like(free)
         source[agent_rc] = True
         explored = ch[MapChannels.EXPLORED][win]
@@ -285,13 +284,13 @@ class PeanutAgent:
                                 cfg.prediction_distance_m, cfg.cell_m)
         return None if choice is None else choice[0]
 
-    def _choose_ltg(self, agent_rc) -> tuple[int, int] | None:
+    def _choose_ltg(self, agent_rc, free: np.ndarray) -> tuple[int, int] | None:
         """Choose a long-term goal (window coordinates in and out): the predicted one with
         ``exploration: prediction`` when the prediction offers one, else a frontier; remembers
         it in map coordinates."""
         st, cfg, win = self.state, self.cfg, self.window
         if self.predictor is not None:
-            goal = self._predicted_ltg(agent_rc)
+            goal = self._predicted_ltg(agent_rc, free)
             if goal is not None:
                 self.ltg_age = 0
                 self.ltg = (goal[0] + win[0].start, goal[1] + win[1].start)

@@ -55,7 +55,7 @@ def check_run_resources(cfg: Any, checks: tuple[str, ...] = CHECKS) -> None:
     names = None
     agent = getattr(cfg, "agent", None) if "agent" in checks else None
     if agent is not None:
-        from calnav.agent.segmenters.adapter import goal_categories
+        from calnav.agent.segmenters.base import goal_categories
 
         names = check_segmenter(agent.segmenter, agent.segmenter_config, run.device if run else None,
                                 probe_size=tuple(cfg.env.resolution), goals=goal_categories())

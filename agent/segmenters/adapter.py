@@ -25,20 +25,13 @@ from calnav.agent.segmenters.label_map import PROB_FLOOR, LabelMap, mapping_matr
 GENERIC_NAME = re.compile(r"^(LABEL_\d+|class_?\d+|\d+)$")   # placeholder names (a fresh HF config)
 
 
-def goal_categories() -> tuple[str, ...]:
-    """calnav's ObjectNav goal categories (``agent/weights/classes.json``)."""
-    import json
-
-    from calnav.agent.segmenters.base import CLASSES_FILE
-
-    return tuple(json.loads(CLASSES_FILE.read_text())["goal_categories"])
-
-
 def resolve_label_map(spec: str, model_classes: tuple[str, ...] | None, k_model: int | None) -> LabelMap:
     """The label map ``spec`` aligned to the model's output channels: by name when the model
     names its classes (every name must be in the map; placeholder names such as LABEL_0 go by
     order), else by the map's order; K must agree."""
     label_map = read_label_map(spec)
+    if model_classes:   # compared stripped: Segformer's ADE20K id2label spells id 7 "bed "
+        model_classes = tuple(n.strip() for n in model_classes)
     if model_classes and not all(GENERIC_NAME.match(n) for n in model_classes):
         unknown = [n for n in model_classes if n not in label_map.model_classes]
         if unknown:

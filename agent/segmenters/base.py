@@ -130,6 +130,14 @@ def default_class_names() -> tuple[str, ...]:
         raise FileNotFoundError(f"class list {CLASSES_FILE} is missing; pass class_names explicitly") from None
 
 
+def goal_categories() -> tuple[str, ...]:
+    """calnav's ObjectNav goal categories, shipped beside the class list (``classes.json``)."""
+    try:
+        return tuple(json.loads(CLASSES_FILE.read_text())["goal_categories"])
+    except FileNotFoundError:
+        raise FileNotFoundError(f"class list {CLASSES_FILE} is missing") from None
+
+
 def resolve_device(device: str | None):
     """torch.device for ``device`` ("" / None = cpu); a clear error when CUDA is asked for
     but unavailable."""

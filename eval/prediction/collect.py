@@ -68,7 +68,7 @@ def goal_targets(scene, episode, state_origin: np.ndarray, corner: tuple[int, in
 def collect_episode(task: CollectTask) -> dict:
     """Run one exploring episode on this worker; returns its arrays (see the module docstring)."""
     from calnav.agent.prediction import PredictorSpec, crop_origin, map_input, pool_factor
-    from calnav.agent.segmenters.adapter import goal_categories
+    from calnav.agent.segmenters.base import goal_categories
     from calnav.agent.semantic_map import MapChannels
     from calnav.envs.task import Action
     from calnav.eval.config import Config, build_dataclass

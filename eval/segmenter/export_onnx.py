@@ -31,17 +31,6 @@ from calnav.eval.results_dir import check_output_file, writing
 ATOL = 1e-4
 
 
-class _Exported(torch.nn.Module):
-    """The network with the ONNX graph's input / output names and layout."""
-
-    def __init__(self, net: torch.nn.Module):
-        super().__init__()
-        self.net = net
-
-    def forward(self, rgb: torch.Tensor, depth: torch.Tensor | None = None) -> torch.Tensor:
-        return self.net(rgb, depth)
-
-
 @contextlib.contextmanager
 def _quiet_exporter():
     """torch.export / torch.onnx narrate their passes (warnings and log lines about optional
@@ -72,7 +61,7 @@ def export(model: str, weights: str, output: Path, atol: float = ATOL) -> dict:
     from calnav.agent.segmenters.onnx import ONNXSegmenter
 
     seg = LearnedSegmenter(model, SegmenterConfig(weights=weights), "cpu")
-    net = _Exported(seg.net.to(memory_format=torch.contiguous_format)).eval()
+    net = seg.net.to(memory_format=torch.contiguous_format).eval()   # forward(rgb[, depth]): the graph's inputs
     w, h = seg.resolution
     names = ["rgb", "depth"] if seg.needs_depth else ["rgb"]
     args = (torch.rand(2, 3, h, w),) + ((1.0 + 3.0 * torch.rand(2, 1, h, w),) if seg.needs_depth else ())

@@ -10,8 +10,8 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from calnav.agent.segmenters.adapter import ModelAdapter, goal_categories
-from calnav.agent.segmenters.base import SegmenterConfig, default_class_names
+from calnav.agent.segmenters.adapter import ModelAdapter
+from calnav.agent.segmenters.base import SegmenterConfig, default_class_names, goal_categories
 from calnav.agent.segmenters.label_map import (BUILTIN_LABEL_MAPS, PROB_FLOOR, LabelMap, mapping_matrix,
                                                read_label_map)
 
@@ -146,3 +146,13 @@ def test_model_classes_are_matched_by_name_or_by_order(tmp_path):
         FixedLogits(z, SegmenterConfig(label_map=str(path)), ("couch", "tree"))
     with pytest.raises(ValueError, match="the model predicts 3 classes, label map .* lists 2"):
         FixedLogits(np.zeros((1, 3, 1, 1)), SegmenterConfig(label_map=str(path)))
+
+
+def test_model_class_names_are_compared_stripped(tmp_path):
+    """Segformer's ADE20K checkpoints spell class 7 "bed " (trailing space): it is the map's bed."""
+    path = tmp_path / "m.yaml"
+    path.write_text("bed: bed\nsky: null\n")
+    z = np.zeros((1, 2, 1, 1), np.float32)
+    z[0, 0] = 5.0
+    p = _probs(FixedLogits(z, SegmenterConfig(label_map=str(path)), ("bed ", "sky")), 1, 1)
+    assert p[..., CALNAV.index("bed")] > 0.9
