@@ -137,17 +137,24 @@ class RayBackend:
         if not items:
             return
         ray = self._init()
-        remote = ray.remote(max_retries=RAY_TASK_RETRIES, retry_exceptions=False)(fn)
+        # one remote function for every fn (a callable object too: ray.remote takes functions only)
+        remote = ray.remote(max_retries=RAY_TASK_RETRIES, retry_exceptions=False)(_apply).options(
+            name=getattr(fn, "__name__", "task"))   # the task's (and its worker's ray::NAME) name: fn's
         cap = self.workers if self.workers > 0 else len(items)
         queue = list(reversed(items))
         pending: dict = {}
         while queue or pending:
             while queue and len(pending) < cap:
                 item = queue.pop()
-                pending[remote.remote(item)] = item
+                pending[remote.remote(fn, item)] = item
             done, _ = ray.wait(list(pending), num_returns=1)
             for ref in done:
                 yield pending.pop(ref), ray.get(ref)
+
+
+def _apply(fn: Callable[[Any], Any], item: Any) -> Any:
+    """A Ray task's body: ``fn(item)``."""
+    return fn(item)
 
 
 def ray_node_id() -> str | None:

@@ -293,23 +293,21 @@ def record_houses(cfg: CalibrateMapConfig, scene_seeds: dict[str, int], segmente
     files, as tasks on the ``run.backend`` backend (houses are the slow stage); each house's
     files are written as it arrives (pixels first, the cache last: its presence marks the
     house done), so a killed study resumes."""
-    from tqdm import tqdm
-
-    from calnav.eval.backends import make_backend
     from calnav.eval.config import to_dict
+    from calnav.eval.runner import raise_failures, run_tasks
 
-    backend = make_backend(cfg.run)
     cfg_dict, tasks = to_dict(cfg), []
     for sid, seed in scene_seeds.items():
         missing = tuple(n for n in segmenters if not all(p.exists() for p in scene_files(out_dir, n, sid)))
         if missing:
             tasks.append(RecordTask(cfg_dict, sid, missing, seed))
-    bar = tqdm(total=len(scene_seeds), initial=len(scene_seeds) - len(tasks), desc="record scans", unit="house",
-               disable=not progress)
-    for _, files in backend.map_unordered(record_task, tasks):
+
+    def save(_, files: dict[str, bytes]) -> None:
         for rel in sorted(files, key=lambda r: r.endswith(".cache.npz")):  # the cache last
             dest = out_dir / rel
             dest.parent.mkdir(parents=True, exist_ok=True)
             write_bytes_atomic(dest, files[rel])
-        bar.update(1)
-    bar.close()
+
+    failures = run_tasks(record_task, tasks, cfg.run, save=save, desc="record scans", unit="house",
+                         total=len(scene_seeds), progress=progress)
+    raise_failures(failures, "house", name=lambda task: task.scene_id)

@@ -20,7 +20,6 @@ from __future__ import annotations
 import json
 import re
 import time
-import traceback
 from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -114,20 +113,22 @@ def _warm_env_agent(cfg_dict: dict, agent_name: str, env_maker: str = "", env_ar
 
 
 def run_episode_task(task: EpisodeTask) -> dict:
-    """Run one task in this process (any backend); a crash becomes an error record so the run
-    keeps going."""
+    """Run one task in this process (any backend); a crash is raised to ``eval.runner.run_tasks``,
+    which hands it back as an error record (``error_record``) so the run keeps going."""
     from calnav.eval.backends import ray_node_id
 
-    try:
-        env, agent = _warm_env_agent(task.cfg_dict, task.agent, task.env_maker, task.env_args)
-        record = run_one_episode(env, agent, task.index, task.video_dir)
-    except Exception as exc:  # report the episode, keep the run going
-        record = {"index": task.index, "status": "error", "error": f"{type(exc).__name__}: {exc}",
-                  "traceback": traceback.format_exc(limit=5)}
+    env, agent = _warm_env_agent(task.cfg_dict, task.agent, task.env_maker, task.env_args)
+    record = run_one_episode(env, agent, task.index, task.video_dir)
     node = ray_node_id()
     if node is not None:
         record["ray_node"] = node  # where it ran (run.backend=ray); metrics ignore it
     return record
+
+
+def error_record(task: EpisodeTask, failure) -> dict:
+    """The record of an episode whose task raised (``eval.runner.TaskFailed``): retried on resume."""
+    return {"index": task.index, "status": "error", "error": failure.error,
+            "traceback": "\n".join(failure.traceback.splitlines()[-12:])}
 
 
 def crashed(record: dict) -> bool:
@@ -180,7 +181,8 @@ def run_jobs(jobs: list[EpisodeJob], force: bool = False, progress: bool = True,
     episode of a job crashed (after all records and summaries are written)."""
     from tqdm import tqdm
 
-    from calnav.eval.backends import make_backend
+    from calnav.eval.backends import check_backend
+    from calnav.eval.runner import run_tasks
 
     run_cfg = jobs[0].cfg.run
     for job in jobs:  # every check before anything is written
@@ -189,7 +191,7 @@ def run_jobs(jobs: list[EpisodeJob], force: bool = False, progress: bool = True,
         if job.video and job.cfg.run.agent not in VIDEO_AGENTS:
             raise ValueError(f"--video draws the agent's semantic map; agent {job.cfg.run.agent!r} has none "
                              f"(agents with videos: {', '.join(VIDEO_AGENTS)})")
-    backend = make_backend(run_cfg)
+    check_backend(run_cfg.backend, run_cfg.ray_address)   # before anything is written
     with ExitStack() as stack:
         dirs, files, records, duplicates, tasks = [], [], [], [], []
         for j, job in enumerate(jobs):
@@ -209,16 +211,19 @@ def run_jobs(jobs: list[EpisodeJob], force: bool = False, progress: bool = True,
                       for i in job.indices if i not in done]
         total = sum(len(job.indices) for job in jobs)
         name = jobs[0].cfg.run.agent if len(jobs) == 1 else f"{len(jobs)} configs"
-        bar = stack.enter_context(tqdm(total=total, initial=total - len(tasks), disable=not progress,
-                                       desc=f"objectnav[{name}]", unit="ep"))
-        for task, rec in backend.map_unordered(run_episode_task, tasks):
+
+        def save(task: EpisodeTask, rec: dict) -> None:
             files[task.job].append(rec)
             records[task.job][rec["index"]] = rec
-            s = summarize(list(records[task.job].values()))
-            bar.set_postfix(Success=f"{s['success']:.3f}", SPL=f"{s['spl']:.3f}")
-            bar.update(1)
             if crashed(rec):
                 tqdm.write(f"{jobs[task.job].out}: episode {rec['index']} failed: {rec.get('error')}")
+
+        def postfix(task: EpisodeTask) -> dict:   # the running figures of the finished episode's job
+            s = summarize(list(records[task.job].values()))
+            return {"Success": f"{s['success']:.3f}", "SPL": f"{s['spl']:.3f}"}
+
+        run_tasks(run_episode_task, tasks, run_cfg, save=save, failed=lambda t, f: save(t, error_record(t, f)),
+                  desc=f"objectnav[{name}]", unit="ep", total=total, progress=progress, postfix=postfix)
         summaries, ordered_all = [], []
         for job, results, recs, dup in zip(jobs, dirs, records, duplicates):
             ordered = [recs[i] for i in job.indices if i in recs]

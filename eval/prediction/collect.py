@@ -114,10 +114,8 @@ def collect_configs(args) -> list:
 
 def main_collect_maps(args, configs) -> None:
     """``configs``: ``collect_configs(args)``, checked by the preflight."""
-    from tqdm import tqdm
-
     from calnav.common.npz import save_versioned_npz
-    from calnav.eval.backends import make_backend
+    from calnav.eval.runner import raise_failures, run_tasks
     from calnav.eval.config import to_dict
     from calnav.envs.episodes import load_split, parse_episode_range
 
@@ -129,10 +127,12 @@ def main_collect_maps(args, configs) -> None:
     with ResultsDir(out, cfg, force=args.force, discard=("episodes",), files=()):
         todo = [i for i in indices if not episode_file(out, i).exists()]
         tasks = [CollectTask(to_dict(cfg), i, args.steps, args.every) for i in todo]
-        bar = tqdm(total=len(indices), initial=len(indices) - len(todo), desc="collect maps", unit="ep")
-        for task, res in make_backend(cfg.run).map_unordered(collect_episode, tasks):
+
+        def save(task: CollectTask, res: dict) -> None:
             save_versioned_npz(episode_file(out, task.index), {k: res[k] for k in ("inputs", "targets", "steps")},
                                res["meta"], MAPS_FORMAT)
-            bar.update(1)
-        bar.close()
+
+        failures = run_tasks(collect_episode, tasks, cfg.run, save=save, desc="collect maps", unit="ep",
+                             total=len(indices))
+    raise_failures(failures, "episode", name=lambda task: f"episode {task.index}")
     print(f"maps: {len(indices)} episodes in {out} ({len(todo)} collected now)")

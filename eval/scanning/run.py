@@ -76,10 +76,9 @@ def scan_houses_configs(args) -> list:
 
 def main_scan_houses(args, configs) -> None:
     """``configs``: ``scan_houses_configs(args)``, checked by the preflight."""
-    from tqdm import tqdm
-
     from calnav.envs.scenes import split_scene_ids
-    from calnav.eval.backends import make_backend
+    from calnav.eval.backends import check_backend
+    from calnav.eval.runner import raise_failures, run_tasks
 
     cfg = configs[0]
     splits = [s for s in str(args.splits).split(",") if s]
@@ -90,16 +89,14 @@ def main_scan_houses(args, configs) -> None:
         if args.houses < 1:
             raise ValueError(f"--houses must be >= 1, got {args.houses}")
         ids = [i for s in splits for i in split_scene_ids(s, cfg.env.dataset)[: args.houses]]
-    backend = make_backend(cfg.run)   # run.backend=ray without Ray: the install command, before writing
+    check_backend(cfg.run.backend, cfg.run.ray_address)   # ray without Ray: the install command, before writing
     ds_dict = dataclasses.asdict(cfg.env.dataset)
     out = Path(args.output)
     with ResultsDir(out, cfg, force=args.force, discard=("quality.csv", "quality.md", "quality.json"),
                     files=("quality.csv",)):
         rows = []
-        with tqdm(total=len(ids), desc="scanning houses", unit="house") as bar:
-            for _, row in backend.map_unordered(scan_one, [(i, ds_dict) for i in ids]):
-                rows.append(row)
-                bar.update(1)
+        failures = run_tasks(scan_one, [(i, ds_dict) for i in ids], cfg.run, save=lambda _, row: rows.append(row),
+                             desc="scanning houses", unit="house")
         rows.sort(key=lambda r: r["scene_id"])
         means = split_means(rows)
         buf = io.StringIO()
@@ -114,3 +111,4 @@ def main_scan_houses(args, configs) -> None:
             write_json_atomic(out / "quality.json", {"houses": rows, "splits": means, "real_scan": REAL_SCAN_ROW})
     print(markdown(means), end="")
     print(f"results: {out}/quality.csv, {out}/quality.md")
+    raise_failures(failures, "house", name=lambda item: item[0])   # after the others' rows are written

@@ -1,0 +1,71 @@
+"""The experiment kernel's loop (eval.runner): every result is saved as it arrives, a task that
+raises does not take the others with it (in-process, in a process pool and on Ray), and the
+failures come back as one line naming each task after the rest is saved."""
+import os
+from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
+
+from calnav.eval.results_dir import ResultsError
+from calnav.eval.runner import TaskFailed, raise_failures, run_tasks
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def square_unless_three(x: int) -> int:
+    if x == 3:
+        raise ValueError(f"task {x} is broken")
+    return x * x
+
+
+def _run(cfg, **kw):
+    saved = {}
+    failures = run_tasks(square_unless_three, [1, 2, 3, 4], cfg, save=saved.__setitem__, desc="t", unit="task",
+                         progress=False, **kw)
+    return saved, failures
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_a_failing_task_leaves_the_others_saved(workers):
+    saved, failures = _run(SimpleNamespace(backend="local", ray_address="", workers=workers))
+    assert saved == {1: 1, 2: 4, 4: 16}
+    assert [t for t, _ in failures] == [3]
+    f = failures[0][1]
+    assert isinstance(f, TaskFailed) and f.error == "ValueError: task 3 is broken"
+    assert "square_unless_three" in f.traceback
+    with pytest.raises(ResultsError) as exc:
+        raise_failures(failures, "house", name=lambda t: f"house {t}")
+    assert str(exc.value) == ("1 house(s) failed, the others are saved; rerun the same command to retry them: "
+                              "house 3: ValueError: task 3 is broken")
+    raise_failures([], "house")   # nothing failed: nothing raised
+
+
+def test_failures_handed_to_failed_are_saved_not_returned():
+    got = []
+    saved, failures = _run(SimpleNamespace(backend="local", ray_address="", workers=1),
+                           failed=lambda t, f: got.append((t, f.error)))
+    assert failures == [] and got == [(3, "ValueError: task 3 is broken")] and len(saved) == 3
+
+
+def test_progress_total_and_postfix():
+    seen = []
+    run_tasks(square_unless_three, [1, 2], SimpleNamespace(backend="local", ray_address="", workers=1),
+              save=lambda t, r: None, desc="t", unit="task", total=5, progress=False,
+              postfix=lambda t: seen.append(t) or {})
+    assert seen == [1, 2]   # called with the task that just finished
+    with pytest.raises(ValueError, match="total=1 is less than the 2 tasks"):
+        run_tasks(square_unless_three, [1, 2], SimpleNamespace(backend="local", ray_address="", workers=1),
+                  save=lambda t, r: None, desc="t", unit="task", total=1, progress=False)
+
+
+def test_a_failing_task_on_ray_leaves_the_others_saved():
+    ray = pytest.importorskip("ray", reason="the ray extra is installed by `make test`")
+    env = {"PYTHONPATH": os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")]).rstrip(os.pathsep)}
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, runtime_env={"env_vars": env})
+    try:
+        saved, failures = _run(SimpleNamespace(backend="ray", ray_address="", workers=0))
+    finally:
+        ray.shutdown()
+    assert saved == {1: 1, 2: 4, 4: 16}
+    assert [(t, f.error) for t, f in failures] == [(3, "ValueError: task 3 is broken")]
