@@ -53,8 +53,10 @@ def cell_of(xy: np.ndarray, origin: np.ndarray, cell_m: float, n: int) -> tuple[
     """Flat cell index (N,) int64 of world points xy (N, 2) metres, and an inside mask (N,)
     bool (points outside the n x n map get index 0 and inside False)."""
     cr = np.floor((np.asarray(xy, np.float64) - origin) / cell_m).astype(np.int64)
-    inside = (cr >= 0).all(axis=1) & (cr < n).all(axis=1)
-    flat = np.where(inside, cr[:, 1] * n + cr[:, 0], 0)
+    x, y = cr[:, 0], cr[:, 1]
+    inside = (x >= 0) & (x < n) & (y >= 0) & (y < n)   # (not .all(axis=1): slow on 2 columns)
+    flat = y * n + x
+    flat[~inside] = 0
     return flat, inside
 
 
@@ -146,12 +148,13 @@ def obstacle_points(points: np.ndarray, min_height_m: float, max_height_m: float
     return (z >= min_height_m) & (z <= max_height_m)
 
 
-def free_rays(camera_xy: np.ndarray, points: np.ndarray, columns: np.ndarray, obstacle: np.ndarray,
+def free_rays(camera_xy: np.ndarray, points: np.ndarray, pix: np.ndarray, width: int, obstacle: np.ndarray,
               samples: int) -> np.ndarray:
     """Ground points (M, 2) world metres seen as free along each image column (a laser scan).
 
-    points (N, 3) world metres of the valid pixels, columns (N,) their image column, obstacle
-    (N,) bool. Per column the view is free from the camera up to the nearest obstacle point's
+    points (N, 3) world metres of the valid pixels, pix (N,) their flat pixel indices (row-major,
+    increasing, as ``backproject`` returns them) in an image ``width`` pixels wide, obstacle (N,)
+    bool. Per column the view is free from the camera up to the nearest obstacle point's
     horizontal range (or the farthest point's range if the column holds no obstacle), along
     the direction of that point; ``samples`` points are placed evenly on each such segment.
     """
@@ -159,13 +162,17 @@ def free_rays(camera_xy: np.ndarray, points: np.ndarray, columns: np.ndarray, ob
         return np.zeros((0, 2), np.float32)
     d = points[:, :2].astype(np.float64) - camera_xy
     rng = np.hypot(d[:, 0], d[:, 1])
-    # rank key: obstacles first by range, then free points by -range (farthest first)
-    key = np.where(obstacle, rng, -rng + 1e6)
-    order = np.lexsort((key, columns))
-    first = np.ones(len(order), bool)
-    first[1:] = columns[order][1:] != columns[order][:-1]
-    pick = order[first]
-    ends = d[pick]
+    # rank key: obstacles first by range, then free points by -range (farthest first); the
+    # column's point is its smallest key, the lowest row among equal ones (a dense per-pixel
+    # image and argmin per column: a sort of all points costs several times more)
+    key = np.full((int(pix[-1]) // width + 1) * width, np.inf)
+    key[pix] = np.where(obstacle, rng, -rng + 1e6)
+    key = key.reshape(-1, width)
+    row = key.argmin(axis=0)
+    cols = np.flatnonzero(np.isfinite(key[row, np.arange(width)]))
+    point = np.full(key.size, -1, np.int64)
+    point[pix] = np.arange(len(pix))
+    ends = d[point[row[cols] * width + cols]]
     t = np.linspace(0.0, 1.0, samples)
     seg = camera_xy + ends[:, None, :] * t[None, :, None]
     return seg.reshape(-1, 2).astype(np.float32)

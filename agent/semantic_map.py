@@ -170,13 +170,18 @@ class SemanticMapModule:
         self.class_names = tuple(class_names)
         self.num_classes = len(self.class_names)
         self.voxel_size_m = mapping_cfg.voxel_size_m
+        self._voxels: SemanticVoxelMap | None = None   # the one voxel map, emptied for each episode
 
     def new_state(self, start_xy: np.ndarray) -> MapState:
-        """An empty map centred on ``start_xy`` (2,) metres (the agent's frame), with a fresh voxel map for
-        ``fused`` (none for ``ndf``)."""
+        """An empty map centred on ``start_xy`` (2,) metres (the agent's frame), with an empty voxel
+        map for ``fused`` (none for ``ndf``). The module keeps one voxel map and empties it here
+        (``SemanticVoxelMap.reset``: the grown allocation is kept, so later episodes skip
+        Open3D's ~1 s hashmap doublings), so the previous state's ``voxels`` are emptied too."""
         voxels = None
         if self.cfg.map_type == "fused":
-            voxels = SemanticVoxelMap(self.num_classes, self.mapping_cfg, class_names=self.class_names)
+            if self._voxels is None:
+                self._voxels = SemanticVoxelMap(self.num_classes, self.mapping_cfg, class_names=self.class_names)
+            voxels = self._voxels.reset()
         return MapState.empty(start_xy, self.cfg, self.num_classes, voxels, lattice_m=self.voxel_size_m)
 
     def update(self, state: MapState, frame: SegmentedFrame, pose: np.ndarray) -> None:
@@ -200,7 +205,7 @@ class SemanticMapModule:
         cells, inside = pj.cell_of(points[:, :2], state.origin, cfg.cell_m, n)
         flat_channels = state.channels.reshape(NUM_CHANNELS, -1)
         flat_channels[MapChannels.OBSTACLE, cells[inside & obst]] = True
-        free = pj.free_rays(cam_xy, points, pix % depth.shape[1], obst, cfg.free_ray_samples)
+        free = pj.free_rays(cam_xy, points, pix, depth.shape[1], obst, cfg.free_ray_samples)
         fcells, finside = pj.cell_of(free, state.origin, cfg.cell_m, n)
         flat_channels[MapChannels.EXPLORED, fcells[finside]] = True
         flat_channels[MapChannels.EXPLORED, cells[inside]] = True
@@ -251,17 +256,15 @@ class SemanticMapModule:
     def _project_fused(self, state: MapState, points: np.ndarray, vmap) -> None:
         """Re-project the voxels this frame hit (their fused values changed)."""
         ijk_all = np.rint(points / self.voxel_size_m).astype(np.int64)
-        _, first = np.unique(VoxelVotes.encode(ijk_all), return_index=True)
+        keys, first = np.unique(VoxelVotes.encode(ijk_all), return_index=True)   # sorted, as votes need
         ijk = ijk_all[first]
-        centres = ijk * self.voxel_size_m
         with single_threaded_torch():   # small tensors: extra torch threads only contend
-            probs, observed = vmap.query(centres)
-        ijk, centres, probs = ijk[observed], centres[observed], probs[observed]
+            probs, observed = vmap.query_keys(ijk)
+        keys, centres, probs = keys[observed], ijk[observed] * self.voxel_size_m, probs[observed]
         cells, inside = pj.cell_of(centres[:, :2], state.origin, self.cfg.cell_m, state.size)
-        ijk, cells, probs = ijk[inside], cells[inside], probs[inside]
+        keys, cells, probs = keys[inside], cells[inside], probs[inside]
         cls = probs.argmax(axis=1)
         conf = probs[np.arange(len(cls)), cls]
-        keys = VoxelVotes.encode(ijk)
         old_cells, old_cls, old_conf = state.votes.update(keys, cells, cls.astype(np.int16), conf)
         ncell = state.size ** 2
         bins = np.concatenate([old_cls.astype(np.int64) * ncell + old_cells, cls.astype(np.int64) * ncell + cells])

@@ -7,6 +7,7 @@ project package (``agent``, ``envs``, ``mapping``, ``eval``).
   ``format_version``), with clear errors naming the file.
 - ``common.weights``: versioned torch weight dicts (``torch.load(weights_only=True)`` + a format
   number), with errors naming the file and the command that makes it.
+- ``common.threads``: the thread budget of a worker process (OpenMP, BLAS, torch, the renderer).
 - ``common.prefetch``: an iterator's items produced a bounded number ahead by a background
   thread, exceptions re-raised in the consumer.
 """

@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 import open3d as o3d
 
+from calnav.common.threads import thread_budget
 from calnav.envs.scene import Scene, Texture
 from calnav.envs.task import camera_pose, pinhole_intrinsics  # noqa: F401  (camera_pose re-exported: the contract owns it)
 
@@ -165,7 +166,8 @@ class Renderer:
     rgb_noise_std: Gaussian RGB noise std in uint8 levels; depth_noise_std: Gaussian depth
     noise std in metres per metre of depth; seed: seeds the noise generator (noise is off by
     default); nthreads: threads for ``cast_rays`` and for the per-pixel post-processing
-    (0 = all cores; post-processing uses at most ``MAX_POST_THREADS`` row bands).
+    (0 = the process's budget, ``common.threads.thread_budget``: all cores, or a worker's
+    share; post-processing uses at most ``MAX_POST_THREADS`` row bands).
     ``raycasting_scene`` is public so other modules reuse it for visibility rays; pass one in
     to share it.
     """
@@ -182,7 +184,7 @@ class Renderer:
         self.scene, self.camera = scene, camera
         self.min_depth_m, self.max_depth_m = float(min_depth_m), float(max_depth_m)
         self.rgb_noise_std, self.depth_noise_std = float(rgb_noise_std), float(depth_noise_std)
-        self.nthreads = int(nthreads)
+        self.nthreads = int(nthreads) or thread_budget()
         self.rng = np.random.default_rng(seed)
         self.raycasting_scene = raycasting_scene if raycasting_scene is not None else build_raycasting_scene(scene)
         self._build_tables(scene)
@@ -227,7 +229,7 @@ class Renderer:
             ("idx", np.intp), ("valid", bool), ("valid2", bool), ("tc", np.float32), ("a", np.float32),
             ("b", np.float32), ("u", np.float32), ("texel", np.int32), ("iu", np.int32),
             ("pattern", np.float32), ("rgba", np.uint32))}
-        n_bands = min(MAX_POST_THREADS, self.nthreads or os.cpu_count() or 1,
+        n_bands = min(MAX_POST_THREADS, self.nthreads,
                       max(1, camera.width * camera.height // MIN_PIXELS_PER_BAND))
         edges = np.linspace(0, camera.height, n_bands + 1).astype(int)
         self._bands = [slice(a, b) for a, b in zip(edges[:-1], edges[1:])]

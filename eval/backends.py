@@ -9,7 +9,7 @@ as they finish, in completion order, so the driver can write each result as it a
 
 | ``run.backend`` | where items run | workers |
 |---|---|---|
-| ``local`` | this machine: in-process for 1 worker, else a spawn ``ProcessPoolExecutor`` whose workers die with the driver (kill -9 included) | ``run.workers`` (0 = all cores) |
+| ``local`` | this machine: in-process for 1 worker, else a spawn ``ProcessPoolExecutor`` whose workers die with the driver (kill -9 included) and share the cores (``common.threads``: cores // workers threads each) | ``run.workers`` (0 = all cores) |
 | ``ray`` | Ray tasks on a local Ray instance (``run.ray_address: ""``) or a cluster (``auto``, ``ray://host:port``) | the cluster's CPUs; ``run.workers`` > 0 caps the tasks in flight |
 
 Functions keep expensive per-process state (an env and an agent) in module-level caches, so a
@@ -75,6 +75,16 @@ def check_ray_reachable(address: str, timeout_s: float = RAY_CONNECT_TIMEOUT_S) 
 PR_SET_PDEATHSIG = 1   # prctl(2) option: the signal a process gets when its parent dies (Linux)
 
 
+def init_worker(threads: int) -> None:
+    """Pool-worker initializer: die with the driver, and use ``threads`` threads in every
+    threading library (``common.threads``; before anything imports Open3D or torch here), so
+    N workers share the cores instead of each starting one thread per core."""
+    from calnav.common.threads import pin_threads
+
+    die_with_parent()
+    pin_threads(threads)
+
+
 def die_with_parent() -> None:
     """Pool-worker initializer: on Linux, ask the kernel to SIGKILL this process when its
     parent (the driver) dies, even by kill -9, so no worker outlives its run. Elsewhere a
@@ -108,7 +118,9 @@ class LocalBackend:
             for item in items:
                 yield item, fn(item)
             return
-        with ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"), initializer=die_with_parent) as pool:
+        threads = max(1, (os.cpu_count() or 1) // workers)
+        with ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"), initializer=init_worker,
+                                 initargs=(threads,)) as pool:
             pending = {pool.submit(fn, item): item for item in items}
             while pending:
                 done, _ = wait(pending, return_when=FIRST_COMPLETED)
@@ -153,7 +165,12 @@ class RayBackend:
 
 
 def _apply(fn: Callable[[Any], Any], item: Any) -> Any:
-    """A Ray task's body: ``fn(item)``."""
+    """A Ray task's body: ``fn(item)`` on the one CPU the task asked for (``common.threads``;
+    Ray sets OpenMP's variable itself, the rest is set here)."""
+    from calnav.common.threads import ENV, pin_threads
+
+    if os.environ.get(ENV) != "1":
+        pin_threads(1)
     return fn(item)
 
 

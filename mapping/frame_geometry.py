@@ -10,7 +10,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import torch
 
 # Rotation tolerances of a pose, on max |R^T R - I| and |det R - 1|. Recorded poses are only
 # nearly rigid: 7-Scenes' KinectFusion poses, written with 8 digits, are off by 1.5e-4. Up to
@@ -136,25 +135,32 @@ def check_frame(depth, logits, rgb, weights, num_classes: int) -> tuple:
     return np.ascontiguousarray(depth), logits, rgb, weights
 
 
-def check_observed_logits(logits: np.ndarray | None, depth: np.ndarray) -> None:
-    """ValueError when ``logits`` (H, W, K) are NaN or inf at a pixel of valid ``depth`` (H, W)
-    (cleaned: 0 = invalid), i.e. at a pixel the frame can observe; other pixels may hold
-    anything. One reduction over the whole array is the fast path (a sum is finite when every
-    term is, barring overflow); only a non-finite sum looks at the pixels one by one."""
-    if logits is None:
-        return
-    with torch.no_grad():
-        if bool(torch.isfinite(torch.from_numpy(logits).sum())):
-            return
-    if not np.isfinite(logits[depth > 0]).all():
-        raise ValueError("logits contain NaN or inf at observed pixels (pixels of valid depth); the frame was not "
-                         "integrated")
-
-
 def clean_depth(depth: np.ndarray, depth_min: float, depth_max: float) -> np.ndarray:
     """Depth with invalid entries (NaN, inf, 0, outside [depth_min, depth_max]) set to 0."""
     bad = ~((depth >= depth_min) & (depth <= depth_max))  # NaN compares False -> bad
     return np.where(bad, np.float32(0), depth) if bad.any() else depth
+
+
+class BlockTable:
+    """A frame's touched blocks as a dense table over their bounding box, padded by one block
+    on every side: ``low`` (3,) int the padded corner (block coordinates), ``dims`` (3,) its
+    size, ``in_frame`` (prod(dims),) bool the frame's blocks, ``cells`` (B,) their entries."""
+
+    def __init__(self, block_coords: np.ndarray):
+        self.low = block_coords.min(0) - 1
+        self.dims = block_coords.max(0) - self.low + 2
+        rel = block_coords - self.low
+        self.cells = rel[:, 0] + self.dims[0] * (rel[:, 1] + self.dims[1] * rel[:, 2])
+        self.in_frame = np.zeros(int(np.prod(self.dims)), bool)
+        self.in_frame[self.cells] = True
+
+    def flat_indices(self, ids: np.ndarray, buffer_index: np.ndarray, res3: int) -> np.ndarray:
+        """Flat voxel-buffer index (n,) int64 of table ids (n,) (cell * res3 + voxel in block),
+        given each frame block's buffer index (B,) (-1: not allocated, giving -1)."""
+        table = np.full(self.in_frame.size, -1, np.int64)
+        table[self.cells] = buffer_index
+        block = table[ids // res3]
+        return np.where(block >= 0, block * res3 + ids % res3, -1)
 
 
 class PixelGrid:

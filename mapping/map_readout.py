@@ -84,7 +84,11 @@ def query(vmap: VoxelStorage, points: np.ndarray) -> tuple[np.ndarray, np.ndarra
     """Fused probs (n, K) of the voxels nearest to ``points`` (n, 3) world metres, and a bool
     (n,) mask of those that have semantic observations (others read uniform)."""
     keys = np.rint(np.asarray(points, dtype=np.float64).reshape(-1, 3) / vmap.cfg.voxel_size_m)
-    flat = vmap.flat_indices(keys.astype(np.int32))
+    return query_keys(vmap, keys.astype(np.int32))
+
+def query_keys(vmap: VoxelStorage, keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``query`` by integer voxel keys (n, 3) (a voxel's centre is key * voxel size)."""
+    flat = vmap.flat_indices(keys)
     observed = flat >= 0
     observed[observed] = vmap.observation_counts(flat[observed]) > 0
     probs = np.full((len(flat), vmap.num_classes), 1.0 / vmap.num_classes, np.float32)

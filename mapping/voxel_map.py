@@ -21,6 +21,7 @@ The hashmap may reallocate when it grows: attribute views are re-fetched on ever
 from __future__ import annotations
 
 from contextlib import contextmanager
+from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
@@ -46,6 +47,17 @@ NORMAL_BASE_WIDTH_PX = 160  # auto depth-normal baseline: 1 pixel per 160 pixels
 # observations, so "at least w observations" is threshold w - 1/2.
 WEIGHT_STRICT_OFFSET = 0.5
 NO_BLOCK_TOUCHED = "No block is touched"  # Open3D's error for a frame that touches no voxel block
+
+
+@dataclass
+class _Observations:
+    """A frame's semantic observations before they are added: table ids (n,) of the voxels,
+    the table, the accumulator increments (n, C) and the cache record (or None)."""
+
+    ids: np.ndarray
+    table: fg.BlockTable
+    values: torch.Tensor
+    record: tuple | None
 
 
 class ObservationRecorder(Protocol):
@@ -111,6 +123,7 @@ class SemanticVoxelMap:
         self._count_ch = start  # last channel: observations per voxel
         attrs = dict(BASE_ATTRS) | {SEM: start + 1}
         self.channels = sum(attrs.values())
+        self._attr_names = tuple(attrs)
         res = cfg.block_resolution
         self.bytes_per_block = res ** 3 * self.channels * 4
         blocks = cfg.block_count or max(MIN_BLOCKS, int(cfg.initial_alloc_mb * MIB / self.bytes_per_block))
@@ -145,6 +158,25 @@ class SemanticVoxelMap:
         self._tau = as_temperature(tau, k)
         edges = {"distance_edges": params.distance_edges, "angle_edges_deg": params.angle_edges_deg} if params else {}
         self._wparams = WeightingParams.from_config(cfg, lut=torch.as_tensor(params.M) if params else None, **edges)
+
+    def reset(self) -> "SemanticVoxelMap":
+        """Empty the map in place, keeping its allocation, and return it. Open3D zero-fills a
+        block's values only when its buffer is created, and growing the hashmap re-creates and
+        copies the whole buffer (measured ~1 s per doubling at K = 18, GLFS, a few thousand
+        blocks: a third of an episode's mapping time at 160x120). So the blocks in use are
+        zeroed (every attribute) and their keys erased, which hands the zeroed slots back to
+        the hashmap: the next episode fuses into a map indistinguishable from a new one, with
+        the capacity the previous episodes needed."""
+        hm = self.vbg.hashmap()
+        active = hm.active_buf_indices()
+        if active.shape[0]:
+            rows = active.numpy().astype(np.int64)
+            for name in self._attr_names:   # (capacity, res^3 * C) views; zero the used blocks
+                a = self.vbg.attribute(name).numpy()
+                a.reshape(a.shape[0], -1)[rows] = 0
+            hm.erase(hm.key_tensor()[active.to(o3c.int64)])
+        self.frames_integrated = 0
+        return self
 
     # ----------------------------------------------------------------- storage interface
     # (what the read-outs, ``mapping.map_readout``, may use; flat = a voxel's row in the buffers)
@@ -189,14 +221,12 @@ class SemanticVoxelMap:
         intr = fg.check_intrinsics(intrinsics, depth.shape[1], depth.shape[0])
         pose = fg.check_pose(pose)
         depth = fg.clean_depth(depth, cfg.depth_min_m, cfg.depth_max_m)
-        with single_threaded_torch():   # one reduction: extra torch threads only contend with Open3D's
-            fg.check_observed_logits(logits, depth)
         if not depth.any():  # nothing valid to integrate (Open3D would raise)
             self.frames_integrated += 1
             return
         intr_o3d, extr = o3c.Tensor(intr), o3c.Tensor(fg.invert_rigid(pose))
         dimg = o3d.t.geometry.Image(o3c.Tensor.from_numpy(depth))
-        try:
+        try:   # (the touched blocks only: nothing is allocated before integrate)
             blocks = self.vbg.compute_unique_block_coordinates(dimg, intr_o3d, extr, 1.0, cfg.depth_max_m,
                                                                cfg.trunc_voxels)
         except RuntimeError as exc:
@@ -206,14 +236,18 @@ class SemanticVoxelMap:
                 raise
             self.frames_integrated += 1
             return
+        observations = None
+        if logits is not None and blocks.shape[0] > 0:
+            with single_threaded_torch():   # small tensors: extra torch threads only contend with Open3D's
+                observations = self._observe(depth, intr, pose, logits, weights, blocks)   # checks the logits read
         if rgb is None:
             self.vbg.integrate(blocks, dimg, intr_o3d, extr, 1.0, cfg.depth_max_m, cfg.trunc_voxels)
         else:
             cimg = o3d.t.geometry.Image(o3c.Tensor.from_numpy(np.multiply(rgb, np.float32(1 / 255), dtype=np.float32)))
             self.vbg.integrate(blocks, dimg, cimg, intr_o3d, extr, 1.0, cfg.depth_max_m, cfg.trunc_voxels)
-        if logits is not None and blocks.shape[0] > 0:
+        if observations is not None:
             with single_threaded_torch():
-                self._integrate_semantics(depth, intr, pose, logits, weights, blocks)
+                self._fuse(observations, blocks)
         self.frames_integrated += 1
 
     def _grid(self, intr: np.ndarray, h: int, w: int) -> tuple[fg.PixelGrid, int]:
@@ -225,23 +259,18 @@ class SemanticVoxelMap:
             self._grids[key] = (fg.PixelGrid(intr, h, w, stride), cfg.normal_offset_px or max(1, w // NORMAL_BASE_WIDTH_PX))
         return self._grids[key]
 
-    def _candidates(self, depth, intr, pose, blocks) -> tuple[np.ndarray, np.ndarray]:
-        """Unique candidate voxels of a frame: flat buffer index (n,) int64, key (n, 3) int32
-        (the voxels containing the back-projected points of the candidate pixels)."""
+    def _candidates(self, depth, intr, pose, blocks) -> tuple[np.ndarray, np.ndarray, "fg.BlockTable"]:
+        """Unique candidate voxels of a frame (the voxels containing the back-projected points
+        of the candidate pixels, in the frame's touched blocks): id (n,) int64 in the frame's
+        dense block table (``frame_geometry.BlockTable``), key (n, 3) int32, and the table. Reads nothing
+        of the map, so it runs before the frame changes it."""
         res, vox = self.cfg.block_resolution, self.cfg.voxel_size_m
         gr, _ = self._grid(intr, *depth.shape)
-        bc = blocks.numpy()
-        buf, found = self.vbg.hashmap().find(blocks)
-        # dense block -> buffer table over the frame's blocks, padded by one block on every side
-        low = bc.min(0) - 1
-        dims = bc.max(0) - low + 2
-        lut = np.full(int(np.prod(dims)), -1, np.int64)
-        rel = bc - low
-        lut[rel[:, 0] + dims[0] * (rel[:, 1] + dims[1] * rel[:, 2])] = np.where(found.numpy(), buf.numpy(), -1)
+        table = fg.BlockTable(blocks.numpy())
+        origin, dims = table.low * res, table.dims
         # voxel coordinates relative to the padded corner (float -> int truncation is a floor for
-        # points >= 0; anything outside is clipped into the padding, whose table entry is -1);
+        # points >= 0; anything outside is clipped into the padding, which holds no frame block);
         # invalid depth is sent far away, into the padding too
-        origin = low * res
         np.take(depth.ravel(), gr.pix, out=gr.depth)
         np.copyto(gr.depth, np.float32(2 * self.cfg.depth_max_m + dims.max() * res * vox), where=gr.depth <= 0)
         np.matmul((pose[:3, :3] / vox).astype(np.float32), gr.rays, out=gr.pts)
@@ -261,25 +290,27 @@ class SemanticVoxelMap:
         local += gr.loc[1]
         local *= res
         local += gr.loc[0]
-        bi, flat = gr.i64
-        np.take(lut, lin, out=bi)
-        np.multiply(bi, self._res3, out=flat)
-        flat += local  # < 0 exactly where the block is unknown (bi = -1)
-        ok = np.flatnonzero(flat >= 0)
-        flat = flat[ok]
-        cap = self.vbg.hashmap().capacity() * self._res3
-        if len(self._stamp) < cap:
-            self._stamp = np.empty(cap, np.int32)
-        ids = np.arange(len(flat), dtype=np.int32)
-        self._stamp[flat] = ids  # one winner per voxel: O(n) de-duplication, no sort
-        win = np.flatnonzero(self._stamp[flat] == ids)
+        ok = np.flatnonzero(table.in_frame[lin])
+        ids = lin[ok].astype(np.int64)
+        ids *= self._res3
+        ids += local[ok]
+        size = table.in_frame.size * self._res3
+        if len(self._stamp) < size:
+            self._stamp = np.empty(size, np.int32)
+        order = np.arange(len(ids), dtype=np.int32)
+        self._stamp[ids] = order  # one winner per voxel: O(n) de-duplication, no sort
+        win = np.flatnonzero(self._stamp[ids] == order)
         keys = gr.g[:, ok[win]].T + origin.astype(np.int32)
-        return flat[win], np.ascontiguousarray(keys)
+        return ids[win], np.ascontiguousarray(keys), table
 
-    def _integrate_semantics(self, depth, intr, pose, logits, weights, blocks) -> None:
+    def _observe(self, depth, intr, pose, logits, weights, blocks) -> "_Observations | None":
+        """A frame's semantic observations, computed before the frame changes the map: the
+        candidate voxels whose pixel sees the same surface (association), the logits they read
+        -- ValueError if any is NaN or inf, so a rejected frame leaves the map untouched -- and
+        the strategy's increments. None when no voxel is associated."""
         cfg = self.cfg
         h, w = depth.shape
-        flat, keys = self._candidates(depth, intr, pose, blocks)
+        ids, keys, table = self._candidates(depth, intr, pose, blocks)
         # associate: project voxel centres, keep those whose pixel sees the same surface
         rot, t = pose[:3, :3].astype(np.float32), pose[:3, 3].astype(np.float32)
         pc = (keys.astype(np.float32) * np.float32(cfg.voxel_size_m) - t) @ rot
@@ -293,11 +324,16 @@ class SemanticVoxelMap:
         ok &= (dm > 0) & (np.abs(z - dm) <= cfg.association_band_voxels * cfg.voxel_size_m)
         sel = np.flatnonzero(ok)
         if len(sel) == 0:
-            return
-        flat, keys, pix, pc = flat[sel], keys[sel], pix[sel], pc[sel]
-        # finite: integrate() checked every pixel of valid depth (a superset of these) up front
+            return None
+        ids, keys, pix, pc = ids[sel], keys[sel], pix[sel], pc[sel]
         rows = torch.from_numpy(logits.reshape(h * w, self.num_classes)).index_select(0, torch.from_numpy(pix))
+        # the logits the map reads must be finite (a sum is finite when every term is, barring
+        # overflow; only then a look at each): one pass over these rows, not the whole image
+        if not bool(torch.isfinite(rows.sum())) and not bool(torch.isfinite(rows).all()):
+            raise ValueError("logits contain NaN or inf at pixels the map reads (pixels of valid depth); the frame "
+                             "was not integrated")
         geometry = needs_geometry(self.weighting) or self.obs_cache is not None
+        dist = angle = None
         if geometry:
             offset = self._grid(intr, h, w)[1]
             dist = np.sqrt(np.einsum("ij,ij->i", pc, pc)).astype(np.float16).astype(np.float32)
@@ -314,11 +350,20 @@ class SemanticVoxelMap:
                 ext = weights.ravel()[pix]
                 wt = wt * torch.from_numpy(ext)
             inc = self.strategy.increments(ObservationTerms(z_scaled, cfg.laplace_mu), wt)
-            idx = torch.from_numpy(flat)
-            val = torch.cat([inc[a] for a in self._slices] + [torch.ones(len(flat), 1)], dim=1)
-            torch.from_numpy(self.attribute(SEM)).index_add_(0, idx, val)
-        if self.obs_cache is not None:
-            self.obs_cache.record(keys, rows.numpy(), dist, angle, ext)
+            val = torch.cat([inc[a] for a in self._slices] + [torch.ones(len(ids), 1)], dim=1)
+        record = (keys, rows.numpy(), dist, angle, ext) if self.obs_cache is not None else None
+        return _Observations(ids, table, val, record)
+
+    def _fuse(self, obs: "_Observations", blocks) -> None:
+        """Add a frame's observations to the voxels (after ``integrate`` allocated its blocks)."""
+        buf, found = self.vbg.hashmap().find(blocks)
+        flat = obs.table.flat_indices(obs.ids, np.where(found.numpy(), buf.numpy(), -1), self._res3)
+        keep = flat >= 0   # every frame block is allocated by then; a block Open3D dropped is skipped
+        val = obs.values if keep.all() else obs.values[torch.from_numpy(keep)]
+        with torch.no_grad():
+            torch.from_numpy(self.attribute(SEM)).index_add_(0, torch.from_numpy(flat[keep]), val)
+        if obs.record is not None:
+            self.obs_cache.record(*(None if a is None else a[keep] for a in obs.record))
 
     @property
     def o3d_weight_threshold(self) -> float:
@@ -333,6 +378,10 @@ class SemanticVoxelMap:
     def query(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Fused probs (n, K) of the voxels nearest ``points`` (n, 3) m and their observed mask (n,)."""
         return map_readout.query(self, points)
+
+    def query_keys(self, keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``query`` by integer voxel keys (n, 3) int (centre = key * voxel_size_m)."""
+        return map_readout.query_keys(self, keys)
 
     def voxel_normals(self, coords: np.ndarray) -> np.ndarray:
         """(N, 3) float32 unit TSDF-gradient normals at voxel centres ``coords`` (N, 3) m."""

@@ -10,6 +10,12 @@ whole step limit, the worst case for time and memory:
 - ``agent.act_ms_160x120``: median ``act`` time, ms.
 - ``agent.rss_growth_mb_500_steps``: resident memory after the last step minus after the first,
   MiB (target < 300).
+- ``agent.ms_per_step_learned_rgb_160x120``: wall time per step of the study's agent
+  (``STUDY``: ``learned_rgb`` + GLFS with the shipped parameters, the tuned threshold, 160x120)
+  over whole ``val`` episodes (``STUDY_EPISODES``, after one warm-up episode that grows the
+  voxel map's allocation), env step included, in a worker process pinned to one thread
+  (``common.threads``) -- one core, as each worker of a study has (target <= 10).
+- ``objectnav.episodes_per_core_hour``: the same run as episodes per hour of that one core.
 - ``agent.prediction.hz_160x120`` / ``act_ms_160x120``: the same episode with
   ``agent.exploration=prediction`` (the shipped ``agent/weights/predictor.pt``; skipped without
   it); ``agent.prediction.call_ms``: median time of one target prediction (input window +
@@ -24,6 +30,12 @@ import numpy as np
 
 EPISODE = 0
 STEPS = 500
+# the ObjectNav study's settings (docs/objectnav_study.md): what episodes per core-hour is about
+STUDY = ("env.resolution=160x120", "agent.segmenter=learned_rgb", "mapping.fusion=glfs",
+         "mapping.glfs_params=agent/weights/glfs_learned_rgb.json", "agent.goal_threshold=0.5",
+         "agent.goal_min_area_cells=4")
+STUDY_EPISODES = range(100, 113)   # the first is the warm-up (not counted): 12 measured, ~40 s
+QUICK_STUDY_EPISODES = range(100, 102)
 QUICK_STEPS = 60
 EXPLORE_ONLY_THRESHOLD = 1.0
 MIB = float(1 << 20)
@@ -43,7 +55,7 @@ def run(ctx) -> dict[str, float]:
 
     hz, act_ms, rss_growth, n = agent_loop(ctx)
     out = {"agent.hz_160x120": hz, "agent.act_ms_160x120": act_ms,
-           "agent.rss_growth_mb_500_steps": rss_growth, "agent.bench_steps": float(n)}
+           "agent.rss_growth_mb_500_steps": rss_growth, "agent.bench_steps": float(n), **study_figures(ctx)}
     if not DEFAULT_PREDICTOR.is_file():
         print(f"[bench] agent: skipping the prediction figures: no {DEFAULT_PREDICTOR}", flush=True)
         return out
@@ -98,3 +110,49 @@ def agent_loop(ctx, overrides: tuple[str, ...] = (), predictor_calls: list[float
     wall = time.perf_counter() - t0
     n = len(act_ms)
     return n / wall, float(np.median(act_ms)), rss_mb() - rss0, n
+
+
+def study_figures(ctx) -> dict[str, float]:
+    """``agent.ms_per_step_learned_rgb_160x120`` and ``objectnav.episodes_per_core_hour`` (module
+    docstring), measured in a spawned worker pinned to one thread, as a study's workers are."""
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor
+
+    from calnav.eval.backends import init_worker
+
+    indices = list(QUICK_STUDY_EPISODES if ctx.quick else STUDY_EPISODES)
+    steps_cap = QUICK_STEPS if ctx.quick else 0
+    with ProcessPoolExecutor(1, mp_context=mp.get_context("spawn"), initializer=init_worker, initargs=(1,)) as pool:
+        steps, walls = pool.submit(study_episodes, indices, steps_cap).result()
+    steps, walls = steps[1:], walls[1:]   # the warm-up episode is not counted
+    return {"agent.ms_per_step_learned_rgb_160x120": 1e3 * sum(walls) / sum(steps),
+            "objectnav.episodes_per_core_hour": 3600.0 * len(walls) / sum(walls),
+            "objectnav.bench_episodes": float(len(walls))}
+
+
+def study_episodes(indices: list[int], steps_cap: int = 0) -> tuple[list[int], list[float]]:
+    """Run the study agent (``STUDY``) over ``val`` episodes ``indices`` in this process; returns
+    the steps and the wall seconds (reset + every agent and env step) of each. ``steps_cap`` > 0
+    shortens the episodes (quick runs)."""
+    import gymnasium as gym
+
+    import calnav.envs  # noqa: F401  (registers the env)
+    from calnav.agent.policy import PeanutAgent
+    from calnav.eval.config import load_config
+
+    cfg = load_config(None, [*STUDY, *([f"env.max_episode_steps={steps_cap}"] if steps_cap else [])])
+    env = gym.make("calnav/ObjectNav-v0", split="val", config=cfg.env)
+    agent = PeanutAgent(cfg)
+    steps, walls = [], []
+    for index in indices:
+        t0 = time.perf_counter()
+        obs, _ = env.reset(options={"episode_index": index})
+        agent.reset(obs)
+        n, done = 0, False
+        while not done:
+            obs, _, terminated, truncated, _ = env.step(agent.act(obs))
+            n, done = n + 1, terminated or truncated
+        steps.append(n)
+        walls.append(time.perf_counter() - t0)
+    env.close()
+    return steps, walls

@@ -9,8 +9,14 @@ in the local process pool, on this machine with the same number of workers.
 - ``backends.ray_vs_local``: ray_s / local_s (target <= 1.15).
 - ``backends.episodes_per_hour_local``: episodes per hour on this machine (local pool).
 - ``backends.episodes`` / ``backends.workers``: what was measured.
+- ``backends.parallel_efficiency``: the study's episodes (``bench.agent.STUDY``, ``val``
+  EFFICIENCY_EPISODES) run twice as a user runs them, ``calnav objectnav`` in a subprocess:
+  once with ``run.workers=1`` on one thread (``CALNAV_THREADS=1``, ``OMP_NUM_THREADS=1``: one
+  core), once with ``run.workers=W`` on W cores (W = this machine's cores); efficiency =
+  T1 / (W x TW), 1 = perfect scaling (target >= 0.9). Wall times of the whole commands
+  (start-up included): ``backends.study_1_worker_s`` / ``backends.study_w_workers_s``.
 
-Skipped (no figures) when Ray is not installed.
+The Ray figures are skipped when Ray is not installed; the efficiency is measured regardless.
 """
 from __future__ import annotations
 
@@ -20,15 +26,17 @@ from pathlib import Path
 
 EPISODES, QUICK_EPISODES = 20, 4
 WORKERS = 2
+EFFICIENCY_EPISODES, QUICK_EFFICIENCY_EPISODES = "100:140", "100:102"   # 40 episodes, ~4.5 min on 2 cores
 OVERRIDES = ("env.resolution=160x120", "agent.segmenter=learned_rgb", "mapping.fusion=rbu")
 
 
 def run(ctx) -> dict[str, float]:
+    out = parallel_efficiency(ctx)
     try:
         import ray
     except ImportError:
-        print("[bench] backends: ray is not installed (pip install -e \".[ray]\"); skipped")
-        return {}
+        print("[bench] backends: ray is not installed (pip install -e \".[ray]\"); Ray figures skipped")
+        return out
     from calnav.eval.config import load_config
     from calnav.eval.objectnav.run import EpisodeJob, run_jobs
 
@@ -42,7 +50,35 @@ def run(ctx) -> dict[str, float]:
             times[backend] = time.perf_counter() - t0
     if ray.is_initialized():
         ray.shutdown()
-    return {"backends.local_s": times["local"], "backends.ray_s": times["ray"],
+    return {**out, "backends.local_s": times["local"], "backends.ray_s": times["ray"],
             "backends.ray_vs_local": times["ray"] / times["local"],
             "backends.episodes_per_hour_local": 3600.0 * n / times["local"],
             "backends.episodes": float(n), "backends.workers": float(WORKERS)}
+
+
+def parallel_efficiency(ctx) -> dict[str, float]:
+    """``backends.parallel_efficiency`` and its two wall times (module docstring)."""
+    import os
+    import subprocess
+    import sys
+
+    from calnav.common.threads import ENV
+    from calnav.eval.bench.agent import QUICK_STEPS, STUDY
+
+    cores = os.cpu_count() or 1
+    episodes = QUICK_EFFICIENCY_EPISODES if ctx.quick else EFFICIENCY_EPISODES
+    extra = [f"env.max_episode_steps={QUICK_STEPS}"] if ctx.quick else []
+    times = {}
+    with tempfile.TemporaryDirectory(prefix="calnav-bench-efficiency-") as tmp:
+        for workers in (1, cores):
+            env = dict(os.environ)
+            if workers == 1:   # one worker on one core: the per-core baseline
+                env.update({ENV: "1", "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"})
+            cmd = [sys.executable, "-m", "calnav", "objectnav", "--episodes", episodes, "--output",
+                   str(Path(tmp) / f"w{workers}"), *STUDY, *extra, f"run.workers={workers}"]
+            t0 = time.perf_counter()
+            subprocess.run(cmd, env=env, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+            times[workers] = time.perf_counter() - t0
+    return {"backends.parallel_efficiency": times[1] / (cores * times[cores]),
+            "backends.study_1_worker_s": times[1], "backends.study_w_workers_s": times[cores],
+            "backends.efficiency_workers": float(cores)}

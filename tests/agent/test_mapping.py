@@ -53,8 +53,8 @@ def test_incremental_fused_projection_matches_full_projection():
         def __init__(self):
             self.table = {}
 
-        def query(self, centres):
-            keys = [tuple(np.rint(c / 0.05).astype(int)) for c in centres]
+        def query_keys(self, ijk):
+            keys = [tuple(int(v) for v in k) for k in ijk]
             return np.array([self.table[k] for k in keys], np.float32), np.ones(len(keys), bool)
 
     fake = FakeMap()

@@ -69,3 +69,20 @@ def test_a_failing_task_on_ray_leaves_the_others_saved():
         ray.shutdown()
     assert saved == {1: 1, 2: 4, 4: 16}
     assert [(t, f.error) for t, f in failures] == [(3, "ValueError: task 3 is broken")]
+
+
+def thread_settings(_) -> tuple[str, str, int]:
+    from calnav.common.threads import thread_budget
+
+    return os.environ.get("CALNAV_THREADS", ""), os.environ.get("OMP_NUM_THREADS", ""), thread_budget()
+
+
+def test_pool_workers_share_the_cores():
+    """N local workers get cores // N threads each in every threading library (they used to
+    start one thread per core each: N x cores threads on the machine)."""
+    from calnav.eval.backends import LocalBackend
+
+    cores = os.cpu_count() or 1
+    got = {r for _, r in LocalBackend(2).map_unordered(thread_settings, [0, 1])}
+    share = max(1, cores // 2)
+    assert got == {(str(share), str(share), share)}

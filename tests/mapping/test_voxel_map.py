@@ -324,3 +324,42 @@ def test_readouts_use_only_the_maps_storage_interface():
     assert used and used <= interface, f"read-outs use {sorted(used - interface)} beyond the storage interface"
     assert all(hasattr(SemanticVoxelMap, name) for name in interface - {"cfg", "vbg", "num_classes",
                                                                        "frames_integrated"})
+
+
+def test_a_reset_map_fuses_like_a_new_one_and_keeps_its_allocation(room):
+    """``reset`` (the agent empties one map per episode instead of building one, which would
+    pay Open3D's hashmap doublings again): after a reset the same frames give bit-identical
+    attributes at every voxel, with the grown capacity kept."""
+    scene, _, k, frames = room
+    kk = scene.num_classes
+    cfg = MappingConfig(fusion="glfs", initial_alloc_mb=2.0)   # small: the first frames must grow it
+    rng = np.random.default_rng(3)
+    logits = [noisy_logits(labels, kk, rng, fp16=False) for _, _, labels in frames]
+
+    def fill(m):
+        for (depth, pose, _), lg in zip(frames, logits):
+            m.integrate(depth, k, pose, lg)
+        return m
+
+    reused = fill(SemanticVoxelMap(kk, cfg, class_names=scene.class_names))
+    grown = reused.vbg.hashmap().capacity()
+    fill(reused.reset())
+    fresh = fill(SemanticVoxelMap(kk, cfg, class_names=scene.class_names))
+    assert reused.vbg.hashmap().capacity() == grown
+    assert reused.frames_integrated == len(frames)
+
+    def by_key(m):
+        from calnav.mapping.voxel_map import BASE_ATTRS, SEM
+
+        coords, flat = (a.numpy() for a in m.vbg.voxel_coordinates_and_flattened_indices())
+        order = np.lexsort(coords.T)
+        return {name: m.attribute(name)[flat[order]] for name in [a for a, _ in BASE_ATTRS] + [SEM]}, coords[order]
+
+    (a, ca), (b, cb) = by_key(reused), by_key(fresh)
+    assert np.array_equal(ca, cb)
+    for name in a:
+        assert a[name].tobytes() == b[name].tobytes(), name
+    # an empty map reads out nothing
+    empty = SemanticVoxelMap(kk, cfg, class_names=scene.class_names)
+    fill(empty).reset()
+    assert empty.vbg.hashmap().size() == 0 and len(empty.voxels()[0]) == 0

@@ -1,0 +1,37 @@
+"""Threads per process: how many cores one worker may use.
+
+A run with ``run.workers`` = N on a C-core machine gives each worker ``max(1, C // N)`` threads
+(``eval.backends``); a Ray task gets one (the one CPU it asks for). Every library that
+threads is told the same budget, so N workers never run N x C threads on C cores: OpenMP
+(Open3D's voxel-grid kernels, torch's default), BLAS, torch (``torch.set_num_threads``) and
+calnav's renderer (``envs.render.Renderer``'s ray casting and post-processing), which reads
+``thread_budget()``. OpenMP reads its variable once, when the library loads, so
+``pin_threads`` must run before Open3D or torch is imported in that process (a pool
+worker's initializer does; for the torch set in an already-running process it also calls
+``torch.set_num_threads``).
+"""
+from __future__ import annotations
+
+import os
+import sys
+
+ENV = "CALNAV_THREADS"   # the budget, read by thread_budget(); unset = all cores
+THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMEXPR_NUM_THREADS")
+
+
+def thread_budget() -> int:
+    """Threads this process may use: ``$CALNAV_THREADS`` when set (a worker), else all cores."""
+    value = os.environ.get(ENV, "")
+    return int(value) if value.isdigit() and int(value) > 0 else (os.cpu_count() or 1)
+
+
+def pin_threads(n: int) -> None:
+    """Give this process ``n`` >= 1 threads in every threading library (see the module docstring)."""
+    if n < 1:
+        raise ValueError(f"threads must be >= 1, got {n}")
+    os.environ[ENV] = str(n)
+    for var in THREAD_VARS:
+        os.environ[var] = str(n)
+    torch = sys.modules.get("torch")
+    if torch is not None:
+        torch.set_num_threads(n)
