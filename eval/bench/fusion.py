@@ -11,7 +11,7 @@ in rotating order (so background load hits all methods alike); figures are media
   (default config: sample weighting ``auto`` = GLFS look-up table for glfs, none otherwise).
 - ``fusion.<S>.ratio_vs_tsdf``: S time / tsdf-only time at the reference resolution, the
   median over frames of the per-frame ratio (paired, so slow drifts of a shared machine's load
-  cancel) (target <= 2).
+  cancel) (target <= 1.5).
 - ``fusion.glfs_vs_rbu``: glfs / rbu time, paired likewise (target <= 1.2).
 - ``fusion.mb_per_m2``: MiB of voxel blocks in use (glfs map, K = 18) per m^2 of mapped floor
   (the x-y footprint of the semantic surface voxels, in 5 cm cells); ``fusion.mb_allocated``.

@@ -255,3 +255,20 @@ def test_a_shorthand_never_silently_overrides_the_same_key(tmp_path, capsys, arg
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "both set" in err[0] and "give one of them" in err[0], err
     assert not out.exists()
+
+
+def test_bench_quick_study_speed_figures(tmp_path, monkeypatch):
+    """The issue-29 figures: ms per step and episodes per core-hour from a worker pinned to one
+    thread, and the parallel efficiency from two real `calnav objectnav` runs (quick: short)."""
+    import calnav.eval.bench.agent as bench_agent
+    import calnav.eval.bench.backends as bench_backends
+    from calnav.eval.bench.context import BenchContext
+
+    ctx = BenchContext(quick=True)
+    figures = bench_agent.study_figures(ctx)
+    assert figures["objectnav.bench_episodes"] == 1   # the warm-up episode is not counted
+    assert 0 < figures["agent.ms_per_step_learned_rgb_160x120"] < 1000
+    assert 0 < figures["objectnav.episodes_per_core_hour"] < 1e6
+    monkeypatch.setattr(bench_backends, "QUICK_EFFICIENCY_EPISODES", "100:101")
+    eff = bench_backends.parallel_efficiency(ctx)
+    assert 0 < eff["backends.parallel_efficiency"] <= 2 and eff["backends.study_1_worker_s"] > 0
