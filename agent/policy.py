@@ -76,6 +76,7 @@ class PeanutAgent:
             self.predictor = Predictor(path)
         self.state: MapState | None = None
         self.info: StepInfo | None = None
+        self.pose: np.ndarray | None = None
 
     # ------------------------------------------------------------------ episode
     def reset(self, obs: dict) -> None:
@@ -105,7 +106,7 @@ class PeanutAgent:
     def act(self, obs: dict) -> int:
         self.sensors.check(obs)
         xy, yaw = self.sensors.xy_yaw(obs)
-        pose = self.sensors.pose(obs)
+        pose = self.pose = self.sensors.pose(obs)   # the camera pose this step maps with (start frame)
         if self.last_action is not None:
             collided = is_collision(self.prev_xy, xy, self.last_action, self.cfg.collision_min_move_m)
             if collided:

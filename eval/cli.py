@@ -36,6 +36,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--force", action="store_true", help="discard results of a different config in --output")
     p.add_argument("--video", type=int, default=0, metavar="N",
                    help="write <output>/videos/<episode_id>.mp4 for the first N episodes of the range (peanut)")
+    p.add_argument("--rerun", type=int, default=0, metavar="N",
+                   help="write <output>/rerun/<episode_id>.rrd (Rerun: camera, frames, 3D and 2D maps, metrics) for the "
+                        "first N episodes of the range (peanut; needs the [viz] extra)")
     p.add_argument("-m", "--multirun", action="store_true",
                    help="cross product of comma-separated overrides (KEY=a,b), one subdirectory of --output "
                         "each, then comparison.md/.csv/.png")
@@ -153,6 +156,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--config", default=None, help="YAML config (default: configs/map_sequence.yaml)")
     p.add_argument("--output", required=True, help="results directory")
     p.add_argument("--force", action="store_true", help="replace the results of another config in --output")
+    p.add_argument("--rerun", action="store_true",
+                   help="also write <output>/map.rrd (Rerun: frames, poses, the map by class / confidence, correct vs "
+                        "wrong voxels, the mesh; needs the [viz] extra)")
     p.add_argument("overrides", nargs="*", metavar="KEY=VALUE",
                    help="dotted config overrides, e.g. mapping.fusion=glfs sequence.frame_stride=2")
 
@@ -194,6 +200,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--keys", default="", help="comma-separated config keys as columns (default: the keys that differ)")
     p.add_argument("--baseline", type=int, default=0, help="position of the run the paired differences are taken against")
     p.add_argument("--output", required=True, help="directory for comparison.md/.csv/.png and paired.md/.csv")
+
+    p = sub.add_parser("view", help="open Rerun recordings (.rrd, a map.npz, or a results directory's) in the Rerun "
+                                    "viewer, or print the command where there is no display (needs the [viz] extra)")
+    p.add_argument("path", help="an .rrd file, a calnav map map.npz, or a results directory")
+    p.add_argument("--print", action="store_true", help="print the viewer command instead of starting it")
 
     p = sub.add_parser("demo", help="set-up check + a real ObjectNav evaluation on procedural houses")
     p.add_argument("--episodes", type=int, default=5, help="number of val episodes")
@@ -247,6 +258,7 @@ COMMANDS: dict[str, Command] = {
     "tune": Command("calnav.eval.objectnav.tune", "main_tune", "tune_configs"),
     "compare": Command("calnav.eval.objectnav.compare", "main_compare", None),  # reads finished runs' configs
     "demo": Command("calnav.eval.objectnav.demo", "main_demo", "demo_configs"),
+    "view": Command("calnav.eval.sequence.view", "main_view", None),   # reads recordings, no config
 }
 
 

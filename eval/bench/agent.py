@@ -16,6 +16,11 @@ whole step limit, the worst case for time and memory:
   voxel map's allocation), env step included, in a worker process pinned to one thread
   (``common.threads``) -- one core, as each worker of a study has (target <= 10).
 - ``objectnav.episodes_per_core_hour``: the same run as episodes per hour of that one core.
+- ``agent.rerun_overhead``: recording an episode to Rerun (``--rerun``, ``agent.recording``, its
+  defaults) as a fraction of the episode's wall time, the study agent on ``RERUN_EPISODES``
+  (each run plain and recorded, in this process, after a warm-up; target <= 0.2);
+  ``agent.rerun_mb_per_episode``: the mean ``.rrd`` size, MB (target <= ~50), and
+  ``agent.rerun_kb_per_step``. Skipped without the ``[viz]`` extra.
 - ``agent.prediction.hz_160x120`` / ``act_ms_160x120``: the same episode with
   ``agent.exploration=prediction`` (the shipped ``agent/weights/predictor.pt``; skipped without
   it); ``agent.prediction.call_ms``: median time of one target prediction (input window +
@@ -36,6 +41,7 @@ STUDY = ("env.resolution=160x120", "agent.segmenter=learned_rgb", "mapping.fusio
          "agent.goal_min_area_cells=4")
 STUDY_EPISODES = range(100, 113)   # the first is the warm-up (not counted): 12 measured, ~40 s
 QUICK_STUDY_EPISODES = range(100, 102)
+RERUN_EPISODES, QUICK_RERUN_EPISODES = (100, 101, 102), (100,)
 QUICK_STEPS = 60
 EXPLORE_ONLY_THRESHOLD = 1.0
 MIB = float(1 << 20)
@@ -55,7 +61,8 @@ def run(ctx) -> dict[str, float]:
 
     hz, act_ms, rss_growth, n = agent_loop(ctx)
     out = {"agent.hz_160x120": hz, "agent.act_ms_160x120": act_ms,
-           "agent.rss_growth_mb_500_steps": rss_growth, "agent.bench_steps": float(n), **study_figures(ctx)}
+           "agent.rss_growth_mb_500_steps": rss_growth, "agent.bench_steps": float(n), **study_figures(ctx),
+           **rerun_figures(ctx)}
     if not DEFAULT_PREDICTOR.is_file():
         print(f"[bench] agent: skipping the prediction figures: no {DEFAULT_PREDICTOR}", flush=True)
         return out
@@ -156,3 +163,43 @@ def study_episodes(indices: list[int], steps_cap: int = 0) -> tuple[list[int], l
         walls.append(time.perf_counter() - t0)
     env.close()
     return steps, walls
+
+
+def rerun_figures(ctx) -> dict[str, float]:
+    """``agent.rerun_*`` (module docstring)."""
+    import importlib.util
+    import tempfile
+    from pathlib import Path
+
+    if importlib.util.find_spec("rerun") is None:
+        print('[bench] agent: rerun-sdk is not installed (pip install -e ".[viz]"); Rerun figures skipped', flush=True)
+        return {}
+    import gymnasium as gym
+    import rerun  # noqa: F401  (imported once per worker process, not per episode: not timed)
+
+    import calnav.envs  # noqa: F401  (registers the env)
+    from calnav.agent.policy import PeanutAgent
+    from calnav.eval.config import load_config
+    from calnav.eval.objectnav.run import run_one_episode
+
+    cap = [f"env.max_episode_steps={QUICK_STEPS}"] if ctx.quick else []
+    cfg = load_config(None, [*STUDY, *cap])
+    env = gym.make("calnav/ObjectNav-v0", split="val", config=cfg.env)
+    agent = PeanutAgent(cfg)
+    episodes = QUICK_RERUN_EPISODES if ctx.quick else RERUN_EPISODES
+    run_one_episode(env, agent, episodes[0])   # warm-up: the voxel map's allocation grows once
+    plain = recorded = 0.0
+    sizes, steps = [], 0
+    with tempfile.TemporaryDirectory(prefix="calnav-bench-rerun-") as tmp:
+        for index in episodes:
+            t = time.perf_counter()
+            rec = run_one_episode(env, agent, index)
+            plain += time.perf_counter() - t
+            t = time.perf_counter()
+            rec = run_one_episode(env, agent, index, rerun_dir=Path(tmp))
+            recorded += time.perf_counter() - t
+            sizes.append(Path(rec["rerun"]).stat().st_size / 1e6)
+            steps += rec["steps"]
+    env.close()
+    return {"agent.rerun_overhead": recorded / plain - 1.0, "agent.rerun_mb_per_episode": float(np.mean(sizes)),
+            "agent.rerun_kb_per_step": 1e3 * sum(sizes) / steps}

@@ -14,7 +14,8 @@ too, so the choice hides nothing. Each kept view is rendered at ``study.figure_r
 Per view (a row): ground truth | per map: predicted class, confidence (top-label probability),
 errors (wrong pixels coloured by their confidence, correct ones grey). Written:
 ``qualitative_<segmenter>.png`` and ``qualitative_<segmenter>.json`` (per view and map: error
-rate, mean confidence of wrong and of correct pixels).
+rate, mean confidence of wrong and of correct pixels), and with the ``[viz]`` extra
+``qualitative_<segmenter>.rrd``: the house in 3D, RBU and GLFS side by side (``write_recording``).
 """
 from __future__ import annotations
 
@@ -167,4 +168,44 @@ def write_qualitative(cfg, out: Path, segmenter_name: str, segmenter, scene_id: 
                "candidates": views[0]["candidates"]}
     js = out / f"qualitative_{segmenter_name}.json"
     js.write_text(json.dumps(summary, indent=1))
-    return [png, js]
+    rrd = write_recording(cfg, out / f"qualitative_{segmenter_name}.rrd", scene, poses, maps,
+                          {"RBU": "rbu", "GLFS": "glfs"})
+    return [png, js] + ([rrd] if rrd else [])
+
+
+def write_recording(cfg, path: Path, scene, poses: np.ndarray, maps: dict, trees: dict[str, str]) -> Path | None:
+    """The figure's house in 3D (``[viz]`` extra; without it a note, no file): one entity tree
+    per map (``trees``: {map key: tree}) with ``<tree>/world/map/class`` / ``confidence``
+    (``common.rerun_io.log_voxels``) and ``<tree>/world/map/correct`` / ``wrong`` (the voxels
+    against the house's labels, coloured by confidence: RBU's bright wrong voxels are its
+    over-confidence), plus the house mesh coloured by class and the scan's camera path."""
+    try:
+        from calnav.common import rerun_io
+
+        rr = rerun_io.require_rerun()
+    except ValueError as exc:
+        print(f"calibrate-map: no {path.name}: {exc}")
+        return None
+    from calnav.envs.semantics import PALETTE
+    from calnav.mapping.ground_truth import voxel_labels
+
+    names = tuple(scene.class_names)
+    palette = PALETTE[:len(names)].astype(np.uint8)
+    rec = rerun_io.new_recording("calnav calibrate-map", path, names, palette)
+    vox = cfg.mapping.voxel_size_m
+    colours = np.where((scene.tri_class >= 0)[:, None], palette[np.clip(scene.tri_class, 0, len(names) - 1)], 128)
+    rec.log("world/mesh", rr.Mesh3D(vertex_positions=scene.vertices[scene.triangles].reshape(-1, 3).astype(np.float32),
+                                    vertex_colors=np.repeat(colours, 3, axis=0).astype(np.uint8)), static=True)
+    rec.log("world/scan", rr.LineStrips3D([poses[:, :3, 3].astype(np.float32)]), static=True)
+    for key, tree in trees.items():
+        coords, probs = maps[key].voxels()
+        rerun_io.log_voxels(rec, f"{tree}/world/map", coords, probs, vox, palette, static=True)
+        labels = voxel_labels(coords, scene.vertices, scene.triangles, scene.tri_class, None, vox)  # as the study
+        pred, conf = probs.argmax(axis=1), probs.max(axis=1).astype(np.float32)
+        for name, sel in (("correct", (labels >= 0) & (pred == labels)), ("wrong", (labels >= 0) & (pred != labels))):
+            rerun_io.log_mask_points(rec, f"{tree}/world/map/{name}", coords[sel],
+                                     rerun_io.confidence_colours(conf[sel], len(names)), vox, {"confidence": conf[sel]},
+                                     static=True)
+    rec.flush()
+    rec.disconnect()
+    return path

@@ -6,7 +6,9 @@ finished episode, appended and flushed as each finishes, so a killed run loses a
 episodes in flight), ``summary.json`` (mean and SEM of Success, SPL, SoftSPL, DistanceToGoal,
 per-category breakdown), ``plots/*.png`` (``eval.objectnav.report.plot_run``) and, with
 ``--video N``, ``videos/<episode_id>.mp4`` (":" -> "_") for the first N episodes of the range (drawn in the
-worker that runs the episode; agents with a map only). The directory is owned by
+worker that runs the episode; agents with a map only); with ``--rerun N``, ``rerun/<episode_id>.rrd``
+likewise (``agent.recording``: camera, frames, segmentation, the 3D and 2D maps, metrics on a
+``step`` timeline; the ``[viz]`` extra). The directory is owned by
 ``eval.results_dir``: it is locked while a run writes it (a second run into it is refused), a
 directory holding a different config is refused unless ``--force``, and rerunning into it skips
 finished episodes, retries crashed ones and counts each episode once (``summary.json``'s
@@ -29,7 +31,7 @@ from calnav.eval.results_dir import RECORDS_NAME, AllEpisodesFailed, ResultsDir,
 from calnav.eval.stats import format_metrics_table, summarize
 
 # What --force deletes from a directory that holds another config's results.
-RUN_RESULTS: tuple[str, ...] = (RECORDS_NAME, "summary.json", "plots", "videos")
+RUN_RESULTS: tuple[str, ...] = (RECORDS_NAME, "summary.json", "plots", "videos", "rerun")
 
 _worker_state: dict = {}
 
@@ -37,27 +39,38 @@ _worker_state: dict = {}
 VIDEO_AGENTS = ("peanut",)
 
 
-def run_one_episode(env, agent, index: int, video_dir: Path | None = None) -> dict:
+def run_one_episode(env, agent, index: int, video_dir: Path | None = None, rerun_dir: Path | None = None) -> dict:
     """Run episode ``index`` to the end; returns its result record. With ``video_dir``, one
-    ``render_panel`` per step goes to ``video_dir/<episode_id>.mp4`` (read-only on the agent:
-    the actions, hence the metrics, are the same as without)."""
+    ``render_panel`` per step goes to ``video_dir/<episode_id>.mp4``; with ``rerun_dir``, the
+    episode is recorded to ``rerun_dir/<episode_id>.rrd`` (``agent.recording``). Both are
+    read-only on the agent: the actions, hence the metrics, are the same as without."""
     t0 = time.perf_counter()
     obs, info = env.reset(options={"episode_index": index})
     agent.reset(obs)
-    video = None
+    name = re.sub(r"[^\w.-]", "_", env.unwrapped.episode.episode_id)  # ':' is not portable
+    video = recording = None
     if video_dir is not None:
-        from calnav.agent.visualize import EpisodeVideo, render_panel
+        from calnav.agent.visualize import EpisodeVideo
 
-        name = re.sub(r"[^\w.-]", "_", env.unwrapped.episode.episode_id)  # ':' is not portable
         video = EpisodeVideo(Path(video_dir) / f"{name}.mp4")
+    if rerun_dir is not None:
+        from calnav.agent.recording import EpisodeRecording
+
+        recording = EpisodeRecording(Path(rerun_dir) / f"{name}.rrd", agent, env.unwrapped.episode.episode_id)
     terminated = truncated = False
     while not (terminated or truncated):
         action = agent.act(obs)
         if video is not None:
+            from calnav.agent.visualize import render_panel
+
             video.add(render_panel(agent))
         obs, _, terminated, truncated, info = env.step(action)
+        if recording is not None:
+            recording.step(agent, action, info)
     ep = env.unwrapped.episode
     extra = {"video": str(video.write())} if video is not None and video.frames else {}
+    if recording is not None:
+        extra["rerun"] = str(recording.close())
     return {**extra,
         "index": index, "episode_id": ep.episode_id, "scene": ep.scene_id, "category": ep.object_category,
         "success": info["success"], "spl": info["spl"], "softspl": info["softspl"],
@@ -71,13 +84,14 @@ def run_one_episode(env, agent, index: int, video_dir: Path | None = None) -> di
 @dataclass
 class EpisodeTask:
     """One episode to run: the job's resolved config (plain dict, picklable), its agent, the
-    episode index within the split, and the video directory if this episode gets a video."""
+    episode index within the split, and the video / Rerun directory if this episode gets one."""
 
     job: int
     cfg_dict: dict
     agent: str
     index: int
     video_dir: str | None = None
+    rerun_dir: str | None = None
     env_maker: str = ""           # EpisodeJob.env_maker
     env_args: dict = field(default_factory=dict)
 
@@ -118,7 +132,7 @@ def run_episode_task(task: EpisodeTask) -> dict:
     from calnav.eval.backends import ray_node_id
 
     env, agent = _warm_env_agent(task.cfg_dict, task.agent, task.env_maker, task.env_args)
-    record = run_one_episode(env, agent, task.index, task.video_dir)
+    record = run_one_episode(env, agent, task.index, task.video_dir, task.rerun_dir)
     node = ray_node_id()
     if node is not None:
         record["ray_node"] = node  # where it ran (run.backend=ray); metrics ignore it
@@ -149,12 +163,13 @@ def check_not_all_failed(records: list[dict]) -> None:
 @dataclass
 class EpisodeJob:
     """One results directory: a config, the episode indices it should hold, where it goes, and
-    how many of its first episodes get a video."""
+    how many of its first episodes get a video / a Rerun recording."""
 
     cfg: Config
     indices: list[int]
     out: Path
     video: int = 0
+    rerun: int = 0
     # "module:function" building the env as function(cfg, **env_args) (JSON-serialisable arguments:
     # they key the worker's warm env), for
     # a study that changes the world around the same config (the start-pose study's frames and
@@ -188,9 +203,14 @@ def run_jobs(jobs: list[EpisodeJob], force: bool = False, progress: bool = True,
     for job in jobs:  # every check before anything is written
         if (job.cfg.run.backend, job.cfg.run.ray_address) != (run_cfg.backend, run_cfg.ray_address):
             raise ValueError("run.backend / run.ray_address must be the same for every configuration of one run")
-        if job.video and job.cfg.run.agent not in VIDEO_AGENTS:
-            raise ValueError(f"--video draws the agent's semantic map; agent {job.cfg.run.agent!r} has none "
-                             f"(agents with videos: {', '.join(VIDEO_AGENTS)})")
+        for option, n in (("--video", job.video), ("--rerun", job.rerun)):
+            if n and job.cfg.run.agent not in VIDEO_AGENTS:
+                raise ValueError(f"{option} draws the agent's semantic map; agent {job.cfg.run.agent!r} has none "
+                                 f"(agents with one: {', '.join(VIDEO_AGENTS)})")
+        if job.rerun:
+            from calnav.common.rerun_io import require_rerun
+
+            require_rerun("--rerun")   # the install command, before anything is written
     check_backend(run_cfg.backend, run_cfg.ray_address)   # before anything is written
     with ExitStack() as stack:
         dirs, files, records, duplicates, tasks = [], [], [], [], []
@@ -206,8 +226,9 @@ def run_jobs(jobs: list[EpisodeJob], force: bool = False, progress: bool = True,
             records.append(done)
             duplicates.append(resumed.duplicates)
             cfg_dict, videos = to_dict(job.cfg), set(job.indices[:max(0, job.video)])
+            recorded = set(job.indices[:max(0, job.rerun)])
             tasks += [EpisodeTask(j, cfg_dict, job.cfg.run.agent, i, str(job.out / "videos") if i in videos else None,
-                                  job.env_maker, job.env_args)
+                                  str(job.out / "rerun") if i in recorded else None, job.env_maker, job.env_args)
                       for i in job.indices if i not in done]
         total = sum(len(job.indices) for job in jobs)
         name = jobs[0].cfg.run.agent if len(jobs) == 1 else f"{len(jobs)} configs"
@@ -256,8 +277,13 @@ def objectnav_configs(args) -> list[Config]:
     of comma-separated overrides in order (``--agent NAME`` adds ``run.agent=NAME``)."""
     from calnav.eval.config import expand_multirun
 
-    if getattr(args, "video", 0) < 0:
-        raise ValueError(f"--video must be >= 0, got {args.video}")
+    for option in ("video", "rerun"):
+        if getattr(args, option, 0) < 0:
+            raise ValueError(f"--{option} must be >= 0, got {getattr(args, option)}")
+    if getattr(args, "rerun", 0):
+        from calnav.common.rerun_io import require_rerun
+
+        require_rerun("--rerun")
     combos = expand_multirun(list(args.overrides)) if getattr(args, "multirun", False) else [list(args.overrides)]
     return [load_config(args.config, agent_overrides(args, combo)) for combo in combos]
 
@@ -268,7 +294,7 @@ def _job(args, cfg: Config, out: Path | None) -> EpisodeJob:
 
     episodes = load_split(cfg.env.split, cfg.env)
     indices = list(parse_episode_range(str(args.episodes), len(episodes)))
-    return EpisodeJob(cfg, indices, Path(out or cfg.run.output_dir), getattr(args, "video", 0))
+    return EpisodeJob(cfg, indices, Path(out or cfg.run.output_dir), getattr(args, "video", 0), getattr(args, "rerun", 0))
 
 
 def main_objectnav(args, configs: list[Config]) -> None:
@@ -277,7 +303,8 @@ def main_objectnav(args, configs: list[Config]) -> None:
         job = _job(args, configs[0], args.output)
         summary = run_jobs([job], force=args.force)[0]
         print(format_metrics_table([(summary["agent"], summary)], first_header="Agent"))
-        print(f"results: {job.out}/episodes.jsonl, {job.out}/summary.json, {job.out}/plots/")
+        print(f"results: {job.out}/episodes.jsonl, {job.out}/summary.json, {job.out}/plots/"
+              + (f", {job.out}/rerun/ (calnav view {job.out}/rerun/<episode>.rrd)" if job.rerun else ""))
         return
     from calnav.eval.config import expand_multirun
     from calnav.eval.objectnav.report import combo_dirname, combo_values, varied_keys, write_comparison

@@ -9,7 +9,9 @@ size, frames); ``map.ply`` (one vertex per voxel centre, coloured by its argmax 
 frames skipped for invalid poses, seconds, frames/s; with a labelled mesh also mIoU / ECE /
 TL-ECE / mECE / Brier over the labelled voxels -- ground truth per voxel = the nearest labelled
 vertex within ``sequence.label_distance_m``, others ignored) with ``reliability.png`` and
-``reliability_classes.png``. Every input is checked before anything is written.
+``reliability_classes.png``; with ``--rerun``, ``map.rrd`` (``eval.sequence.recording``: frames and
+poses on a ``frame`` timeline, the map by class and by confidence, correct / wrong voxels and
+the labelled mesh). Every input is checked before anything is written.
 """
 from __future__ import annotations
 
@@ -29,7 +31,8 @@ from calnav.mapping.sequences import LogitsDir, Sequence, vertex_ground_truth
 DEFAULT_CONFIG = "configs/map_sequence.yaml"
 MAP_FORMAT_VERSION = 1
 # what one run writes besides config.yaml (results.json last: its presence means a finished map)
-MAP_FILES: tuple[str, ...] = ("map.npz", "map.ply", "reliability.png", "reliability_classes.png", "results.json")
+MAP_FILES: tuple[str, ...] = ("map.npz", "map.ply", "map.rrd", "reliability.png", "reliability_classes.png",
+                              "results.json")
 
 
 @dataclass
@@ -57,15 +60,18 @@ def logits_source(seq: Sequence, cfg: MapSequenceConfig, segmenter: str | None, 
     return SegmenterLogits(seg, seq)
 
 
-def map_sequence(seq: Sequence, source, mapping_cfg, progress: bool = False, vmap=None) -> MappedSequence:
+def map_sequence(seq: Sequence, source, mapping_cfg, progress: bool = False, vmap=None,
+                 frame_log=None) -> MappedSequence:
     """Fuse every frame of ``seq`` with logits from ``source`` into ``vmap`` (default: a new
-    ``SemanticVoxelMap`` of ``mapping_cfg``)."""
+    ``SemanticVoxelMap`` of ``mapping_cfg``); ``frame_log`` (``eval.sequence.recording.FrameLog``)
+    keeps thumbnails of the frames for ``--rerun``."""
     from calnav.mapping.voxel_map import SemanticVoxelMap
 
     if vmap is None:
         vmap = SemanticVoxelMap(len(source.class_names), mapping_cfg, class_names=tuple(source.class_names))
     t0 = time.perf_counter()
-    n = fuse_frames(vmap, prefetched(map_frames(seq, source)), total=len(seq), progress=progress)
+    frames = prefetched(map_frames(seq, source))
+    n = fuse_frames(vmap, frame_log.tap(frames) if frame_log is not None else frames, total=len(seq), progress=progress)
     return MappedSequence(vmap, n, list(seq.skipped), time.perf_counter() - t0)
 
 
@@ -106,6 +112,13 @@ def map_configs(args) -> list[MapSequenceConfig]:
 def main_map(args, configs: list[MapSequenceConfig]) -> None:
     """``configs``: ``map_configs(args)``, checked by the preflight."""
     cfg = configs[0]
+    frame_log = None
+    if getattr(args, "rerun", False):
+        from calnav.common.rerun_io import require_rerun
+        from calnav.eval.sequence.recording import FrameLog
+
+        require_rerun("--rerun")   # the install command, before anything is read or written
+        frame_log = FrameLog()
     seq = Sequence(args.sequence_dir, args.layout, cfg.sequence)
     source = logits_source(seq, cfg, args.segmenter, args.logits, args.classes)
     names = tuple(source.class_names)
@@ -120,15 +133,15 @@ def main_map(args, configs: list[MapSequenceConfig]) -> None:
     results_dir = ResultsDir(out, cfg, force=args.force, discard=MAP_FILES, files=MAP_FILES)
     results_dir.check()   # refused now rather than after the fusion, and nothing written yet
     # every frame is read (and its problems named) while fusing in memory, before anything is written
-    res = map_sequence(seq, source, cfg.mapping, progress=True, vmap=vmap)
+    res = map_sequence(seq, source, cfg.mapping, progress=True, vmap=vmap, frame_log=frame_log)
     with results_dir:
         for name in MAP_FILES:
             (out / name).unlink(missing_ok=True)
         with writing(out):
-            _write_results(out, cfg, seq, res, names, ply, gt, args)
+            _write_results(out, cfg, seq, res, names, ply, gt, args, frame_log)
 
 
-def _write_results(out: Path, cfg, seq, res: MappedSequence, names, ply, gt, args) -> None:
+def _write_results(out: Path, cfg, seq, res: MappedSequence, names, ply, gt, args, frame_log=None) -> None:
     coords, probs = res.vmap.voxels()
     meta = {"sequence": str(seq.root), "layout": seq.layout, "voxel_size_m": cfg.mapping.voxel_size_m,
             "fusion": cfg.mapping.fusion, "frames": res.frames, "skipped_frames": res.skipped}
@@ -146,10 +159,16 @@ def _write_results(out: Path, cfg, seq, res: MappedSequence, names, ply, gt, arg
         table = {cfg.mapping.fusion: stats.reliability()}
         plot_reliability(table, out / "reliability.png", title=f"{seq.name} ({stats.n} labelled voxels)")
         plot_reliability_per_class(table, names, out / "reliability_classes.png")
+    if frame_log is not None:
+        from calnav.eval.sequence.recording import write_map_recording
+
+        write_map_recording(out / "map.rrd", frame_log, coords, probs, names, cfg.mapping.voxel_size_m,
+                            labels=labels if gt is not None else None, ply=ply, gt=gt)
     (out / "results.json").write_text(json.dumps(results, indent=1) + "\n")
     print(f"{seq.name}: {res.frames} frames fused ({len(res.skipped)} skipped: invalid pose) in {res.seconds:.1f} s "
           f"({results['frames_per_s']:.1f} frames/s), {len(coords)} voxels")
     if gt is not None:
         print("  ".join(f"{k} {results[k]:.4f}" for k in ("miou", "ece", "tl_ece", "mece", "brier"))
               + f"  ({results['labelled_voxels']} labelled voxels)")
-    print(f"wrote {out / 'map.npz'}, {out / 'map.ply'}, {out / 'results.json'}")
+    print(f"wrote {out / 'map.npz'}, {out / 'map.ply'}, {out / 'results.json'}"
+          + (f", {out / 'map.rrd'} (calnav view {out / 'map.rrd'})" if frame_log is not None else ""))

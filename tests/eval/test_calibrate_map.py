@@ -64,6 +64,22 @@ def test_calibrate_map_writes_results_resumes_and_refuses_another_config(tmp_pat
     qual = json.loads((out / "qualitative_learned_rgb.json").read_text())
     assert len(qual["views"]) == 1 and {"RBU", "GLFS"} <= set(qual["views"][0])
     assert qual["views"][0]["RBU"]["pixels"] > 0
+    try:
+        import rerun  # noqa: F401  (the viz extra: make test installs it)
+    except ImportError:
+        assert not (out / "qualitative_learned_rgb.rrd").exists()
+    else:   # the same house in 3D, RBU and GLFS side by side (issue 30)
+        from calnav.common.rerun_io import read_columns
+
+        cols = read_columns(out / "qualitative_learned_rgb.rrd")
+        for tree in ("rbu", "glfs"):
+            for part in ("class", "confidence", "correct", "wrong"):
+                assert f"/{tree}/world/map/{part}" in cols, (tree, part)
+            n = len(cols[f"/{tree}/world/map/class"].column("Points3D:positions").to_pylist()[0])
+            split = sum(len(cols[f"/{tree}/world/map/{p}"].column("Points3D:positions").to_pylist()[0])
+                        for p in ("correct", "wrong"))
+            assert 0 < split <= n
+        assert "/world/mesh" in cols and "/world/scan" in cols
     fits = json.loads((out / "fits" / "learned_rgb" / "fits.json").read_text())
     assert {"temperature_2d", "temperature_3d/rbu", "vector_3d/rbu", "glfs/learned", "glfs/authors",
             "tau_curve"} <= set(fits)
