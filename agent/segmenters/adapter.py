@@ -19,7 +19,7 @@ import torch
 import torch.nn.functional as F
 
 from calnav.agent.segmenters.base import (BatchSegmenter, Segmenter, SegmenterConfig, check_batch, default_class_names,
-                                         resolve_device)
+                                         resolve_device, set_cuda_precision)
 from calnav.agent.segmenters.label_map import PROB_FLOOR, LabelMap, mapping_matrix, read_label_map
 
 GENERIC_NAME = re.compile(r"^(LABEL_\d+|class_?\d+|\d+)$")   # placeholder names (a fresh HF config)
@@ -56,6 +56,7 @@ class ModelAdapter(BatchSegmenter):
                  model_classes: tuple[str, ...] | None, k_model: int | None = None):
         self.name, self.cfg = name, cfg
         self.device = resolve_device(device or cfg.device or "cpu")
+        set_cuda_precision(self.device, cfg.tf32)
         if cfg.label_map:
             label_map = resolve_label_map(cfg.label_map, model_classes, k_model)
             self.class_names = default_class_names()

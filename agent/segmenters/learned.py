@@ -23,7 +23,8 @@ import torch.nn.functional as F
 
 from calnav.common.atomic import atomic_path
 from calnav.common.weights import load_weight_dict
-from calnav.agent.segmenters.base import WEIGHTS_DIR, BatchSegmenter, SegmenterConfig, check_batch, resolve_device
+from calnav.agent.segmenters.base import (WEIGHTS_DIR, BatchSegmenter, SegmenterConfig, check_batch, resolve_device,
+                                          set_cuda_precision)
 from calnav.agent.segmenters.network import NetSpec, SegNet, fuse_batchnorm
 
 WEIGHTS_FORMAT = 1
@@ -108,6 +109,7 @@ class LearnedSegmenter(BatchSegmenter):
             raise ValueError(f"unknown learned model {name!r}; valid: {', '.join(LEARNED_MODELS)}")
         self.name, self.cfg = name, cfg
         self.device = resolve_device(device or cfg.device or "cpu")
+        set_cuda_precision(self.device, cfg.tf32)
         if cfg.threads > 0:
             torch.set_num_threads(cfg.threads)
         self.weights_path = Path(cfg.weights) if cfg.weights else default_weights_path(name)

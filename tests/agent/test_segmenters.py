@@ -289,3 +289,24 @@ def test_agent_segmenters_do_not_import_envs():
             "agent.segmenters.ground_truth; bad = [m for m in sys.modules if m == 'envs' or m.startswith('envs.')]; "
             "assert not bad, bad")
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_cuda_precision_follows_the_tf32_key():
+    """On CUDA calnav forbids TensorFloat-32 unless asked (torch allows it for cuDNN convolutions
+    by default: on an H200 learned_rgb's logits then differed from the CPU's by 1.1e-2, against
+    9e-6 without); on the CPU nothing is touched."""
+    import torch
+
+    from calnav.agent.segmenters.base import set_cuda_precision
+
+    saved = torch.backends.cudnn.allow_tf32, torch.backends.cuda.matmul.allow_tf32
+    try:
+        torch.backends.cudnn.allow_tf32 = torch.backends.cuda.matmul.allow_tf32 = True
+        set_cuda_precision(torch.device("cpu"), False)
+        assert torch.backends.cudnn.allow_tf32
+        set_cuda_precision(torch.device("cuda"), False)
+        assert not torch.backends.cudnn.allow_tf32 and not torch.backends.cuda.matmul.allow_tf32
+        set_cuda_precision(torch.device("cuda:1"), True)
+        assert torch.backends.cudnn.allow_tf32 and torch.backends.cuda.matmul.allow_tf32
+    finally:
+        torch.backends.cudnn.allow_tf32, torch.backends.cuda.matmul.allow_tf32 = saved
