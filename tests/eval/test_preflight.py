@@ -132,6 +132,7 @@ def _argv(command: str, tmp_path) -> list[str]:
         "export-sequence": ["export-sequence", "--output", out],
         "compare": ["compare", out, "--output", out],
         "calibrate-map": ["calibrate-map", "--quick", "--sequences", str(tmp_path / "list.txt")],
+        "view": ["view", str(tmp_path)],
     }.get(command, [command, "--output", out])
 
 

@@ -202,7 +202,7 @@ def test_read_only_file_system_gives_a_one_line_error(tmp_path, capsys):
 def test_run_whose_episodes_all_crash_exits_nonzero_with_the_first_error(tmp_path, capsys, monkeypatch):
     import calnav.eval.objectnav.run as run
 
-    def crash(env, agent, index, video_dir=None):
+    def crash(env, agent, index, video_dir=None, rerun_dir=None):
         raise RuntimeError(f"bad glfs params (episode {index})")
 
     monkeypatch.setattr(run, "run_one_episode", crash)  # workers=1 runs episodes in this process

@@ -119,11 +119,11 @@ def test_start_pose_crash_is_a_record_and_a_rerun_resumes(tmp_path, monkeypatch)
     args = ["start-pose", "--episodes", "2", "--variants", "start", "--workers", "1", "--output", str(out), *tiny]
     real, calls = run.run_one_episode, []
 
-    def crash_on_1(env, agent, index, video_dir=None):
+    def crash_on_1(env, agent, index, video_dir=None, rerun_dir=None):
         calls.append(index)
         if index == 1 and len(calls) <= 2:
             raise RuntimeError("boom")
-        return real(env, agent, index, video_dir)
+        return real(env, agent, index, video_dir, rerun_dir)
 
     monkeypatch.setattr(run, "run_one_episode", crash_on_1)
     assert main(args) == 0
