@@ -8,6 +8,8 @@ project package (``agent``, ``envs``, ``mapping``, ``eval``).
 - ``common.weights``: versioned torch weight dicts (``torch.load(weights_only=True)`` + a format
   number), with errors naming the file and the command that makes it.
 - ``common.threads``: the thread budget of a worker process (OpenMP, BLAS, torch, the renderer).
+- ``common.rerun_io``: Rerun recordings (the ``[viz]`` extra): cameras, voxel maps by class and
+  confidence, reading a ``.rrd`` back.
 - ``common.prefetch``: an iterator's items produced a bounded number ahead by a background
   thread, exceptions re-raised in the consumer.
 """
