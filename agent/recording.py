@@ -53,16 +53,18 @@ class EpisodeRecording:
         self._columns: dict[str, list] = {k: [] for k in ("step", "rotation", "action", "distance_to_goal", "success")}
 
     def step(self, agent, action: int, info: dict) -> None:
+        """Log the step the agent just took (its frame, pose, ``action``) and the env's ``info``."""
         rr, rec, frame = self.rr, self.rec, agent.frame
         rec.set_time("step", sequence=agent.steps)
         pose = agent.pose
         h, w = frame.depth.shape
-        if not self._columns["step"] and not self.positions:   # the camera's pinhole is fixed: logged once
+        if not self.positions:   # the first step: the camera's pinhole is fixed, logged once
             rec.log("world/camera", rr.Pinhole(image_from_camera=frame.k, width=w, height=h,
                                                camera_xyz=rr.ViewCoordinates.RDF), static=True)
         rec.log("world/camera/rgb", rerun_io.jpeg_image(frame.rgb, JPEG_QUALITY))
         rec.log("world/camera/depth", rr.DepthImage(np.round(frame.depth * DEPTH_MM).astype(np.uint16), meter=DEPTH_MM))
-        rec.log("world/camera/segmentation", rr.SegmentationImage(frame.labels.astype(np.uint8 if agent.num_classes <= 256 else np.uint16)))
+        label_type = np.uint8 if agent.num_classes <= 256 else np.uint16
+        rec.log("world/camera/segmentation", rr.SegmentationImage(frame.labels.astype(label_type)))
         cols = self._columns
         cols["step"].append(agent.steps)
         cols["rotation"].append(pose[:3, :3].copy())
@@ -98,8 +100,9 @@ class EpisodeRecording:
             rerun_io.log_voxels(rec, "world/map", coords, probs, st.voxels.cfg.voxel_size_m, self.palette)
         rec.log("map2d/topdown", rr.Image(topdown(agent)))
         win, ch = self._crop(agent), st.channels
-        layers = {"obstacles": st.obstacles(), "explored": ch[MapChannels.EXPLORED],
-                  "frontiers": np.zeros_like(ch[MapChannels.EXPLORED]), "detection": np.zeros_like(ch[MapChannels.EXPLORED])}
+        explored = ch[MapChannels.EXPLORED]
+        layers = {"obstacles": st.obstacles(), "explored": explored,
+                  "frontiers": np.zeros_like(explored), "detection": np.zeros_like(explored)}
         info = agent.info
         if info is not None and info.frontiers is not None:
             layers["frontiers"] = info.frontiers
@@ -109,6 +112,7 @@ class EpisodeRecording:
             rec.log(f"map2d/{name}", rr.Image(layer[win][::-1].astype(np.uint8) * 255))
         rec.log("map2d/goal_confidence", rr.Image(st.semantic[agent.goal_id][win][::-1].astype(np.float32)))
         points, labels = [], []
+        # the step's goals are in window coordinates (``StepInfo``): to map cells, then to the crop
         off = np.array([info.window[0].start, info.window[1].start]) if info is not None and info.window else np.zeros(2)
         for label, rc in (("ltg", info.long_term_goal if info else None),
                           ("stg", info.plan.short_term_goal if info is not None and info.plan is not None else None)):
@@ -121,7 +125,7 @@ class EpisodeRecording:
 
     @staticmethod
     def _crop(agent) -> tuple[slice, slice]:
-        """The explored area plus the panel's margin (the crop ``topdown`` shows)."""
+        """The explored bounding box plus the video panel's margin, MAP_MARGIN_CELLS."""
         return agent.state.window(MAP_MARGIN_CELLS)
 
     def close(self) -> Path:

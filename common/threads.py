@@ -5,10 +5,11 @@ A run with ``run.workers`` = N on a C-core machine gives each worker ``max(1, C 
 threads is told the same budget, so N workers never run N x C threads on C cores: OpenMP
 (Open3D's voxel-grid kernels, torch's default), BLAS, torch (``torch.set_num_threads``) and
 calnav's renderer (``envs.render.Renderer``'s ray casting and post-processing), which reads
-``thread_budget()``. OpenMP reads its variable once, when the library loads, so
-``pin_threads`` must run before Open3D or torch is imported in that process (a pool
-worker's initializer does; for the torch set in an already-running process it also calls
-``torch.set_num_threads``).
+``thread_budget()``. OpenMP and BLAS read their variables once, when the library loads, so
+``pin_threads`` must run before Open3D or torch is imported in that process: a spawned pool
+worker's initializer does (its start-up imports ``eval.cli``, which loads numpy -- whose BLAS
+then keeps its default -- but neither Open3D nor torch); for torch already running it also calls
+``torch.set_num_threads``.
 """
 from __future__ import annotations
 
