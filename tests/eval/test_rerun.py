@@ -130,3 +130,10 @@ def test_without_rerun_the_option_is_a_one_line_error_before_anything_runs(tmp_p
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and 'pip install -e ".[viz]"' in err[0]
     assert not out.exists()   # nothing written
+    seq = tmp_path / "seq"
+    seq.mkdir()
+    assert main(["map", str(seq), "--layout", "scannet", "--segmenter", "gt", "--output", str(out), "--rerun"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and 'pip install -e ".[viz]"' in err[0] and not out.exists()
+    assert main(["view", str(tmp_path)]) == 2
+    assert "calnav view needs Rerun" in capsys.readouterr().err
