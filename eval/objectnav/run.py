@@ -227,9 +227,10 @@ def run_jobs(jobs: list[EpisodeJob], force: bool = False, progress: bool = True,
             duplicates.append(resumed.duplicates)
             cfg_dict, videos = to_dict(job.cfg), set(job.indices[:max(0, job.video)])
             recorded = set(job.indices[:max(0, job.rerun)])
-            tasks += [EpisodeTask(j, cfg_dict, job.cfg.run.agent, i, str(job.out / "videos") if i in videos else None,
-                                  str(job.out / "rerun") if i in recorded else None, job.env_maker, job.env_args)
-                      for i in job.indices if i not in done]
+            tasks += feed_order([EpisodeTask(j, cfg_dict, job.cfg.run.agent, i,
+                                             str(job.out / "videos") if i in videos else None,
+                                             str(job.out / "rerun") if i in recorded else None, job.env_maker,
+                                             job.env_args) for i in job.indices if i not in done], job.cfg)
         total = sum(len(job.indices) for job in jobs)
         name = jobs[0].cfg.run.agent if len(jobs) == 1 else f"{len(jobs)} configs"
 
@@ -262,6 +263,21 @@ def run_jobs(jobs: list[EpisodeJob], force: bool = False, progress: bool = True,
     for ordered in ordered_all:
         check_not_all_failed(ordered)
     return summaries
+
+
+def feed_order(tasks: list[EpisodeTask], cfg: Config) -> list[EpisodeTask]:
+    """One job's tasks in the order the pool takes them: houses as they come (a worker keeps its
+    house loaded while the next episode is in it) and, within each house, the longest geodesic
+    first, so the last episodes of a run are its shortest and no worker waits long for the
+    others at the end. Order only: each episode's record is the same whatever runs before it."""
+    from calnav.envs.episodes import load_split
+
+    episodes = load_split(cfg.env.split, cfg.env)
+    houses: dict[str, int] = {}
+    for t in tasks:
+        houses.setdefault(episodes[t.index].scene_id, len(houses))
+    return sorted(tasks, key=lambda t: (houses[episodes[t.index].scene_id], -episodes[t.index].geodesic_distance,
+                                        t.index))
 
 
 def agent_overrides(args, overrides: list[str]) -> list[str]:

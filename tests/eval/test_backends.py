@@ -216,3 +216,22 @@ def test_ray_backend_without_ray_fails_before_anything_is_written(tmp_path, monk
                  "run.backend=ray"]) == 2
     assert 'pip install -e ".[ray]"' in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_the_pool_is_fed_longest_episodes_first_within_each_house():
+    """Houses stay together (a worker keeps its house loaded) and each house's longest episodes go
+    first, so a run ends on its shortest episodes instead of leaving a core idle on a long one."""
+    from calnav.envs.episodes import load_split
+    from calnav.eval.config import to_dict
+    from calnav.eval.objectnav.run import EpisodeTask, feed_order
+
+    cfg = load_config(None, SMALL)
+    episodes = load_split(cfg.env.split, cfg.env)
+    tasks = [EpisodeTask(0, to_dict(cfg), "oracle", i) for i in range(len(episodes))]
+    fed = feed_order(tasks, cfg)
+    assert sorted(t.index for t in fed) == list(range(len(episodes)))
+    houses = [episodes[t.index].scene_id for t in fed]
+    assert houses == sorted(houses, key=[episodes[i].scene_id for i in range(len(episodes))].index)   # contiguous
+    for house in set(houses):
+        lengths = [episodes[t.index].geodesic_distance for t in fed if episodes[t.index].scene_id == house]
+        assert lengths == sorted(lengths, reverse=True)
