@@ -128,10 +128,11 @@ def test_start_pose_crash_is_a_record_and_a_rerun_resumes(tmp_path, monkeypatch)
     monkeypatch.setattr(run, "run_one_episode", crash_on_1)
     assert main(args) == 0
     recs = [json.loads(x) for x in (out / "start" / "episodes.jsonl").read_text().splitlines()]
-    assert sorted(r["status"] for r in recs) == ["error", "ok"] and "boom" in recs[-1]["error"]
+    assert sorted(r["status"] for r in recs) == ["error", "ok"]
+    assert "boom" in next(r for r in recs if r["status"] == "error")["error"]   # (in any completion order)
     summary = json.loads((out / "summary.json").read_text())["start"]
     assert summary["n"] == 2 and summary["failed"] == 1 and summary["successes"] <= 1
-    assert main(args) == 0 and calls == [0, 1, 1]   # only the crashed episode runs again
+    assert main(args) == 0 and sorted(calls[:2]) == [0, 1] and calls[2:] == [1]   # only the crashed one reruns
     recs = [json.loads(x) for x in (out / "start" / "episodes.jsonl").read_text().splitlines()]
     assert sorted(r["index"] for r in recs) == [0, 1] and all(r["status"] == "ok" for r in recs)
     assert json.loads((out / "summary.json").read_text())["start"]["failed"] == 0
