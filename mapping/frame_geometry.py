@@ -187,7 +187,6 @@ class PixelGrid:
         self.b = np.empty((3, n), np.int32)
         self.loc = np.empty((3, n), np.int32)
         self.i32 = np.empty((2, n), np.int32)
-        self.i64 = np.empty((2, n), np.int64)
 
 
 def auto_stride(k: np.ndarray, voxel_size_m: float, depth_max_m: float, spacing_voxels: float) -> int:

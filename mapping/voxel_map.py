@@ -160,13 +160,10 @@ class SemanticVoxelMap:
         self._wparams = WeightingParams.from_config(cfg, lut=torch.as_tensor(params.M) if params else None, **edges)
 
     def reset(self) -> "SemanticVoxelMap":
-        """Empty the map in place, keeping its allocation, and return it. Open3D zero-fills a
-        block's values only when its buffer is created, and growing the hashmap re-creates and
-        copies the whole buffer (measured ~1 s per doubling at K = 18, GLFS, a few thousand
-        blocks: a third of an episode's mapping time at 160x120). So the blocks in use are
-        zeroed (every attribute) and their keys erased, which hands the zeroed slots back to
-        the hashmap: the next episode fuses into a map indistinguishable from a new one, with
-        the capacity the previous episodes needed."""
+        """Empty the map in place, keeping its allocation (growing Open3D's hashmap re-creates and
+        copies its buffer: ~1 s per doubling at K = 18, GLFS), and return it. Open3D zero-fills
+        values only on creation, so the used blocks are zeroed and their keys erased: the next
+        episode fuses into a map indistinguishable from a new one."""
         hm = self.vbg.hashmap()
         active = hm.active_buf_indices()
         if active.shape[0]:
@@ -260,10 +257,9 @@ class SemanticVoxelMap:
         return self._grids[key]
 
     def _candidates(self, depth, intr, pose, blocks) -> tuple[np.ndarray, np.ndarray, "fg.BlockTable"]:
-        """Unique candidate voxels of a frame (the voxels containing the back-projected points
-        of the candidate pixels, in the frame's touched blocks): id (n,) int64 in the frame's
-        dense block table (``frame_geometry.BlockTable``), key (n, 3) int32, and the table. Reads nothing
-        of the map, so it runs before the frame changes it."""
+        """Unique candidate voxels of a frame (containing the candidate pixels' back-projected
+        points, in its touched blocks): id (n,) int64 in the frame's ``fg.BlockTable``, key (n, 3)
+        int32, and the table. Reads nothing of the map: it runs before the frame changes it."""
         res, vox = self.cfg.block_resolution, self.cfg.voxel_size_m
         gr, _ = self._grid(intr, *depth.shape)
         table = fg.BlockTable(blocks.numpy())
