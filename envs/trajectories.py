@@ -37,6 +37,8 @@ class ScanConfig:
     pitch_std_deg: float = 4.0      # slow pitch wander while scanning, degrees (std)
     stop_spacing_m: float = 0.0     # look-around stops this far apart over the free floor, metres (0 = one per room centre)
     tours: int = 0                  # tours of all stops, then the scan ends (0 = tour again until `frames`), tours
+    up_turn_prob: float = 0.0       # chance that a stop ends with one more turn looking up (ceilings, upper walls), probability
+    up_pitch_deg: float = 30.0      # mean camera pitch of those turns, degrees (positive looks up)
 
     def __post_init__(self) -> None:
         if self.frames < 1:
@@ -50,6 +52,10 @@ class ScanConfig:
             raise ValueError("scan.extra_turns_mean, jitter_m, jitter_deg, pitch_std_deg and stop_spacing_m must be >= 0")
         if not 0 <= self.tours <= 1000:
             raise ValueError(f"scan.tours must be in [0, 1000], got {self.tours}")
+        if not 0 <= self.up_turn_prob <= 1:
+            raise ValueError(f"scan.up_turn_prob must be in [0, 1], got {self.up_turn_prob}")
+        if not -80 <= self.up_pitch_deg <= 80:
+            raise ValueError(f"scan.up_pitch_deg must be in [-80, 80], got {self.up_pitch_deg}")
 
 
 def _stops(scene, navgrid, rng: np.random.Generator, n_fallback: int = 6, spacing_m: float = 0.0) -> np.ndarray:
@@ -106,10 +112,13 @@ class _Recorder:
     def full(self) -> bool:
         return len(self.poses) >= self.cfg.frames
 
-    def add(self, xy: np.ndarray, yaw: float) -> None:
+    def add(self, xy: np.ndarray, yaw: float, mean_pitch_deg: float | None = None) -> None:
+        """One pose (and a pause now and then); the pitch wanders about ``mean_pitch_deg``
+        (default ``cfg.pitch_deg``)."""
         cfg, rng = self.cfg, self.rng
         self.pitch = 0.9 * self.pitch + math.sqrt(1 - 0.81) * rng.normal(0, cfg.pitch_std_deg)  # AR(1) wander
-        pitch = math.radians(cfg.pitch_deg + self.pitch)
+        mean = cfg.pitch_deg if mean_pitch_deg is None else mean_pitch_deg
+        pitch = math.radians(mean + self.pitch)
         self.poses.append(camera_pose(xy, yaw, self.height, pitch))
         if rng.random() < cfg.pause_prob:
             for _ in range(int(rng.geometric(1.0 / cfg.pause_mean_frames))):
@@ -161,11 +170,15 @@ def scan_poses(scene, navgrid, env_cfg, cfg: ScanConfig | None = None, seed: int
                     rec.add(xy, yaw)
             turns = 1 + int(rng.poisson(cfg.extra_turns_mean))
             direction = 1.0 if rng.random() < 0.5 else -1.0
-            for _ in range(int(round(turns * 2 * math.pi / turn))):
+            # drawn only when enabled, so up_turn_prob=0 draws exactly the random numbers it always did
+            up = cfg.up_turn_prob > 0 and rng.random() < cfg.up_turn_prob
+            pitches = ([None] * int(round(turns * 2 * math.pi / turn))
+                       + [cfg.up_pitch_deg] * (int(round(2 * math.pi / turn)) if up else 0))
+            for pitch in pitches:
                 if rec.full:
                     break
                 yaw += direction * turn
-                rec.add(xy, yaw)
+                rec.add(xy, yaw, pitch)
     if not rec.poses:
         raise ValueError(f"scene {scene.name!r}: no scan stop is reachable from another")
     return np.stack(rec.poses[: cfg.frames])

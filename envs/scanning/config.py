@@ -30,13 +30,15 @@ class ScanningConfig:
     """How a procedural house is scanned and reconstructed (``env.dataset.style: scanned``)."""
 
     # --- trajectory: one tour of look-around stops spread over the free floor (envs.trajectories),
-    # the camera held high and tilted down
+    # the camera held high and tilted down, then at some stops tilted up for one more turn
     stop_spacing_m: float = 1.5         # every free-floor point lies within this of a look-around stop, metres
     extra_turns_mean: float = 0.0       # extra full turns per stop beyond the first, Poisson mean, turns
     frames: int = 4000                  # most RGB-D frames per scan (the scan ends after one tour), frames
     camera_height_m: float = 1.3        # scanner height above the floor, metres
     pitch_deg: float = -25.0            # mean camera pitch, degrees (negative looks down)
     pitch_std_deg: float = 10.0         # slow pitch wander while scanning, degrees (std)
+    up_turn_prob: float = 0.5           # chance that a stop ends with one more turn looking up (ceilings, upper walls; 0 = the first scans, no ceiling), probability
+    up_pitch_deg: float = 30.0          # mean camera pitch of those turns, degrees (positive looks up)
     step_m: float = 0.15                # walking distance per frame, metres
     max_turn_deg: float = 30.0          # heading change per frame, degrees
     # --- depth sensor
@@ -84,6 +86,8 @@ class ScanningConfig:
             ("camera_height_m", 0.2, 2.5, False, False),
             ("pitch_deg", -80.0, 80.0, False, False),
             ("pitch_std_deg", 0.0, 45.0, False, False),
+            ("up_turn_prob", 0.0, 1.0, False, False),
+            ("up_pitch_deg", -80.0, 80.0, False, False),
             ("step_m", 0.0, 2.0, True, False),
             ("max_turn_deg", 0.0, 90.0, True, False),
             ("hfov_deg", 10.0, 150.0, False, False),

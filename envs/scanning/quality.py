@@ -4,11 +4,12 @@
 
 - ``triangles``, ``triangles_per_m2``: triangle count and count per m^2 of the xy footprint
   (a ScanNet ``_vh_clean_2`` apartment: 153k triangles over 8 x 9 m, ~2,100 per m^2);
-- ``floor_missing``, ``wall_missing``: fraction of the *observable* clean floor / wall area with
-  no scanned surface within ``COVER_DISTANCE_M``. Observable: a surface sample with at least
-  ``OBSERVABLE_CLEARANCE_M`` of free space in front of it along its normal, and something
-  (another wall, the ceiling) at the end of it: this excludes faces buried inside other walls,
-  floor under furniture, wall behind a cabinet, and the outside of the house;
+- ``floor_missing``, ``wall_missing``, ``ceiling_missing``: fraction of the *observable* clean
+  floor / wall / ceiling area with no scanned surface within ``COVER_DISTANCE_M``. Observable: a
+  surface sample with at least ``OBSERVABLE_CLEARANCE_M`` of free space in front of it along its
+  normal, and something (another wall, the ceiling, the floor) at the end of it: this excludes
+  faces buried inside other walls, floor under furniture, wall behind a cabinet, and the outside
+  of the house;
 - ``void_fraction``, ``void_area_fraction``: unlabelled triangles / surface area;
 - ``median_error_mm``, ``p90_error_mm``: distance from scanned surface samples to the clean mesh.
 """
@@ -26,7 +27,7 @@ COVER_DISTANCE_M = 0.05         # a clean surface point is covered by a scan sur
 OBSERVABLE_CLEARANCE_M = 0.3    # free space needed in front of a clean surface point to count it, metres
 SAMPLE_SPACING_M = 0.05         # surface sample spacing of the figures, metres
 SAMPLE_SEED = 0                 # surface samples are random but fixed: the figures are deterministic
-QUALITY_KEYS = ("triangles", "triangles_per_m2", "floor_missing", "wall_missing", "void_fraction",
+QUALITY_KEYS = ("triangles", "triangles_per_m2", "floor_missing", "wall_missing", "ceiling_missing", "void_fraction",
                 "void_area_fraction", "median_error_mm", "p90_error_mm")
 
 
@@ -65,7 +66,7 @@ def scan_quality(clean: Scene, scanned: Scene) -> dict[str, float]:
     footprint = footprint_m2(clean)
     out: dict[str, float] = {"triangles": float(len(scanned.triangles)),
                              "triangles_per_m2": len(scanned.triangles) / footprint}
-    for name in ("floor", "wall"):
+    for name in ("floor", "wall", "ceiling"):
         pts = _observable_samples(clean, rc_clean, name, rng)
         if len(pts) == 0:
             out[f"{name}_missing"] = float("nan")

@@ -34,7 +34,8 @@ def trajectory(scene: Scene, cfg: ScanningConfig, seed: int, env_cfg: EnvConfig 
     navgrid = navgrid or NavGrid.build(scene, env_cfg)
     walk = ScanConfig(frames=cfg.frames, step_m=cfg.step_m, max_turn_deg=cfg.max_turn_deg,
                       pitch_deg=cfg.pitch_deg, pitch_std_deg=cfg.pitch_std_deg,
-                      stop_spacing_m=cfg.stop_spacing_m, extra_turns_mean=cfg.extra_turns_mean, tours=1)
+                      stop_spacing_m=cfg.stop_spacing_m, extra_turns_mean=cfg.extra_turns_mean, tours=1,
+                      up_turn_prob=cfg.up_turn_prob, up_pitch_deg=cfg.up_pitch_deg)
     return scan_poses(scene, navgrid, dataclasses.replace(env_cfg, camera_height_m=cfg.camera_height_m),
                       walk, seed=seed)
 
