@@ -188,10 +188,12 @@ def test_quality_figures(room, half_scan):
     q = scan_quality(room, half_scan)
     assert 0.3 < q["floor_missing"] < 0.8       # about half the floor was never looked at
     assert 0 < q["wall_missing"] < 1
+    assert q["ceiling_missing"] > 0.9           # the poses look down at the floor: no ceiling
     assert q["median_error_mm"] < 30            # 5 cm voxels: errors of a centimetre or so
     assert q["triangles"] == len(half_scan.triangles)
     clean_q = scan_quality(room, room)
-    assert clean_q["floor_missing"] == 0 and clean_q["wall_missing"] == 0 and clean_q["median_error_mm"] < 1e-3
+    assert clean_q["floor_missing"] == 0 and clean_q["wall_missing"] == 0 and clean_q["ceiling_missing"] == 0
+    assert clean_q["median_error_mm"] < 1e-3
 
 
 def test_decimation_reaches_the_density(room):
@@ -316,6 +318,7 @@ def test_segmenter_training_frames_mix_in_scans(scanned_house):
     ("env.dataset.scanning.max_depth_m=.inf", "expected a finite number"),
     ("env.dataset.scanning.min_depth_m=3 env.dataset.scanning.max_depth_m=2", "min_depth_m < "),
     ("env.dataset.scanning.resolution=8x8", "scanning.resolution must be between"),
+    ("env.dataset.scanning.up_turn_prob=1.5", "scanning.up_turn_prob must be in [0, 1]"),
 ])
 def test_bad_scan_settings_are_one_line_errors(override, message):
     from calnav.eval.config import ConfigError, load_config

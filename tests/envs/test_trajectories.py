@@ -43,8 +43,34 @@ def test_scan_dwell_is_uneven_with_pauses(house):
     assert step.max() <= ScanConfig().step_m + 0.05 and turn.max() <= np.deg2rad(12 + 3)
 
 
+def _look_up_runs(poses: np.ndarray) -> list[int]:
+    """Lengths of the runs of consecutive frames pitched more than 10 degrees up."""
+    up = np.degrees(np.arcsin(np.clip(poses[:, 2, 2], -1, 1))) > 10
+    edges = np.flatnonzero(np.diff(np.r_[0, up.astype(int), 0]))
+    return list(edges[1::2] - edges[::2])
+
+
+def test_scan_looks_up_at_the_chosen_share_of_stops(house):
+    scene, grid, env = house
+    steady = dict(frames=5000, tours=1, pause_prob=0.0, pitch_std_deg=0.0, pitch_deg=-25.0, max_turn_deg=30.0,
+                  stop_spacing_m=1.5)
+    down = scan_poses(scene, grid, env, ScanConfig(**steady), seed=2)
+    assert _look_up_runs(down) == []          # the default never looks up: no ceiling in the scan
+    every = scan_poses(scene, grid, env, ScanConfig(**steady, up_turn_prob=1.0, up_pitch_deg=30.0), seed=2)
+    runs = _look_up_runs(every)
+    assert runs and set(runs) == {12}         # one full turn (12 x 30 degrees) per stop, at +30 degrees
+    pitch = np.degrees(np.arcsin(every[:, 2, 2]))
+    np.testing.assert_allclose(np.sort(np.unique(pitch.round(6))), [-25.0, 30.0])
+    half = _look_up_runs(scan_poses(scene, grid, env, ScanConfig(**steady, up_turn_prob=0.5), seed=2))
+    assert 0.2 * len(runs) <= len(half) <= 0.8 * len(runs)
+
+
 def test_scan_config_rejects_bad_values():
     with pytest.raises(ValueError, match="scan.frames"):
         ScanConfig(frames=0)
     with pytest.raises(ValueError, match="pause_prob"):
         ScanConfig(pause_prob=1.0)
+    with pytest.raises(ValueError, match="up_turn_prob"):
+        ScanConfig(up_turn_prob=float("nan"))
+    with pytest.raises(ValueError, match="up_pitch_deg"):
+        ScanConfig(up_pitch_deg=95.0)
