@@ -1,6 +1,8 @@
 """agent.segmenters: registry, shapes / dtypes, determinism, bad input, the gt confidence, the
 noisy error model's properties (per-instance consistency across nearby views, more errors far
 away, overconfidence) and the layout rule (agent code does not import envs)."""
+import hashlib
+import json
 import subprocess
 import sys
 
@@ -11,7 +13,7 @@ import torch
 from calnav.agent.segmenters import BUILTIN_SEGMENTERS, SegmenterConfig, make_segmenter
 
 SEGMENTER_NAMES = ("gt", "noisy", "learned_rgb", "learned_rgbd")   # the built-ins in the simulator's classes
-from calnav.agent.segmenters.base import default_class_names
+from calnav.agent.segmenters.base import WEIGHTS_DIR, default_class_names
 from calnav.agent.segmenters.learned import LEARNED_MODELS, default_weights_path, save_weights
 from calnav.agent.segmenters.network import NetSpec, SegNet
 from calnav.envs.render import camera_pose
@@ -153,6 +155,16 @@ def test_default_weight_location_is_inside_the_package():
     assert default_weights_path("learned_rgb").parent.name == "weights"
     assert default_weights_path("learned_rgb").parent.parent.name == "agent"
 
+
+
+@pytest.mark.parametrize("stem", ["learned_rgb", "learned_rgbd", "learned_rgb_first_scans", "learned_rgbd_first_scans"])
+def test_shipped_weights_match_their_cards_and_load(stem):
+    """Every shipped weight file is the one its training card describes (sha256) and loads as
+    the model the card names: the README tables cite these files by name."""
+    path, card = WEIGHTS_DIR / f"{stem}.pt", json.loads((WEIGHTS_DIR / f"{stem}.json").read_text())
+    assert hashlib.sha256(path.read_bytes()).hexdigest() == card["weights_sha256"]
+    seg = make_segmenter(card["model"], SegmenterConfig(weights=str(path)))
+    assert tuple(seg.class_names) == tuple(CLASS_NAMES)
 
 # ------------------------------------------------------------------------------------- gt
 @pytest.mark.parametrize("conf", [0.9, 0.5, 1.0])
