@@ -156,7 +156,6 @@ def test_default_weight_location_is_inside_the_package():
     assert default_weights_path("learned_rgb").parent.parent.name == "agent"
 
 
-
 @pytest.mark.parametrize("stem", ["learned_rgb", "learned_rgbd", "learned_rgb_first_scans", "learned_rgbd_first_scans"])
 def test_shipped_weights_match_their_cards_and_load(stem):
     """Every shipped weight file is the one its training card describes (sha256) and loads as
@@ -165,6 +164,7 @@ def test_shipped_weights_match_their_cards_and_load(stem):
     assert hashlib.sha256(path.read_bytes()).hexdigest() == card["weights_sha256"]
     seg = make_segmenter(card["model"], SegmenterConfig(weights=str(path)))
     assert tuple(seg.class_names) == tuple(CLASS_NAMES)
+
 
 # ------------------------------------------------------------------------------------- gt
 @pytest.mark.parametrize("conf", [0.9, 0.5, 1.0])
