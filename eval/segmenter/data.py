@@ -103,14 +103,17 @@ class TrainConfig:
     hflip: bool = True               # mirror half of the batches' images left-right
     blur_prob: float = 0.25          # probability an image is Gaussian-blurred (scan-like soft colours), [0, 1]
     blur_sigma_px: float = 1.0       # blur std drawn from [0.3, this] per batch, pixels at the training resolution, [0.3, 5]
+    depth_dropout_prob: float = 0.0  # probability an image's depth is blanked to 0 (invalid), [0, 1]: modality dropout,
+                                     # so the RGB stream learns each class alone where a scan's geometry is damaged
 
     def __post_init__(self) -> None:
         if self.epochs < 1 or self.batch_size < 1:
             raise ValueError("train.epochs and train.batch_size must be >= 1")
         if not self.lr > 0:   # also refuses NaN
             raise ValueError(f"train.lr must be > 0, got {self.lr}")
-        if not 0 <= self.blur_prob <= 1:
-            raise ValueError(f"train.blur_prob must be in [0, 1], got {self.blur_prob}")
+        for key in ("blur_prob", "depth_dropout_prob"):
+            if not 0 <= getattr(self, key) <= 1:   # also refuses NaN
+                raise ValueError(f"train.{key} must be in [0, 1], got {getattr(self, key)}")
         if not 0.3 <= self.blur_sigma_px <= 5:
             raise ValueError(f"train.blur_sigma_px must be in [0.3, 5], got {self.blur_sigma_px}")
 

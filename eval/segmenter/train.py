@@ -7,7 +7,8 @@ Data: ``data.frames`` frames rendered from the *train* split only (``eval.segmen
 cached on disk); ``train.val_frames`` val-split frames are scored after every epoch.
 Training: cross-entropy (void ignored, optional inverse-log-frequency class weights), AdamW with
 a one-cycle learning-rate schedule, on-the-fly augmentation (brightness, contrast, per-channel
-colour gain, Gaussian rgb noise, optional Gaussian blur, multiplicative depth noise, horizontal flips), all drawn from
+colour gain, Gaussian rgb noise, optional Gaussian blur, multiplicative depth noise, optional depth
+dropout, horizontal flips), all drawn from
 generators seeded by (run.seed, epoch), so a resumed run is bit-identical to an uninterrupted
 one on the same machine and thread count.
 
@@ -93,6 +94,9 @@ def augment(rgb: torch.Tensor, depth: torch.Tensor | None, labels: torch.Tensor,
         dn = torch.randn(depth.shape, generator=gen).to(depth.device)
         depth = depth * (1 + dn * uniform(0, cfg.depth_noise_std, b, 1, 1, 1))
         depth = torch.where(valid & (depth <= max_depth_m), depth, torch.zeros_like(depth))
+        if cfg.depth_dropout_prob > 0:   # drawn only when enabled, as for blur
+            drop = (torch.rand(b, generator=gen) < cfg.depth_dropout_prob).to(depth.device)
+            depth = torch.where(drop[:, None, None, None], torch.zeros_like(depth), depth)
     if cfg.hflip:
         flip = (torch.rand(b, generator=gen) < 0.5).to(rgb.device)
         rgb = torch.where(flip[:, None, None, None], rgb.flip(-1), rgb)

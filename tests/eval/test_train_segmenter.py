@@ -136,3 +136,31 @@ def test_augmentation_blurs_the_chosen_share(cfg):
     blurred, _, _ = augment(rgb.clone(), None, labels, torch.Generator().manual_seed(0),
                             dataclasses.replace(quiet, blur_prob=1.0, blur_sigma_px=2.0), 5.0)
     assert (blurred[:, :, 6, 6] < 0.5).all() and (blurred[:, :, 6, 7] > 0).all()
+
+
+def test_depth_dropout_blanks_the_chosen_share(cfg):
+    """train.depth_dropout_prob = 1 blanks every depth image to 0 (invalid) and leaves rgb alone;
+    0 keeps depth; a value outside [0, 1] or NaN is refused."""
+    import dataclasses
+
+    from calnav.eval.segmenter.data import TrainConfig
+    from calnav.eval.segmenter.train import augment
+
+    rgb = torch.full((64, 3, 4, 4), 0.5)
+    depth = torch.full((64, 1, 4, 4), 2.0)
+    labels = torch.zeros(64, 4, 4, dtype=torch.int64)
+    quiet = dataclasses.replace(cfg.train, brightness=0.0, contrast=0.0, colour=0.0, rgb_noise_std=0.0, hflip=False,
+                                blur_prob=0.0, depth_noise_std=0.0, depth_dropout_prob=0.0)
+    _, kept, _ = augment(rgb.clone(), depth.clone(), labels, torch.Generator().manual_seed(0), quiet, 5.0)
+    torch.testing.assert_close(kept, depth)
+    out, blank, _ = augment(rgb.clone(), depth.clone(), labels, torch.Generator().manual_seed(0),
+                            dataclasses.replace(quiet, depth_dropout_prob=1.0), 5.0)
+    assert (blank == 0).all()
+    torch.testing.assert_close(out, rgb)
+    _, half, _ = augment(rgb.clone(), depth.clone(), labels, torch.Generator().manual_seed(0),
+                         dataclasses.replace(quiet, depth_dropout_prob=0.5), 5.0)
+    blanked = (half.flatten(1) == 0).all(dim=1)
+    assert (blanked | (half.flatten(1) == 2.0).all(dim=1)).all() and 16 < int(blanked.sum()) < 48
+    for bad in (-0.1, 1.5, float("nan")):
+        with pytest.raises(ValueError, match="depth_dropout_prob"):
+            TrainConfig(depth_dropout_prob=bad)
