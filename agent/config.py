@@ -76,6 +76,7 @@ class AgentConfig:
     # --- uncertainty-aware variant (off by default) ---------------------------------------------
     uncertainty_aware: bool = False     # verify uncertain detections before STOP
     uncertain_low: float = 0.3          # goal confidence band [uncertain_low, goal_threshold) counts as a candidate
+                                        # (must lie below goal_threshold when uncertainty_aware)
     verify_distance_m: float = 1.0      # approach candidates to this range and re-observe, metres
 
     def __post_init__(self) -> None:
@@ -105,6 +106,10 @@ class AgentConfig:
                     "obstacle_min_height_m", "obstacle_above_camera_m", "verify_distance_m"):
             if not getattr(self, key) >= 0:   # written so that NaN fails too
                 raise ValueError(f"agent.{key} must be >= 0, got {getattr(self, key)}")
+        if self.uncertainty_aware and not self.uncertain_low < self.goal_threshold:
+            raise ValueError(f"agent.uncertain_low ({self.uncertain_low}) must be below agent.goal_threshold "
+                             f"({self.goal_threshold}) with agent.uncertainty_aware: the band of candidates to "
+                             "verify, [uncertain_low, goal_threshold), would be empty")
         if not self.clearance_cost >= 1:
             raise ValueError(f"agent.clearance_cost must be >= 1 (free cells cost 1), got {self.clearance_cost}")
         w, h = self.map_resolution

@@ -46,7 +46,16 @@ for seg in $SEGMENTERS; do
       --output "$OUT/eval/$seg/$map" "${RUN[@]}"
   done
   for map in glfs rbu; do
-    $CALNAV objectnav --agent peanut --config "$OUT/tune/$seg/$map/best.yaml" --episodes "$EVAL" \
+    best=$OUT/tune/$seg/$map/best.yaml
+    # the uncertainty-aware agent verifies detections in [agent.uncertain_low, tuned threshold):
+    # at a tuned threshold at or below uncertain_low that band is empty (calnav refuses the config)
+    t=$(awk '$1 == "goal_threshold:" {print $2}' "$best")
+    low=$(awk '$1 == "uncertain_low:" {print $2}' "$best")
+    if awk -v t="$t" -v low="$low" 'BEGIN {exit !(t <= low)}'; then
+      echo "study: no ${map}_uncertainty row for $seg: tuned goal_threshold $t <= agent.uncertain_low $low"
+      continue
+    fi
+    $CALNAV objectnav --agent peanut --config "$best" --episodes "$EVAL" \
       --output "$OUT/eval/$seg/${map}_uncertainty" agent.uncertainty_aware=true "${RUN[@]}"
   done
 done

@@ -170,6 +170,8 @@ def run_tune(config_path: str | None, overrides: list[str], episodes: str, thres
     if base.run.agent != TUNED_AGENT:
         raise ConfigError(f"calnav tune tunes the {TUNED_AGENT} agent's goal detection; "
                           f"run.agent is {base.run.agent!r} (set run.agent={TUNED_AGENT})")
+    for t in ts:   # every grid point's config is checked before the output directory is touched
+        load_config(config_path, overrides + [f"agent.goal_threshold={t}"])
     indices = parse_episode_range(str(episodes), len(load_split(base.env.split, base.env)))
     out = Path(out)
     rows: list[dict] = []
@@ -198,6 +200,11 @@ def run_tune(config_path: str | None, overrides: list[str], episodes: str, thres
                 scores[r["threshold"]] = max(scores.get(r["threshold"], -math.inf), _score(r[metric]))
             nxt = edge_extension(scores)
             if nxt is None or nxt in ts:
+                break
+            try:   # e.g. an uncertainty-aware agent's band [uncertain_low, threshold) would be empty
+                load_config(config_path, overrides + [f"agent.goal_threshold={nxt}"])
+            except (ConfigError, ValueError) as e:
+                print(f"tune: not extending to goal_threshold={nxt:g}: {e}")
                 break
             ts = sorted(ts + [nxt])
             run_thresholds([nxt])

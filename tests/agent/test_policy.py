@@ -17,6 +17,12 @@ def test_agent_config_keys_and_validation():
         load_config(None, ["agent.map_type=voxels"])
     with pytest.raises(ConfigError, match="goal_threshold"):
         load_config(None, ["agent.goal_threshold=1.5"])
+    # the uncertainty-aware band [uncertain_low, goal_threshold) must hold something
+    with pytest.raises(ConfigError, match=r"uncertain_low \(0.3\) must be below agent.goal_threshold \(0.3\)"):
+        load_config(None, ["agent.uncertainty_aware=true", "agent.goal_threshold=0.3"])
+    assert load_config(None, ["agent.goal_threshold=0.3"]).agent.goal_threshold == 0.3   # no band needed
+    assert load_config(None, ["agent.uncertainty_aware=true", "agent.goal_threshold=0.3",
+                              "agent.uncertain_low=0.2"]).agent.uncertain_low == 0.2
 
 
 def test_peanut_is_registered_and_the_default():

@@ -84,6 +84,9 @@ def test_tune_bad_input_exits_2(tmp_path, capsys):
     assert ">= 0" in capsys.readouterr().err
     assert main(base + ["run.agent=oracle"]) == 2  # the oracle has no goal detection to tune
     assert "run.agent is 'oracle'" in capsys.readouterr().err
+    # an uncertainty-aware agent at a grid threshold <= agent.uncertain_low has nothing to verify
+    assert main(base + ["--thresholds", "0.3,0.5", "agent.uncertainty_aware=true"]) == 2
+    assert "uncertain_low (0.3) must be below agent.goal_threshold (0.3)" in capsys.readouterr().err
     assert not (tmp_path / "t").exists()  # nothing ran
 
 
