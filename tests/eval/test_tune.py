@@ -128,3 +128,22 @@ def test_tune_end_to_end_writes_csv_and_loadable_best(tmp_path, capsys):
     nxt = edge_extension(scores)
     assert ts == sorted([0.6, 0.9] + ([nxt] if nxt is not None else []))
     assert (out / "0.6_3" / "episodes.jsonl").read_text() == before
+
+
+def test_tune_does_not_extend_into_a_refused_threshold(tmp_path, monkeypatch, capsys):
+    """Best on the lower edge (0.5) would extend the grid to 0.3, which the uncertainty-aware
+    agent refuses (agent.uncertain_low 0.3): the tune stops extending, says why, and writes
+    the two points it ran (episodes faked: only the grid logic is under test)."""
+    import calnav.eval.objectnav.run as run_mod
+    from calnav.eval.objectnav.tune import run_tune
+
+    def fake_run_jobs(jobs, force=False, progress=True):
+        return [{"success": 1.0, "success_sem": 0.0, "spl": 1.0 - job.cfg.agent.goal_threshold, "spl_sem": 0.0,
+                 "softspl": 0.5, "distance_to_goal": 0.0, "count": 1} for job in jobs]
+
+    monkeypatch.setattr(run_mod, "run_jobs", fake_run_jobs)
+    rows, best = run_tune(None, [*SMALL, "agent.uncertainty_aware=true"], "0:1", "0.5,0.7", "4", "spl",
+                          tmp_path / "t", extend=2)
+    assert [r["threshold"] for r in rows] == [0.5, 0.7] and best["threshold"] == 0.5
+    assert "not extending to goal_threshold=0.3" in capsys.readouterr().out
+    assert (tmp_path / "t" / "tune.csv").read_text().count("\n") == 3
