@@ -170,8 +170,14 @@ def run_tune(config_path: str | None, overrides: list[str], episodes: str, thres
     if base.run.agent != TUNED_AGENT:
         raise ConfigError(f"calnav tune tunes the {TUNED_AGENT} agent's goal detection; "
                           f"run.agent is {base.run.agent!r} (set run.agent={TUNED_AGENT})")
+
+    def point_config(t: float, a: int) -> Config:
+        """The config of grid point (threshold, min area); raises ConfigError if refused."""
+        return load_config(config_path, overrides + [f"agent.goal_threshold={t}", f"agent.goal_min_area_cells={a}"])
+
     for t in ts:   # every grid point's config is checked before the output directory is touched
-        load_config(config_path, overrides + [f"agent.goal_threshold={t}"])
+        for a in areas:
+            point_config(t, a)
     indices = parse_episode_range(str(episodes), len(load_split(base.env.split, base.env)))
     out = Path(out)
     rows: list[dict] = []
@@ -182,8 +188,7 @@ def run_tune(config_path: str | None, overrides: list[str], episodes: str, thres
         points = [(t, a) for t in thresholds for a in areas]
         jobs = []
         for t, a in points:
-            cfg = load_config(config_path, overrides + [f"agent.goal_threshold={t}",
-                                                        f"agent.goal_min_area_cells={a}"])
+            cfg = point_config(t, a)
             if progress:
                 print(f"tune: goal_threshold={t:g} goal_min_area_cells={a} -> {out / point_name(t, a)}")
             jobs.append(EpisodeJob(cfg, list(indices), out / point_name(t, a)))
@@ -202,8 +207,9 @@ def run_tune(config_path: str | None, overrides: list[str], episodes: str, thres
             if nxt is None or nxt in ts:
                 break
             try:   # e.g. an uncertainty-aware agent's band [uncertain_low, threshold) would be empty
-                load_config(config_path, overrides + [f"agent.goal_threshold={nxt}"])
-            except (ConfigError, ValueError) as e:
+                for a in areas:
+                    point_config(nxt, a)
+            except ConfigError as e:
                 print(f"tune: not extending to goal_threshold={nxt:g}: {e}")
                 break
             ts = sorted(ts + [nxt])
@@ -211,8 +217,7 @@ def run_tune(config_path: str | None, overrides: list[str], episodes: str, thres
         rows.sort(key=lambda r: (r["threshold"], r["min_area"]))
         root.write_text("tune.csv", csv_text(rows))
         best = select_best(rows, metric)
-        best_cfg = load_config(config_path, overrides + [f"agent.goal_threshold={best['threshold']}",
-                                                         f"agent.goal_min_area_cells={best['min_area']}"])
+        best_cfg = point_config(best["threshold"], best["min_area"])
         root.write_text("best.yaml", best_yaml_text(
             best_cfg, config_path=config_path, overrides=overrides, split=base.env.split, episodes=indices,
             metric=metric, best=best, n_points=len(rows)))
