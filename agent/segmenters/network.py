@@ -9,8 +9,8 @@ Architecture (``SegNet``), all convolutions padded so any input size works:
 - Decoder: light FPN. 1x1 laterals project strides 32, 16, 8, 4 to ``decoder_width``
   channels; top-down bilinear upsampling + add; one depthwise-separable block smooths the
   stride-4 map; a 1x1 classifier gives K logits that are bilinearly upsampled to the input.
-- RGB-D (``in_depth=True``, ESANet-like two-branch encoder): a depth branch of half the width
-  runs in parallel on (depth / depth_scale_m, valid mask); after every stage its features are
+- RGB-D (``in_depth=True``, ESANet-like two-branch encoder): a depth branch of
+  ``depth_ratio`` times the RGB width (half by default) runs in parallel on (depth / depth_scale_m, valid mask); after every stage its features are
   projected (1x1 conv + BN) and added to the RGB branch (ESANet fuses the same way, with
   squeeze-and-excitation weights we leave out for speed).
 
@@ -31,7 +31,6 @@ from torch import nn
 RGB_MEAN = (0.5, 0.5, 0.5)          # rgb normalisation: (x - mean) / std on [0, 1] values
 RGB_STD = (0.25, 0.25, 0.25)
 DEPTH_SCALE_M = 5.0                 # depth input is depth / DEPTH_SCALE_M (the sensor's max range)
-DEPTH_BRANCH_RATIO = 0.5            # depth-branch width relative to the RGB branch
 
 
 @dataclass
@@ -40,7 +39,8 @@ class NetSpec:
 
     stem: stride-2 stem channels. stages: (channels, blocks) of the stride 4, 8, 16, 32 stages
     (the first block of each stage has stride 2). decoder_width: FPN channels. num_classes: K.
-    in_depth: RGB-D two-branch encoder.
+    in_depth: RGB-D two-branch encoder. depth_ratio: depth-branch width relative to the RGB
+    branch (weights saved before the key existed used 0.5, the default).
     """
 
     num_classes: int = 18
@@ -48,6 +48,7 @@ class NetSpec:
     stem: int = 16
     stages: tuple[tuple[int, int], ...] = ((32, 2), (64, 3), (128, 4), (160, 2))
     decoder_width: int = 64
+    depth_ratio: float = 0.5
 
     def to_dict(self) -> dict:
         d = asdict(self)
@@ -108,8 +109,8 @@ class SegNet(nn.Module):
         self.register_buffer("mean", torch.tensor(RGB_MEAN).view(1, 3, 1, 1), persistent=False)
         self.register_buffer("std", torch.tensor(RGB_STD).view(1, 3, 1, 1), persistent=False)
         if spec.in_depth:
-            dstages = tuple((max(8, int(c * DEPTH_BRANCH_RATIO)), n) for c, n in spec.stages)
-            self.depth = Encoder(2, max(8, int(spec.stem * DEPTH_BRANCH_RATIO)), dstages)
+            dstages = tuple((max(8, int(c * spec.depth_ratio)), n) for c, n in spec.stages)
+            self.depth = Encoder(2, max(8, int(spec.stem * spec.depth_ratio)), dstages)
             self.fuse = nn.ModuleList(conv_bn(dc, c, 1, act=False)
                                       for dc, c in zip(self.depth.channels, self.rgb.channels))
         d = spec.decoder_width

@@ -84,6 +84,7 @@ class TrainConfig:
     net_stem: int = 16               # network: stride-2 stem channels
     net_stages: tuple[tuple[int, int], ...] = ((32, 2), (64, 3), (128, 4), (160, 2))  # network: (channels, blocks) at strides 4, 8, 16, 32
     net_decoder_width: int = 64      # network: FPN decoder channels
+    net_depth_ratio: float = 0.5     # network (learned_rgbd): depth-branch width / RGB-branch width, (0, 2]
     epochs: int = 8                  # passes over the training frames
     batch_size: int = 16             # frames per step
     lr: float = 5e-3                 # peak learning rate (one-cycle schedule), AdamW
@@ -114,6 +115,8 @@ class TrainConfig:
         for key in ("blur_prob", "depth_dropout_prob"):
             if not 0 <= getattr(self, key) <= 1:   # also refuses NaN
                 raise ValueError(f"train.{key} must be in [0, 1], got {getattr(self, key)}")
+        if not 0 < self.net_depth_ratio <= 2:   # also refuses NaN
+            raise ValueError(f"train.net_depth_ratio must be in (0, 2], got {self.net_depth_ratio}")
         if not 0.3 <= self.blur_sigma_px <= 5:
             raise ValueError(f"train.blur_sigma_px must be in [0.3, 5], got {self.blur_sigma_px}")
 

@@ -191,7 +191,7 @@ def train(cfg: SegmenterExperimentConfig, model: str, output: Path | str, resume
 
     torch.manual_seed(seed)
     spec = NetSpec(num_classes=k, in_depth=model == "learned_rgbd", stem=tc.net_stem, stages=tuple(tc.net_stages),
-                   decoder_width=tc.net_decoder_width)
+                   decoder_width=tc.net_decoder_width, depth_ratio=tc.net_depth_ratio)
     net = SegNet(spec).to(device=device, memory_format=torch.channels_last)
     opt = torch.optim.AdamW(net.parameters(), lr=tc.lr, weight_decay=tc.weight_decay)
     n, b = len(data), min(tc.batch_size, len(data))

@@ -164,3 +164,24 @@ def test_depth_dropout_blanks_the_chosen_share(cfg):
     for bad in (-0.1, 1.5, float("nan")):
         with pytest.raises(ValueError, match="depth_dropout_prob"):
             TrainConfig(depth_dropout_prob=bad)
+
+
+def test_depth_ratio_sets_the_depth_branch_width_and_survives_a_save():
+    """train.net_depth_ratio scales the depth branch (stem 16 -> 16 channels at 1.0, 8 at the
+    default 0.5); the spec round-trips through to_dict / from_dict, a dict saved before the key
+    existed loads as 0.5, and a ratio outside (0, 2] or NaN is refused."""
+    from calnav.agent.segmenters.network import NetSpec, SegNet
+    from calnav.eval.segmenter.data import TrainConfig
+
+    wide = SegNet(NetSpec(in_depth=True, depth_ratio=1.0))
+    narrow = SegNet(NetSpec(in_depth=True))
+    assert wide.depth.channels == [32, 64, 128, 160] and narrow.depth.channels == [16, 32, 64, 80]
+    assert NetSpec.from_dict(NetSpec(in_depth=True, depth_ratio=1.0).to_dict()).depth_ratio == 1.0
+    old = NetSpec(in_depth=True).to_dict()
+    del old["depth_ratio"]
+    assert NetSpec.from_dict(old).depth_ratio == 0.5
+    out = wide(torch.rand(2, 3, 32, 48), torch.rand(2, 1, 32, 48) * 5)
+    assert out.shape == (2, 18, 32, 48)
+    for bad in (0.0, -1.0, 2.5, float("nan")):
+        with pytest.raises(ValueError, match="net_depth_ratio"):
+            TrainConfig(net_depth_ratio=bad)
