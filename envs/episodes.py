@@ -33,6 +33,7 @@ import numpy as np
 from scipy import ndimage
 
 from calnav.common.atomic import atomic_path
+from calnav.common.gc_pause import gc_paused
 from calnav.envs.config import EnvConfig
 from calnav.envs.scene import Scene, cache_dir, sample_surface
 from calnav.envs.semantics import GOAL_CATEGORIES
@@ -208,6 +209,13 @@ def _from_habitat(p) -> np.ndarray:
     return np.array([p[0], -p[2]], dtype=np.float64)
 
 
+def _view_points_from_habitat(view_points: list[dict]) -> np.ndarray:
+    """(V, 2) float64 calnav x-y of habitat view points (``_from_habitat`` of each, in one array
+    op: a goal has thousands)."""
+    p = np.array([v["agent_state"]["position"] for v in view_points], dtype=np.float64).reshape(-1, 3)
+    return np.stack([p[:, 0], -p[:, 2]], axis=1)
+
+
 def habitat_quaternion_to_yaw(q) -> float:
     theta = 2 * math.atan2(q[1], q[3])
     return (theta + math.pi / 2) % (2 * math.pi)
@@ -241,7 +249,7 @@ def episodes_from_habitat(data: dict) -> list[ObjectNavEpisode]:
     goals = {
         key: [GoalObject(int(g["object_id"]), g["object_category"],
                          np.array([g["position"][0], -g["position"][2], g["position"][1]], dtype=np.float64),
-                         np.array([_from_habitat(v["agent_state"]["position"]) for v in g["view_points"]]))
+                         _view_points_from_habitat(g["view_points"]))
               for g in gs]
         for key, gs in data.get("goals_by_category", {}).items()
     }
@@ -270,7 +278,7 @@ def read_json_gz(path: Path) -> dict:
     """The JSON object of a gzip file; ValueError naming the file when it is not readable gzip
     JSON (EOFError: a truncated file, e.g. a killed writer)."""
     try:
-        with gzip.open(path, "rt") as f:
+        with gzip.open(path, "rt") as f, gc_paused():   # ~3x faster on large files (common.gc_pause)
             data = json.load(f)
     except (OSError, EOFError, zlib.error, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise ValueError(f"corrupt episode file {path}: {exc}") from None
@@ -286,7 +294,8 @@ def read_episode_file(path: Path) -> list[ObjectNavEpisode]:
     if add_view_point_iou(data):   # a file cached before calnav wrote ``iou``: upgraded in place
         write_json_gz(path, data)
     try:
-        return episodes_from_habitat(data)
+        with gc_paused():
+            return episodes_from_habitat(data)
     except KeyError as exc:
         raise ValueError(f"damaged episode file {path}: missing key {exc}") from None
     except (TypeError, IndexError, ValueError) as exc:

@@ -190,3 +190,16 @@ def test_old_episode_files_get_the_iou_key_and_nothing_else_changes(small_env_co
     for a, b in zip(before, after):
         assert a.episode_id == b.episode_id and a.start_yaw == b.start_yaw
         assert np.array_equal(a.start_position, b.start_position)
+
+
+def test_view_points_parse_to_the_same_array_as_one_by_one():
+    """The vectorised view-point parse gives exactly ``_from_habitat`` of each point (and an
+    empty (0, 2) array for none)."""
+    import numpy as np
+
+    from calnav.envs.episodes import _from_habitat, _view_points_from_habitat
+
+    pts = [[1.25, 0.0, -3.5], [0.1, 0.2, 0.30000000000000004], [-7.0, 1.0, 2.0]]
+    vps = [{"agent_state": {"position": p}} for p in pts]
+    np.testing.assert_array_equal(_view_points_from_habitat(vps), np.array([_from_habitat(p) for p in pts]))
+    assert _view_points_from_habitat([]).shape == (0, 2)
