@@ -84,7 +84,8 @@ class TrainConfig:
     net_stem: int = 16               # network: stride-2 stem channels
     net_stages: tuple[tuple[int, int], ...] = ((32, 2), (64, 3), (128, 4), (160, 2))  # network: (channels, blocks) at strides 4, 8, 16, 32
     net_decoder_width: int = 64      # network: FPN decoder channels
-    net_depth_ratio: float = 0.5     # network (learned_rgbd): depth-branch width / RGB-branch width, (0, 2]
+    net_depth_ratio: float = 1.0     # network (learned_rgbd): depth-branch width / RGB-branch width, (0, 2]; the
+                                     # shipped weights: 1.0 (345,730 parameters; 0.5, before 2026-11-26: 229,338)
     epochs: int = 8                  # passes over the training frames
     batch_size: int = 16             # frames per step
     lr: float = 5e-3                 # peak learning rate (one-cycle schedule), AdamW

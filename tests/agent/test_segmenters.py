@@ -104,6 +104,23 @@ def test_learned_resizes_other_input_sizes(frames, weight_files):
     assert native.shape == out.shape
 
 
+
+@pytest.mark.parametrize("name", LEARNED_MODELS)
+def test_traced_network_gives_the_eager_logits_bit_for_bit(name, frames, weight_files):
+    """segmenter.trace (default on) runs one TorchScript trace per input shape; its logits equal
+    eager mode's exactly, for single frames, a batch and a second resolution (a second trace)."""
+    traced, eager = build(name, weight_files), build(name, weight_files, trace=False)
+    assert traced.cfg.trace and not eager.cfg.trace
+    rgb, depth = frames.rgb, frames.depth.astype(np.float32)
+    for i in range(2):
+        np.testing.assert_array_equal(traced(rgb[i], depth[i]), eager(rgb[i], depth[i]))
+    np.testing.assert_array_equal(traced.segment_batch(rgb[:3], depth[:3]), eager.segment_batch(rgb[:3], depth[:3]))
+    big = build(name, weight_files, resolution=(2 * RES[0], 2 * RES[1]))
+    big_eager = build(name, weight_files, resolution=(2 * RES[0], 2 * RES[1]), trace=False)
+    np.testing.assert_array_equal(big(rgb[0], depth[0]), big_eager(rgb[0], depth[0]))
+    assert len(traced._traces) == 2 and not eager._traces   # (1, ...) and (3, ...) inputs
+
+
 # --------------------------------------------------------------------------------- bad input
 @pytest.mark.parametrize("name", SEGMENTER_NAMES)
 def test_bad_images(name, frames, weight_files):
@@ -156,7 +173,8 @@ def test_default_weight_location_is_inside_the_package():
     assert default_weights_path("learned_rgb").parent.parent.name == "agent"
 
 
-@pytest.mark.parametrize("stem", ["learned_rgb", "learned_rgbd", "learned_rgb_first_scans", "learned_rgbd_first_scans"])
+@pytest.mark.parametrize("stem", ["learned_rgb", "learned_rgbd", "learned_rgb_first_scans", "learned_rgbd_first_scans",
+                                  "learned_rgbd_half_depth"])
 def test_shipped_weights_match_their_cards_and_load(stem):
     """Every shipped weight file is the one its training card describes (sha256) and loads as
     the model the card names: the README tables cite these files by name."""
