@@ -9,9 +9,12 @@
    kernel drops the lock when its holder exits or is killed (kill -9 included), so it never
    stays stuck;
 3. the config check, one meaning everywhere: the saved ``config.yaml`` and ``cfg`` are compared
-   as resolved config dicts without the result-neutral keys (``NEUTRAL_KEYS``); a different
-   config is refused unless ``force``, which deletes the directory's results (``discard``);
-4. ``config.yaml`` is (re)written atomically.
+   as resolved config dicts without the result-neutral keys (``NEUTRAL_KEYS``), and so are the
+   files the config reads (``eval.inputs``: weights, GLFS parameters, ..., by sha256, saved in
+   ``inputs.json``; a retrained ``agent/weights/<model>.pt`` under an unchanged config is another
+   run); a difference is refused unless ``force``, which deletes the directory's results
+   (``discard``). A directory from before ``inputs.json`` existed is resumed with a warning;
+4. ``config.yaml`` and ``inputs.json`` are (re)written atomically.
 
 ``RecordsFile`` is the per-episode records file (``episodes.jsonl``): one JSON object per line,
 keyed by ``index``, appended and flushed per record. ``read_records`` keeps the last valid
@@ -39,6 +42,7 @@ from typing import Callable, Iterable, Iterator
 import yaml
 
 from calnav.common.atomic import write_text_atomic
+from calnav.eval.inputs import INPUTS_NAME, changed_inputs, input_fingerprints
 from calnav.eval.stats import METRICS
 
 # Dotted config keys that do not change results: a rerun with other values may resume the same
@@ -130,6 +134,7 @@ class ResultsDir:
         self.cfg, self.force, self.discard, self.files = cfg, force, discard, files
         self.neutral_keys, self.option = neutral_keys, option
         self._lock_fd: int | None = None
+        self._fingerprints: dict | None = None
 
     # ------------------------------------------------------------------ open / close
     def __enter__(self) -> "ResultsDir":
@@ -172,9 +177,10 @@ class ResultsDir:
                 self._flock_or_refuse(fd, fcntl.LOCK_SH)   # released with the descriptor below
             finally:
                 os.close(fd)
-        if self.cfg is not None and not self.force and self._holds_other_config():
-            raise ResultsError(f"{self.path} holds results of a different config ({self.path / CONFIG_NAME}); use "
-                               f"another {self.option}, or --force to discard them")
+        if self.cfg is not None and not self.force:
+            refusal = self._refusal()
+            if refusal is not None:
+                raise ResultsError(refusal)
         return self
 
     def close(self) -> None:
@@ -204,10 +210,19 @@ class ResultsDir:
         os.write(fd, f"{os.getpid()}\n".encode())
         self._lock_fd = fd
 
-    def _holds_other_config(self) -> bool:
-        """Whether the directory's config.yaml (if any) differs from ``cfg`` beyond the neutral keys."""
+    def _cfg_dict(self) -> dict:
         from calnav.eval.config import dump_yaml
 
+        return yaml.safe_load(dump_yaml(self.cfg))
+
+    def _inputs(self) -> dict:
+        """The fingerprints of the files ``cfg`` reads (``eval.inputs``), computed once per open."""
+        if self._fingerprints is None:
+            self._fingerprints = input_fingerprints(self._cfg_dict(), self.neutral_keys)
+        return self._fingerprints
+
+    def _holds_other_config(self) -> bool:
+        """Whether the directory's config.yaml (if any) differs from ``cfg`` beyond the neutral keys."""
         saved = self.path / CONFIG_NAME
         if not saved.exists():
             return False
@@ -217,17 +232,48 @@ class ResultsDir:
             raise ResultsError(f"{saved} is not a readable config ({type(exc).__name__}); remove it or "
                                f"pass another {self.option}") from None
         return not isinstance(old, dict) or (strip_neutral(old, self.neutral_keys)
-                                             != strip_neutral(yaml.safe_load(dump_yaml(self.cfg)), self.neutral_keys))
+                                             != strip_neutral(self._cfg_dict(), self.neutral_keys))
+
+    def _other_inputs(self) -> list[str]:
+        """The labels of the input files that differ from the ones the directory's results were
+        made with ([] when the same, or when the directory predates ``inputs.json``: warned)."""
+        saved = self.path / INPUTS_NAME
+        if not (self.path / CONFIG_NAME).exists():
+            return []
+        if not saved.exists():
+            warn(f"{self.path} has no {INPUTS_NAME} (made before calnav fingerprinted its input files): "
+                 "resuming it cannot check that its weights and parameter files are unchanged")
+            return []
+        try:
+            old = json.loads(saved.read_text())
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise ResultsError(f"{saved} is not readable JSON ({type(exc).__name__}); remove it or "
+                               f"pass another {self.option}") from None
+        return changed_inputs(old if isinstance(old, dict) else {}, self._inputs())
+
+    def _refusal(self) -> str | None:
+        """Why the directory's results are not this run's (one line), or None."""
+        if self._holds_other_config():
+            return (f"{self.path} holds results of a different config ({self.path / CONFIG_NAME}); "
+                    f"use another {self.option}, or --force to discard them")
+        changed = self._other_inputs()
+        if changed:
+            files = ", ".join(f"{k} ({self._inputs()[k]['path'] if k in self._inputs() else 'not read now'})"
+                              for k in changed)
+            return (f"{self.path} holds results made with other input files: {files} changed since "
+                    f"({self.path / INPUTS_NAME}); use another {self.option}, or --force to discard them")
+        return None
 
     def _check_config(self) -> None:
         from calnav.eval.config import dump_yaml
 
-        if self._holds_other_config():
+        refusal = self._refusal()
+        if refusal is not None:
             if not self.force:
-                raise ResultsError(f"{self.path} holds results of a different config ({self.path / CONFIG_NAME}); "
-                                   f"use another {self.option}, or --force to discard them")
+                raise ResultsError(refusal)
             self._discard()
         self.write_text(CONFIG_NAME, dump_yaml(self.cfg))
+        self.write_json(INPUTS_NAME, self._inputs())
 
     def _discard(self) -> None:
         with writing(f"results in {self.path}"):

@@ -239,6 +239,48 @@ def test_config_check_ignores_neutral_keys_and_force_discards(tmp_path):
         assert "seed: 5" in (out / "config.yaml").read_text()
 
 
+
+def test_a_changed_input_file_under_the_same_config_is_another_run(tmp_path, capsys):
+    """Weights replaced in place (same config, same path) are refused on resume, by open and by
+    check, naming the file; --force discards; a directory without inputs.json (older calnav) is
+    resumed with a warning; the default learned weights and predictor are fingerprinted too."""
+    from calnav.eval.config import load_config
+    from calnav.eval.inputs import input_files
+
+    params = tmp_path / "glfs.json"
+    shutil.copy(REPO_ROOT / "agent" / "weights" / "glfs_learned_rgb.json", params)
+    cfg = load_config(None, ["mapping.fusion=glfs", f"mapping.glfs_params={params}"])
+    out = tmp_path / "r"
+    with ResultsDir(out, cfg):
+        (out / RECORDS).write_text("{}\n")
+    saved = json.loads((out / "inputs.json").read_text())
+    assert saved["mapping.glfs_params"]["path"] == str(params)
+    with ResultsDir(out, cfg):
+        pass   # same files: resumes
+    params.write_text(params.read_text().replace("1.0", "1.5", 1))
+    for attempt in (lambda: ResultsDir(out, cfg).open(), lambda: ResultsDir(out, cfg).check()):
+        with pytest.raises(ResultsError, match=r"holds results made with other input files: mapping.glfs_params "
+                                               rf"\({params}\) changed since"):
+            attempt()
+    assert (out / RECORDS).exists()
+    with ResultsDir(out, cfg, force=True):
+        pass
+    assert not (out / RECORDS).exists()
+    assert json.loads((out / "inputs.json").read_text())["mapping.glfs_params"]["sha256"] != \
+        saved["mapping.glfs_params"]["sha256"]
+    (out / "inputs.json").unlink()
+    capsys.readouterr()
+    with ResultsDir(out, cfg):
+        pass
+    assert "has no inputs.json" in capsys.readouterr().err and (out / "inputs.json").exists()
+
+    files = input_files({"agent": {"segmenter": "learned_rgb", "exploration": "prediction", "predictor_weights": ""},
+                         "segmenter": {"weights": ""}, "study": {"segmenters": ["learned_rgbd", "gt"]}})
+    assert [p.name for p in files.values()] == ["learned_rgb.pt", "learned_rgbd.pt", "predictor.pt"]
+    named = input_files({"agent": {"segmenter": "learned_rgb"}, "segmenter": {"weights": str(params)}})
+    assert list(named) == ["segmenter.weights"]
+
+
 def test_check_finds_a_held_directory_and_another_config_without_writing(tmp_path):
     """ResultsDir.check (calnav map: checked before fusing, opened after) refuses what open would."""
     from calnav.eval.config import load_config
