@@ -212,7 +212,11 @@ def _from_habitat(p) -> np.ndarray:
 def _view_points_from_habitat(view_points: list[dict]) -> np.ndarray:
     """(V, 2) float64 calnav x-y of habitat view points (``_from_habitat`` of each, in one array
     op: a goal has thousands)."""
-    p = np.array([v["agent_state"]["position"] for v in view_points], dtype=np.float64).reshape(-1, 3)
+    p = np.array([v["agent_state"]["position"] for v in view_points], dtype=np.float64)
+    if p.size == 0:
+        return np.zeros((0, 2))
+    if p.ndim != 2 or p.shape[1] != 3:   # (a ragged list already raised ValueError)
+        raise ValueError(f"view point positions must be [x, y, z], got shape {p.shape}")
     return np.stack([p[:, 0], -p[:, 2]], axis=1)
 
 
