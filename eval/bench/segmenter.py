@@ -9,6 +9,9 @@
   the K logits back to 640x480 (what an agent pays per full-resolution frame).
 - ``segmenter.<model>.ms_640x480_native``: the network run at 640x480 itself
   (``segmenter.resolution = 640x480``), for reference.
+- ``segmenter.<model>.eager_ms_160x120``: ``ms_160x120`` with ``segmenter.trace = false`` (eager
+  mode), and ``segmenter.<model>.trace_speedup``: eager / traced time, frame by frame in the
+  same loop (the default runs a TorchScript trace with bit-identical logits).
 - ``segmenter.threads``: torch threads during the measurement (``SegmenterConfig.threads``,
   default 1).
 
@@ -37,6 +40,7 @@ def run(ctx) -> dict[str, float]:
         variants = {"ms_160x120": ((160, 120), SegmenterConfig()),
                     "ms_640x480": ((640, 480), SegmenterConfig()),
                     "ms_640x480_native": ((640, 480), dataclasses.replace(SegmenterConfig(), resolution=(640, 480)))}
+        eager = None
         for figure, (res, cfg) in variants.items():
             try:
                 seg = make_segmenter(model, cfg, "cpu")
@@ -46,7 +50,19 @@ def run(ctx) -> dict[str, float]:
             frames = ctx.frames(*res)[:n_frames]
             for f in frames[:WARMUP]:
                 seg(f.rgb, f.depth)
-            times = [timeit_ms(lambda f=f: seg(f.rgb, f.depth), repeats=REPEATS_PER_FRAME, warmup=0) for f in frames]
+            if figure == "ms_160x120":   # eager mode alongside, alternating frame by frame
+                eager = make_segmenter(model, dataclasses.replace(cfg, trace=False), "cpu")
+                for f in frames[:WARMUP]:
+                    eager(f.rgb, f.depth)
+            times, eager_times = [], []
+            for f in frames:
+                times.append(timeit_ms(lambda f=f: seg(f.rgb, f.depth), repeats=REPEATS_PER_FRAME, warmup=0))
+                if figure == "ms_160x120":
+                    eager_times.append(timeit_ms(lambda f=f: eager(f.rgb, f.depth), repeats=REPEATS_PER_FRAME,
+                                                 warmup=0))
             out[f"segmenter.{model}.{figure}"] = float(np.median(times))
+            if eager_times:
+                out[f"segmenter.{model}.eager_ms_160x120"] = float(np.median(eager_times))
+                out[f"segmenter.{model}.trace_speedup"] = float(np.median(np.divide(eager_times, times)))
     out["segmenter.threads"] = float(torch.get_num_threads())  # after the segmenters set it (config threads)
     return out

@@ -101,6 +101,15 @@ def test_bench_quick_scan_figures(tmp_path):
         assert figures[key] > 0
 
 
+def test_bench_quick_segmenter_figures(tmp_path):
+    """The segmenter section times both learned networks, traced and eager, in one loop."""
+    path = tmp_path / "bench.json"
+    assert main(["bench", "--quick", "--only", "segmenter", "--output", str(path)]) == 0
+    figures = json.loads(path.read_text())
+    for model in ("learned_rgb", "learned_rgbd"):
+        for key in ("ms_160x120", "eager_ms_160x120", "trace_speedup", "ms_640x480"):
+            assert figures[f"segmenter.{model}.{key}"] > 0
+
 def test_scan_houses_writes_the_quality_table(tmp_path, capsys):
     out = tmp_path / "q"
     fast = ["env.dataset.scanning.frames=40", "env.dataset.scanning.resolution=64x48",
