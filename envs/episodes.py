@@ -322,15 +322,32 @@ def split_dir(split: str, env_cfg: EnvConfig) -> Path:
     return cache_dir() / "episodes" / f"{split}_{dataset_key(env_cfg)}"
 
 
+# episode files already parsed in this process: path -> ((mtime_ns, size, inode), episodes). A
+# command reads its split several times (preflight, feed order, the env); a rewritten file
+# (another stat) is parsed again.
+_PARSED: dict[Path, tuple[tuple[int, int, int], list[ObjectNavEpisode]]] = {}
+
+
+def _stat_key(path: Path) -> tuple[int, int, int]:
+    st = path.stat()
+    return st.st_mtime_ns, st.st_size, st.st_ino
+
+
 def _cached_episodes(path: Path) -> list[ObjectNavEpisode] | None:
     """A scene's cached episodes, or None when the cache file is missing or damaged (a killed
-    writer, another layout): the cache is rebuilt, as damaged scene caches are."""
+    writer, another layout): the cache is rebuilt, as damaged scene caches are. Parsed once
+    per process while the file stays the same (``_PARSED``)."""
     if not path.exists():
         return None
+    hit = _PARSED.get(path)
+    if hit is not None and hit[0] == _stat_key(path):
+        return list(hit[1])
     try:
-        return read_episode_file(path)
+        episodes = read_episode_file(path)
     except ValueError:
         return None
+    _PARSED[path] = (_stat_key(path), episodes)   # stat after read: it may have upgraded the file
+    return list(episodes)
 
 
 def load_split(split: str, env_cfg: EnvConfig, progress: bool = True) -> list[ObjectNavEpisode]:

@@ -206,3 +206,25 @@ def test_view_points_parse_to_the_same_array_as_one_by_one():
     for bad in ([[1.0, 2.0, 3.0, 4.0]] * 3, [[1.0, 2.0]], [[1.0, 2.0, 3.0], [1.0]]):
         with pytest.raises(ValueError):
             _view_points_from_habitat([{"agent_state": {"position": q}} for q in bad])
+
+
+def test_an_episode_file_is_parsed_once_per_process_until_it_changes(tmp_path, monkeypatch):
+    """load_split's per-file cache: a second read of an unchanged file does not parse it again;
+    a rewritten file (new stat) is parsed again and its new content returned."""
+    import calnav.envs.episodes as episodes_mod
+    from calnav.envs.episodes import ObjectNavEpisode, _cached_episodes, episodes_to_habitat, write_json_gz
+
+    ep = ObjectNavEpisode(episode_id="0", scene_id="s", start_position=np.zeros(2), start_rotation=[0.0, 0.0, 0.0, 1.0],
+                          object_category="chair", geodesic_distance=2.0, euclidean_distance=1.5, goals=[])
+    path = tmp_path / "s.json.gz"
+    write_json_gz(path, episodes_to_habitat([ep]))
+    calls = []
+    real = episodes_mod.read_episode_file
+    monkeypatch.setattr(episodes_mod, "read_episode_file", lambda p: calls.append(p) or real(p))
+    first, second = _cached_episodes(path), _cached_episodes(path)
+    assert len(calls) == 1 and [e.episode_id for e in second] == ["0"] and first is not second
+    ep.episode_id = "7"
+    write_json_gz(path, episodes_to_habitat([ep]))
+    assert [e.episode_id for e in _cached_episodes(path)] == ["7"] and len(calls) == 2
+    path.unlink()
+    assert _cached_episodes(path) is None
