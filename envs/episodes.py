@@ -212,9 +212,9 @@ def _from_habitat(p) -> np.ndarray:
 def _view_points_from_habitat(view_points: list[dict]) -> np.ndarray:
     """(V, 2) float64 calnav x-y of habitat view points (``_from_habitat`` of each, in one array
     op: a goal has thousands)."""
-    p = np.array([v["agent_state"]["position"] for v in view_points], dtype=np.float64)
-    if p.size == 0:
+    if not view_points:
         return np.zeros((0, 2))
+    p = np.array([v["agent_state"]["position"] for v in view_points], dtype=np.float64)
     if p.ndim != 2 or p.shape[1] != 3:   # (a ragged list already raised ValueError)
         raise ValueError(f"view point positions must be [x, y, z], got shape {p.shape}")
     return np.stack([p[:, 0], -p[:, 2]], axis=1)
@@ -337,16 +337,18 @@ def _cached_episodes(path: Path) -> list[ObjectNavEpisode] | None:
     """A scene's cached episodes, or None when the cache file is missing or damaged (a killed
     writer, another layout): the cache is rebuilt, as damaged scene caches are. Parsed once
     per process while the file stays the same (``_PARSED``)."""
-    if not path.exists():
+    try:
+        key = _stat_key(path)   # before reading: a file rewritten meanwhile is parsed again next time
+    except FileNotFoundError:
         return None
     hit = _PARSED.get(path)
-    if hit is not None and hit[0] == _stat_key(path):
-        return list(hit[1])
+    if hit is not None and hit[0] == key:
+        return list(hit[1])   # (the episodes themselves are shared: nothing mutates them)
     try:
         episodes = read_episode_file(path)
-    except ValueError:
+    except (ValueError, FileNotFoundError):
         return None
-    _PARSED[path] = (_stat_key(path), episodes)   # stat after read: it may have upgraded the file
+    _PARSED[path] = (key, episodes)
     return list(episodes)
 
 

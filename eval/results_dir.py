@@ -47,7 +47,10 @@ from calnav.eval.stats import METRICS
 
 # Dotted config keys that do not change results: a rerun with other values may resume the same
 # directory, and `calnav compare` never makes them columns.
-NEUTRAL_KEYS: tuple[str, ...] = ("run.workers", "run.output_dir", "run.backend", "run.ray_address")
+NEUTRAL_KEYS: tuple[str, ...] = ("run.workers", "run.output_dir", "run.backend", "run.ray_address",
+                                 # the segmenter's TorchScript trace: bit-identical logits, added after
+                                 # results directories existed (their saved configs lack it)
+                                 "agent.segmenter_config.trace", "segmenter.trace")
 LOCK_NAME = ".lock"
 CONFIG_NAME = "config.yaml"
 RECORDS_NAME = "episodes.jsonl"
@@ -129,10 +132,13 @@ class ResultsDir:
 
     def __init__(self, path: str | os.PathLike, cfg=None, *, force: bool = False,
                  discard: tuple[str, ...] = (RECORDS_NAME,), files: tuple[str, ...] = (RECORDS_NAME,),
-                 neutral_keys: tuple[str, ...] = NEUTRAL_KEYS, option: str = "--output"):
+                 neutral_keys: tuple[str, ...] = NEUTRAL_KEYS, option: str = "--output",
+                 segmenters: tuple[str, ...] | None = None, can_force: bool = True):
         self.path = Path(path)
         self.cfg, self.force, self.discard, self.files = cfg, force, discard, files
         self.neutral_keys, self.option = neutral_keys, option
+        self.segmenters = segmenters   # the segmenters this command runs, when not the config's (eval.inputs)
+        self._remedy = f"use another {option}" + (", or --force to discard them" if can_force else "")
         self._lock_fd: int | None = None
         self._fingerprints: dict | None = None
 
@@ -218,7 +224,10 @@ class ResultsDir:
     def _inputs(self) -> dict:
         """The fingerprints of the files ``cfg`` reads (``eval.inputs``), computed once per open."""
         if self._fingerprints is None:
-            self._fingerprints = input_fingerprints(self._cfg_dict(), self.neutral_keys)
+            try:
+                self._fingerprints = input_fingerprints(self._cfg_dict(), self.neutral_keys, self.segmenters)
+            except OSError as exc:   # an input file that exists but cannot be read
+                raise ResultsError(f"cannot read an input file of the config: {exc}") from None
         return self._fingerprints
 
     def _holds_other_config(self) -> bool:
@@ -246,7 +255,7 @@ class ResultsDir:
             return []
         try:
             old = json.loads(saved.read_text())
-        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        except (OSError, json.JSONDecodeError, UnicodeDecodeError) as exc:
             raise ResultsError(f"{saved} is not readable JSON ({type(exc).__name__}); remove it or "
                                f"pass another {self.option}") from None
         return changed_inputs(old if isinstance(old, dict) else {}, self._inputs())
@@ -255,13 +264,13 @@ class ResultsDir:
         """Why the directory's results are not this run's (one line), or None."""
         if self._holds_other_config():
             return (f"{self.path} holds results of a different config ({self.path / CONFIG_NAME}); "
-                    f"use another {self.option}, or --force to discard them")
+                    f"{self._remedy}")
         changed = self._other_inputs()
         if changed:
             files = ", ".join(f"{k} ({self._inputs()[k]['path'] if k in self._inputs() else 'not read now'})"
                               for k in changed)
             return (f"{self.path} holds results made with other input files: {files} changed since "
-                    f"({self.path / INPUTS_NAME}); use another {self.option}, or --force to discard them")
+                    f"({self.path / INPUTS_NAME}); {self._remedy}")
         return None
 
     def _check_config(self) -> None:

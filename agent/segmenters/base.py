@@ -71,9 +71,10 @@ class SegmenterConfig:
                                      # 1: episodes run one worker per core, and on a busy 2-core machine two
                                      # OpenMP threads stall at barriers (measured 2-10 ms -> 400-900 ms per
                                      # frame) unless OMP_WAIT_POLICY=PASSIVE is set before torch loads
-    trace: bool = True               # run the network as a TorchScript trace, one per input shape (built on first use,
-                                     # ~0.1 s): the same kernels without eager mode's per-module Python work, so the
-                                     # logits are bit-identical; measured 3.3 -> 2.5 ms per 160x120 frame, 1 thread
+    trace: bool = True               # learned_*, CPU: run the network as a TorchScript trace, one per input shape (built
+                                     # on first use, ~0.1 s): the same kernels without eager mode's per-module Python
+                                     # work, so the logits are bit-identical; measured 1.77 -> 1.47 ms (rgb) and 2.87 ->
+                                     # 2.32 ms (rgbd) per 160x120 frame, 1 thread (calnav bench). CUDA runs eager
     # --- plugged-in models: hf | onnx | a plugin (see agent.segmenters.adapter) -----------
     model: str = ""                  # hf: save_pretrained directory or hub id; onnx: .onnx file
     label_map: str = ""              # model classes -> calnav classes: "" = the model's own classes | ade20k | nyu40 |

@@ -12,8 +12,8 @@ Inference: the frame is resized to the network resolution (``SegmenterConfig.res
 default: the training resolution; area averaging for rgb, nearest for depth so invalid zeros
 never blend into valid depth), run through the network in eval mode with BatchNorm folded and
 channels-last memory, and the logits are bilinearly upsampled back to the frame size. With
-``segmenter.trace`` (the default) the network runs as a TorchScript trace made on the first
-call of each input shape: it records the same operations, so the logits are bit-identical to
+``segmenter.trace`` (the default) the network runs on the CPU as a TorchScript trace made on the
+first call of each input shape: it records the same operations, so the logits are bit-identical to
 eager mode (a test checks both models), with less Python work per call.
 """
 from __future__ import annotations
@@ -130,7 +130,10 @@ class LearnedSegmenter(BatchSegmenter):
     def _run(self, x: torch.Tensor, d: torch.Tensor | None) -> torch.Tensor:
         """The network's logits for x (B, 3, h, w) and d (B, 1, h, w) or None: eager, or the trace
         for this input shape (``segmenter.trace``; traced on first use)."""
-        if not self.cfg.trace or not hasattr(torch.jit, "trace"):   # (a torch without it: eager, same logits)
+        # CPU only: on CUDA, TorchScript's profiling executor may fuse element-wise ops after the
+        # first calls, which would not be bit-identical (and is untested here); a torch without
+        # jit.trace runs eager too -- the same logits either way
+        if not self.cfg.trace or self.device.type != "cpu" or not hasattr(torch.jit, "trace"):
             return self.net(x, d)
         key = (tuple(x.shape), None if d is None else tuple(d.shape))
         traced = self._traces.get(key)

@@ -308,7 +308,8 @@ def main_fit_glfs(args, configs: list[CalibrateMapConfig]) -> None:
     make_segmenter(args.segmenter, cfg.segmenter, device=cfg.run.device)  # a bad name or weights file fails here, before any work
     check_backend(cfg.run.backend, cfg.run.ray_address)
     houses = {sid: scene_seed(sid, cfg.run.seed) for sid in ids["calib_train"] + ids["calib_val"]}
-    with ResultsDir(work, cfg, discard=STUDY_RESULTS, files=(), option="--work-dir"):
+    with ResultsDir(work, cfg, discard=STUDY_RESULTS, files=(), option="--work-dir", segmenters=(args.segmenter,),
+                    can_force=False):
         record_houses(cfg, houses, (args.segmenter,), work)
         fits = Fits(work / "fits" / args.segmenter)
         caches = load_role(work, args.segmenter, ids["calib_train"])[0]

@@ -203,7 +203,7 @@ def test_view_points_parse_to_the_same_array_as_one_by_one():
     vps = [{"agent_state": {"position": p}} for p in pts]
     np.testing.assert_array_equal(_view_points_from_habitat(vps), np.array([_from_habitat(p) for p in pts]))
     assert _view_points_from_habitat([]).shape == (0, 2)
-    for bad in ([[1.0, 2.0, 3.0, 4.0]] * 3, [[1.0, 2.0]], [[1.0, 2.0, 3.0], [1.0]]):
+    for bad in ([[1.0, 2.0, 3.0, 4.0]] * 3, [[1.0, 2.0]], [[1.0, 2.0, 3.0], [1.0]], [[]]):
         with pytest.raises(ValueError):
             _view_points_from_habitat([{"agent_state": {"position": q}} for q in bad])
 

@@ -281,6 +281,54 @@ def test_a_changed_input_file_under_the_same_config_is_another_run(tmp_path, cap
     assert list(named) == ["segmenter.weights"]
 
 
+
+def test_input_fingerprints_follow_what_the_run_reads(tmp_path, monkeypatch):
+    """The objectnav layout's segmenter section (agent.segmenter_config) decides between a named
+    and the default weights; a relative shipped path is found from any working directory, as the
+    loaders find it; strings that are not paths never match a file; fit-glfs fingerprints only
+    its own segmenter; only files both sides list can differ."""
+    from calnav.eval.config import load_config, to_dict
+    from calnav.eval.inputs import changed_inputs, input_files
+
+    weights = tmp_path / "mine.pt"
+    weights.write_bytes(b"x")
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "val").write_text("a stray file named like a split")
+    named = input_files(to_dict(load_config(None, ["agent.segmenter=learned_rgb", f"agent.segmenter_config.weights={weights}",
+                                                   "mapping.glfs_params=agent/weights/glfs_learned_rgb.json"])))
+    assert set(named) == {"agent.segmenter_config.weights", "mapping.glfs_params"}
+    assert named["mapping.glfs_params"] == REPO_ROOT / "agent" / "weights" / "glfs_learned_rgb.json"
+    default = input_files(to_dict(load_config(None, ["agent.segmenter=learned_rgbd"])))
+    assert [p.name for p in default.values()] == ["learned_rgbd.pt"]
+    only = input_files({"study": {"segmenters": ["learned_rgb", "learned_rgbd"]}, "segmenter": {"weights": ""}},
+                       segmenters=("learned_rgb",))
+    assert [p.name for p in only.values()] == ["learned_rgb.pt"]
+    a, b = {"x": {"sha256": "1"}, "y": {"sha256": "2"}}, {"x": {"sha256": "1"}, "z": {"sha256": "3"}}
+    assert changed_inputs(a, b) == [] and changed_inputs(a, {"x": {"sha256": "9"}}) == ["x"]
+    assert changed_inputs({"x": "garbage"}, {"x": {"sha256": "1"}}) == ["x"]
+
+
+def test_a_directory_saved_before_the_trace_key_resumes(tmp_path, capsys):
+    """segmenter.trace (bit-identical logits) is a neutral key: a config.yaml written before it
+    existed (and without inputs.json) still resumes, with the one warning."""
+    import yaml
+
+    from calnav.eval.config import dump_yaml, load_config
+
+    cfg = load_config(None, ["agent.segmenter=gt"])
+    out = tmp_path / "old"
+    out.mkdir()
+    old = yaml.safe_load(dump_yaml(cfg))
+    del old["agent"]["segmenter_config"]["trace"]
+    (out / "config.yaml").write_text(yaml.safe_dump(old))
+    with ResultsDir(out, cfg):
+        pass
+    assert "has no inputs.json" in capsys.readouterr().err
+    with pytest.raises(ResultsError, match=r"use another --work-dir$"):
+        ResultsDir(out, load_config(None, ["agent.segmenter=gt", "run.seed=3"]), option="--work-dir",
+                   can_force=False).open()
+
+
 def test_check_finds_a_held_directory_and_another_config_without_writing(tmp_path):
     """ResultsDir.check (calnav map: checked before fusing, opened after) refuses what open would."""
     from calnav.eval.config import load_config
