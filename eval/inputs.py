@@ -20,6 +20,7 @@ cached per process by the file's stat, so a multirun hashes each file once.
 from __future__ import annotations
 
 import hashlib
+import json
 from pathlib import Path
 from typing import Iterator
 
@@ -115,3 +116,15 @@ def changed_inputs(saved: dict, now: dict) -> list[str]:
         entry = d.get(k)
         return entry.get("sha256") if isinstance(entry, dict) else entry
     return sorted(k for k in set(saved) & set(now) if sha(saved, k) != sha(now, k))
+
+
+def read_saved_inputs(path: Path) -> dict | None:
+    """A results directory's saved fingerprints (``inputs.json``), None when it has none;
+    ValueError (one line) when the file cannot be read as a JSON object."""
+    if not path.exists():
+        return None
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{path} is not readable JSON ({type(exc).__name__})") from None
+    return data if isinstance(data, dict) else {}

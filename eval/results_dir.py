@@ -42,7 +42,7 @@ from typing import Callable, Iterable, Iterator
 import yaml
 
 from calnav.common.atomic import write_text_atomic
-from calnav.eval.inputs import INPUTS_NAME, changed_inputs, input_fingerprints
+from calnav.eval.inputs import INPUTS_NAME, changed_inputs, input_fingerprints, read_saved_inputs
 from calnav.eval.stats import METRICS
 
 # Dotted config keys that do not change results: a rerun with other values may resume the same
@@ -246,29 +246,25 @@ class ResultsDir:
     def _other_inputs(self) -> list[str]:
         """The labels of the input files that differ from the ones the directory's results were
         made with ([] when the same, or when the directory predates ``inputs.json``: warned)."""
-        saved = self.path / INPUTS_NAME
         if not (self.path / CONFIG_NAME).exists():
             return []
-        if not saved.exists():
+        try:
+            saved = read_saved_inputs(self.path / INPUTS_NAME)
+        except ValueError as exc:
+            raise ResultsError(f"{exc}; remove it or pass another {self.option}") from None
+        if saved is None:
             warn(f"{self.path} has no {INPUTS_NAME} (made before calnav fingerprinted its input files): "
                  "resuming it cannot check that its weights and parameter files are unchanged")
             return []
-        try:
-            old = json.loads(saved.read_text())
-        except (OSError, json.JSONDecodeError, UnicodeDecodeError) as exc:
-            raise ResultsError(f"{saved} is not readable JSON ({type(exc).__name__}); remove it or "
-                               f"pass another {self.option}") from None
-        return changed_inputs(old if isinstance(old, dict) else {}, self._inputs())
+        return changed_inputs(saved, self._inputs())
 
     def _refusal(self) -> str | None:
         """Why the directory's results are not this run's (one line), or None."""
         if self._holds_other_config():
-            return (f"{self.path} holds results of a different config ({self.path / CONFIG_NAME}); "
-                    f"{self._remedy}")
+            return f"{self.path} holds results of a different config ({self.path / CONFIG_NAME}); {self._remedy}"
         changed = self._other_inputs()
         if changed:
-            files = ", ".join(f"{k} ({self._inputs()[k]['path'] if k in self._inputs() else 'not read now'})"
-                              for k in changed)
+            files = ", ".join(f"{k} ({self._inputs()[k]['path']})" for k in changed)
             return (f"{self.path} holds results made with other input files: {files} changed since "
                     f"({self.path / INPUTS_NAME}); {self._remedy}")
         return None

@@ -273,6 +273,10 @@ def test_a_changed_input_file_under_the_same_config_is_another_run(tmp_path, cap
     with ResultsDir(out, cfg):
         pass
     assert "has no inputs.json" in capsys.readouterr().err and (out / "inputs.json").exists()
+    (out / "inputs.json").unlink()
+    (out / "inputs.json").mkdir()
+    with pytest.raises(ResultsError, match=r"inputs.json is not readable JSON \(IsADirectoryError\); remove it"):
+        ResultsDir(out, cfg).open()
 
     files = input_files({"agent": {"segmenter": "learned_rgb", "exploration": "prediction", "predictor_weights": ""},
                          "segmenter": {"weights": ""}, "study": {"segmenters": ["learned_rgbd", "gt"]}})
