@@ -77,6 +77,13 @@ class VoxelVotes:
         v = ijk.astype(np.int64) + cls.KEY_OFFSET
         return (v[:, 0] << (2 * cls.KEY_BITS)) | (v[:, 1] << cls.KEY_BITS) | v[:, 2]
 
+    @classmethod
+    def decode(cls, keys: np.ndarray) -> np.ndarray:
+        """(N,) int64 keys -> (N, 3) int64 voxel indices (``encode``'s inverse)."""
+        mask = (1 << cls.KEY_BITS) - 1
+        return np.stack([(keys >> (2 * cls.KEY_BITS)) - cls.KEY_OFFSET, ((keys >> cls.KEY_BITS) & mask) - cls.KEY_OFFSET,
+                         (keys & mask) - cls.KEY_OFFSET], axis=1)
+
     def update(self, keys, cells, classes, conf) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Set the votes of unique ``keys`` (N,); returns the replaced (cells, classes, conf)."""
         idx = np.searchsorted(self.keys, keys)
@@ -255,9 +262,10 @@ class SemanticMapModule:
 
     def _project_fused(self, state: MapState, points: np.ndarray, vmap) -> None:
         """Re-project the voxels this frame hit (their fused values changed)."""
-        ijk_all = np.rint(points / self.voxel_size_m).astype(np.int64)
-        keys, first = np.unique(VoxelVotes.encode(ijk_all), return_index=True)   # sorted, as votes need
-        ijk = ijk_all[first]
+        # sorted unique keys, as the votes need; decoded rather than np.unique(return_index=True),
+        # whose stable sort took 0.95 ms against 0.52 (17k points)
+        keys = np.unique(VoxelVotes.encode(np.rint(points / self.voxel_size_m).astype(np.int64)))
+        ijk = VoxelVotes.decode(keys)
         with single_threaded_torch():   # small tensors: extra torch threads only contend
             probs, observed = vmap.query_keys(ijk)
         keys, centres, probs = keys[observed], ijk[observed] * self.voxel_size_m, probs[observed]

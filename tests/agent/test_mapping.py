@@ -70,6 +70,16 @@ def test_incremental_fused_projection_matches_full_projection():
     np.testing.assert_allclose(state.semantic, ref, atol=1e-5)
 
 
+def test_voxel_keys_decode_to_their_indices():
+    """decode inverts encode over the key range, negative indices and both ends included, and
+    sorting keys keeps each key with its own indices (the projection decodes sorted keys)."""
+    lim = VoxelVotes.KEY_OFFSET
+    ijk = np.array([[0, 0, 0], [1, -2, 3], [-lim, lim - 1, -1], [lim - 1, -lim, 0], [-5, -5, -5]], np.int64)
+    np.testing.assert_array_equal(VoxelVotes.decode(VoxelVotes.encode(ijk)), ijk)
+    keys = VoxelVotes.encode(ijk)
+    order = np.argsort(keys)
+    np.testing.assert_array_equal(VoxelVotes.decode(keys[order]), ijk[order])
+
 def test_voxel_votes_returns_replaced_entries():
     votes = VoxelVotes()
     keys = VoxelVotes.encode(np.array([[0, 0, 0], [1, -2, 3]]))
