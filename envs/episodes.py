@@ -1,4 +1,5 @@
-"""ObjectNav episodes: generation (seeded, deterministic), Habitat's JSON schema, split caching.
+"""ObjectNav episodes: generation (seeded, deterministic) and split caching (the records and
+their habitat-lab JSON files: ``envs.episode_files``).
 
 Goal view points: navigable cells whose horizontal distance to the goal object's footprint is
 at most ``view_point_radius_m`` (1.0 m) and from which some part of the object is visible at
@@ -10,34 +11,24 @@ Start poses: a navigable cell whose geodesic distance to the nearest view point 
 of a house lies near some goal; the weighting keeps a split's median above 5 m: 7.1 m on the
 default val split), with uniform heading. Like habitat-lab's generators, a start whose geodesic / Euclidean distance ratio is below ``min_euclid_ratio``
 (a straight shot) is rejected with probability ``TRIVIAL_REJECT_PROB``.
-
-On disk (habitat-lab's ObjectNav layout, gzip JSON): ``<split>/<split>.json.gz`` holds the
-category maps, ``<split>/content/<scene_id>.json.gz`` the episodes and ``goals_by_category``.
-Positions are written in Habitat's y-up frame (x_h, y_h, z_h) = (x, z, -y) and rotations as
-[x, y, z, w] quaternions about +y_h; calnav's z-up frame is restored on load. Each view point
-carries the ``iou`` key that habitat-lab's ``ObjectViewLocation`` requires, as null: calnav
-does not compute the object-in-view IoU (no measure reads it); files cached before the key
-existed get it added on load (``load_split``), nothing else in them changes.
 """
 from __future__ import annotations
 
-import gzip
 import hashlib
 import json
 import math
-import zlib
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
 from scipy import ndimage
 
-from calnav.common.atomic import atomic_path
-from calnav.common.gc_pause import gc_paused
 from calnav.envs.config import EnvConfig
+from calnav.envs.episode_files import (GoalObject, ObjectNavEpisode, cached_episodes, episodes_from_habitat,
+                                       episodes_to_habitat, write_json_gz)
 from calnav.envs.scene import Scene, cache_dir, sample_surface
 from calnav.envs.semantics import GOAL_CATEGORIES
-from calnav.envs.task import yaw_to_habitat_quaternion  # noqa: F401 (re-exported: the episode files' convention)
+from calnav.envs.task import yaw_to_habitat_quaternion
 
 GENERATOR_VERSION = 3  # 2: walls block in the nav grid; 3: starts weighted by distance^1
 TRIVIAL_REJECT_PROB = 0.98        # habitat-lab's rejection rate for near-straight episodes
@@ -45,42 +36,6 @@ SURFACE_SAMPLE_SPACING_M = 0.03   # spacing of object surface samples for footpr
 VISIBILITY_TARGETS = 48           # object surface points tested for visibility per view point
 MAX_START_TRIES = 200             # start-pose draws per episode before giving up
 START_DISTANCE_POWER = 1.0        # start cells are drawn with probability ∝ geodesic^power
-VIEW_POINT_IOU = None             # habitat-lab's ObjectViewLocation.iou: not computed by calnav
-
-
-@dataclass
-class GoalObject:
-    """One instance of a goal category. position: (3,) world centroid, metres.
-    view_points: (M, 2) float64 world xy of the view-point cell centres, metres."""
-
-    object_id: int
-    object_category: str
-    position: np.ndarray
-    view_points: np.ndarray
-
-
-@dataclass
-class ObjectNavEpisode:
-    """start_position: (2,) world xy metres; start_rotation: Habitat [x, y, z, w] start
-    quaternion, kept as the episode file stores it (habitat-lab's GPS / compass read these very
-    numbers); ``start_yaw``: the same heading in radians, counter-clockwise from +x."""
-
-    episode_id: str
-    scene_id: str
-    start_position: np.ndarray
-    start_rotation: list[float]
-    object_category: str
-    geodesic_distance: float
-    euclidean_distance: float
-    goals: list[GoalObject] = field(default_factory=list)
-
-    @property
-    def start_yaw(self) -> float:
-        return habitat_quaternion_to_yaw(self.start_rotation)
-
-    @property
-    def goal_id(self) -> int:
-        return GOAL_CATEGORIES.index(self.object_category)
 
 
 # ---------------------------------------------------------------- geometry helpers
@@ -200,112 +155,6 @@ def generate_scene_episodes(scene_id: str, scene: Scene, navgrid, raycasting_sce
     return episodes
 
 
-# ---------------------------------------------------------------- Habitat JSON schema
-def _to_habitat(xy, z: float = 0.0) -> list[float]:
-    return [float(xy[0]), float(z), float(-xy[1])]
-
-
-def _from_habitat(p) -> np.ndarray:
-    return np.array([p[0], -p[2]], dtype=np.float64)
-
-
-def _view_points_from_habitat(view_points: list[dict]) -> np.ndarray:
-    """(V, 2) float64 calnav x-y of habitat view points (``_from_habitat`` of each, in one array
-    op: a goal has thousands)."""
-    if not view_points:
-        return np.zeros((0, 2))
-    p = np.array([v["agent_state"]["position"] for v in view_points], dtype=np.float64)
-    if p.ndim != 2 or p.shape[1] != 3:   # (a ragged list already raised ValueError)
-        raise ValueError(f"view point positions must be [x, y, z], got shape {p.shape}")
-    return np.stack([p[:, 0], -p[:, 2]], axis=1)
-
-
-def habitat_quaternion_to_yaw(q) -> float:
-    theta = 2 * math.atan2(q[1], q[3])
-    return (theta + math.pi / 2) % (2 * math.pi)
-
-
-def episodes_to_habitat(episodes: list[ObjectNavEpisode]) -> dict:
-    """One scene's episodes as a habitat-lab ObjectNav content file (dict)."""
-    goals_by_category: dict[str, list[dict]] = {}
-    out = []
-    for ep in episodes:
-        key = f"{ep.scene_id}_{ep.object_category}"
-        if key not in goals_by_category:
-            goals_by_category[key] = [{
-                "object_id": g.object_id, "object_category": g.object_category,
-                "position": [float(g.position[0]), float(g.position[2]), float(-g.position[1])],
-                "view_points": [{"agent_state": {"position": _to_habitat(v), "rotation": [0.0, 0.0, 0.0, 1.0]},
-                                 "iou": VIEW_POINT_IOU} for v in g.view_points],
-            } for g in ep.goals]
-        out.append({
-            "episode_id": ep.episode_id, "scene_id": ep.scene_id,
-            "start_position": _to_habitat(ep.start_position),
-            "start_rotation": [float(c) for c in ep.start_rotation],
-            "object_category": ep.object_category,
-            "info": {"geodesic_distance": ep.geodesic_distance, "euclidean_distance": ep.euclidean_distance},
-            "goals": [],
-        })
-    return {"episodes": out, "goals_by_category": goals_by_category}
-
-
-def episodes_from_habitat(data: dict) -> list[ObjectNavEpisode]:
-    goals = {
-        key: [GoalObject(int(g["object_id"]), g["object_category"],
-                         np.array([g["position"][0], -g["position"][2], g["position"][1]], dtype=np.float64),
-                         _view_points_from_habitat(g["view_points"]))
-              for g in gs]
-        for key, gs in data.get("goals_by_category", {}).items()
-    }
-    episodes = []
-    for e in data["episodes"]:
-        key = f"{e['scene_id']}_{e['object_category']}"
-        if key not in goals:
-            raise ValueError(f"episode {e['episode_id']}: no goals_by_category entry {key!r}")
-        episodes.append(ObjectNavEpisode(
-            episode_id=str(e["episode_id"]), scene_id=e["scene_id"],
-            start_position=_from_habitat(e["start_position"]),
-            start_rotation=[float(c) for c in e["start_rotation"]],
-            object_category=e["object_category"],
-            geodesic_distance=float(e["info"]["geodesic_distance"]),
-            euclidean_distance=float(e["info"].get("euclidean_distance", float("nan"))),
-            goals=goals[key]))
-    return episodes
-
-
-def write_json_gz(path: Path, data: dict) -> None:
-    with atomic_path(path) as tmp, gzip.open(tmp, "wt") as f:
-        json.dump(data, f)
-
-
-def read_json_gz(path: Path) -> dict:
-    """The JSON object of a gzip file; ValueError naming the file when it is not readable gzip
-    JSON (EOFError: a truncated file, e.g. a killed writer)."""
-    try:
-        with gzip.open(path, "rt") as f, gc_paused():   # ~3x faster on large files (common.gc_pause)
-            data = json.load(f)
-    except (OSError, EOFError, zlib.error, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ValueError(f"corrupt episode file {path}: {exc}") from None
-    if not isinstance(data, dict):
-        raise ValueError(f"damaged episode file {path}: expected a JSON object, got {type(data).__name__}")
-    return data
-
-
-def read_episode_file(path: Path) -> list[ObjectNavEpisode]:
-    """The episodes of one habitat-lab content file (``<split>/content/<scene>.json.gz``);
-    ValueError naming the file and the missing / malformed entry when it is damaged."""
-    data = read_json_gz(path)
-    if add_view_point_iou(data):   # a file cached before calnav wrote ``iou``: upgraded in place
-        write_json_gz(path, data)
-    try:
-        with gc_paused():
-            return episodes_from_habitat(data)
-    except KeyError as exc:
-        raise ValueError(f"damaged episode file {path}: missing key {exc}") from None
-    except (TypeError, IndexError, ValueError) as exc:
-        raise ValueError(f"damaged episode file {path}: {exc}") from None
-
-
 # ---------------------------------------------------------------- splits (cached)
 def dataset_key(env_cfg: EnvConfig) -> str:
     """Hash of everything that changes the generated episodes."""
@@ -322,36 +171,6 @@ def split_dir(split: str, env_cfg: EnvConfig) -> Path:
     return cache_dir() / "episodes" / f"{split}_{dataset_key(env_cfg)}"
 
 
-# episode files already parsed in this process: path -> ((mtime_ns, size, inode), episodes). A
-# command reads its split several times (preflight, feed order, the env); a rewritten file
-# (another stat) is parsed again.
-_PARSED: dict[Path, tuple[tuple[int, int, int], list[ObjectNavEpisode]]] = {}
-
-
-def _stat_key(path: Path) -> tuple[int, int, int]:
-    st = path.stat()
-    return st.st_mtime_ns, st.st_size, st.st_ino
-
-
-def _cached_episodes(path: Path) -> list[ObjectNavEpisode] | None:
-    """A scene's cached episodes, or None when the cache file is missing or damaged (a killed
-    writer, another layout): the cache is rebuilt, as damaged scene caches are. Parsed once
-    per process while the file stays the same (``_PARSED``)."""
-    try:
-        key = _stat_key(path)   # before reading: a file rewritten meanwhile is parsed again next time
-    except FileNotFoundError:
-        return None
-    hit = _PARSED.get(path)
-    if hit is not None and hit[0] == key:
-        return list(hit[1])   # (the episodes themselves are shared: nothing mutates them)
-    try:
-        episodes = read_episode_file(path)
-    except (ValueError, FileNotFoundError):
-        return None
-    _PARSED[path] = (key, episodes)
-    return list(episodes)
-
-
 def load_split(split: str, env_cfg: EnvConfig, progress: bool = True) -> list[ObjectNavEpisode]:
     """All episodes of a split, generating (and caching) missing or damaged scenes' episodes first."""
     from calnav.envs.scenes import generation_seed, load_scene, split_scene_ids
@@ -362,7 +181,7 @@ def load_split(split: str, env_cfg: EnvConfig, progress: bool = True) -> list[Ob
         raise ValueError(f"unknown split {split!r}; valid splits: train, val, test")
     root = split_dir(split, env_cfg)
     scene_ids = split_scene_ids(split, env_cfg.dataset)
-    cached = {s: _cached_episodes(root / "content" / f"{s}.json.gz") for s in scene_ids}
+    cached = {s: cached_episodes(root / "content" / f"{s}.json.gz") for s in scene_ids}
     todo = [s for s in scene_ids if cached[s] is None]
     if todo:
         from tqdm import tqdm
@@ -382,19 +201,6 @@ def load_split(split: str, env_cfg: EnvConfig, progress: bool = True) -> list[Ob
             "category_to_scene_annotation_category_id": {c: i for i, c in enumerate(GOAL_CATEGORIES)},
         })
     return [ep for sid in scene_ids for ep in cached[sid]]
-
-
-def add_view_point_iou(data: dict) -> bool:
-    """Give every view point of a content file (dict, edited in place) the ``iou`` key that
-    habitat-lab requires (files written before calnav wrote it); True when something changed."""
-    changed = False
-    for goals in data.get("goals_by_category", {}).values():
-        for g in goals:
-            for v in g["view_points"]:
-                if "iou" not in v:
-                    v["iou"] = VIEW_POINT_IOU
-                    changed = True
-    return changed
 
 
 def parse_episode_range(spec: str, n_total: int) -> range:

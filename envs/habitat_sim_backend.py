@@ -46,7 +46,9 @@ from habitat.core.simulator import (AgentState, DepthSensor, RGBSensor, Semantic
 from habitat.sims.habitat_simulator.actions import HabitatSimActions  # noqa: E402
 
 from calnav.envs.config import EnvConfig  # noqa: E402
-from calnav.envs.episodes import habitat_quaternion_to_yaw, view_point_mask, yaw_to_habitat_quaternion  # noqa: E402
+from calnav.envs.episode_files import habitat_quaternion_to_yaw  # noqa: E402
+from calnav.envs.episodes import view_point_mask  # noqa: E402
+from calnav.envs.task import yaw_to_habitat_quaternion  # noqa: E402
 from calnav.envs.habitat_config import (check_same_episodes, env_overrides_from_sim, read_descriptor,  # noqa: E402
                                  sensor_configs)
 from calnav.envs.motion import apply_action, tilt  # noqa: E402

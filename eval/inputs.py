@@ -49,15 +49,12 @@ def _as_file(value: str) -> Path | None:
     then the repository root for a relative path), or None. Only strings that look like paths
     (a suffix or a directory part) are considered, so a value such as ``val`` never matches a
     stray file of that name."""
-    from calnav.mapping.glfs import REPO_ROOT
+    from calnav.mapping.glfs import resolve_repo_path
 
-    path = Path(value)
-    if not path.suffix and len(path.parts) < 2:
+    if not Path(value).suffix and len(Path(value).parts) < 2:
         return None
-    for candidate in (path, REPO_ROOT / path) if not path.is_absolute() else (path,):
-        if candidate.is_file():
-            return candidate
-    return None
+    path = resolve_repo_path(value)
+    return path if path.is_file() else None
 
 
 def _leaves(d: dict, prefix: str = "") -> Iterator[tuple[str, object]]:

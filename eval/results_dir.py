@@ -48,9 +48,7 @@ from calnav.eval.stats import METRICS
 # Dotted config keys that do not change results: a rerun with other values may resume the same
 # directory, and `calnav compare` never makes them columns.
 NEUTRAL_KEYS: tuple[str, ...] = ("run.workers", "run.output_dir", "run.backend", "run.ray_address",
-                                 # the segmenter's TorchScript trace: bit-identical logits, added after
-                                 # results directories existed (their saved configs lack it)
-                                 "agent.segmenter_config.trace", "segmenter.trace")
+                                 "agent.segmenter_config.trace", "segmenter.trace")   # (trace: bit-identical logits)
 LOCK_NAME = ".lock"
 CONFIG_NAME = "config.yaml"
 RECORDS_NAME = "episodes.jsonl"

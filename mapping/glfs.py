@@ -25,6 +25,16 @@ FORMAT_VERSION = 1
 REPO_ROOT = Path(__file__).resolve().parents[1]
 
 
+def resolve_repo_path(path: str | os.PathLike) -> Path:
+    """``path`` as given, or, when it is relative and missing from the working directory, the
+    same path under the repository root if it exists there (how configs name shipped files such
+    as ``agent/weights/glfs_learned_rgb.json``; ``eval.inputs`` fingerprints by the same rule)."""
+    path = Path(path)
+    if not path.exists() and not path.is_absolute() and (REPO_ROOT / path).exists():
+        return REPO_ROOT / path
+    return path
+
+
 @dataclass
 class GLFSParams:
     tau: np.ndarray
@@ -116,9 +126,7 @@ class GLFSParams:
         directory is also looked up from the repository root (so configs can name shipped files
         such as ``agent/weights/glfs_learned_rgb.json``). With ``class_names``, the parameters
         must be for exactly those classes. Every error is a ValueError naming the file."""
-        path = Path(path)
-        if not path.exists() and not path.is_absolute() and (REPO_ROOT / path).exists():
-            path = REPO_ROOT / path
+        path = resolve_repo_path(path)
         if not path.is_file():
             raise ValueError(f"GLFS params file not found: {path}" + (" (a directory)" if path.is_dir() else ""))
         if path.suffix == ".npz":

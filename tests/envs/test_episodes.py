@@ -9,9 +9,9 @@ import pytest
 
 from tests.conftest import small_or_full
 from calnav.envs.config import EnvConfig
-from calnav.envs.episodes import (episodes_from_habitat, episodes_to_habitat, generate_scene_episodes,
-                           goal_mask, habitat_quaternion_to_yaw, load_split, parse_episode_range,
-                           split_dir, yaw_to_habitat_quaternion)
+from calnav.envs.episode_files import episodes_from_habitat, episodes_to_habitat, habitat_quaternion_to_yaw
+from calnav.envs.episodes import generate_scene_episodes, goal_mask, load_split, parse_episode_range, split_dir
+from calnav.envs.task import yaw_to_habitat_quaternion
 from calnav.envs.navigation import NavGrid
 from calnav.envs.primitives import box_room_scene
 from calnav.envs.render import Camera, Renderer
@@ -158,7 +158,7 @@ def test_damaged_episode_cache_is_regenerated(small_env_config, damage):
 
 
 def test_damaged_episode_file_is_named(tmp_path):
-    from calnav.envs.episodes import read_episode_file
+    from calnav.envs.episode_files import read_episode_file
 
     path = tmp_path / "given.json.gz"
     with gzip.open(path, "wt") as f:
@@ -173,7 +173,7 @@ def test_damaged_episode_file_is_named(tmp_path):
 def test_old_episode_files_get_the_iou_key_and_nothing_else_changes(small_env_config):
     """habitat-lab's ObjectViewLocation needs ``iou`` on every view point: files cached before
     calnav wrote it get it on load, and the episodes read back the same."""
-    from calnav.envs.episodes import read_json_gz, write_json_gz
+    from calnav.envs.episode_files import read_json_gz, write_json_gz
 
     cfg = small_env_config
     before = load_split("val", cfg, progress=False)
@@ -197,7 +197,7 @@ def test_view_points_parse_to_the_same_array_as_one_by_one():
     empty (0, 2) array for none)."""
     import numpy as np
 
-    from calnav.envs.episodes import _from_habitat, _view_points_from_habitat
+    from calnav.envs.episode_files import _from_habitat, _view_points_from_habitat
 
     pts = [[1.25, 0.0, -3.5], [0.1, 0.2, 0.30000000000000004], [-7.0, 1.0, 2.0]]
     vps = [{"agent_state": {"position": p}} for p in pts]
@@ -211,8 +211,8 @@ def test_view_points_parse_to_the_same_array_as_one_by_one():
 def test_an_episode_file_is_parsed_once_per_process_until_it_changes(tmp_path, monkeypatch):
     """load_split's per-file cache: a second read of an unchanged file does not parse it again;
     a rewritten file (new stat) is parsed again and its new content returned."""
-    import calnav.envs.episodes as episodes_mod
-    from calnav.envs.episodes import ObjectNavEpisode, _cached_episodes, episodes_to_habitat, write_json_gz
+    import calnav.envs.episode_files as episodes_mod
+    from calnav.envs.episode_files import ObjectNavEpisode, cached_episodes, episodes_to_habitat, write_json_gz
 
     ep = ObjectNavEpisode(episode_id="0", scene_id="s", start_position=np.zeros(2), start_rotation=[0.0, 0.0, 0.0, 1.0],
                           object_category="chair", geodesic_distance=2.0, euclidean_distance=1.5, goals=[])
@@ -221,10 +221,10 @@ def test_an_episode_file_is_parsed_once_per_process_until_it_changes(tmp_path, m
     calls = []
     real = episodes_mod.read_episode_file
     monkeypatch.setattr(episodes_mod, "read_episode_file", lambda p: calls.append(p) or real(p))
-    first, second = _cached_episodes(path), _cached_episodes(path)
+    first, second = cached_episodes(path), cached_episodes(path)
     assert len(calls) == 1 and [e.episode_id for e in second] == ["0"] and first is not second
     ep.episode_id = "7"
     write_json_gz(path, episodes_to_habitat([ep]))
-    assert [e.episode_id for e in _cached_episodes(path)] == ["7"] and len(calls) == 2
+    assert [e.episode_id for e in cached_episodes(path)] == ["7"] and len(calls) == 2
     path.unlink()
-    assert _cached_episodes(path) is None
+    assert cached_episodes(path) is None

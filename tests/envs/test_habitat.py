@@ -78,7 +78,7 @@ def test_shipped_habitat_configs_compose(name):
 def test_episode_files_load_with_objectnav_dataset_v1(setup):
     from habitat.datasets.object_nav.object_nav_dataset import ObjectNavDatasetV1
 
-    from calnav.envs.episodes import habitat_quaternion_to_yaw
+    from calnav.envs.episode_files import habitat_quaternion_to_yaw
     from calnav.envs.semantics import GOAL_CATEGORIES
 
     hcfg, _, calnav = setup
