@@ -91,6 +91,7 @@ class PeanutAgent:
         self.prev_xy = xy.copy()
         self.ltg: tuple[int, int] | None = None
         self.ltg_age = 0
+        self.ltg_predicted = False   # the long-term goal came from the prediction (an unexplored cell)
         self.frontiers: np.ndarray | None = None
         self.excluded = np.zeros((self.state.size,) * 2, bool)  # unreachable frontier cells
         self.rejected = np.zeros_like(self.excluded)             # goal candidates verified as wrong
@@ -230,7 +231,11 @@ class PeanutAgent:
         reached = local is not None and math.dist(local, agent_rc) <= cfg.ring_cells
         if reached:  # a frontier still open once reached cannot be seen past (e.g. too close for depth)
             self._exclude_around(self.ltg)
-        if local is None or reached or self.ltg_age >= cfg.replan_steps:
+        # a predicted goal is worth walking to only while unseen: once its cell is explored the
+        # prediction there is void (its value would be 0), so re-choose instead of walking on
+        seen = (cfg.prediction_replan_seen and self.ltg_predicted and local is not None
+                and bool(self.state.channels[MapChannels.EXPLORED][self.ltg]))
+        if local is None or reached or seen or self.ltg_age >= cfg.replan_steps:
             local = self._choose_ltg(agent_rc, free)
         for _ in range(2):  # one retry with a new frontier if the current one is unreachable
             if local is None:
@@ -293,13 +298,13 @@ class PeanutAgent:
         if self.predictor is not None:
             goal = self._predicted_ltg(agent_rc, free)
             if goal is not None:
-                self.ltg_age = 0
+                self.ltg_age, self.ltg_predicted = 0, True
                 self.ltg = (goal[0] + win[0].start, goal[1] + win[1].start)
                 return goal
         prior = prior_mask(st.semantic[:, win[0], win[1]], self.goal_name, self.class_names, cfg)
         choice = choose_frontier(st.channels[MapChannels.EXPLORED][win], st.traversable(cfg, win), agent_rc, cfg,
                                  prior=prior, exclude=self.excluded[win])
-        self.ltg_age = 0
+        self.ltg_age, self.ltg_predicted = 0, False
         if choice is None:
             self.ltg = self.frontiers = None
             return None

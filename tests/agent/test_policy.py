@@ -162,3 +162,32 @@ def test_agent_escapes_a_trap_it_cannot_see(open_heading_deg):
     bound = round(360 / cfg.env.turn_angle_deg) + a.stuck_steps + a.untrap_steps + 2
     assert world.moves and world.moves[0] <= bound, world.moves[:3]
     assert len(world.moves) >= 10    # then it keeps moving (no loop in place)
+
+
+@pytest.mark.parametrize("replan_seen", [False, True])
+def test_a_predicted_goal_is_rechosen_once_its_cell_is_seen(replan_seen, monkeypatch):
+    """agent.prediction_replan_seen: a long-term goal from the prediction (an unexplored cell)
+    is re-chosen as soon as its cell is explored; an unseen one, or a frontier goal (explored by
+    definition), is kept until replan_steps."""
+    from calnav.agent.policy import PeanutAgent
+    from calnav.agent.semantic_map import MapChannels
+
+    cfg = load_config(None, ["env.resolution=64x48", "agent.map_resolution=64x48", "agent.map_size_m=16",
+                             "mapping.initial_alloc_mb=16", "agent.exploration=prediction",
+                             f"agent.prediction_replan_seen={str(replan_seen).lower()}"])
+    world, agent = TrapWorld(cfg, 0.0), PeanutAgent(cfg)
+    agent.reset(world.obs())
+    agent.act(world.obs())
+    n = agent.state.size
+    agent.window = (slice(0, n), slice(0, n))
+    here = (n // 2, n // 2)
+    free = np.ones((n, n), bool)
+    calls = []
+    monkeypatch.setattr(agent, "_choose_ltg", lambda rc, free_: calls.append(rc))   # returns None: nothing chosen
+    explored = agent.state.channels[MapChannels.EXPLORED]
+    for predicted, seen, rechosen in [(True, False, False), (True, True, replan_seen), (False, True, False)]:
+        calls.clear()
+        agent.ltg, agent.ltg_age, agent.ltg_predicted = (here[0] + 20, here[1]), 0, predicted
+        explored[agent.ltg] = seen
+        agent._explore(here, 0.0, free, None)
+        assert bool(calls) == rechosen, (predicted, seen)
