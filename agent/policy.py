@@ -92,6 +92,7 @@ class PeanutAgent:
         self.ltg: tuple[int, int] | None = None
         self.ltg_age = 0
         self.ltg_predicted = False   # the long-term goal came from the prediction (an unexplored cell)
+        self.left_ltg: tuple[int, int] | None = None   # the predicted goal given up for the current one
         self.frontiers: np.ndarray | None = None
         self.excluded = np.zeros((self.state.size,) * 2, bool)  # unreachable frontier cells
         self.rejected = np.zeros_like(self.excluded)             # goal candidates verified as wrong
@@ -236,7 +237,8 @@ class PeanutAgent:
         seen = (cfg.prediction_replan_seen and self.ltg_predicted and local is not None
                 and bool(self.state.channels[MapChannels.EXPLORED][self.ltg]))
         if local is None or reached or seen or self.ltg_age >= cfg.replan_steps:
-            local = self._choose_ltg(agent_rc, free)
+            # a periodic re-choice may keep the current goal (PEANUT's rule against flip-flopping)
+            local = self._choose_ltg(agent_rc, free, current=None if (reached or seen) else local)
         for _ in range(2):  # one retry with a new frontier if the current one is unreachable
             if local is None:
                 break
@@ -290,16 +292,26 @@ class PeanutAgent:
                                 cfg.prediction_distance_m, cfg.cell_m)
         return None if choice is None else choice[0]
 
-    def _choose_ltg(self, agent_rc, free: np.ndarray) -> tuple[int, int] | None:
+    def _choose_ltg(self, agent_rc, free: np.ndarray, current: tuple[int, int] | None = None
+                    ) -> tuple[int, int] | None:
         """Choose a long-term goal (window coordinates in and out): the predicted one with
         ``exploration: prediction`` when the prediction offers one, else a frontier; remembers
-        it in map coordinates."""
+        it in map coordinates. ``current``: the goal being walked to when it is still valid
+        (a periodic re-choice): a predicted goal is then kept if the new one is the goal it
+        replaced (PEANUT's agent: two goals of near-equal value otherwise alternate at every
+        re-choice, the agent walking back and forth between them)."""
         st, cfg, win = self.state, self.cfg, self.window
         if self.predictor is not None:
             goal = self._predicted_ltg(agent_rc, free)
             if goal is not None:
-                self.ltg_age, self.ltg_predicted = 0, True
-                self.ltg = (goal[0] + win[0].start, goal[1] + win[1].start)
+                new = (goal[0] + win[0].start, goal[1] + win[1].start)
+                rad = int(cfg.goal_dilation_m / cfg.cell_m)   # goals this close share a goal region
+                if current is not None and self.ltg_predicted and _near(new, self.left_ltg, rad):
+                    self.ltg_age = 0
+                    return current
+                if not (self.ltg_predicted and _near(new, self.ltg, rad)):   # a new goal, not the same one moved
+                    self.left_ltg = self.ltg if self.ltg_predicted else None
+                self.ltg_age, self.ltg_predicted, self.ltg = 0, True, new
                 return goal
         prior = prior_mask(st.semantic[:, win[0], win[1]], self.goal_name, self.class_names, cfg)
         choice = choose_frontier(st.channels[MapChannels.EXPLORED][win], st.traversable(cfg, win), agent_rc, cfg,
@@ -312,3 +324,8 @@ class PeanutAgent:
         self.frontiers[win] = choice.frontiers
         self.ltg = (choice.goal[0] + win[0].start, choice.goal[1] + win[1].start)
         return choice.goal
+
+
+def _near(a: tuple[int, int], b: tuple[int, int] | None, cells: int) -> bool:
+    """Map cells a and b within ``cells`` of each other along both axes (False without b)."""
+    return b is not None and max(abs(a[0] - b[0]), abs(a[1] - b[1])) <= cells

@@ -183,7 +183,7 @@ def test_a_predicted_goal_is_rechosen_once_its_cell_is_seen(replan_seen, monkeyp
     here = (n // 2, n // 2)
     free = np.ones((n, n), bool)
     calls = []
-    monkeypatch.setattr(agent, "_choose_ltg", lambda rc, free_: calls.append(rc))   # returns None: nothing chosen
+    monkeypatch.setattr(agent, "_choose_ltg", lambda rc, free_, current=None: calls.append(rc))   # None: nothing chosen
     explored = agent.state.channels[MapChannels.EXPLORED]
     for predicted, seen, rechosen in [(True, False, False), (True, True, replan_seen), (False, True, False)]:
         calls.clear()
@@ -191,3 +191,25 @@ def test_a_predicted_goal_is_rechosen_once_its_cell_is_seen(replan_seen, monkeyp
         explored[agent.ltg] = seen
         agent._explore(here, 0.0, free, None)
         assert bool(calls) == rechosen, (predicted, seen)
+
+
+def test_a_periodic_rechoice_never_returns_to_the_predicted_goal_just_left(monkeypatch):
+    """PEANUT's rule: predicted goals A -> B, then A again at a periodic re-choice keeps B (no
+    walking back and forth between two goals of near-equal value); once B is seen or reached
+    (no current goal), A may be chosen; a goal within goal_dilation_m of A counts as A."""
+    from calnav.agent.policy import PeanutAgent
+
+    cfg = load_config(None, ["env.resolution=64x48", "agent.map_resolution=64x48", "agent.map_size_m=16",
+                             "mapping.initial_alloc_mb=16", "agent.exploration=prediction"])
+    world, agent = TrapWorld(cfg, 0.0), PeanutAgent(cfg)
+    agent.reset(world.obs())
+    agent.act(world.obs())
+    n = agent.state.size
+    agent.window = (slice(0, n), slice(0, n))
+    here, free = (n // 2, n // 2), np.ones((n, n), bool)
+    a, b, a_moved = (here[0] + 30, here[1]), (here[0] - 30, here[1]), (here[0] + 33, here[1] + 2)
+    offers = iter([a, b, a_moved, a])
+    monkeypatch.setattr(agent, "_predicted_ltg", lambda rc, free_: next(offers))
+    assert agent._choose_ltg(here, free) == a and agent._choose_ltg(here, free, current=a) == b
+    assert agent._choose_ltg(here, free, current=b) == b and agent.ltg == b    # A (moved) again: keep B
+    assert agent._choose_ltg(here, free, current=None) == a and agent.ltg == a  # B seen: A is fine
