@@ -53,6 +53,7 @@ class AgentConfig:
     predictor_weights: str = ""         # prediction: weight file of calnav train-predictor; "" = agent/weights/predictor.pt
     prediction_distance_m: float = 5.0  # prediction: value = probability x exp(-geodesic distance / this), metres (PEANUT: 500 cm)
     prediction_replan_seen: bool = True  # prediction: re-choose the goal once its cell is explored (PEANUT: at the next call, every replan_steps)
+    prediction_no_switch_back: bool = True  # prediction: a periodic re-choice keeps the goal if the new one is the goal it replaced (PEANUT)
     semantic_prior: SemanticPrior = "none"  # none | cooccurrence (frontiers near co-occurring classes)
     prior_bonus_m: float = 2.0          # cooccurrence: distance bonus of a frontier near a related class, metres
     prior_radius_m: float = 1.5         # cooccurrence: "near" means within this, metres

@@ -306,7 +306,8 @@ class PeanutAgent:
             if goal is not None:
                 new = (goal[0] + win[0].start, goal[1] + win[1].start)
                 rad = int(cfg.goal_dilation_m / cfg.cell_m)   # goals this close share a goal region
-                if current is not None and self.ltg_predicted and _near(new, self.left_ltg, rad):
+                if cfg.prediction_no_switch_back and current is not None and self.ltg_predicted \
+                        and _near(new, self.left_ltg, rad):
                     self.ltg_age = 0
                     return current
                 if not (self.ltg_predicted and _near(new, self.ltg, rad)):   # a new goal, not the same one moved

@@ -196,7 +196,10 @@ def test_a_predicted_goal_is_rechosen_once_its_cell_is_seen(replan_seen, monkeyp
 def test_a_periodic_rechoice_never_returns_to_the_predicted_goal_just_left(monkeypatch):
     """PEANUT's rule: predicted goals A -> B, then A again at a periodic re-choice keeps B (no
     walking back and forth between two goals of near-equal value); once B is seen or reached
-    (no current goal), A may be chosen; a goal within goal_dilation_m of A counts as A."""
+    (no current goal), A may be chosen; a goal within goal_dilation_m of A counts as A; with
+    agent.prediction_no_switch_back=false the agent flips back."""
+    import dataclasses
+
     from calnav.agent.policy import PeanutAgent
 
     cfg = load_config(None, ["env.resolution=64x48", "agent.map_resolution=64x48", "agent.map_size_m=16",
@@ -213,3 +216,6 @@ def test_a_periodic_rechoice_never_returns_to_the_predicted_goal_just_left(monke
     assert agent._choose_ltg(here, free) == a and agent._choose_ltg(here, free, current=a) == b
     assert agent._choose_ltg(here, free, current=b) == b and agent.ltg == b    # A (moved) again: keep B
     assert agent._choose_ltg(here, free, current=None) == a and agent.ltg == a  # B seen: A is fine
+    agent.cfg = dataclasses.replace(agent.cfg, prediction_no_switch_back=False)
+    offers = iter([b, a])
+    assert agent._choose_ltg(here, free, current=a) == b and agent._choose_ltg(here, free, current=b) == a   # off: flips
