@@ -1,8 +1,22 @@
 """Versioned torch weight files: a plain dict saved with ``torch.save``, loaded with
-``weights_only=True`` and a ``format`` number, with errors that name the file and how to make it."""
+``weights_only=True`` and a ``format`` number, with errors that name the file and how to make it;
+and the lookup of shipped files that configs name relative to the repository root."""
 from __future__ import annotations
 
+import os
 from pathlib import Path
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+
+
+def resolve_repo_path(path: str | os.PathLike) -> Path:
+    """``path`` as given, or, when it is relative and missing from the working directory, the
+    same path under the repository root if it exists there (how configs name shipped files such
+    as ``agent/weights/glfs_learned_rgb.json``; ``eval.inputs`` fingerprints by the same rule)."""
+    path = Path(path)
+    if not path.exists() and not path.is_absolute() and (REPO_ROOT / path).exists():
+        return REPO_ROOT / path
+    return path
 
 
 def load_weight_dict(path: Path | str, what: str, fmt: int, create: str) -> dict:

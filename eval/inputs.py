@@ -49,7 +49,7 @@ def _as_file(value: str) -> Path | None:
     then the repository root for a relative path), or None. Only strings that look like paths
     (a suffix or a directory part) are considered, so a value such as ``val`` never matches a
     stray file of that name."""
-    from calnav.mapping.glfs import resolve_repo_path
+    from calnav.common.weights import resolve_repo_path
 
     if not Path(value).suffix and len(Path(value).parts) < 2:
         return None

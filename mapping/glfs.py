@@ -19,20 +19,10 @@ import torch
 
 from calnav.common.atomic import write_json_atomic
 from calnav.common.npz import check_format_version, load_versioned_npz, save_versioned_npz
+from calnav.common.weights import resolve_repo_path
 from calnav.mapping.weighting import ANGLE_EDGES_DEG, DISTANCE_EDGES_M
 
 FORMAT_VERSION = 1
-REPO_ROOT = Path(__file__).resolve().parents[1]
-
-
-def resolve_repo_path(path: str | os.PathLike) -> Path:
-    """``path`` as given, or, when it is relative and missing from the working directory, the
-    same path under the repository root if it exists there (how configs name shipped files such
-    as ``agent/weights/glfs_learned_rgb.json``; ``eval.inputs`` fingerprints by the same rule)."""
-    path = Path(path)
-    if not path.exists() and not path.is_absolute() and (REPO_ROOT / path).exists():
-        return REPO_ROOT / path
-    return path
 
 
 @dataclass
