@@ -1,9 +1,10 @@
 """Local planning (standalone): a geodesic distance field to the goal region on the planning
 map, a short-term goal on a ring around the agent, and the discrete action toward it.
 
-Distances are Dijkstra/FMM-like geometric costs (scikit-image ``MCP_Geometric``, 8-connected,
-diagonal steps cost sqrt(2)) in cells, computed on the bounding box of the free cells plus a
-margin so the cost follows the explored area, not the map size.
+Distances are geometric Dijkstra costs in cells (8-connected, diagonal steps cost sqrt(2): the
+distances of scikit-image's ``MCP_Geometric``, from the compiled kernel ``agent.dijkstra``),
+computed on the bounding box of the free cells plus a margin so the cost follows the explored
+area, not the map size.
 """
 from __future__ import annotations
 
@@ -11,9 +12,8 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from skimage.graph import MCP_Geometric
-
 from calnav.agent.config import AgentConfig
+from calnav.agent.dijkstra import geodesic
 from calnav.agent.projection import dilate, disc_offsets
 from calnav.envs.task import Action
 
@@ -50,16 +50,13 @@ def geodesic_distance(free: np.ndarray, sources: np.ndarray, cost: np.ndarray | 
     rs, cs = free_crop(passable, [])
     base = 1.0 if cost is None else cost[rs, cs]
     costs = np.where(passable[rs, cs], base, np.inf)
-    mcp = MCP_Geometric(costs, fully_connected=True)
     ends = None
     if targets is not None:
         t = np.asarray(targets, int).reshape(-1, 2)
         inside = (t[:, 0] >= rs.start) & (t[:, 0] < rs.stop) & (t[:, 1] >= cs.start) & (t[:, 1] < cs.stop)
         t = t[inside]
-        t = t[passable[t[:, 0], t[:, 1]]] - (rs.start, cs.start)
-        ends = [tuple(v) for v in t] or None
-    dist, _ = mcp.find_costs(src - (rs.start, cs.start), ends=ends)
-    out[rs, cs] = dist
+        ends = t[passable[t[:, 0], t[:, 1]]] - (rs.start, cs.start)
+    out[rs, cs] = geodesic(costs, src - (rs.start, cs.start), ends)
     out[~passable] = np.inf
     return out
 
