@@ -94,11 +94,18 @@ class VoxelVotes:
         self.cells[fi], self.classes[fi], self.conf[fi] = cells[found], classes[found], conf[found]
         new = ~found
         if new.any():
-            pos = idx[new]
-            self.keys = np.insert(self.keys, pos, keys[new])
-            self.cells = np.insert(self.cells, pos, cells[new])
-            self.classes = np.insert(self.classes, pos, classes[new])
-            self.conf = np.insert(self.conf, pos, conf[new])
+            # merge the new votes in (keys unique and sorted, so their insertion points are
+            # non-decreasing): one placement mask for all four arrays, not four np.insert calls
+            at = idx[new] + np.arange(int(new.sum()))
+            placed = np.zeros(len(self.keys) + len(at), bool)
+            placed[at] = True
+            kept = ~placed
+            merged = []
+            for have, add in ((self.keys, keys), (self.cells, cells), (self.classes, classes), (self.conf, conf)):
+                out = np.empty(len(placed), have.dtype)
+                out[placed], out[kept] = add[new], have
+                merged.append(out)
+            self.keys, self.cells, self.classes, self.conf = merged
         return old
 
 
@@ -263,8 +270,13 @@ class SemanticMapModule:
     def _project_fused(self, state: MapState, points: np.ndarray, vmap) -> None:
         """Re-project the voxels this frame hit (their fused values changed)."""
         # sorted unique keys, as the votes need; decoded rather than np.unique(return_index=True),
-        # whose stable sort took 0.95 ms against 0.52 (17k points)
-        keys = np.unique(VoxelVotes.encode(np.rint(points / self.voxel_size_m).astype(np.int64)))
+        # whose stable sort took 0.95 ms against 0.52 (17k points). Neighbouring pixels of a row
+        # mostly fall in one voxel: repeats of the previous key go first (one O(n) pass leaves
+        # ~1/3 of the points at 160x120), the same set for np.unique to sort
+        keys = VoxelVotes.encode(np.rint(points / self.voxel_size_m).astype(np.int64))
+        if len(keys) > 1:
+            keys = keys[np.concatenate(([True], keys[1:] != keys[:-1]))]
+        keys = np.unique(keys)
         ijk = VoxelVotes.decode(keys)
         with single_threaded_torch():   # small tensors: extra torch threads only contend
             probs, observed = vmap.query_keys(ijk)

@@ -1,5 +1,7 @@
 """Agent map stages: ground-plane projection, goal detection, frontiers, collision marking."""
 import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from calnav.agent.collision import CollisionTracker, collision_points, is_collision
 from calnav.agent.config import AgentConfig
@@ -88,6 +90,25 @@ def test_voxel_votes_returns_replaced_entries():
     old = votes.update(keys[:1], np.array([9]), np.array([4], np.int16), np.array([0.9], np.float32))
     assert old[0].tolist() == [5] and old[1].tolist() == [1]
     assert len(votes.keys) == 2
+
+
+@settings(max_examples=50, deadline=None)
+@given(batches=st.lists(st.lists(st.integers(-50, 50), max_size=30), min_size=1, max_size=6))
+def test_voxel_votes_match_a_dictionary(batches):
+    """Batches of unique sorted keys (new ones merged in, known ones replaced): the votes stay
+    sorted, hold the latest vote of every key, and return what each batch replaced."""
+    votes, model = VoxelVotes(), {}
+    for i, batch in enumerate(batches):
+        keys = np.unique(np.asarray(batch, np.int64))
+        cells, classes = keys * 7 + i, (keys % 5 + i).astype(np.int16)
+        conf = (np.abs(keys) / 100 + i).astype(np.float32)
+        old = votes.update(keys, cells, classes, conf)
+        replaced = [model[k] for k in keys.tolist() if k in model]
+        assert [tuple(v) for v in zip(*(a.tolist() for a in old))] == replaced
+        model.update({k: (c, l, f) for k, c, l, f in zip(keys.tolist(), cells.tolist(), classes.tolist(), conf.tolist())})
+        assert votes.keys.tolist() == sorted(model)
+        assert list(zip(votes.cells.tolist(), votes.classes.tolist(), votes.conf.tolist())) == [model[k] for k in sorted(model)]
+        assert votes.classes.dtype == np.int16 and votes.conf.dtype == np.float32
 
 
 def test_goal_detection_threshold_components_and_min_area():
