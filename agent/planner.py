@@ -92,7 +92,6 @@ class Planner:
     def __init__(self, cfg: AgentConfig):
         self.cfg = cfg
         self.turn_rad = math.radians(cfg.turn_threshold_deg)
-        self._goal_kernel = disc_offsets(cfg.goal_dilation_m / cfg.cell_m)
         self._ring = self._ring_offsets(cfg.ring_cells)
         self._start_disc = disc_offsets(cfg.agent_radius_m / cfg.cell_m)
 
@@ -105,13 +104,7 @@ class Planner:
 
     def goal_region(self, goal: np.ndarray) -> np.ndarray:
         """The goal mask dilated by goal_dilation_m (bool (n, n))."""
-        out = goal.copy()
-        pts = np.argwhere(goal)
-        if len(pts) == 0:
-            return out
-        cells = inside((pts[:, None, :] + self._goal_kernel[None]).reshape(-1, 2), goal.shape)
-        out[cells[:, 0], cells[:, 1]] = True
-        return out
+        return dilate(goal, self.cfg.goal_dilation_m / self.cfg.cell_m)
 
     def plan(self, free: np.ndarray, goal: np.ndarray, agent_rc: tuple[int, int], yaw: float) -> Plan:
         """free (h, w) bool planning map; goal (h, w) bool goal cells; agent cell; yaw rad."""

@@ -9,6 +9,8 @@ row * n + col.
 """
 from __future__ import annotations
 
+import functools
+
 import cv2
 import numpy as np
 
@@ -188,9 +190,17 @@ def disc_offsets(radius_cells: float) -> np.ndarray:
 
 def dilate(mask: np.ndarray, radius_cells: float) -> np.ndarray:
     """Bool mask dilated by a disc of ``radius_cells``."""
-    r = int(np.ceil(radius_cells))
-    if r <= 0:
+    if int(np.ceil(radius_cells)) <= 0:
         return mask.copy()
+    # a 0/1 byte view in and out (no copies; cv2 keeps 0/1 values 0/1)
+    return cv2.dilate(np.ascontiguousarray(mask, dtype=bool).view(np.uint8), _disc_kernel(float(radius_cells))).view(bool)
+
+
+@functools.lru_cache(maxsize=32)
+def _disc_kernel(radius_cells: float) -> np.ndarray:
+    """(2r + 1, 2r + 1) uint8 structuring element of ``disc_offsets(radius_cells)`` (the agent
+    dilates with a few fixed radii every step)."""
+    r = int(np.ceil(radius_cells))
     kernel = np.zeros((2 * r + 1, 2 * r + 1), np.uint8)
     kernel[tuple((disc_offsets(radius_cells) + r).T)] = 1
-    return cv2.dilate(mask.astype(np.uint8), kernel).astype(bool)
+    return kernel

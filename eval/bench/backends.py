@@ -15,6 +15,12 @@ in the local process pool, on this machine with the same number of workers.
   core), once with ``run.workers=W`` on W cores (W = this machine's cores); efficiency =
   T1 / (W x TW), 1 = perfect scaling (target >= 0.9). Wall times of the whole commands
   (start-up included): ``backends.study_1_worker_s`` / ``backends.study_w_workers_s``.
+- ``backends.concurrency_ceiling``: what the machine itself allows: W copies of the one-worker
+  command started together (W independent processes, one thread each, no pool, no shared
+  driver); ceiling = T1 / (the slowest copy's wall time), 1 = the cores do not slow each other
+  down. Shared caches, memory bandwidth and a virtual machine's clock keep it below 1; the
+  pool's efficiency cannot exceed it. ``backends.efficiency_vs_ceiling``: the ratio of the two
+  (what the pool loses to its own start-up, feeding and driver).
 
 The Ray figures are skipped when Ray is not installed; the efficiency is measured regardless.
 """
@@ -68,17 +74,33 @@ def parallel_efficiency(ctx) -> dict[str, float]:
     cores = os.cpu_count() or 1
     episodes = QUICK_EFFICIENCY_EPISODES if ctx.quick else EFFICIENCY_EPISODES
     extra = [f"env.max_episode_steps={QUICK_STEPS}"] if ctx.quick else []
-    times = {}
+    one_core = dict(os.environ) | {ENV: "1", "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+
+    def command(out: Path, workers: int) -> list[str]:
+        return [sys.executable, "-m", "calnav", "objectnav", "--episodes", episodes, "--output", str(out),
+                *STUDY, *extra, f"run.workers={workers}"]
+
+    def timed(runs: list[tuple[list[str], dict]]) -> float:
+        """Wall seconds until the last of ``runs`` (started together) has finished."""
+        t0 = time.perf_counter()
+        procs = [subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                 for cmd, env in runs]
+        try:
+            codes = [p.wait() for p in procs]
+        finally:
+            for p in procs:   # a failed or interrupted measurement leaves no process behind
+                if p.poll() is None:
+                    p.kill()
+        if any(codes):
+            raise RuntimeError(f"bench backends: a calnav objectnav run failed (exit codes {codes})")
+        return time.perf_counter() - t0
+
     with tempfile.TemporaryDirectory(prefix="calnav-bench-efficiency-") as tmp:
-        for workers in (1, cores):
-            env = dict(os.environ)
-            if workers == 1:   # one worker on one core: the per-core baseline
-                env.update({ENV: "1", "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"})
-            cmd = [sys.executable, "-m", "calnav", "objectnav", "--episodes", episodes, "--output",
-                   str(Path(tmp) / f"w{workers}"), *STUDY, *extra, f"run.workers={workers}"]
-            t0 = time.perf_counter()
-            subprocess.run(cmd, env=env, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-            times[workers] = time.perf_counter() - t0
-    return {"backends.parallel_efficiency": times[1] / (cores * times[cores]),
-            "backends.study_1_worker_s": times[1], "backends.study_w_workers_s": times[cores],
-            "backends.efficiency_workers": float(cores)}
+        t1 = timed([(command(Path(tmp) / "w1", 1), one_core)])   # one worker on one core: the baseline
+        tw = timed([(command(Path(tmp) / f"w{cores}", cores), dict(os.environ))])
+        together = timed([(command(Path(tmp) / f"copy{i}", 1), one_core) for i in range(cores)])
+    efficiency, ceiling = t1 / (cores * tw), t1 / together
+    return {"backends.parallel_efficiency": efficiency, "backends.concurrency_ceiling": ceiling,
+            "backends.efficiency_vs_ceiling": efficiency / ceiling,
+            "backends.study_1_worker_s": t1, "backends.study_w_workers_s": tw,
+            "backends.study_copies_s": together, "backends.efficiency_workers": float(cores)}

@@ -281,3 +281,5 @@ def test_bench_quick_study_speed_figures(tmp_path, monkeypatch):
     monkeypatch.setattr(bench_backends, "QUICK_EFFICIENCY_EPISODES", "100:101")
     eff = bench_backends.parallel_efficiency(ctx)
     assert 0 < eff["backends.parallel_efficiency"] <= 2 and eff["backends.study_1_worker_s"] > 0
+    assert 0 < eff["backends.concurrency_ceiling"] <= 2 and eff["backends.study_copies_s"] > 0
+    assert eff["backends.efficiency_vs_ceiling"] == eff["backends.parallel_efficiency"] / eff["backends.concurrency_ceiling"]
