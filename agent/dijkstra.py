@@ -26,6 +26,16 @@ ROW_STEPS = np.array([-1, -1, -1, 0, 0, 1, 1, 1], np.int64)
 COL_STEPS = np.array([-1, 0, 1, -1, 1, -1, 0, 1], np.int64)
 
 
+def compiled(fn):
+    """``numba.njit`` with the machine code cached on disk (beside the module, else in the
+    user's cache; ~1.4 s of compiling saved per process). Where neither is writable (a
+    read-only install and home), numba refuses to cache at all: compile in each process then."""
+    try:
+        return numba.njit(cache=True, nogil=True)(fn)
+    except RuntimeError:
+        return numba.njit(nogil=True)(fn)
+
+
 def geodesic(costs: np.ndarray, sources: np.ndarray, targets: np.ndarray | None = None) -> np.ndarray:
     """Distances (h, w) float64 from the ``sources`` cells over ``costs`` (h, w) float (> 0,
     inf = impassable). sources / targets (M, 2) int (row, col), inside the grid; a source on
@@ -38,7 +48,7 @@ def geodesic(costs: np.ndarray, sources: np.ndarray, targets: np.ndarray | None 
     return _dijkstra8(costs, src[:, 0] * w + src[:, 1], tgt[:, 0] * w + tgt[:, 1], ROW_STEPS, COL_STEPS)
 
 
-@numba.njit(cache=True, nogil=True)
+@compiled
 def _sift_up(keys, cells, pos, i, key, cell):
     """Move ``cell`` with ``key`` up from heap slot ``i`` to its place (binary min-heap)."""
     while i > 0:
@@ -54,7 +64,7 @@ def _sift_up(keys, cells, pos, i, key, cell):
     pos[cell] = i
 
 
-@numba.njit(cache=True, nogil=True)
+@compiled
 def _dijkstra8(costs, sources, targets, row_steps, col_steps):
     """The search of ``geodesic`` on flat cell indices (see there)."""
     h, w = costs.shape

@@ -57,3 +57,18 @@ def test_matches_skimage_mcp_geometric(seed, h, w, wall, n_targets):
         ref = skimage_distances(costs, sources, targets)
         for r, c in targets:
             assert early[r, c] == full[r, c] == ref[r, c] or np.isinf(full[r, c])
+
+
+def test_compiles_without_a_writable_cache():
+    """Where numba finds nowhere to cache (read-only install and home, simulated by allowing
+    only its IPython locator, which never applies to a file), the kernel still compiles."""
+    import os
+    import subprocess
+    import sys
+
+    code = ("import numpy as np; from calnav.agent.dijkstra import geodesic, _dijkstra8; "
+            "print(geodesic(np.ones((2, 2)), np.array([[0, 0]]))[1, 1], type(_dijkstra8._cache).__name__)")
+    env = dict(os.environ, NUMBA_CACHE_LOCATOR_CLASSES="IPythonCacheLocator")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == [repr(math.sqrt(2.0)), "NullCache"]
