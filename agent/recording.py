@@ -33,7 +33,9 @@ DEPTH_MM = 1000.0        # depth is logged as uint16 millimetres (half the bytes
 
 
 class EpisodeRecording:
-    """``EpisodeRecording(path, agent, episode_id, map_every)``; ``step(agent, action, info)``
+    """``EpisodeRecording(path, agent, episode_id, map_every)``, made after ``agent.reset`` and
+    before its first ``act`` (it switches the agent's voxel map to keep its TSDF, which the 3D
+    snapshots read); ``step(agent, action, info)``
     after each env step (``info``: the env's, with ``distance_to_goal`` and ``success``);
     ``close()`` writes the last map snapshot and flushes the file."""
 
@@ -48,6 +50,8 @@ class EpisodeRecording:
         self.positions: list[np.ndarray] = []
         self.last_step = 0
         self.agent = agent
+        if agent.state.voxels is not None:   # the 3D snapshots read the surface: keep the TSDF this episode
+            agent.state.voxels.set_tsdf(True)
         # per-step numbers are buffered and sent as columns at each map snapshot and at the end
         # (one call instead of four per step: logging them one by one cost ~0.4 ms a step)
         self._columns: dict[str, list] = {k: [] for k in ("step", "rotation", "action", "distance_to_goal", "success")}

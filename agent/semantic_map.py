@@ -190,12 +190,18 @@ class SemanticMapModule:
         """An empty map centred on ``start_xy`` (2,) metres (the agent's frame), with an empty voxel
         map for ``fused`` (none for ``ndf``). The module keeps one voxel map and empties it here
         (``SemanticVoxelMap.reset``: the grown allocation is kept, so later episodes skip
-        Open3D's ~1 s hashmap doublings), so the previous state's ``voxels`` are emptied too."""
+        Open3D's ~1 s hashmap doublings), so the previous state's ``voxels`` are emptied too.
+        The voxel map fuses semantics without the TSDF (``SemanticVoxelMap`` ``tsdf=False``):
+        the projection reads only the semantics of the voxels a frame hits, so the agent's
+        actions are the same either way; a caller that reads the 3D surface (a Rerun
+        recording) switches the TSDF on for the episode (``voxels.set_tsdf(True)``)."""
         voxels = None
         if self.cfg.map_type == "fused":
             if self._voxels is None:
-                self._voxels = SemanticVoxelMap(self.num_classes, self.mapping_cfg, class_names=self.class_names)
+                self._voxels = SemanticVoxelMap(self.num_classes, self.mapping_cfg, class_names=self.class_names,
+                                                tsdf=False)
             voxels = self._voxels.reset()
+            voxels.set_tsdf(False)
         return MapState.empty(start_xy, self.cfg, self.num_classes, voxels, lattice_m=self.voxel_size_m)
 
     def update(self, state: MapState, frame: SegmentedFrame, pose: np.ndarray) -> None:

@@ -37,6 +37,7 @@ class VoxelStorage(Protocol):
     cfg: MappingConfig
     vbg: Any                        # open3d.t.geometry.VoxelBlockGrid
     num_classes: int
+    has_geometry: bool              # False: semantics fused without the TSDF (no surface to read)
     frames_integrated: int
 
     @property
@@ -58,8 +59,16 @@ class VoxelStorage(Protocol):
 # map -> (frames_integrated, RaycastingScene of its iso-surface or None): rebuilt after integrate
 _SURFACE_SCENES: "weakref.WeakKeyDictionary[VoxelStorage, tuple]" = weakref.WeakKeyDictionary()
 
+def require_geometry(vmap: VoxelStorage) -> None:
+    """ValueError unless the map kept its TSDF (a semantics-only map has no surface: its
+    read-outs would be empty, not an error)."""
+    if not vmap.has_geometry:
+        raise ValueError("this voxel map fused semantics without the TSDF (tsdf=False): it has no surface to read; "
+                         "build it with tsdf=True (or set_tsdf(True) before its first frame)")
+
 def surface(vmap: VoxelStorage) -> tuple[np.ndarray, np.ndarray]:
     """(coords (N, 3) float32 m, flat (N,) int64) of surface voxels with semantics."""
+    require_geometry(vmap)
     cfg = vmap.cfg
     active = vmap.vbg.hashmap().active_buf_indices()
     if active.shape[0] == 0:
@@ -99,6 +108,7 @@ def query_keys(vmap: VoxelStorage, keys: np.ndarray) -> tuple[np.ndarray, np.nda
 def voxel_normals(vmap: VoxelStorage, coords: np.ndarray) -> np.ndarray:
     """(N, 3) float32 unit surface normals at voxel centres ``coords`` (N, 3) m from the TSDF
     gradient (central differences, one-sided where a neighbour is unallocated; 0 if none)."""
+    require_geometry(vmap)
     keys = np.rint(np.asarray(coords, dtype=np.float64).reshape(-1, 3) / vmap.cfg.voxel_size_m).astype(np.int32)
     tsdf, wgt = vmap.attribute("tsdf")[:, 0], vmap.attribute("weight")[:, 0]
 
@@ -124,6 +134,7 @@ def voxel_normals(vmap: VoxelStorage, coords: np.ndarray) -> np.ndarray:
 def point_cloud(vmap: VoxelStorage) -> PointCloud:
     """Iso-surface points (``extract_point_cloud``) that have semantics, with colour, normal
     and the fused probs of the voxel nearest each point."""
+    require_geometry(vmap)
     pcd = vmap.vbg.extract_point_cloud(vmap.o3d_weight_threshold) if vmap.vbg.hashmap().size() else None
     if pcd is None or pcd.is_empty():
         z = np.zeros((0, 3), np.float32)
@@ -137,6 +148,7 @@ def point_cloud(vmap: VoxelStorage) -> PointCloud:
 
 def _surface_scene(vmap: VoxelStorage):
     """Open3D RaycastingScene of the TSDF iso-surface mesh, cached until the next integrate."""
+    require_geometry(vmap)
     cached = _SURFACE_SCENES.get(vmap)
     if cached is None or cached[0] != vmap.frames_integrated:
         scene = None

@@ -317,7 +317,7 @@ def test_readouts_use_only_the_maps_storage_interface():
     from calnav.mapping.voxel_map import SemanticVoxelMap
 
     interface = {"cfg", "vbg", "num_classes", "frames_integrated", "attribute", "observation_counts",
-                 "fused_probs", "flat_indices", "o3d_weight_threshold"}
+                 "fused_probs", "flat_indices", "o3d_weight_threshold", "has_geometry"}
     tree = ast.parse(Path(readout.__file__).read_text())
     used = {n.attr for n in ast.walk(tree)
             if isinstance(n, ast.Attribute) and isinstance(n.value, ast.Name) and n.value.id == "vmap"}
@@ -348,14 +348,7 @@ def test_a_reset_map_fuses_like_a_new_one_and_keeps_its_allocation(room):
     assert reused.vbg.hashmap().capacity() == grown
     assert reused.frames_integrated == len(frames)
 
-    def by_key(m):
-        from calnav.mapping.voxel_map import BASE_ATTRS, SEM
-
-        coords, flat = (a.numpy() for a in m.vbg.voxel_coordinates_and_flattened_indices())
-        order = np.lexsort(coords.T)
-        return {name: m.attribute(name)[flat[order]] for name in [a for a, _ in BASE_ATTRS] + [SEM]}, coords[order]
-
-    (a, ca), (b, cb) = by_key(reused), by_key(fresh)
+    (a, ca), (b, cb) = _by_key(reused), _by_key(fresh)
     assert np.array_equal(ca, cb)
     for name in a:
         assert a[name].tobytes() == b[name].tobytes(), name
@@ -363,3 +356,48 @@ def test_a_reset_map_fuses_like_a_new_one_and_keeps_its_allocation(room):
     empty = SemanticVoxelMap(kk, cfg, class_names=scene.class_names)
     fill(empty).reset()
     assert empty.vbg.hashmap().size() == 0 and len(empty.voxels()[0]) == 0
+
+
+def _by_key(m: SemanticVoxelMap) -> tuple[dict, np.ndarray]:
+    """Every attribute's rows and the voxel coordinates of all allocated voxels, in coordinate
+    order (buffer slots may differ between two maps of the same frames)."""
+    from calnav.mapping.voxel_map import BASE_ATTRS, SEM
+
+    coords, flat = (a.numpy() for a in m.vbg.voxel_coordinates_and_flattened_indices())
+    order = np.lexsort(coords.T)
+    return {name: m.attribute(name)[flat[order]] for name in [a for a, _ in BASE_ATTRS] + [SEM]}, coords[order]
+
+
+def test_a_semantics_only_map_fuses_the_same_semantics_and_refuses_geometry(room):
+    """``tsdf=False`` (the agent's map): the same blocks and bit-identical semantic accumulators
+    as with the TSDF, no geometry at all, and every read-out that needs the surface refuses the
+    map instead of reading it as empty; the TSDF is switched back on only while empty."""
+    scene, _, k, frames = room
+    kk = scene.num_classes
+    cfg = MappingConfig(fusion="glfs", initial_alloc_mb=SMALL_ALLOC_MB)
+    rng = np.random.default_rng(5)
+    logits = [noisy_logits(labels, kk, rng, fp16=False) for _, _, labels in frames]
+
+    def fill(m):
+        for (depth, pose, _), lg in zip(frames, logits):
+            m.integrate(depth, k, pose, lg)
+        return m
+
+    full = fill(SemanticVoxelMap(kk, cfg, class_names=scene.class_names))
+    sem = fill(SemanticVoxelMap(kk, cfg, class_names=scene.class_names, tsdf=False))
+    (a, ca), (b, cb) = _by_key(full), _by_key(sem)
+    assert np.array_equal(ca, cb) and a["semantic"].tobytes() == b["semantic"].tobytes()
+    assert a["weight"].any() and not b["weight"].any() and not b["tsdf"].any()
+    assert full.has_geometry and not sem.has_geometry
+    keys = np.rint(ca[::97] / cfg.voxel_size_m).astype(np.int32)
+    for x, y in zip(full.query_keys(keys), sem.query_keys(keys)):   # what the agent reads: the same
+        assert x.tobytes() == y.tobytes()
+    for read in (sem.voxels, sem.point_cloud, lambda: sem.voxel_normals(ca[:5]),
+                 lambda: sem.render_semantics(k, frames[0][1], W, H)):
+        with pytest.raises(ValueError, match="semantics without the TSDF"):
+            read()
+    with pytest.raises(ValueError, match="only on an empty map"):
+        sem.set_tsdf(True)
+    sem.reset().set_tsdf(True)
+    fill(sem)
+    assert sem.has_geometry and len(sem.voxels()[0]) == len(full.voxels()[0]) > 0
