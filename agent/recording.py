@@ -10,7 +10,7 @@ the agent's map frame: the episode-start frame, z up, metres):
 | ``world/camera`` | the camera's pose (OpenCV axes; the pinhole is static) | every step |
 | ``world/camera/rgb`` / ``depth`` / ``segmentation`` | the frame the agent mapped (its mapping resolution; RGB as JPEG, depth in mm, uint16) and its arg-max classes | every step |
 | ``world/trajectory`` | the camera positions so far | every ``map_every`` steps and the last |
-| ``world/map/class`` / ``world/map/confidence`` | the fused 3D map's surface voxels by class / by arg-max probability (``common.rerun_io.log_voxels``; ``map_type: fused`` only) | every ``map_every`` steps and the last |
+| ``world/map/class`` / ``world/map/confidence`` | the fused 3D map's observed voxels (every voxel with a semantic observation) by class / by arg-max probability (``common.rerun_io.log_voxels``; ``map_type: fused`` only) | every ``map_every`` steps and the last |
 | ``map2d/topdown`` | the video panel's top-down map (explored, obstacles, collisions, holes, frontiers, goal confidence, detected component, path, long- and short-term goal) | every ``map_every`` steps and the last |
 | ``map2d/obstacles`` / ``explored`` / ``frontiers`` / ``detection`` | the 2D channels (0 / 255 images of the explored window plus a margin, +y up) | every ``map_every`` steps and the last |
 | ``map2d/goal_confidence`` | the goal class's confidence layer (float32 in [0, 1]) | every ``map_every`` steps and the last |
@@ -33,9 +33,7 @@ DEPTH_MM = 1000.0        # depth is logged as uint16 millimetres (half the bytes
 
 
 class EpisodeRecording:
-    """``EpisodeRecording(path, agent, episode_id, map_every)``, made after ``agent.reset`` and
-    before its first ``act`` (it switches the agent's voxel map to keep its TSDF, which the 3D
-    snapshots read); ``step(agent, action, info)``
+    """``EpisodeRecording(path, agent, episode_id, map_every)``; ``step(agent, action, info)``
     after each env step (``info``: the env's, with ``distance_to_goal`` and ``success``);
     ``close()`` writes the last map snapshot and flushes the file."""
 
@@ -50,8 +48,6 @@ class EpisodeRecording:
         self.positions: list[np.ndarray] = []
         self.last_step = 0
         self.agent = agent
-        if agent.state.voxels is not None:   # the 3D snapshots read the surface: keep the TSDF this episode
-            agent.state.voxels.set_tsdf(True)
         # per-step numbers are buffered and sent as columns at each map snapshot and at the end
         # (one call instead of four per step: logging them one by one cost ~0.4 ms a step)
         self._columns: dict[str, list] = {k: [] for k in ("step", "rotation", "action", "distance_to_goal", "success")}
@@ -100,7 +96,7 @@ class EpisodeRecording:
         self._send_columns()
         rec.log("world/trajectory", rr.LineStrips3D([np.stack(self.positions)], colors=[(255, 0, 0)]))
         if st.voxels is not None:
-            coords, probs = st.voxels.voxels()
+            coords, probs = st.voxels.observed_voxels()   # the agent's map keeps no TSDF surface
             rerun_io.log_voxels(rec, "world/map", coords, probs, st.voxels.cfg.voxel_size_m, self.palette)
         rec.log("map2d/topdown", rr.Image(topdown(agent)))
         win, ch = self._crop(agent), st.channels

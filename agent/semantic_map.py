@@ -193,15 +193,13 @@ class SemanticMapModule:
         Open3D's ~1 s hashmap doublings), so the previous state's ``voxels`` are emptied too.
         The voxel map fuses semantics without the TSDF (``SemanticVoxelMap`` ``tsdf=False``):
         the projection reads only the semantics of the voxels a frame hits, so the agent's
-        actions are the same either way; a caller that reads the 3D surface (a Rerun
-        recording) switches the TSDF on for the episode (``voxels.set_tsdf(True)``)."""
+        actions are the same either way (a Rerun recording shows ``observed_voxels``)."""
         voxels = None
         if self.cfg.map_type == "fused":
             if self._voxels is None:
                 self._voxels = SemanticVoxelMap(self.num_classes, self.mapping_cfg, class_names=self.class_names,
                                                 tsdf=False)
             voxels = self._voxels.reset()
-            voxels.set_tsdf(False)
         return MapState.empty(start_xy, self.cfg, self.num_classes, voxels, lattice_m=self.voxel_size_m)
 
     def update(self, state: MapState, frame: SegmentedFrame, pose: np.ndarray) -> None:

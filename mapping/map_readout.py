@@ -64,20 +64,33 @@ def require_geometry(vmap: VoxelStorage) -> None:
     read-outs would be empty, not an error)."""
     if not vmap.has_geometry:
         raise ValueError("this voxel map fused semantics without the TSDF (tsdf=False): it has no surface to read; "
-                         "build it with tsdf=True (or set_tsdf(True) before its first frame)")
+                         "build it with tsdf=True, or read observed_voxels()")
 
-def surface(vmap: VoxelStorage) -> tuple[np.ndarray, np.ndarray]:
-    """(coords (N, 3) float32 m, flat (N,) int64) of surface voxels with semantics."""
-    require_geometry(vmap)
-    cfg = vmap.cfg
+def observed(vmap: VoxelStorage) -> tuple[np.ndarray, np.ndarray]:
+    """(coords (N, 3) float32 m, flat (N,) int64) of every voxel with a semantic observation
+    (each contains a back-projected depth point of a frame that saw it: the measured surface,
+    as far as the TSDF's band is concerned; no TSDF read)."""
     active = vmap.vbg.hashmap().active_buf_indices()
     if active.shape[0] == 0:
         return np.zeros((0, 3), np.float32), np.zeros(0, np.int64)
     coords, flat = vmap.vbg.voxel_coordinates_and_flattened_indices(active)
     coords, flat = coords.numpy(), flat.numpy().ravel()
-    n = vmap.observation_counts(flat)
-    keep = np.flatnonzero(n > 0)
-    flat, coords = flat[keep], coords[keep]
+    keep = np.flatnonzero(vmap.observation_counts(flat) > 0)
+    return coords[keep], flat[keep]
+
+def observed_voxels(vmap: VoxelStorage) -> tuple[np.ndarray, np.ndarray]:
+    """``voxels`` without the TSDF band: every voxel with a semantic observation, coords (N, 3)
+    float32 m and probs (N, K) float32 (what a semantics-only map, ``tsdf=False``, can show)."""
+    coords, flat = observed(vmap)
+    return coords, vmap.fused_probs(flat) if len(flat) else np.zeros((0, vmap.num_classes), np.float32)
+
+def surface(vmap: VoxelStorage) -> tuple[np.ndarray, np.ndarray]:
+    """(coords (N, 3) float32 m, flat (N,) int64) of surface voxels with semantics."""
+    require_geometry(vmap)
+    cfg = vmap.cfg
+    coords, flat = observed(vmap)
+    if len(flat) == 0:
+        return coords, flat
     tsdf, wgt = vmap.attribute("tsdf")[flat, 0], vmap.attribute("weight")[flat, 0]
     band = cfg.surface_band_voxels / cfg.trunc_voxels
     keep = np.flatnonzero((np.abs(tsdf) < band) & (wgt >= cfg.min_tsdf_weight))

@@ -57,7 +57,7 @@ def test_an_episode_recording_holds_the_agents_camera_frames_and_map(tmp_path):
     snapshots = _rows(cols["/world/map/class"], "step")
     assert snapshots == sorted(set(list(range(50, steps + 1, 50)) + [steps]))
     # the last snapshot is the agent's final map: same voxel centres, same confidences
-    coords, probs = agent.state.voxels.voxels()
+    coords, probs = agent.state.voxels.observed_voxels()
     logged = np.asarray(_rows(cols["/world/map/confidence"], "Points3D:positions")[-1], np.float32)
     conf = np.asarray(_rows(cols["/world/map/confidence"], "confidence")[-1], np.float32)
     order_a, order_b = np.lexsort(coords.T), np.lexsort(logged.T)
