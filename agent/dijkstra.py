@@ -49,19 +49,40 @@ def geodesic(costs: np.ndarray, sources: np.ndarray, targets: np.ndarray | None 
 
 
 @compiled
+def _put(keys, cells, pos, i, key, cell):
+    """Heap slot ``i`` holds ``cell`` with ``key``."""
+    keys[i] = key
+    cells[i] = cell
+    pos[cell] = i
+
+
+@compiled
 def _sift_up(keys, cells, pos, i, key, cell):
-    """Move ``cell`` with ``key`` up from heap slot ``i`` to its place (binary min-heap)."""
+    """Place ``cell`` with ``key`` from heap slot ``i`` upwards (binary min-heap)."""
     while i > 0:
         parent = (i - 1) >> 1
         if keys[parent] <= key:
             break
-        keys[i] = keys[parent]
-        cells[i] = cells[parent]
-        pos[cells[i]] = i
+        _put(keys, cells, pos, i, keys[parent], cells[parent])
         i = parent
-    keys[i] = key
-    cells[i] = cell
-    pos[cell] = i
+    _put(keys, cells, pos, i, key, cell)
+
+
+@compiled
+def _sift_down(keys, cells, pos, size, key, cell):
+    """Place ``cell`` with ``key`` from the root downwards in a heap of ``size`` entries."""
+    i = 0
+    while True:
+        child = 2 * i + 1
+        if child >= size:
+            break
+        if child + 1 < size and keys[child + 1] < keys[child]:
+            child += 1
+        if keys[child] >= key:
+            break
+        _put(keys, cells, pos, i, keys[child], cells[child])
+        i = child
+    _put(keys, cells, pos, i, key, cell)
 
 
 @compiled
@@ -92,24 +113,8 @@ def _dijkstra8(costs, sources, targets, row_steps, col_steps):
         u, du = cells[0], keys[0]
         size -= 1
         pos[u] = -1
-        if size > 0:   # move the last entry down from the root
-            last_key, last = keys[size], cells[size]
-            i = 0
-            while True:
-                child = 2 * i + 1
-                if child >= size:
-                    break
-                if child + 1 < size and keys[child + 1] < keys[child]:
-                    child += 1
-                if keys[child] >= last_key:
-                    break
-                keys[i] = keys[child]
-                cells[i] = cells[child]
-                pos[cells[i]] = i
-                i = child
-            keys[i] = last_key
-            cells[i] = last
-            pos[last] = i
+        if size > 0:   # the last entry fills the root's place
+            _sift_down(keys, cells, pos, size, keys[size], cells[size])
         settled[u] = True
         if stop_early and is_target[u]:
             remaining -= 1

@@ -41,9 +41,10 @@ import numpy as np
 from calnav.agent import projection as pj
 from calnav.agent.config import AgentConfig
 from calnav.agent.segmenters import softmax
+from calnav.common.threads import single_threaded_torch
 from calnav.mapping.config import MappingConfig
 from calnav.mapping.frame import SegmentedFrame
-from calnav.mapping.voxel_map import SemanticVoxelMap, single_threaded_torch
+from calnav.mapping.voxel_map import SemanticVoxelMap
 
 
 class MapChannels(IntEnum):

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import os
 import sys
+from contextlib import contextmanager
 
 ENV = "CALNAV_THREADS"   # the budget, read by thread_budget(); unset = all cores
 THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMEXPR_NUM_THREADS")
@@ -36,3 +37,21 @@ def pin_threads(n: int) -> None:
     torch = sys.modules.get("torch")
     if torch is not None:
         torch.set_num_threads(n)
+
+
+@contextmanager
+def single_threaded_torch():
+    """Run torch ops on one thread. The per-frame tensors are small (~10^5 elements) and
+    torch's OpenMP workers, spinning after each parallel op, starve Open3D's TBB workers:
+    on 2 cores that turned a 20 ms frame into 200 ms. (torch is imported here, not at the top:
+    this module must be importable before torch, see ``pin_threads``.)"""
+    import torch
+
+    old = torch.get_num_threads()
+    if old != 1:
+        torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        if old != 1:
+            torch.set_num_threads(old)

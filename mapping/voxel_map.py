@@ -20,7 +20,6 @@ The hashmap may reallocate when it grows: attribute views are re-fetched on ever
 """
 from __future__ import annotations
 
-from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -29,6 +28,7 @@ import open3d as o3d
 import open3d.core as o3c
 import torch
 
+from calnav.common.threads import single_threaded_torch
 from calnav.mapping import frame_geometry as fg
 from calnav.mapping.config import MappingConfig
 from calnav.mapping.fusion import ObservationTerms, get_strategy
@@ -76,21 +76,6 @@ class ObservationRecorder(Protocol):
         (n,) metres, angle_deg (n,) degrees (both float16-rounded), weights (n,) or None."""
 
 
-@contextmanager
-def single_threaded_torch():
-    """Run torch ops on one thread. The per-frame tensors are small (~10^5 elements) and
-    torch's OpenMP workers, spinning after each parallel op, starve Open3D's TBB workers:
-    on 2 cores that turned a 20 ms frame into 200 ms."""
-    old = torch.get_num_threads()
-    if old != 1:
-        torch.set_num_threads(1)
-    try:
-        yield
-    finally:
-        if old != 1:
-            torch.set_num_threads(old)
-
-
 class SemanticVoxelMap:
     """A TSDF + semantic voxel map. ``num_classes`` K; ``cfg`` the mapping config.
 
@@ -98,20 +83,17 @@ class SemanticVoxelMap:
     ``cfg.glfs_params`` or identity. temperature: scalar or (K,) logit temperature for the
     other strategies (default ``cfg.temperature``). obs_cache: an ``ObservationRecorder``
     (e.g. ``mapping.calibration.obs_cache.ObsCache``) that records every observation.
-    tsdf: integrate depth (and colour) into the TSDF; False = semantics only: a frame's voxel
-    blocks are allocated as the TSDF step would and its semantics fused into the same voxels
-    (bit-identical accumulators), but no geometry is kept, so the read-outs that need the
-    surface (``voxels``, ``point_cloud``, ``voxel_normals``, ``render_semantics``) refuse the
-    map; ``observed_voxels`` shows it. For owners that never read geometry: the agent's 2D
-    projection reads only the semantics of the voxels a frame hits, and Open3D's TSDF pass
-    was ~2-3 ms of its ~17 ms step.
+    tsdf: False = semantics only, for owners that never read geometry (the agent: ~2-3 ms of
+    its step was Open3D's TSDF pass): a frame's blocks are allocated as the TSDF step would and
+    the semantic accumulators are bit-identical, but the read-outs that need the surface
+    (``voxels``, ``point_cloud``, ``voxel_normals``, ``render_semantics``) refuse the map;
+    ``observed_voxels`` shows it.
     """
 
     def __init__(self, num_classes: int, cfg: MappingConfig | None = None, device: str = "CPU:0", *,
                  class_names: tuple[str, ...] = (), glfs_params: GLFSParams | None = None,
                  temperature=None, obs_cache: ObservationRecorder | None = None, tsdf: bool = True):
         self.tsdf = bool(tsdf)
-        self._frames_without_tsdf = 0   # frames fused (semantics only) since the map was emptied
         self.cfg = cfg = cfg or MappingConfig()
         if o3c.Device(device).get_type() != o3c.Device.DeviceType.CPU:
             raise ValueError(f"SemanticVoxelMap runs on CPU (zero-copy numpy views), got device {device!r}")
@@ -181,13 +163,13 @@ class SemanticVoxelMap:
                 a = self.vbg.attribute(name).numpy()
                 a.reshape(a.shape[0], -1)[rows] = 0
             hm.erase(hm.key_tensor()[active.to(o3c.int64)])
-        self.frames_integrated = self._frames_without_tsdf = 0
+        self.frames_integrated = 0
         return self
 
     @property
     def has_geometry(self) -> bool:
-        """Every frame fused since the map was emptied went into the TSDF too."""
-        return self._frames_without_tsdf == 0
+        """The map integrates depth into its TSDF (``tsdf``): it has a surface to read."""
+        return self.tsdf
 
     # ----------------------------------------------------------------- storage interface
     # (what the read-outs, ``mapping.map_readout``, may use; flat = a voxel's row in the buffers)
@@ -253,7 +235,6 @@ class SemanticVoxelMap:
                 observations = self._observe(depth, intr, pose, logits, weights, blocks)   # checks the logits read
         if not self.tsdf:   # semantics only: the blocks Open3D's integrate would allocate, no TSDF pass
             self.vbg.hashmap().activate(blocks)
-            self._frames_without_tsdf += 1
         elif rgb is None:
             self.vbg.integrate(blocks, dimg, intr_o3d, extr, 1.0, cfg.depth_max_m, cfg.trunc_voxels)
         else:
