@@ -12,6 +12,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+
 from calnav.agent.config import AgentConfig
 from calnav.agent.dijkstra import geodesic
 from calnav.agent.projection import dilate, disc_offsets

@@ -68,8 +68,8 @@ def require_geometry(vmap: VoxelStorage) -> None:
 
 def observed(vmap: VoxelStorage) -> tuple[np.ndarray, np.ndarray]:
     """(coords (N, 3) float32 m, flat (N,) int64) of every voxel with a semantic observation
-    (each contains a back-projected depth point of a frame that saw it: the measured surface,
-    as far as the TSDF's band is concerned; no TSDF read)."""
+    (each contains a depth point back-projected from a frame that saw it, so they lie on the
+    measured surface; no TSDF read)."""
     active = vmap.vbg.hashmap().active_buf_indices()
     if active.shape[0] == 0:
         return np.zeros((0, 3), np.float32), np.zeros(0, np.int64)
