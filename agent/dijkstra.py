@@ -17,23 +17,14 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
+
+from calnav.common.jit import compiled
 
 HALF_STRAIGHT = 0.5               # length 1 / 2
 HALF_DIAGONAL = math.sqrt(2.0) * 0.5   # length sqrt(2) / 2, rounded as skimage rounds it
 ROW_STEPS = np.array([-1, -1, -1, 0, 0, 1, 1, 1], np.int64)
 COL_STEPS = np.array([-1, 0, 1, -1, 1, -1, 0, 1], np.int64)
-
-
-def compiled(fn):
-    """``numba.njit`` with the machine code cached on disk (beside the module, else in the
-    user's cache; ~1.4 s of compiling saved per process). Where neither is writable (a
-    read-only install and home), numba refuses to cache at all: compile in each process then."""
-    try:
-        return numba.njit(cache=True, nogil=True)(fn)
-    except RuntimeError:
-        return numba.njit(nogil=True)(fn)
 
 
 def geodesic(costs: np.ndarray, sources: np.ndarray, targets: np.ndarray | None = None) -> np.ndarray:

@@ -16,7 +16,7 @@ Per frame (``update``), with the segmented frame at the mapping resolution
 
 - ``fused``: the frame is fused into the 3D voxel map; the voxels hit by this frame's depth
   (the only ones whose fused value changed) are re-read and re-projected: each voxel keeps its
-  latest (cell, arg-max class, confidence) in ``VoxelVotes`` and the per-(class, cell) sums and
+  latest (cell, arg-max class, confidence) in ``agent.votes.VoxelVotes`` and the per-(class, cell) sums and
   counts are updated by difference, so the semantic layer is exactly the mean over all observed
   surface voxels in the cell and the cost per frame does not grow with the house.
 - ``ndf``: per-pixel probabilities softmax(logits / mapping.temperature) (the scalar
@@ -41,6 +41,7 @@ import numpy as np
 from calnav.agent import projection as pj
 from calnav.agent.config import AgentConfig
 from calnav.agent.segmenters import softmax
+from calnav.agent.votes import VoxelVotes
 from calnav.common.threads import single_threaded_torch
 from calnav.mapping.config import MappingConfig
 from calnav.mapping.frame import SegmentedFrame
@@ -57,57 +58,6 @@ class MapChannels(IntEnum):
 
 
 NUM_CHANNELS = len(MapChannels)
-
-
-class VoxelVotes:
-    """Each observed voxel's latest vote: sorted int64 voxel keys with (flat cell, class,
-    confidence). ``update`` returns the votes it replaced so the caller can subtract them."""
-
-    KEY_BITS = 21                      # bits per voxel axis in a key: +-2^20 voxels (+-52 km at 5 cm)
-    KEY_OFFSET = 1 << (KEY_BITS - 1)
-
-    def __init__(self) -> None:
-        self.keys = np.zeros(0, np.int64)
-        self.cells = np.zeros(0, np.int64)
-        self.classes = np.zeros(0, np.int16)
-        self.conf = np.zeros(0, np.float32)
-
-    @classmethod
-    def encode(cls, ijk: np.ndarray) -> np.ndarray:
-        """(N, 3) int voxel indices -> (N,) int64 keys."""
-        v = ijk.astype(np.int64) + cls.KEY_OFFSET
-        return (v[:, 0] << (2 * cls.KEY_BITS)) | (v[:, 1] << cls.KEY_BITS) | v[:, 2]
-
-    @classmethod
-    def decode(cls, keys: np.ndarray) -> np.ndarray:
-        """(N,) int64 keys -> (N, 3) int64 voxel indices (``encode``'s inverse)."""
-        mask = (1 << cls.KEY_BITS) - 1
-        return np.stack([(keys >> (2 * cls.KEY_BITS)) - cls.KEY_OFFSET, ((keys >> cls.KEY_BITS) & mask) - cls.KEY_OFFSET,
-                         (keys & mask) - cls.KEY_OFFSET], axis=1)
-
-    def update(self, keys, cells, classes, conf) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Set the votes of unique ``keys`` (N,); returns the replaced (cells, classes, conf)."""
-        idx = np.searchsorted(self.keys, keys)
-        found = idx < len(self.keys)
-        found[found] = self.keys[idx[found]] == keys[found]
-        fi = idx[found]
-        old = (self.cells[fi].copy(), self.classes[fi].copy(), self.conf[fi].copy())
-        self.cells[fi], self.classes[fi], self.conf[fi] = cells[found], classes[found], conf[found]
-        new = ~found
-        if new.any():
-            # merge the new votes in (keys unique and sorted, so their insertion points are
-            # non-decreasing): one placement mask for all four arrays, not four np.insert calls
-            at = idx[new] + np.arange(int(new.sum()))
-            placed = np.zeros(len(self.keys) + len(at), bool)
-            placed[at] = True
-            kept = ~placed
-            merged = []
-            for have, add in ((self.keys, keys), (self.cells, cells), (self.classes, classes), (self.conf, conf)):
-                out = np.empty(len(placed), have.dtype)
-                out[placed], out[kept] = add[new], have
-                merged.append(out)
-            self.keys, self.cells, self.classes, self.conf = merged
-        return old
 
 
 @dataclass
@@ -285,21 +235,10 @@ class SemanticMapModule:
         ijk = VoxelVotes.decode(keys)
         with single_threaded_torch():   # small tensors: extra torch threads only contend
             probs, observed = vmap.query_keys(ijk)
-        keys, centres, probs = keys[observed], ijk[observed] * self.voxel_size_m, probs[observed]
-        cells, inside = pj.cell_of(centres[:, :2], state.origin, self.cfg.cell_m, state.size)
-        keys, cells, probs = keys[inside], cells[inside], probs[inside]
+        probs = probs[observed]
         cls = probs.argmax(axis=1)
-        conf = probs[np.arange(len(cls)), cls]
-        old_cells, old_cls, old_conf = state.votes.update(keys, cells, cls.astype(np.int16), conf)
-        ncell = state.size ** 2
-        bins = np.concatenate([old_cls.astype(np.int64) * ncell + old_cells, cls.astype(np.int64) * ncell + cells])
-        ones = np.ones(len(cls), np.int64)
-        u, dsum, dcnt = pj.sparse_bin_sums(bins, np.concatenate([-old_conf, conf]),
-                                           np.concatenate([-np.ones(len(old_cls), np.int64), ones]))
-        sums, counts, sem = state.sums.reshape(-1), state.counts.reshape(-1), state.semantic.reshape(-1)
-        sums[u] += dsum.astype(np.float32)
-        counts[u] += dcnt.astype(np.int32)
-        sem[u] = np.where(counts[u] > 0, sums[u] / np.maximum(counts[u], 1), 0.0)
+        state.votes.vote(keys[observed], ijk[observed], cls, probs[np.arange(len(cls)), cls], self.voxel_size_m,
+                         state.origin, self.cfg.cell_m, state.sums, state.counts, state.semantic)
 
     def _project_ndf(self, state: MapState, probs: np.ndarray, cells: np.ndarray, inside: np.ndarray) -> None:
         """SemExp-style: thresholded detections, per-frame cell mean, max over time."""

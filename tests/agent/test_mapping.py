@@ -1,5 +1,6 @@
 """Agent map stages: ground-plane projection, goal detection, frontiers, collision marking."""
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -7,7 +8,8 @@ from calnav.agent.collision import CollisionTracker, collision_points, is_collis
 from calnav.agent.config import AgentConfig
 from calnav.agent.exploration import choose_frontier, frontier_mask
 from calnav.agent.goal_detection import detect_goal, largest_component
-from calnav.agent.semantic_map import MapChannels, MapState, SemanticMapModule, VoxelVotes
+from calnav.agent.semantic_map import MapChannels, MapState, SemanticMapModule
+from calnav.agent.votes import VoxelVotes
 from calnav.mapping.config import MappingConfig
 from calnav.mapping.frame import SegmentedFrame
 from calnav.envs.task import Action
@@ -82,33 +84,72 @@ def test_voxel_keys_decode_to_their_indices():
     order = np.argsort(keys)
     np.testing.assert_array_equal(VoxelVotes.decode(keys[order]), ijk[order])
 
-def test_voxel_votes_returns_replaced_entries():
-    votes = VoxelVotes()
-    keys = VoxelVotes.encode(np.array([[0, 0, 0], [1, -2, 3]]))
-    order = np.argsort(keys)
-    votes.update(keys[order], np.array([5, 6])[order], np.array([1, 2], np.int16)[order], np.array([0.5, 0.7], np.float32)[order])
-    old = votes.update(keys[:1], np.array([9]), np.array([4], np.int16), np.array([0.9], np.float32))
-    assert old[0].tolist() == [5] and old[1].tolist() == [1]
-    assert len(votes.keys) == 2
+def _numpy_vote(model: dict, keys, ijk, classes, conf, voxel_m, origin, cell_m, sums, counts, semantic) -> None:
+    """The reference: the projection's vote update as numpy did it before the compiled kernel
+    (votes in a dict; the difference binned with ``sparse_bin_sums``, applied in float32)."""
+    n = int(round(sums.shape[1] ** 0.5))
+    cells, inside = pj.cell_of((ijk * voxel_m)[:, :2], origin, cell_m, n)
+    keys, cells, classes, conf = keys[inside], cells[inside], classes[inside], conf[inside]
+    old = [model[k] for k in keys.tolist() if k in model]
+    old_cells = np.array([o[0] for o in old], np.int64)
+    old_cls = np.array([o[1] for o in old], np.int16)
+    old_conf = np.array([o[2] for o in old], np.float32)
+    model.update({k: (c, l, f) for k, c, l, f in zip(keys.tolist(), cells.tolist(), classes.astype(np.int16).tolist(),
+                                                     conf.tolist())})
+    ncell = n * n
+    bins = np.concatenate([old_cls.astype(np.int64) * ncell + old_cells, classes.astype(np.int64) * ncell + cells])
+    u, dsum, dcnt = pj.sparse_bin_sums(bins, np.concatenate([-old_conf, conf]),
+                                       np.concatenate([-np.ones(len(old), np.int64), np.ones(len(keys), np.int64)]))
+    flat_sums, flat_counts, flat_sem = sums.reshape(-1), counts.reshape(-1), semantic.reshape(-1)
+    flat_sums[u] += dsum.astype(np.float32)
+    flat_counts[u] += dcnt.astype(np.int32)
+    flat_sem[u] = np.where(flat_counts[u] > 0, flat_sums[u] / np.maximum(flat_counts[u], 1), 0.0)
 
 
-@settings(max_examples=50, deadline=None)
-@given(batches=st.lists(st.lists(st.integers(-50, 50), max_size=30), min_size=1, max_size=6))
-def test_voxel_votes_match_a_dictionary(batches):
-    """Batches of unique sorted keys (new ones merged in, known ones replaced): the votes stay
-    sorted, hold the latest vote of every key, and return what each batch replaced."""
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), frames=st.integers(1, 6), per_frame=st.integers(0, 120))
+def test_voxel_votes_match_the_numpy_projection(seed, frames, per_frame):
+    """Frames of voxel votes (keys unique and sorted, some outside the map, many voting again
+    for another class): the compiled update keeps the same votes as a dictionary and the same
+    sums, counts and semantic layer as the numpy update, bit for bit."""
+    rng = np.random.default_rng(seed)
+    k, n, voxel_m, cell_m = 2, 3, 0.05, 0.1   # few bins: many votes per bin
+    origin = np.array([0.025, -0.075])
     votes, model = VoxelVotes(), {}
-    for i, batch in enumerate(batches):
-        keys = np.unique(np.asarray(batch, np.int64))
-        cells, classes = keys * 7 + i, (keys % 5 + i).astype(np.int16)
-        conf = (np.abs(keys) / 100 + i).astype(np.float32)
-        old = votes.update(keys, cells, classes, conf)
-        replaced = [model[k] for k in keys.tolist() if k in model]
-        assert [tuple(v) for v in zip(*(a.tolist() for a in old))] == replaced
-        model.update({k: (c, l, f) for k, c, l, f in zip(keys.tolist(), cells.tolist(), classes.tolist(), conf.tolist())})
+    got = [np.zeros((k, n * n), np.float32), np.zeros((k, n * n), np.int32), np.zeros((k, n, n), np.float32)]
+    ref = [a.copy() for a in got]
+    for _ in range(frames):
+        ijk = np.unique(rng.integers((0, 0, 0), (8, 8, 3), size=(per_frame, 3)), axis=0)   # 192 voxels, 108 inside
+        keys = VoxelVotes.encode(ijk)
+        order = np.argsort(keys)
+        keys, ijk = keys[order], ijk[order]
+        classes = rng.integers(0, k, len(keys))
+        conf = rng.uniform(1.0 / k, 1.0, len(keys)).astype(np.float32)
+        votes.vote(keys, ijk, classes, conf, voxel_m, origin, cell_m, *got)
+        _numpy_vote(model, keys, ijk, classes, conf, voxel_m, origin, cell_m, *ref)
+        for a, b in zip(got, ref):
+            assert a.dtype == b.dtype and a.tobytes() == b.tobytes()
         assert votes.keys.tolist() == sorted(model)
-        assert list(zip(votes.cells.tolist(), votes.classes.tolist(), votes.conf.tolist())) == [model[k] for k in sorted(model)]
-        assert votes.classes.dtype == np.int16 and votes.conf.dtype == np.float32
+        assert list(zip(votes.cells.tolist(), votes.classes.tolist(), votes.conf.tolist())) == \
+            [model[key] for key in sorted(model)]
+    assert not votes._hit.any() and not votes._count.any() and not votes._sum.any()   # scratch left clean
+
+
+def test_voxel_votes_refuse_what_the_kernel_would_index_out_of_bounds():
+    votes, ijk = VoxelVotes(), np.array([[1, 1, 0]])
+    keys, conf = VoxelVotes.encode(ijk), np.array([0.9], np.float32)
+    maps = (np.zeros((2, 9), np.float32), np.zeros((2, 9), np.int32), np.zeros((2, 3, 3), np.float32))
+    with pytest.raises(ValueError, match=r"vote classes must be in \[0, 2\)"):
+        votes.vote(keys, ijk, np.array([2]), conf, 0.05, np.zeros(2), 0.1, *maps)
+    with pytest.raises(ValueError, match="disagree"):
+        votes.vote(keys, ijk, np.array([0, 1]), conf, 0.05, np.zeros(2), 0.1, *maps)
+    with pytest.raises(ValueError, match="disagree"):
+        votes.vote(keys, ijk, np.array([0]), conf, 0.05, np.zeros(2), 0.1, *maps[:2], np.zeros((2, 9), np.float32))
+    with pytest.raises(ValueError, match="unique and sorted"):
+        votes.vote(keys.repeat(2), ijk.repeat(2, axis=0), np.array([0, 0]), conf.repeat(2), 0.05, np.zeros(2), 0.1,
+                   *maps)
+    votes.vote(keys, ijk, np.array([1]), conf, 0.05, np.zeros(2), 0.1, *maps)
+    assert maps[2][1, 0, 0] == np.float32(0.9) and maps[1].sum() == 1
 
 
 def test_goal_detection_threshold_components_and_min_area():
