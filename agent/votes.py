@@ -28,9 +28,7 @@ class VoxelVotes:
         self.cells = np.zeros(0, np.int64)
         self.classes = np.zeros(0, np.int16)
         self.conf = np.zeros(0, np.float32)
-        self._sum = np.zeros(0, np.float64)   # per-(class, cell) scratch of a vote: zero / False between votes
-        self._count = np.zeros(0, np.int64)
-        self._hit = np.zeros(0, np.bool_)
+        self._slot = np.zeros(0, np.int32)   # per (class, cell): scratch of a vote, zero between votes
 
     @classmethod
     def encode(cls, ijk: np.ndarray) -> np.ndarray:
@@ -58,6 +56,9 @@ class VoxelVotes:
         if counts.shape != sums.shape or semantic.shape != (k, n, n) or n * n != ncell:
             raise ValueError(f"sums / counts (K, n*n) and semantic (K, n, n) disagree: {sums.shape}, {counts.shape}, "
                              f"{semantic.shape}")
+        if not all(a.flags.c_contiguous and a.dtype == t for a, t in
+                   ((sums, np.float32), (counts, np.int32), (semantic, np.float32))):
+            raise ValueError("sums / semantic must be contiguous float32 and counts contiguous int32 (updated in place)")
         if not len(keys) == len(ijk) == len(classes) == len(conf) or ijk.shape[1:] != (3,):
             raise ValueError(f"keys (N,), ijk (N, 3), classes (N,), conf (N,) disagree: {len(keys)}, {ijk.shape}, "
                              f"{len(classes)}, {len(conf)}")
@@ -65,18 +66,18 @@ class VoxelVotes:
             raise ValueError("vote keys must be unique and sorted")
         if len(classes) and not 0 <= int(classes.min()) <= int(classes.max()) < k:
             raise ValueError(f"vote classes must be in [0, {k}), got {int(classes.min())}..{int(classes.max())}")
-        if len(self._sum) != k * ncell:
-            self._sum, self._count, self._hit = (np.zeros(k * ncell, t) for t in (np.float64, np.int64, np.bool_))
+        if len(self._slot) != k * ncell:   # (zeros: pages the votes never touch are never allocated)
+            self._slot = np.zeros(k * ncell, np.int32)
         self.keys, self.cells, self.classes, self.conf = _vote(
             np.ascontiguousarray(keys, np.int64), np.ascontiguousarray(ijk, np.int64),
             np.ascontiguousarray(classes, np.int64), np.ascontiguousarray(conf, np.float32), float(voxel_m),
             np.asarray(origin, np.float64), float(cell_m), n, self.keys, self.cells, self.classes, self.conf,
-            sums.reshape(-1), counts.reshape(-1), semantic.reshape(-1), self._sum, self._count, self._hit)
+            sums.reshape(-1), counts.reshape(-1), semantic.reshape(-1), self._slot)
 
 
 @compiled
 def _vote(keys, ijk, classes, conf, voxel_m, origin, cell_m, n, vkeys, vcells, vclasses, vconf,
-          sums, counts, semantic, acc, cnt, hit):
+          sums, counts, semantic, slot):
     """``VoxelVotes.vote`` on flat arrays; returns the merged (keys, cells, classes, conf)."""
     m, total = len(vkeys), len(keys)
     ncell = n * n
@@ -116,23 +117,27 @@ def _vote(keys, ijk, classes, conf, voxel_m, origin, cell_m, n, vkeys, vcells, v
         out_k[o], out_c[o], out_l[o], out_f[o] = vkeys[j], vcells[j], vclasses[j], vconf[j]
         j += 1
         o += 1
-    touched = np.empty(n_old + n_new, np.int64)   # the bins in first-touch order
+    # per touched bin (in first-touch order): its float64 sum and count; slot[bin] = its index + 1
+    touched = np.empty(n_old + n_new, np.int64)
+    acc = np.zeros(n_old + n_new, np.float64)
+    cnt = np.zeros(n_old + n_new, np.int64)
     n_touched = 0
     for e in range(n_old + n_new):
         if e < n_old:
             b, w, c = old_bins[e], -np.float64(old_conf[e]), -1
         else:
             b, w, c = new_bins[e - n_old], np.float64(new_conf[e - n_old]), 1
-        if not hit[b]:
-            hit[b] = True
+        if slot[b] == 0:
             touched[n_touched] = b
             n_touched += 1
-        acc[b] += w
-        cnt[b] += c
+            slot[b] = n_touched
+        t = slot[b] - 1
+        acc[t] += w
+        cnt[t] += c
     for t in range(n_touched):   # every touched bin, as numpy applies every unique bin
         b = touched[t]
-        sums[b] = sums[b] + np.float32(acc[b])
-        counts[b] = counts[b] + np.int32(cnt[b])
+        sums[b] = sums[b] + np.float32(acc[t])
+        counts[b] = counts[b] + np.int32(cnt[t])
         semantic[b] = np.float32(sums[b] / max(counts[b], 1)) if counts[b] > 0 else np.float32(0.0)
-        acc[b], cnt[b], hit[b] = 0.0, 0, False
+        slot[b] = 0
     return out_k[:o], out_c[:o], out_l[:o], out_f[:o]

@@ -132,7 +132,7 @@ def test_voxel_votes_match_the_numpy_projection(seed, frames, per_frame):
         assert votes.keys.tolist() == sorted(model)
         assert list(zip(votes.cells.tolist(), votes.classes.tolist(), votes.conf.tolist())) == \
             [model[key] for key in sorted(model)]
-    assert not votes._hit.any() and not votes._count.any() and not votes._sum.any()   # scratch left clean
+    assert not votes._slot.any()   # scratch left clean
 
 
 def test_voxel_votes_refuse_what_the_kernel_would_index_out_of_bounds():
@@ -145,6 +145,8 @@ def test_voxel_votes_refuse_what_the_kernel_would_index_out_of_bounds():
         votes.vote(keys, ijk, np.array([0, 1]), conf, 0.05, np.zeros(2), 0.1, *maps)
     with pytest.raises(ValueError, match="disagree"):
         votes.vote(keys, ijk, np.array([0]), conf, 0.05, np.zeros(2), 0.1, *maps[:2], np.zeros((2, 9), np.float32))
+    with pytest.raises(ValueError, match="contiguous"):
+        votes.vote(keys, ijk, np.array([0]), conf, 0.05, np.zeros(2), 0.1, maps[0].astype(np.float64), *maps[1:])
     with pytest.raises(ValueError, match="unique and sorted"):
         votes.vote(keys.repeat(2), ijk.repeat(2, axis=0), np.array([0, 0]), conf.repeat(2), 0.05, np.zeros(2), 0.1,
                    *maps)
