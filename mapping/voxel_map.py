@@ -83,11 +83,12 @@ class SemanticVoxelMap:
     ``cfg.glfs_params`` or identity. temperature: scalar or (K,) logit temperature for the
     other strategies (default ``cfg.temperature``). obs_cache: an ``ObservationRecorder``
     (e.g. ``mapping.calibration.obs_cache.ObsCache``) that records every observation.
-    tsdf: False = semantics only, for owners that never read geometry (the agent: ~2-3 ms of
-    its step was Open3D's TSDF pass): a frame's blocks are allocated as the TSDF step would and
-    the semantic accumulators are bit-identical, but the read-outs that need the surface
-    (``voxels``, ``point_cloud``, ``voxel_normals``, ``render_semantics``) refuse the map;
-    ``observed_voxels`` shows it.
+    tsdf: False = semantics only, for owners that never read geometry (the agent: ~1 ms of its
+    step was Open3D's TSDF pass, and the TSDF buffers 5 of a block's 43 channels at K = 18,
+    GLFS): a frame's blocks are allocated as the TSDF step would and the semantic accumulators
+    are bit-identical, but the grid has no TSDF attributes, and the read-outs that need the
+    surface (``voxels``, ``point_cloud``, ``voxel_normals``, ``render_semantics``) refuse the
+    map; ``observed_voxels`` shows it.
     """
 
     def __init__(self, num_classes: int, cfg: MappingConfig | None = None, device: str = "CPU:0", *,
@@ -112,7 +113,7 @@ class SemanticVoxelMap:
             self._slices[a] = slice(start, start + c)
             start += c
         self._count_ch = start  # last channel: observations per voxel
-        attrs = dict(BASE_ATTRS) | {SEM: start + 1}
+        attrs = (dict(BASE_ATTRS) if tsdf else {}) | {SEM: start + 1}   # semantics only: no TSDF buffers
         self.channels = sum(attrs.values())
         self._attr_names = tuple(attrs)
         res = cfg.block_resolution

@@ -372,7 +372,8 @@ def _by_key(m: SemanticVoxelMap) -> tuple[dict, np.ndarray]:
 
     coords, flat = (a.numpy() for a in m.vbg.voxel_coordinates_and_flattened_indices())
     order = np.lexsort(coords.T)
-    return {name: m.attribute(name)[flat[order]] for name in [a for a, _ in BASE_ATTRS] + [SEM]}, coords[order]
+    names = [a for a, _ in BASE_ATTRS if m.has_geometry] + [SEM]
+    return {name: m.attribute(name)[flat[order]] for name in names}, coords[order]
 
 
 def test_a_semantics_only_map_fuses_the_same_semantics_and_refuses_geometry(room):
@@ -388,7 +389,8 @@ def test_a_semantics_only_map_fuses_the_same_semantics_and_refuses_geometry(room
     sem = fill(SemanticVoxelMap(kk, cfg, class_names=scene.class_names, tsdf=False))
     (a, ca), (b, cb) = _by_key(full), _by_key(sem)
     assert np.array_equal(ca, cb) and a["semantic"].tobytes() == b["semantic"].tobytes()
-    assert a["weight"].any() and not b["weight"].any() and not b["tsdf"].any()
+    assert a["weight"].any() and set(b) == {"semantic"}   # no TSDF buffers at all
+    assert sem.bytes_per_block < full.bytes_per_block
     assert full.has_geometry and not sem.has_geometry
     keys = np.rint(ca[::97] / cfg.voxel_size_m).astype(np.int32)
     for x, y in zip(full.query_keys(keys), sem.query_keys(keys)):   # what the agent reads: the same
