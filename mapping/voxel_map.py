@@ -83,12 +83,10 @@ class SemanticVoxelMap:
     ``cfg.glfs_params`` or identity. temperature: scalar or (K,) logit temperature for the
     other strategies (default ``cfg.temperature``). obs_cache: an ``ObservationRecorder``
     (e.g. ``mapping.calibration.obs_cache.ObsCache``) that records every observation.
-    tsdf: False = semantics only, for owners that never read geometry (the agent: ~1 ms of its
-    step was Open3D's TSDF pass, and the TSDF buffers 5 of a block's 43 channels at K = 18,
-    GLFS): a frame's blocks are allocated as the TSDF step would and the semantic accumulators
-    are bit-identical, but the grid has no TSDF attributes, and the read-outs that need the
-    surface (``voxels``, ``point_cloud``, ``voxel_normals``, ``render_semantics``) refuse the
-    map; ``observed_voxels`` shows it.
+    tsdf: False = semantics only, for owners that never read geometry (the agent): the frame's
+    blocks are allocated as the TSDF step would and the semantic accumulators are bit-identical,
+    but there is no TSDF pass nor buffers, and the read-outs that need the surface (``voxels``,
+    ``point_cloud``, ``voxel_normals``, ``render_semantics``) refuse the map (``observed_voxels``).
     """
 
     def __init__(self, num_classes: int, cfg: MappingConfig | None = None, device: str = "CPU:0", *,
