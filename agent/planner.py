@@ -57,8 +57,7 @@ def geodesic_distance(free: np.ndarray, sources: np.ndarray, cost: np.ndarray | 
         inside = (t[:, 0] >= rs.start) & (t[:, 0] < rs.stop) & (t[:, 1] >= cs.start) & (t[:, 1] < cs.stop)
         t = t[inside]
         ends = t[passable[t[:, 0], t[:, 1]]] - (rs.start, cs.start)
-    out[rs, cs] = geodesic(costs, src - (rs.start, cs.start), ends)
-    out[~passable] = np.inf
+    out[rs, cs] = geodesic(costs, src - (rs.start, cs.start), ends)   # (inf wherever cost is: not passable)
     return out
 
 
