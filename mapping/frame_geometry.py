@@ -137,8 +137,10 @@ def check_frame(depth, logits, rgb, weights, num_classes: int) -> tuple:
 
 def clean_depth(depth: np.ndarray, depth_min: float, depth_max: float) -> np.ndarray:
     """Depth with invalid entries (NaN, inf, 0, outside [depth_min, depth_max]) set to 0."""
-    bad = ~((depth >= depth_min) & (depth <= depth_max))  # NaN compares False -> bad
-    return np.where(bad, np.float32(0), depth) if bad.any() else depth
+    from calnav.mapping.semantic_kernels import clean_depth as kernel   # (see incidence_angles)
+
+    # NaN compares False: bad; the bounds compare as float32 (as numpy's with python floats)
+    return kernel(depth.ravel(), np.float32(depth_min), np.float32(depth_max)).reshape(depth.shape)
 
 
 class BlockTable:
@@ -154,11 +156,25 @@ class BlockTable:
         self.in_frame = np.zeros(int(np.prod(self.dims)), bool)
         self.in_frame[self.cells] = True
 
-    def flat_indices(self, ids: np.ndarray, buffer_index: np.ndarray, res3: int) -> np.ndarray:
+    def cells_of(self, ids: np.ndarray, res3: int) -> np.ndarray:
+        """(B',) int64 sorted table cells of the blocks holding table ids (n,)."""
+        mark = np.zeros(self.in_frame.size, bool)
+        mark[ids // res3] = True
+        return np.flatnonzero(mark)
+
+    def block_coords(self, cells: np.ndarray) -> np.ndarray:
+        """(B', 3) int32 block coordinates of table cells (B',)."""
+        d0, d1 = int(self.dims[0]), int(self.dims[1])
+        rel = np.stack([cells % d0, (cells // d0) % d1, cells // (d0 * d1)], axis=1)
+        return (rel + self.low).astype(np.int32)
+
+    def flat_indices(self, ids: np.ndarray, buffer_index: np.ndarray, res3: int,
+                     cells: np.ndarray | None = None) -> np.ndarray:
         """Flat voxel-buffer index (n,) int64 of table ids (n,) (cell * res3 + voxel in block),
-        given each frame block's buffer index (B,) (-1: not allocated, giving -1)."""
+        given the buffer index (B,) of each block of ``cells`` (default: the frame's blocks; -1:
+        not allocated, giving -1)."""
         table = np.full(self.in_frame.size, -1, np.int64)
-        table[self.cells] = buffer_index
+        table[self.cells if cells is None else cells] = buffer_index
         block = table[ids // res3]
         return np.where(block >= 0, block * res3 + ids % res3, -1)
 
@@ -184,9 +200,9 @@ class PixelGrid:
         self.depth = np.empty(n, np.float32)
         self.pts = np.empty((3, n), np.float32)
         self.g = np.empty((3, n), np.int32)
-        self.b = np.empty((3, n), np.int32)
-        self.loc = np.empty((3, n), np.int32)
-        self.i32 = np.empty((2, n), np.int32)
+        self.slot = np.empty(n, np.int64)
+        self.ids = np.empty(n, np.int64)
+        self.keys = np.empty((n, 3), np.int32)
 
 
 def auto_stride(k: np.ndarray, voxel_size_m: float, depth_max_m: float, spacing_voxels: float) -> int:
@@ -207,26 +223,14 @@ def incidence_angles(depth: np.ndarray, k: np.ndarray, pix: np.ndarray, offset: 
     depth discontinuity does not bend the normal); an axis with no valid neighbour counts as
     flat.
     """
+    # imported here: envs.config reads this module and need not load numba
+    from calnav.mapping.semantic_kernels import incidence_cosines
+
     h, w = depth.shape
-    flat = np.append(depth.ravel(), np.float32(0))  # a zero-depth sentinel for off-image neighbours
-    off_image = h * w
-    u, v = pix % w, pix // w
-    z = flat[pix]
-    grads = []
-    for coord, size, step in ((u, w, offset), (v, h, offset * w)):
-        zp = flat[np.where(coord + offset < size, pix + step, off_image)]
-        zm = flat[np.where(coord >= offset, pix - step, off_image)]
-        ok_p, ok_m = zp > 0, zm > 0
-        dp, dm = zp - z, z - zm
-        adp, adm = np.abs(dp), np.abs(dm)
-        one_sided = np.where(ok_p & (~ok_m | (adp <= adm)), dp, np.where(ok_m, dm, np.float32(0)))
-        smooth = ok_p & ok_m & (np.abs(dp - dm) <= SMOOTH_JUMP_RATIO * np.maximum(adp, adm))
-        grads.append(np.where(smooth, np.float32(0.5) * (dp + dm), one_sided) * np.float32(1.0 / offset))
-    zu, zv = grads
-    du, dv = (u - k[0, 2]).astype(np.float32), (v - k[1, 2]).astype(np.float32)
-    nz = du * zu + dv * zv + z
-    fx, fy = np.float32(k[0, 0]), np.float32(k[1, 1])
-    n2 = (fx * zu) ** 2 + (fy * zv) ** 2 + nz * nz
-    r2 = (du / fx) ** 2 + (dv / fy) ** 2 + np.float32(1)
-    cos = z / np.maximum(np.sqrt(n2 * r2), np.finfo(np.float32).tiny)
+    pix = np.ascontiguousarray(pix, dtype=np.int64)
+    if len(pix) and (pix.min() < 0 or pix.max() >= h * w) or not 1 <= offset:
+        raise ValueError(f"pixels must lie in the {w}x{h} image and offset be >= 1, got offset {offset}")
+    cos = np.empty(len(pix), np.float32)
+    incidence_cosines(np.ascontiguousarray(depth, dtype=np.float32).ravel(), w, h, float(k[0, 0]), float(k[1, 1]),
+                      float(k[0, 2]), float(k[1, 2]), pix, int(offset), SMOOTH_JUMP_RATIO, cos)
     return np.degrees(np.arccos(np.minimum(cos, np.float32(1)))).astype(np.float32)

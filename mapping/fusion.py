@@ -135,6 +135,7 @@ class Strategy:
     readout: Callable[..., torch.Tensor]
     gated: bool = False          # needs the GLFS gates (g, eps)
     differentiable: bool = True  # False: argmax votes (no gradient w.r.t. temperature)
+    votes: bool = False          # B sums onehot(argmax) votes instead of probabilities
 
     def channels(self, num_classes: int) -> dict[str, int]:
         return {a: accumulator_channels(a, num_classes) for a in self.accumulators}
@@ -144,7 +145,7 @@ STRATEGIES: dict[str, Strategy] = {
     s.name: s for s in (
         Strategy("rbu", ("A",), _inc_log, _read_rbu),
         Strategy("averaging", ("B", "W"), _inc_prob, _read_mean),
-        Strategy("histogram", ("B", "W"), _inc_vote, _read_mean, differentiable=False),
+        Strategy("histogram", ("B", "W"), _inc_vote, _read_mean, differentiable=False, votes=True),
         Strategy("geometric_mean", ("A", "W"), _inc_log_w, _read_geometric),
         Strategy("glfs", ("A", "B", "W"), _inc_glfs, _read_glfs, gated=True),
     )

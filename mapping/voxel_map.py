@@ -4,7 +4,8 @@ attribute ``semantic``: the channels of ``A`` (K), ``B`` (K), ``W`` (1) --
 whichever the strategy needs, in that order -- then the observation count (1). One attribute
 means one scattered write per voxel and frame.
 
-Semantic update of one frame (all vectorised, CPU, zero-copy numpy / torch views of the grid):
+Semantic update of one frame (CPU, zero-copy numpy views of the grid; the per-observation
+loops are compiled, ``mapping.semantic_kernels``, the softmax / log are torch's):
 1. candidate voxels: every ``stride``-th pixel is back-projected; the voxel *containing* the
    surface point is a candidate (so its centre lies within half a voxel diagonal of the
    observed surface). Duplicates are removed with a per-voxel "stamp" array (O(n), no sort):
@@ -15,7 +16,7 @@ Semantic update of one frame (all vectorised, CPU, zero-copy numpy / torch views
 3. only the gathered rows (n, K) are scaled and softmax-ed; sample weights come from the
    voxel's camera distance and the depth-image incidence angle (both rounded to float16, the
    observation cache's precision, so a map and a ``fuse`` over its cache agree); the
-   strategy's increments are ``index_add_``-ed into the accumulators.
+   strategy's weighted increments are added into the accumulators in one scatter pass.
 The hashmap may reallocate when it grows: attribute views are re-fetched on every call.
 """
 from __future__ import annotations
@@ -31,17 +32,19 @@ import torch
 from calnav.common.threads import single_threaded_torch
 from calnav.mapping import frame_geometry as fg
 from calnav.mapping.config import MappingConfig
+from calnav.mapping import semantic_kernels as kernels
 from calnav.mapping.fusion import ObservationTerms, get_strategy
 from calnav.mapping.glfs import GLFSParams
 from calnav.mapping import map_readout
 from calnav.mapping.map_readout import PointCloud
 from calnav.mapping.scaling import as_temperature, scale_logits
-from calnav.mapping.weighting import WeightingParams, needs_geometry, resolve, sample_weights
+from calnav.mapping.weighting import WeightingParams, lut_cells, lut_table, needs_geometry, resolve, sample_weights
 
 BASE_ATTRS = (("tsdf", 1), ("weight", 1), ("color", 3))
 SEM = "semantic"
 MIB = float(1 << 20)
 MIN_BLOCKS = 16
+MAX_CAMERAS = 16   # intrinsics remembered as checked (a camera whose K changes per frame: checked each time)
 NORMAL_BASE_WIDTH_PX = 160  # auto depth-normal baseline: 1 pixel per 160 pixels of image width
 # Open3D keeps voxels with weight strictly above its threshold; stock TSDF weights count whole
 # observations, so "at least w observations" is threshold w - 1/2.
@@ -51,12 +54,19 @@ NO_BLOCK_TOUCHED = "No block is touched"  # Open3D's error for a frame that touc
 
 @dataclass
 class _Observations:
-    """A frame's semantic observations before they are added: table ids (n,) of the voxels,
-    the table, the accumulator increments (n, C) and the cache record (or None)."""
+    """A frame's semantic observations before they are added: table ids (n,) of the voxels, the
+    table, the scaled logits z, log-probabilities and probabilities (n, K) float32 (the latter
+    two (0, K) where the strategy needs none), the sample weights (n,) float32 (without the
+    LUT's class factor), the LUT cells (n,) int64 (``lut`` weighting, else empty) and the cache
+    record (or None)."""
 
     ids: np.ndarray
     table: fg.BlockTable
-    values: torch.Tensor
+    z: np.ndarray
+    log_p: np.ndarray
+    p: np.ndarray
+    weight: np.ndarray
+    cell: np.ndarray
     record: tuple | None
 
 
@@ -83,9 +93,10 @@ class SemanticVoxelMap:
     ``cfg.glfs_params`` or identity. temperature: scalar or (K,) logit temperature for the
     other strategies (default ``cfg.temperature``). obs_cache: an ``ObservationRecorder``
     (e.g. ``mapping.calibration.obs_cache.ObsCache``) that records every observation.
-    tsdf: False = semantics only, for owners that never read geometry (the agent): the frame's
-    blocks are allocated as the TSDF step would and the semantic accumulators are bit-identical,
-    but there is no TSDF pass nor buffers, and the read-outs that need the surface (``voxels``,
+    tsdf: False = semantics only, for owners that never read geometry (the agent): only the
+    blocks that hold a frame's semantic observations are allocated (not the TSDF's band around
+    the surface: ~2x fewer), the semantic accumulators of the observed voxels are bit-identical,
+    there is no TSDF pass nor buffers, and the read-outs that need the surface (``voxels``,
     ``point_cloud``, ``voxel_normals``, ``render_semantics``) refuse the map (``observed_voxels``).
     """
 
@@ -111,6 +122,8 @@ class SemanticVoxelMap:
             self._slices[a] = slice(start, start + c)
             start += c
         self._count_ch = start  # last channel: observations per voxel
+        self._kernel_args = self._accumulate_constants()
+        self._no_cell, self._no_rows = np.zeros(0, np.int64), np.zeros((0, k), np.float32)
         attrs = (dict(BASE_ATTRS) if tsdf else {}) | {SEM: start + 1}   # semantics only: no TSDF buffers
         self.channels = sum(attrs.values())
         self._attr_names = tuple(attrs)
@@ -124,6 +137,7 @@ class SemanticVoxelMap:
         self._shift = res.bit_length() - 1
         self._stamp = np.empty(0, np.int32)
         self._grids: dict = {}
+        self._checked: dict = {}
         self.frames_integrated = 0
 
     def _set_fusion_params(self, params: GLFSParams | None, temperature) -> None:
@@ -148,6 +162,14 @@ class SemanticVoxelMap:
         self._tau = as_temperature(tau, k)
         edges = {"distance_edges": params.distance_edges, "angle_edges_deg": params.angle_edges_deg} if params else {}
         self._wparams = WeightingParams.from_config(cfg, lut=torch.as_tensor(params.M) if params else None, **edges)
+
+    def _accumulate_constants(self) -> tuple:
+        """``semantic_kernels.accumulate``'s per-map arguments (after ``weight, cell``): the flat LUT
+        (empty unless ``lut`` weighting), its cells per class, the channel offsets, the vote flag."""
+        lut = lut_table(self._wparams).reshape(-1) if self.weighting == "lut" else torch.zeros(0)
+        off = {a: self._slices[a].start if a in self._slices else -1 for a in ("A", "B", "W")}
+        return (np.ascontiguousarray(lut.detach().numpy(), dtype=np.float32), len(lut) // self.num_classes,
+                off["A"], off["B"], self.strategy.votes, off["W"], self._count_ch)
 
     def reset(self) -> "SemanticVoxelMap":
         """Empty the map in place, keeping its allocation (growing Open3D's hashmap re-creates and
@@ -210,7 +232,7 @@ class SemanticVoxelMap:
         cfg = self.cfg
         # every check comes before the first change to the map: a rejected frame leaves it untouched
         depth, logits, rgb, weights = fg.check_frame(depth, logits, rgb, weights, self.num_classes)
-        intr = fg.check_intrinsics(intrinsics, depth.shape[1], depth.shape[0])
+        intr = self._intrinsics(intrinsics, depth.shape[1], depth.shape[0])
         pose = fg.check_pose(pose)
         depth = fg.clean_depth(depth, cfg.depth_min_m, cfg.depth_max_m)
         if not depth.any():  # nothing valid to integrate (Open3D would raise)
@@ -232,17 +254,25 @@ class SemanticVoxelMap:
         if logits is not None and blocks.shape[0] > 0:
             with single_threaded_torch():   # small tensors: extra torch threads only contend with Open3D's
                 observations = self._observe(depth, intr, pose, logits, weights, blocks)   # checks the logits read
-        if not self.tsdf:   # semantics only: the blocks Open3D's integrate would allocate, no TSDF pass
-            self.vbg.hashmap().activate(blocks)
-        elif rgb is None:
+        # (semantics only: no TSDF pass; ``_fuse`` allocates the blocks holding observations)
+        if self.tsdf and rgb is None:
             self.vbg.integrate(blocks, dimg, intr_o3d, extr, 1.0, cfg.depth_max_m, cfg.trunc_voxels)
-        else:
+        elif self.tsdf:
             cimg = o3d.t.geometry.Image(o3c.Tensor.from_numpy(np.multiply(rgb, np.float32(1 / 255), dtype=np.float32)))
             self.vbg.integrate(blocks, dimg, cimg, intr_o3d, extr, 1.0, cfg.depth_max_m, cfg.trunc_voxels)
         if observations is not None:
-            with single_threaded_torch():
-                self._fuse(observations, blocks)
+            self._fuse(observations, blocks)
         self.frames_integrated += 1
+
+    def _intrinsics(self, intrinsics, w: int, h: int) -> np.ndarray:
+        """``fg.check_intrinsics`` of a camera, remembered (a map sees one or two cameras)."""
+        a = np.asarray(intrinsics)
+        key = (a.dtype.str, a.shape, a.tobytes(), w, h)
+        if key not in self._checked:
+            if len(self._checked) >= MAX_CAMERAS:
+                self._checked.clear()
+            self._checked[key] = fg.check_intrinsics(a, w, h)
+        return self._checked[key].copy()
 
     def _grid(self, intr: np.ndarray, h: int, w: int) -> tuple[fg.PixelGrid, int]:
         """Candidate-pixel grid and depth-normal baseline (pixels) of intrinsics (3, 3) / size."""
@@ -261,102 +291,71 @@ class SemanticVoxelMap:
         gr, _ = self._grid(intr, *depth.shape)
         table = fg.BlockTable(blocks.numpy())
         origin, dims = table.low * res, table.dims
-        # voxel coordinates relative to the padded corner (float -> int truncation is a floor for
-        # points >= 0; anything outside is clipped into the padding, which holds no frame block);
-        # invalid depth is sent far away, into the padding too
         np.take(depth.ravel(), gr.pix, out=gr.depth)
-        np.copyto(gr.depth, np.float32(2 * self.cfg.depth_max_m + dims.max() * res * vox), where=gr.depth <= 0)
         np.matmul((pose[:3, :3] / vox).astype(np.float32), gr.rays, out=gr.pts)
-        gr.pts *= gr.depth
-        gr.pts += (pose[:3, 3] / vox - origin + 0.5).astype(np.float32)[:, None]
-        np.maximum(gr.pts, 0, out=gr.pts)
-        np.copyto(gr.g, gr.pts, casting="unsafe")
-        np.right_shift(gr.g, self._shift, out=gr.b)
-        np.bitwise_and(gr.g, res - 1, out=gr.loc)
-        np.minimum(gr.b, (dims - 1).astype(np.int32)[:, None], out=gr.b)
-        lin, local = gr.i32
-        np.multiply(gr.b[2], dims[1], out=lin)
-        lin += gr.b[1]
-        lin *= dims[0]
-        lin += gr.b[0]
-        np.multiply(gr.loc[2], res, out=local)
-        local += gr.loc[1]
-        local *= res
-        local += gr.loc[0]
-        ok = np.flatnonzero(table.in_frame[lin])
-        ids = lin[ok].astype(np.int64)
-        ids *= self._res3
-        ids += local[ok]
         size = table.in_frame.size * self._res3
         if len(self._stamp) < size:
             self._stamp = np.empty(size, np.int32)
-        order = np.arange(len(ids), dtype=np.int32)
-        self._stamp[ids] = order  # one winner per voxel: O(n) de-duplication, no sort
-        win = np.flatnonzero(self._stamp[ids] == order)
-        keys = gr.g[:, ok[win]].T + origin.astype(np.int32)
-        return ids[win], np.ascontiguousarray(keys), table
+        # invalid depth is sent far away, into the table's padding
+        far = np.float32(2 * self.cfg.depth_max_m + dims.max() * res * vox)
+        m = kernels.candidates(gr.pts, gr.depth, far, (pose[:3, 3] / vox - origin + 0.5).astype(np.float32),
+                               self._shift, dims.astype(np.int64), table.in_frame, self._stamp, self._res3,
+                               origin.astype(np.int32), gr.g, gr.slot, gr.ids, gr.keys)
+        return gr.ids[:m], gr.keys[:m], table   # (views of the grid's scratch, valid until the next frame)
 
     def _observe(self, depth, intr, pose, logits, weights, blocks) -> "_Observations | None":
         """A frame's semantic observations, computed before the frame changes the map: the
         candidate voxels whose pixel sees the same surface (association), the logits they read
         -- ValueError if any is NaN or inf, so a rejected frame leaves the map untouched -- and
-        the strategy's increments. None when no voxel is associated."""
+        the strategy's per-observation terms. None when no voxel is associated."""
         cfg = self.cfg
         h, w = depth.shape
         ids, keys, table = self._candidates(depth, intr, pose, blocks)
-        # associate: project voxel centres, keep those whose pixel sees the same surface
         rot, t = pose[:3, :3].astype(np.float32), pose[:3, 3].astype(np.float32)
-        pc = (keys.astype(np.float32) * np.float32(cfg.voxel_size_m) - t) @ rot
-        x, y, z = pc.T
-        inv_z = 1.0 / np.where(z > 0, z, np.float32(1))
-        u = np.rint((intr[0, 0] * x + intr[0, 1] * y) * inv_z + intr[0, 2]).astype(np.int64)
-        v = np.rint(intr[1, 1] * y * inv_z + intr[1, 2]).astype(np.int64)
-        ok = (z > 0) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
-        pix = np.where(ok, v * w + u, 0)
-        dm = depth.ravel()[pix]
-        ok &= (dm > 0) & (np.abs(z - dm) <= cfg.association_band_voxels * cfg.voxel_size_m)
-        sel = np.flatnonzero(ok)
-        if len(sel) == 0:
+        pc = (keys.astype(np.float32) * np.float32(cfg.voxel_size_m) - t) @ rot   # camera frame (n, 3)
+        sel, pix, dist_m = (np.empty(len(ids), dtype) for dtype in (np.int64, np.int64, np.float32))
+        m = kernels.associate(pc, intr[0, 0], intr[0, 1], intr[0, 2], intr[1, 1], intr[1, 2], w, h, depth.ravel(),
+                              np.float32(cfg.association_band_voxels * cfg.voxel_size_m), sel, pix, dist_m)
+        if m == 0:
             return None
-        ids, keys, pix, pc = ids[sel], keys[sel], pix[sel], pc[sel]
-        rows = torch.from_numpy(logits.reshape(h * w, self.num_classes)).index_select(0, torch.from_numpy(pix))
-        # the logits the map reads must be finite (a sum is finite when every term is, barring
-        # overflow; only then a look at each): one pass over these rows, not the whole image
-        if not bool(torch.isfinite(rows.sum())) and not bool(torch.isfinite(rows).all()):
+        sel, pix = sel[:m], pix[:m]
+        rows = np.empty((m, self.num_classes), np.float32)
+        if not kernels.gather_rows(logits.reshape(h * w, self.num_classes), pix, rows):
             raise ValueError("logits contain NaN or inf at pixels the map reads (pixels of valid depth); the frame "
                              "was not integrated")
-        geometry = needs_geometry(self.weighting) or self.obs_cache is not None
         dist = angle = None
-        if geometry:
-            offset = self._grid(intr, h, w)[1]
-            dist = np.sqrt(np.einsum("ij,ij->i", pc, pc)).astype(np.float16).astype(np.float32)
-            angle = fg.incidence_angles(depth, intr, pix, offset).astype(np.float16).astype(np.float32)
+        if needs_geometry(self.weighting) or self.obs_cache is not None:
+            # both rounded to float16, the observation cache's precision (a map and a fuse over its cache agree)
+            dist = dist_m[:m].astype(np.float16).astype(np.float32)
+            angle = fg.incidence_angles(depth, intr, pix, self._grid(intr, h, w)[1]).astype(np.float16).astype(np.float32)
+        ext = None if weights is None else weights.ravel()[pix]
+        wt, cell = (np.ones(m, np.float32) if ext is None else ext), self._no_cell
         with torch.no_grad():
-            z_scaled = scale_logits(rows, self._tau)
-            if self.weighting == "none":
-                wt = torch.ones(len(pix), dtype=torch.float32)
-            else:
-                pred = z_scaled.max(dim=1).indices if self.weighting == "lut" else None  # (argmax: ~0.4 ms)
-                wt = sample_weights(self.weighting, pred, torch.from_numpy(dist), torch.from_numpy(angle), self._wparams)
-            ext = None
-            if weights is not None:
-                ext = weights.ravel()[pix]
-                wt = wt * torch.from_numpy(ext)
-            inc = self.strategy.increments(ObservationTerms(z_scaled, cfg.laplace_mu), wt)
-            val = torch.cat([inc[a] for a in self._slices] + [torch.ones(len(ids), 1)], dim=1)
-        record = (keys, rows.numpy(), dist, angle, ext) if self.obs_cache is not None else None
-        return _Observations(ids, table, val, record)
+            if self.weighting == "lut":   # the class factor is looked up by the kernel, from argmax z
+                cell = lut_cells(torch.from_numpy(dist), torch.from_numpy(angle), self._wparams).numpy()
+            elif self.weighting != "none":
+                wt = sample_weights(self.weighting, None, torch.from_numpy(dist), torch.from_numpy(angle),
+                                    self._wparams).numpy() * wt
+            terms = ObservationTerms(scale_logits(torch.from_numpy(rows), self._tau), cfg.laplace_mu)
+            log_p = terms.log_p.numpy() if "A" in self._slices else self._no_rows
+            p = terms.p.numpy() if "B" in self._slices and not self.strategy.votes else self._no_rows
+        record = (keys[sel], rows, dist, angle, ext) if self.obs_cache is not None else None
+        return _Observations(ids[sel], table, terms.z.numpy(), log_p, p, np.ascontiguousarray(wt, dtype=np.float32),
+                             cell, record)
 
     def _fuse(self, obs: "_Observations", blocks) -> None:
         """Add a frame's observations to the voxels (after ``integrate`` allocated its blocks)."""
-        buf, found = self.vbg.hashmap().find(blocks)
-        flat = obs.table.flat_indices(obs.ids, np.where(found.numpy(), buf.numpy(), -1), self._res3)
-        keep = flat >= 0   # every frame block is allocated by then; a block Open3D dropped is skipped
-        val = obs.values if keep.all() else obs.values[torch.from_numpy(keep)]
-        with torch.no_grad():
-            torch.from_numpy(self.attribute(SEM)).index_add_(0, torch.from_numpy(flat[keep]), val)
+        hm, cells = self.vbg.hashmap(), None
+        if not self.tsdf:   # allocate the blocks that hold observations (the TSDF pass allocated the frame's)
+            cells = obs.table.cells_of(obs.ids, self._res3)
+            blocks = o3c.Tensor(obs.table.block_coords(cells))
+            hm.activate(blocks)
+        buf, found = hm.find(blocks)
+        flat = obs.table.flat_indices(obs.ids, np.where(found.numpy(), buf.numpy(), -1), self._res3, cells)
+        kernels.accumulate(self.attribute(SEM), flat, obs.z, obs.log_p, obs.p, obs.weight, obs.cell,
+                           *self._kernel_args)   # (skips flat -1: a frame block Open3D dropped)
         if obs.record is not None:
-            self.obs_cache.record(*(None if a is None else a[keep] for a in obs.record))
+            self.obs_cache.record(*(None if a is None else a[flat >= 0] for a in obs.record))
 
     @property
     def o3d_weight_threshold(self) -> float:

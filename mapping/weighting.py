@@ -66,13 +66,23 @@ def _none(pred, distance_m, angle_deg, params: WeightingParams) -> torch.Tensor:
     return torch.ones(distance_m.shape, dtype=distance_m.dtype, device=distance_m.device)
 
 
-def _lut(pred, distance_m, angle_deg, params: WeightingParams) -> torch.Tensor:
+def lut_table(params: WeightingParams) -> torch.Tensor:
+    """The ``lut`` weighting's table max(M, 0) (K, n_dist, n_angle)."""
     if params.lut is None:
         raise ValueError("weighting 'lut' needs a look-up table M (K, n_dist, n_angle); see mapping.glfs.GLFSParams")
-    m = params.lut.clamp_min(0.0)
-    n_dist, n_angle = m.shape[1], m.shape[2]
-    cell = (pred * n_dist + bin_index(distance_m, params.distance_edges)) * n_angle \
-        + bin_index(angle_deg, params.angle_edges_deg)
+    return params.lut.clamp_min(0.0)
+
+
+def lut_cells(distance_m: torch.Tensor, angle_deg: torch.Tensor, params: WeightingParams) -> torch.Tensor:
+    """(...) int64 (distance bin, angle bin) cell of each observation within its class's slice
+    of the flat LUT: the weight is ``lut_table(params).reshape(-1)[pred * n_dist * n_angle + cell]``."""
+    n_angle = len(params.angle_edges_deg) - 1
+    return bin_index(distance_m, params.distance_edges) * n_angle + bin_index(angle_deg, params.angle_edges_deg)
+
+
+def _lut(pred, distance_m, angle_deg, params: WeightingParams) -> torch.Tensor:
+    m = lut_table(params)
+    cell = pred * (m.shape[1] * m.shape[2]) + lut_cells(distance_m, angle_deg, params)
     return m.reshape(-1)[cell]  # one flat gather (cheaper than 3-D advanced indexing)
 
 

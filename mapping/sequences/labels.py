@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from calnav.mapping.sequences.readers import VOID, SequenceConfig
+from calnav.mapping.sequences.readers import VOID, Sequence, SequenceConfig
 
 
 def read_class_list(path) -> tuple[str, ...]:
