@@ -44,23 +44,24 @@ BASE_ATTRS = (("tsdf", 1), ("weight", 1), ("color", 3))
 SEM = "semantic"
 MIB = float(1 << 20)
 MIN_BLOCKS = 16
-MAX_CAMERAS = 16   # intrinsics remembered as checked (a camera whose K changes per frame: checked each time)
 NORMAL_BASE_WIDTH_PX = 160  # auto depth-normal baseline: 1 pixel per 160 pixels of image width
 # Open3D keeps voxels with weight strictly above its threshold; stock TSDF weights count whole
 # observations, so "at least w observations" is threshold w - 1/2.
 WEIGHT_STRICT_OFFSET = 0.5
+NO_VOXELS = (np.zeros((0, 3), np.int32), np.zeros(0, np.int64))   # ``frame_voxels`` of a frame that fused none
 NO_BLOCK_TOUCHED = "No block is touched"  # Open3D's error for a frame that touches no voxel block
 
 
 @dataclass
 class _Observations:
-    """A frame's semantic observations before they are added: table ids (n,) of the voxels, the
-    table, the scaled logits z, log-probabilities and probabilities (n, K) float32 (the latter
+    """A frame's semantic observations before they are added: table ids (n,) and keys (n, 3) int32
+    of the voxels, the table, the scaled logits z, log-probabilities and probabilities (n, K) float32 (the latter
     two (0, K) where the strategy needs none), the sample weights (n,) float32 (without the
     LUT's class factor), the LUT cells (n,) int64 (``lut`` weighting, else empty) and the cache
     record (or None)."""
 
     ids: np.ndarray
+    keys: np.ndarray
     table: fg.BlockTable
     z: np.ndarray
     log_p: np.ndarray
@@ -137,8 +138,11 @@ class SemanticVoxelMap:
         self._shift = res.bit_length() - 1
         self._stamp = np.empty(0, np.int32)
         self._grids: dict = {}
-        self._checked: dict = {}
+        self._intrinsics = fg.IntrinsicsCache()
         self.frames_integrated = 0
+        # the voxels the last ``integrate`` fused an observation into (their fused values changed):
+        # keys (n, 3) int32 and flat buffer indices (n,) int64, valid until the next integrate
+        self.frame_voxels: tuple[np.ndarray, np.ndarray] = NO_VOXELS
 
     def _set_fusion_params(self, params: GLFSParams | None, temperature) -> None:
         """Temperature, GLFS gates and weighting parameters (the LUT from the GLFS params)."""
@@ -185,6 +189,7 @@ class SemanticVoxelMap:
                 a.reshape(a.shape[0], -1)[rows] = 0
             hm.erase(hm.key_tensor()[active.to(o3c.int64)])
         self.frames_integrated = 0
+        self.frame_voxels = NO_VOXELS
         return self
 
     @property
@@ -235,6 +240,7 @@ class SemanticVoxelMap:
         intr = self._intrinsics(intrinsics, depth.shape[1], depth.shape[0])
         pose = fg.check_pose(pose)
         depth = fg.clean_depth(depth, cfg.depth_min_m, cfg.depth_max_m)
+        self.frame_voxels = NO_VOXELS
         if not depth.any():  # nothing valid to integrate (Open3D would raise)
             self.frames_integrated += 1
             return
@@ -263,16 +269,6 @@ class SemanticVoxelMap:
         if observations is not None:
             self._fuse(observations, blocks)
         self.frames_integrated += 1
-
-    def _intrinsics(self, intrinsics, w: int, h: int) -> np.ndarray:
-        """``fg.check_intrinsics`` of a camera, remembered (a map sees one or two cameras)."""
-        a = np.asarray(intrinsics)
-        key = (a.dtype.str, a.shape, a.tobytes(), w, h)
-        if key not in self._checked:
-            if len(self._checked) >= MAX_CAMERAS:
-                self._checked.clear()
-            self._checked[key] = fg.check_intrinsics(a, w, h)
-        return self._checked[key].copy()
 
     def _grid(self, intr: np.ndarray, h: int, w: int) -> tuple[fg.PixelGrid, int]:
         """Candidate-pixel grid and depth-normal baseline (pixels) of intrinsics (3, 3) / size."""
@@ -340,7 +336,7 @@ class SemanticVoxelMap:
             log_p = terms.log_p.numpy() if "A" in self._slices else self._no_rows
             p = terms.p.numpy() if "B" in self._slices and not self.strategy.votes else self._no_rows
         record = (keys[sel], rows, dist, angle, ext) if self.obs_cache is not None else None
-        return _Observations(ids[sel], table, terms.z.numpy(), log_p, p, np.ascontiguousarray(wt, dtype=np.float32),
+        return _Observations(ids[sel], keys[sel], table, terms.z.numpy(), log_p, p, np.ascontiguousarray(wt, dtype=np.float32),
                              cell, record)
 
     def _fuse(self, obs: "_Observations", blocks) -> None:
@@ -354,8 +350,10 @@ class SemanticVoxelMap:
         flat = obs.table.flat_indices(obs.ids, np.where(found.numpy(), buf.numpy(), -1), self._res3, cells)
         kernels.accumulate(self.attribute(SEM), flat, obs.z, obs.log_p, obs.p, obs.weight, obs.cell,
                            *self._kernel_args)   # (skips flat -1: a frame block Open3D dropped)
+        keep = flat >= 0
+        self.frame_voxels = (obs.keys[keep], flat[keep])
         if obs.record is not None:
-            self.obs_cache.record(*(None if a is None else a[flat >= 0] for a in obs.record))
+            self.obs_cache.record(*(None if a is None else a[keep] for a in obs.record))
 
     @property
     def o3d_weight_threshold(self) -> float:

@@ -53,23 +53,25 @@ def test_incremental_fused_projection_matches_full_projection():
     ijk = rng.integers(-15, 15, (40, 3))
     ijk = np.unique(ijk, axis=0)
 
-    class FakeMap:
+    class FakeMap:   # the voxel map's side of the contract: frame_voxels and fused_probs
         def __init__(self):
-            self.table = {}
+            self.probs = np.zeros((len(ijk), 3), np.float32)
+            self.frame_voxels = (np.zeros((0, 3), np.int32), np.zeros(0, np.int64))
 
-        def query_keys(self, ijk):
-            keys = [tuple(int(v) for v in k) for k in ijk]
-            return np.array([self.table[k] for k in keys], np.float32), np.ones(len(keys), bool)
+        def fused_probs(self, flat):
+            return self.probs[flat]
 
     fake = FakeMap()
-    for rnd in range(3):  # every round changes the fused probs of a subset of voxels
-        sub = ijk[rng.random(len(ijk)) < 0.6]
-        for v in sub:
-            p = rng.random(3)
-            fake.table[tuple(v)] = p / p.sum()
-        module._project_fused(state, sub * 0.05, fake)
-    keys = np.array(list(fake.table))
-    probs = np.array(list(fake.table.values()), np.float32)
+    seen = np.zeros(len(ijk), bool)
+    for rnd in range(3):  # every round changes the fused probs of a subset of voxels, in random order
+        flat = rng.permutation(np.flatnonzero(rng.random(len(ijk)) < 0.6))
+        p = rng.random((len(flat), 3))
+        fake.probs[flat] = p / p.sum(axis=1, keepdims=True)
+        seen[flat] = True
+        fake.frame_voxels = (ijk[flat].astype(np.int32), flat)
+        module._project_fused(state, fake)
+    keys = ijk[seen]
+    probs = fake.probs[seen]
     ref = pj.project_voxels(keys * 0.05, probs, state.origin, cfg.cell_m, state.size)
     np.testing.assert_allclose(state.semantic, ref, atol=1e-5)
 

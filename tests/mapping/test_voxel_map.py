@@ -413,3 +413,33 @@ def test_a_semantics_only_map_fuses_the_same_semantics_and_refuses_geometry(room
     assert len(c1) > 0 and c1[o1].tobytes() == c2[o2].tobytes() and p1[o1].tobytes() == p2[o2].tobytes()
     surface, _ = full.voxels()   # the TSDF band keeps (nearly) all observed voxels
     assert len(c1) >= len(surface) > 0.9 * len(c1)
+
+
+@pytest.mark.parametrize("tsdf", [True, False])
+def test_frame_voxels_are_exactly_the_voxels_a_frame_fused_into(room, tsdf):
+    """``frame_voxels`` after each integrate: the keys and buffer rows of the voxels whose
+    observation count went up (what the agent re-projects), unique; empty after a frame without
+    logits and after ``reset``."""
+    scene, _, k, frames = room
+    kk = scene.num_classes
+    m = SemanticVoxelMap(kk, MappingConfig(fusion="glfs", initial_alloc_mb=SMALL_ALLOC_MB), tsdf=tsdf)
+    rng = np.random.default_rng(3)
+    for depth, pose, labels in frames[:3]:
+        before = dict(zip(*_counts_by_key(m)))
+        m.integrate(depth, k, pose, noisy_logits(labels, kk, rng, fp16=False))
+        keys, flat = m.frame_voxels
+        after = dict(zip(*_counts_by_key(m)))
+        grew = {c for c, n in after.items() if n > before.get(c, 0)}
+        assert len(keys) == len(grew) > 0 and {tuple(c) for c in keys.tolist()} == grew
+        np.testing.assert_array_equal(m.flat_indices(keys), flat)
+    m.integrate(frames[0][0], k, frames[0][1])   # geometry only
+    assert len(m.frame_voxels[0]) == 0
+    m.integrate(frames[1][0], k, frames[1][1], noisy_logits(frames[1][2], kk, rng, fp16=False))
+    assert len(m.reset().frame_voxels[1]) == 0
+
+
+def _counts_by_key(m: SemanticVoxelMap) -> tuple[list, np.ndarray]:
+    """Integer keys (tuples) of every allocated voxel and its observation count (N,)."""
+    coords, flat = (a.numpy() for a in m.vbg.voxel_coordinates_and_flattened_indices())
+    keys = np.rint(coords / m.cfg.voxel_size_m).astype(np.int64)
+    return [tuple(c) for c in keys.tolist()], m.observation_counts(flat)
