@@ -143,7 +143,7 @@ class SemanticMapModule:
         (``SemanticVoxelMap.reset``: the grown allocation is kept, so later episodes skip
         Open3D's ~1 s hashmap doublings), so the previous state's ``voxels`` are emptied too.
         The voxel map fuses semantics without the TSDF (``SemanticVoxelMap`` ``tsdf=False``):
-        the projection reads only the semantics of the voxels a frame hits, so the agent's
+        the projection reads only the semantics of the voxels a frame fused into, so the agent's
         actions are the same either way (a Rerun recording shows ``observed_voxels``)."""
         voxels = None
         if self.cfg.map_type == "fused":

@@ -2,7 +2,7 @@
 arg-max class, confidence) and the per-(class, cell) sums and counts it feeds (a cell's class
 confidence is the mean of the votes for that class there, paper Sec. VI-C).
 
-``VoxelVotes.vote`` replaces the votes of the voxels a frame hit and moves the sums by the
+``VoxelVotes.vote`` replaces the votes of the voxels a frame fused into and moves the sums by the
 difference, in one compiled pass (numba): the sorted merge of the new votes, the subtraction
 of the replaced ones and the addition of the new ones per (class, cell) bin -- summed in
 float64 in the order numpy's ``bincount`` would (replaced votes first, then new ones, each in
