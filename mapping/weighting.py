@@ -67,9 +67,14 @@ def _none(pred, distance_m, angle_deg, params: WeightingParams) -> torch.Tensor:
 
 
 def lut_table(params: WeightingParams) -> torch.Tensor:
-    """The ``lut`` weighting's table max(M, 0) (K, n_dist, n_angle)."""
+    """The ``lut`` weighting's table max(M, 0) (K, n_dist, n_angle), its shape checked against the
+    bin edges (the voxel map's compiled look-up indexes it without bounds checks)."""
     if params.lut is None:
         raise ValueError("weighting 'lut' needs a look-up table M (K, n_dist, n_angle); see mapping.glfs.GLFSParams")
+    bins = (len(params.distance_edges) - 1, len(params.angle_edges_deg) - 1)
+    if params.lut.ndim != 3 or tuple(params.lut.shape[1:]) != bins:
+        raise ValueError(f"the LUT M must have shape (K, n_dist, n_angle) = (K, {bins[0]}, {bins[1]}) for its bin "
+                         f"edges, got {tuple(params.lut.shape)}")
     return params.lut.clamp_min(0.0)
 
 

@@ -215,3 +215,15 @@ def test_clean_depth_zeroes_what_is_outside_the_range():
     ok = np.full((2, 3), 1.5, np.float32)
     out = fg.clean_depth(ok, 0.3, 10.0)
     assert np.shares_memory(out, ok) and np.array_equal(out, ok)   # nothing to clean: no copy
+
+
+def test_the_lut_must_match_its_bin_edges():
+    """The compiled look-up indexes the flat table without bounds checks: a table whose shape
+    disagrees with the bin edges is refused where it is built (``lut_table``)."""
+    from calnav.mapping.weighting import lut_table
+
+    ok = WeightingParams(lut=torch.ones(K, 5, 3))
+    assert lut_table(ok).shape == (K, 5, 3)
+    for bad in (torch.ones(K, 5, 2), torch.ones(K, 15)):
+        with pytest.raises(ValueError, match=r"the LUT M must have shape \(K, n_dist, n_angle\) = \(K, 5, 3\)"):
+            lut_table(WeightingParams(lut=bad))
