@@ -14,8 +14,9 @@ layers; ``MapState.semantic`` (K, n, n) float32 is the confidence that class l i
 Per frame (``update``), with the segmented frame at the mapping resolution
 (``mapping.frame.SegmentedFrame``: depth (h, w) m, logits (h, w, K)):
 
-- ``fused``: the frame is fused into the 3D voxel map; the voxels hit by this frame's depth
-  (the only ones whose fused value changed) are re-read and re-projected: each voxel keeps its
+- ``fused``: the frame is fused into the 3D voxel map; the voxels it fused an observation into
+  (``SemanticVoxelMap.frame_voxels``: the only ones whose fused value changed) are re-read and
+  re-projected: each voxel keeps its
   latest (cell, arg-max class, confidence) in ``agent.votes.VoxelVotes`` and the per-(class, cell) sums and
   counts are updated by difference, so the semantic layer is exactly the mean over all observed
   surface voxels in the cell and the cost per frame does not grow with the house.
@@ -228,7 +229,7 @@ class SemanticMapModule:
         ijk, flat = vmap.frame_voxels
         keys = VoxelVotes.encode(ijk)
         order = np.argsort(keys)   # unique keys: one observation per voxel and frame
-        keys, ijk, flat = keys[order], ijk[order].astype(np.int64), flat[order]
+        keys, ijk, flat = keys[order], ijk[order], flat[order]
         with single_threaded_torch():   # small tensors: extra torch threads only contend
             probs = vmap.fused_probs(flat)
         cls = probs.argmax(axis=1)
