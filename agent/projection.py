@@ -1,5 +1,6 @@
 """The 2D map's grid geometry: ground-plane projection of 3D points and fused voxels, cell
-indices, discs and dilation (pure numpy / OpenCV, no state).
+indices, discs and dilation (numpy / OpenCV, and compiled loops where a frame's per-point
+numpy passes cost more than the work: ``backproject``, ``cell_of``, ``free_rays``; no state).
 
 Conventions: "world" below is the agent's map frame -- the episode-start frame of
 ``agent.sensors`` (the simulator's world frame is never seen) -- z-up, metres, floor at z = 0.
@@ -14,6 +15,8 @@ import functools
 import cv2
 import numpy as np
 
+from calnav.common.jit import compiled
+
 
 def backproject(depth: np.ndarray, intrinsics: np.ndarray, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """World points of the valid (depth > 0) pixels of a depth image.
@@ -23,14 +26,28 @@ def backproject(depth: np.ndarray, intrinsics: np.ndarray, pose: np.ndarray) -> 
     metres and pix (N,) int64 flat pixel indices (row-major) of the valid pixels.
     """
     h, w = depth.shape
-    pix = np.flatnonzero(depth.reshape(-1) > 0)
-    z = depth.reshape(-1)[pix].astype(np.float64)
-    v, u = np.divmod(pix, w)
-    x = (u - intrinsics[0, 2]) * z / intrinsics[0, 0]
-    y = (v - intrinsics[1, 2]) * z / intrinsics[1, 1]
-    cam = np.stack([x, y, z], axis=1)
-    world = cam @ pose[:3, :3].T + pose[:3, 3]
-    return world.astype(np.float32), pix
+    k, pose = np.asarray(intrinsics, np.float64), np.ascontiguousarray(pose, np.float64)
+    points, pix = np.empty((h * w, 3), np.float32), np.empty(h * w, np.int64)
+    m = _backproject(np.ascontiguousarray(depth).reshape(-1), w, k[0, 0], k[1, 1], k[0, 2], k[1, 2], pose, points, pix)
+    return points[:m], pix[:m]
+
+
+@compiled
+def _backproject(depth, w, fx, fy, cx, cy, pose, points, pix):
+    """``backproject`` into points (H * W, 3) / pix (H * W,); returns the number of valid pixels.
+    In float64, rounded to float32 at the end."""
+    m = 0
+    for i in range(depth.shape[0]):
+        if not depth[i] > 0:
+            continue
+        z = np.float64(depth[i])
+        x = (i % w - cx) * z / fx
+        y = (i // w - cy) * z / fy
+        for r in range(3):
+            points[m, r] = np.float32(pose[r, 0] * x + pose[r, 1] * y + pose[r, 2] * z + pose[r, 3])
+        pix[m] = i
+        m += 1
+    return m
 
 
 def lattice_aligned_origin(centre_xy: np.ndarray, size_m: float, lattice_m: float | None) -> np.ndarray:
@@ -52,14 +69,22 @@ def lattice_aligned_origin(centre_xy: np.ndarray, size_m: float, lattice_m: floa
 
 
 def cell_of(xy: np.ndarray, origin: np.ndarray, cell_m: float, n: int) -> tuple[np.ndarray, np.ndarray]:
-    """Flat cell index (N,) int64 of world points xy (N, 2) metres, and an inside mask (N,)
-    bool (points outside the n x n map get index 0 and inside False)."""
-    cr = np.floor((np.asarray(xy, np.float64) - origin) / cell_m).astype(np.int64)
-    x, y = cr[:, 0], cr[:, 1]
-    inside = (x >= 0) & (x < n) & (y >= 0) & (y < n)   # (not .all(axis=1): slow on 2 columns)
-    flat = y * n + x
-    flat[~inside] = 0
+    """Flat cell index (N,) int64 of world points xy (N, 2) metres (or more columns: the first two
+    are x, y), and an inside mask (N,) bool (points outside the n x n map get index 0 and inside
+    False)."""
+    xy = np.ascontiguousarray(np.asarray(xy)[:, :2], dtype=np.float64)   # (exact; one compiled signature)
+    flat, inside = np.empty(len(xy), np.int64), np.empty(len(xy), bool)
+    _cell_of(xy, np.asarray(origin, np.float64), float(cell_m), int(n), flat, inside)
     return flat, inside
+
+
+@compiled
+def _cell_of(xy, origin, cell_m, n, flat, inside):
+    for i in range(xy.shape[0]):   # floor((x - origin) / cell_m)
+        x = np.int64(np.floor((xy[i, 0] - origin[0]) / cell_m))
+        y = np.int64(np.floor((xy[i, 1] - origin[1]) / cell_m))
+        inside[i] = 0 <= x < n and 0 <= y < n
+        flat[i] = y * n + x if inside[i] else 0
 
 
 def class_confidence_sums(cells: np.ndarray, classes: np.ndarray, conf: np.ndarray, num_cells: int,
@@ -162,30 +187,53 @@ def free_rays(camera_xy: np.ndarray, points: np.ndarray, pix: np.ndarray, width:
     """
     if len(points) == 0:
         return np.zeros((0, 2), np.float32)
-    d = points[:, :2].astype(np.float64) - camera_xy
-    rng = np.hypot(d[:, 0], d[:, 1])
-    # rank key: obstacles first by range, then free points by -range (farthest first); the
-    # column's point is its smallest key, the lowest row among equal ones (a dense per-pixel
-    # image and argmin per column: a sort of all points costs several times more)
-    key = np.full((int(pix[-1]) // width + 1) * width, np.inf)
-    key[pix] = np.where(obstacle, rng, -rng + 1e6)
-    key = key.reshape(-1, width)
-    row = key.argmin(axis=0)
-    cols = np.flatnonzero(np.isfinite(key[row, np.arange(width)]))
-    point = np.full(key.size, -1, np.int64)
-    point[pix] = np.arange(len(pix))
-    ends = d[point[row[cols] * width + cols]]
-    t = np.linspace(0.0, 1.0, samples)
-    seg = camera_xy + ends[:, None, :] * t[None, :, None]
-    return seg.reshape(-1, 2).astype(np.float32)
+    if len(pix) != len(points) or len(obstacle) != len(points) or pix[0] < 0:   # (the kernel does not check)
+        raise ValueError(f"free_rays: points ({len(points)}), pix ({len(pix)}, from 0) and obstacle ({len(obstacle)}) "
+                         "disagree")
+    out = np.empty((width * samples, 2), np.float32)
+    m = _free_rays(np.asarray(camera_xy, np.float64), points, np.ascontiguousarray(pix, np.int64), int(width),
+                   np.ascontiguousarray(obstacle, bool), np.linspace(0.0, 1.0, samples), out)
+    return out[:m]
 
 
+@compiled
+def _free_rays(camera_xy, points, pix, width, obstacle, t, out):
+    """``free_rays`` into out (width * samples, 2); returns the number of rows written. Per column
+    the smallest rank key -- obstacles by range, then free points by 1e6 - range (farthest
+    first) -- the lowest row among equal keys."""
+    best = np.full(width, np.inf)
+    point = np.full(width, -1, np.int64)
+    for i in range(pix.shape[0]):
+        dx = np.float64(points[i, 0]) - camera_xy[0]
+        dy = np.float64(points[i, 1]) - camera_xy[1]
+        rng = np.hypot(dx, dy)
+        key = rng if obstacle[i] else -rng + 1e6
+        c = pix[i] % width
+        if key < best[c]:   # pixels come row by row: strict < keeps the lowest row
+            best[c], point[c] = key, i
+    m = 0
+    for c in range(width):
+        if point[c] < 0:
+            continue
+        ex = np.float64(points[point[c], 0]) - camera_xy[0]
+        ey = np.float64(points[point[c], 1]) - camera_xy[1]
+        for j in range(t.shape[0]):
+            out[m, 0] = np.float32(camera_xy[0] + ex * t[j])
+            out[m, 1] = np.float32(camera_xy[1] + ey * t[j])
+            m += 1
+    return m
+
+
+@functools.lru_cache(maxsize=32)
 def disc_offsets(radius_cells: float) -> np.ndarray:
-    """(M, 2) int (drow, dcol) offsets of the cells within ``radius_cells`` of a cell."""
+    """(M, 2) int (drow, dcol) offsets of the cells within ``radius_cells`` of a cell (read-only:
+    one array per radius, as the agent asks for its footprint every step)."""
     r = int(np.ceil(radius_cells))
     dr, dc = np.mgrid[-r:r + 1, -r:r + 1]
     keep = dr ** 2 + dc ** 2 <= radius_cells ** 2
-    return np.stack([dr[keep], dc[keep]], axis=1)
+    out = np.stack([dr[keep], dc[keep]], axis=1)
+    out.flags.writeable = False
+    return out
 
 
 def dilate(mask: np.ndarray, radius_cells: float) -> np.ndarray:

@@ -275,8 +275,9 @@ def test_bench_quick_study_speed_figures(tmp_path, monkeypatch):
 
     ctx = BenchContext(quick=True)
     figures = bench_agent.study_figures(ctx)
-    assert figures["objectnav.bench_episodes"] == 1   # the warm-up episode is not counted
+    assert figures["objectnav.bench_episodes"] == 1   # the warm-up pass is not counted
     assert 0 < figures["agent.ms_per_step_learned_rgb_160x120"] < 1000
+    assert 0 < figures["agent.ms_per_step_first_pass"] < 1000
     assert 0 < figures["objectnav.episodes_per_core_hour"] < 1e6
     monkeypatch.setattr(bench_backends, "QUICK_EFFICIENCY_EPISODES", "100:101")
     eff = bench_backends.parallel_efficiency(ctx)
