@@ -228,3 +228,69 @@ def test_an_episode_file_is_parsed_once_per_process_until_it_changes(tmp_path, m
     assert [e.episode_id for e in cached_episodes(path)] == ["7"] and len(calls) == 2
     path.unlink()
     assert cached_episodes(path) is None
+
+
+def _episodes_equal(a, b) -> bool:
+    """Two parsed episode lists hold the same values (dtypes and bytes included)."""
+    def goal(g):
+        return (g.object_id, type(g.object_id), g.object_category, g.position.dtype, g.position.tobytes(),
+                g.view_points.dtype, g.view_points.shape, g.view_points.tobytes())
+
+    def episode(e):
+        return (e.episode_id, e.scene_id, e.object_category, e.start_rotation, e.start_position.dtype,
+                e.start_position.tobytes(), repr(e.geodesic_distance), repr(e.euclidean_distance),
+                [goal(g) for g in e.goals])
+
+    return [episode(e) for e in a] == [episode(e) for e in b]
+
+
+def test_the_parsed_sidecar_replaces_the_json_parse_until_anything_is_off(tmp_path, monkeypatch):
+    """A content file's binary sidecar (episode_files.read_sidecar): written on the first parse, read
+    instead of the JSON by the next process (the same values, goal lists shared as parsed), and
+    ignored -- the JSON parsed again -- when the JSON changes, the sidecar is damaged or of
+    another format; a file outside a split's content folder gets none."""
+    import calnav.envs.episode_files as ef
+    from calnav.envs import episode_files as sc
+    from calnav.envs.episode_files import GoalObject, ObjectNavEpisode, episodes_to_habitat, write_json_gz
+
+    rng = np.random.default_rng(0)
+    goals = {c: [GoalObject(i, c, rng.normal(size=3), rng.normal(size=(int(rng.integers(0, 5)), 2)))
+                 for i in range(2)] for c in ("chair", "bed")}
+    eps = [ObjectNavEpisode(episode_id=str(i), scene_id="s", start_position=rng.normal(size=2),
+                            start_rotation=[0.0, float(np.sin(i)), 0.0, float(np.cos(i))], object_category=c,
+                            geodesic_distance=float(i) + 0.1, euclidean_distance=float("nan") if i == 2 else 1.5,
+                            goals=goals[c]) for i, c in enumerate(["chair", "bed", "chair", "chair"])]
+    path = tmp_path / "val" / "content" / "s.json.gz"
+    write_json_gz(path, episodes_to_habitat(eps))
+    calls = []
+    real = ef.read_episode_file
+    monkeypatch.setattr(ef, "read_episode_file", lambda p: calls.append(p) or real(p))
+    parsed = ef.cached_episodes(path)
+    assert len(calls) == 1 and sc.sidecar_path(path) == tmp_path / "val" / "parsed" / "s.npz"
+    assert sc.sidecar_path(path).is_file()
+
+    def fresh():   # another process: nothing parsed yet
+        ef._PARSED.clear()
+        return ef.cached_episodes(path)
+
+    again = fresh()
+    assert len(calls) == 1 and _episodes_equal(again, parsed) and _episodes_equal(again, real(path))
+    assert again[0].goals is again[2].goals and again[0].goals is not again[1].goals
+    sidecar = sc.sidecar_path(path)
+    for damage in (lambda: sidecar.write_bytes(sidecar.read_bytes()[:200]),     # truncated
+                   lambda: sidecar.write_bytes(b"not a zip file")):
+        damage()
+        assert _episodes_equal(fresh(), parsed)
+    n = len(calls)
+    with np.load(sidecar) as z:   # another format number: ignored
+        arrays = {k: z[k] for k in z.files}
+    arrays["format"][0] += 1
+    np.savez(sidecar, **arrays)
+    assert _episodes_equal(fresh(), parsed) and len(calls) == n + 1
+    eps[0].episode_id = "changed"   # the JSON rewritten: its new content, not the sidecar's
+    write_json_gz(path, episodes_to_habitat(eps))
+    assert fresh()[0].episode_id == "changed" and fresh()[0].episode_id == "changed"
+    loose = tmp_path / "loose.json.gz"   # not in a split's content folder: no sidecar
+    write_json_gz(loose, episodes_to_habitat(eps))
+    assert ef.cached_episodes(loose) is not None and sc.sidecar_path(loose) is None
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["loose.json.gz", "val"]
