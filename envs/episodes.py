@@ -6,11 +6,22 @@ at most ``view_point_radius_m`` (1.0 m) and from which some part of the object i
 camera height within the vertical field of view (a ray from the camera to a surface sample of
 the object hits that object first). An instance with no view point cannot be a goal.
 
-Start poses: a navigable cell whose geodesic distance to the nearest view point lies in
-[min_geodesic_m, max_geodesic_m], drawn with probability proportional to that distance (most
-of a house lies near some goal; the weighting keeps a split's median above 5 m: 7.1 m on the
-default val split), with uniform heading. Like habitat-lab's generators, a start whose geodesic / Euclidean distance ratio is below ``min_euclid_ratio``
-(a straight shot) is rejected with probability ``TRIVIAL_REJECT_PROB``.
+Start poses: a navigable cell on an island of radius at least ``min_island_radius_m`` (habitat-lab's
+``ISLAND_RADIUS_LIMIT``: no starts on a sliver or a bed top) whose geodesic distance to the
+nearest view point lies in [min_geodesic_m, max_geodesic_m], drawn with probability
+proportional to that distance (most of a house lies near some goal; the weighting keeps a
+split's median above 5 m), with uniform heading. Like habitat-lab's generators, a start whose
+geodesic / Euclidean distance ratio is below ``min_euclid_ratio`` (a straight shot) is rejected
+with probability ``TRIVIAL_REJECT_PROB``.
+
+Only solvable episodes: every drawn episode is run by the discrete-action oracle
+(``envs.oracle.oracle_solves``: 0.25 m steps, 30 degree turns, the env's own motion) and kept
+only if it reaches a view point and STOPs inside the success distance within
+``dataset.oracle_max_steps`` actions (500, HM3D's step limit; a property of the dataset, so a run
+with another ``env.max_episode_steps`` keeps the same episodes).
+A grid path that the action lattice cannot follow (a start on a sliver where only one heading
+moves, a gap a 30 degree turn cannot line up with) is rejected and counted: the counts per
+scene are kept beside the split (``<split>/generation/<scene>.json``, ``generation_report``).
 """
 from __future__ import annotations
 
@@ -23,18 +34,21 @@ from pathlib import Path
 import numpy as np
 from scipy import ndimage
 
+from calnav.common.atomic import write_json_atomic
 from calnav.envs.config import EnvConfig
 from calnav.envs.episode_files import (GoalObject, ObjectNavEpisode, cached_episodes, episodes_from_habitat,
                                        episodes_to_habitat, write_json_gz)
+from calnav.envs.oracle import oracle_solves
 from calnav.envs.scene import Scene, cache_dir, sample_surface
 from calnav.envs.semantics import GOAL_CATEGORIES
 from calnav.envs.task import yaw_to_habitat_quaternion
 
-GENERATOR_VERSION = 3  # 2: walls block in the nav grid; 3: starts weighted by distance^1
+GENERATOR_VERSION = 4  # 2: walls block in the nav grid; 3: starts weighted by distance^1; 4: navmesh, islands, oracle check
 TRIVIAL_REJECT_PROB = 0.98        # habitat-lab's rejection rate for near-straight episodes
 SURFACE_SAMPLE_SPACING_M = 0.03   # spacing of object surface samples for footprints, metres
 VISIBILITY_TARGETS = 48           # object surface points tested for visibility per view point
 MAX_START_TRIES = 200             # start-pose draws per episode before giving up
+MAX_UNSOLVABLE_TRIES = 10         # ... of which at most this many the oracle cannot solve (each costs a full search)
 START_DISTANCE_POWER = 1.0        # start cells are drawn with probability ∝ geodesic^power
 
 
@@ -62,7 +76,8 @@ def find_view_points(scene: Scene, navgrid, raycasting_scene, instance_id: int, 
         return np.zeros((0, 2))
     targets = surface[rng.choice(len(surface), size=min(VISIBILITY_TARGETS, len(surface)), replace=False)]
     eyes_xy = navgrid.to_world(candidates)
-    eyes = np.column_stack([eyes_xy, np.full(len(eyes_xy), scene.floor_z + env_cfg.camera_height_m)])
+    feet = scene.floor_z if navgrid.floor_heights is None else navgrid.floor_heights[candidates[:, 0], candidates[:, 1]]
+    eyes = np.column_stack([eyes_xy, feet + env_cfg.camera_height_m])   # the camera rides the floor
     direction = targets[None, :, :] - eyes[:, None, :]                       # (C, P, 3)
     length = np.linalg.norm(direction, axis=2)
     elevation = np.arcsin(np.clip(direction[..., 2] / np.maximum(length, 1e-9), -1, 1))
@@ -111,10 +126,27 @@ def view_point_mask(navgrid, points_xy: np.ndarray) -> np.ndarray:
     return mask
 
 
-def generate_scene_episodes(scene_id: str, scene: Scene, navgrid, raycasting_scene,
-                            env_cfg: EnvConfig, n_episodes: int, seed: int) -> list[ObjectNavEpisode]:
-    """``n_episodes`` episodes in one scene, deterministic for (scene, config, seed).
-    Categories are cycled in a seeded random order so each present category gets episodes."""
+def island_radii(navgrid) -> np.ndarray:
+    """(n_islands,) radius of each navmesh island, metres: the largest distance from the
+    island's centroid to one of its cell centres (habitat-sim's ``island_radius``)."""
+    islands = navgrid.islands if navgrid.islands is not None else np.where(navgrid.navigable, 0, -1)
+    cells = np.argwhere(islands >= 0)
+    ids = islands[cells[:, 0], cells[:, 1]]
+    xy = navgrid.to_world(cells)
+    n = int(ids.max()) + 1 if len(ids) else 0
+    centre = np.stack([np.bincount(ids, xy[:, k], n) / np.bincount(ids, minlength=n) for k in range(2)], axis=1)
+    radius = np.zeros(n)
+    np.maximum.at(radius, ids, np.linalg.norm(xy - centre[ids], axis=1))
+    return radius
+
+
+def generate_scene_episodes(scene_id: str, scene: Scene, navgrid, raycasting_scene, env_cfg: EnvConfig,
+                            n_episodes: int, seed: int, report: dict | None = None) -> list[ObjectNavEpisode]:
+    """``n_episodes`` solvable episodes in one scene, deterministic for (scene, config, seed).
+    Categories are cycled in a seeded random order so each present category gets episodes.
+    ``report``: a dict to receive the counts of drawn, kept and rejected episodes (by reason:
+    ``unsolvable`` by the oracle; ``no_start`` when no navigable start lies in the distance
+    range on a large enough island)."""
     ds = env_cfg.dataset
     rng = np.random.default_rng(seed)
     goals_by_category = find_goal_objects(scene, navgrid, raycasting_scene, env_cfg, rng)
@@ -125,6 +157,10 @@ def generate_scene_episodes(scene_id: str, scene: Scene, navgrid, raycasting_sce
     fields = {c: navgrid.geodesic_field(goal_mask(navgrid, goals_by_category[c])) for c in categories}
     free = np.argwhere(navgrid.navigable)
     free_xy = navgrid.to_world(free)
+    radii = island_radii(navgrid)
+    islands = navgrid.islands[free[:, 0], free[:, 1]] if navgrid.islands is not None else np.zeros(len(free), int)
+    on_big_island = radii[islands] >= ds.min_island_radius_m
+    counts = {"drawn": 0, "kept": 0, "unsolvable": 0, "no_start": 0}
     episodes: list[ObjectNavEpisode] = []
     order = list(rng.permutation(categories))
     attempt = 0
@@ -133,25 +169,38 @@ def generate_scene_episodes(scene_id: str, scene: Scene, navgrid, raycasting_sce
         attempt += 1
         field_c = fields[category]
         dist = field_c.values[free[:, 0], free[:, 1]]
-        ok = np.isfinite(dist) & (dist >= ds.min_geodesic_m) & (dist <= ds.max_geodesic_m)
+        ok = np.isfinite(dist) & (dist >= ds.min_geodesic_m) & (dist <= ds.max_geodesic_m) & on_big_island
         if not ok.any():
+            counts["no_start"] += 1
             continue
         weights = np.where(ok, np.where(ok, dist, 1.0) ** START_DISTANCE_POWER, 0.0)
         all_vps = np.concatenate([g.view_points for g in goals_by_category[category]])
+        unsolvable = 0
         for _ in range(MAX_START_TRIES):
+            if unsolvable >= MAX_UNSOLVABLE_TRIES:   # this category's goals are hard to reach: try another
+                break
             i = rng.choice(len(free), p=weights / weights.sum())
             geodesic = float(field_c.distance(free_xy[i]))
             euclid = float(np.min(np.linalg.norm(all_vps - free_xy[i], axis=1)))
             trivial = euclid > 0 and geodesic / euclid < ds.min_euclid_ratio
             if trivial and rng.random() < TRIVIAL_REJECT_PROB:
                 continue
-            episodes.append(ObjectNavEpisode(
+            episode = ObjectNavEpisode(
                 episode_id=f"{scene_id}:{len(episodes):03d}", scene_id=scene_id,
                 start_position=free_xy[i].astype(np.float64),
                 start_rotation=yaw_to_habitat_quaternion(float(rng.uniform(0, 2 * np.pi))),
                 object_category=str(category), geodesic_distance=geodesic, euclidean_distance=euclid,
-                goals=goals_by_category[category]))
+                goals=goals_by_category[category])
+            counts["drawn"] += 1
+            if not oracle_solves(navgrid, env_cfg, episode.start_position, episode.start_yaw, field_c):
+                counts["unsolvable"] += 1
+                unsolvable += 1
+                continue
+            episodes.append(episode)
+            counts["kept"] += 1
             break
+    if report is not None:
+        report.update(counts)
     return episodes
 
 
@@ -159,10 +208,11 @@ def generate_scene_episodes(scene_id: str, scene: Scene, navgrid, raycasting_sce
 def dataset_key(env_cfg: EnvConfig) -> str:
     """Hash of everything that changes the generated episodes."""
     relevant = {
-        "version": GENERATOR_VERSION, "dataset": asdict(env_cfg.dataset),
-        "nav": [env_cfg.agent_radius_m, env_cfg.agent_height_m, env_cfg.obstacle_min_height_m,
-                env_cfg.nav_cell_m, env_cfg.view_point_radius_m, env_cfg.camera_height_m,
-                env_cfg.hfov_deg, list(env_cfg.resolution)],
+        "version": GENERATOR_VERSION, "dataset": asdict(env_cfg.dataset), "navmesh": asdict(env_cfg.navmesh),
+        "nav": [env_cfg.agent_radius_m, env_cfg.agent_height_m, env_cfg.nav_cell_m, env_cfg.view_point_radius_m,
+                env_cfg.camera_height_m, env_cfg.hfov_deg, list(env_cfg.resolution)],
+        # the oracle check runs the task's actions (its step limit is the dataset's oracle_max_steps)
+        "task": [env_cfg.forward_step_m, env_cfg.turn_angle_deg, env_cfg.success_distance_m],
     }
     return hashlib.sha1(json.dumps(relevant, sort_keys=True).encode()).hexdigest()[:10]
 
@@ -191,8 +241,16 @@ def load_split(split: str, env_cfg: EnvConfig, progress: bool = True) -> list[Ob
             renderer = Renderer(scene, Camera.from_config(env_cfg))
             navgrid = NavGrid.build(scene, env_cfg, renderer.raycasting_scene)
             seed = generation_seed(sid, env_cfg.dataset.seed)
+            counts: dict = {}
             eps = generate_scene_episodes(sid, scene, navgrid, renderer.raycasting_scene, env_cfg,
-                                          env_cfg.dataset.episodes_per_scene, seed)
+                                          env_cfg.dataset.episodes_per_scene, seed, report=counts)
+            if not eps:
+                raise ValueError(f"scene {sid!r}: every episode drawn was rejected ({counts['unsolvable']} "
+                                 f"unsolvable by the oracle, {counts['no_start']} category draws without a start "
+                                 f"{ds_range(env_cfg)} on an island of radius >= "
+                                 f"{env_cfg.dataset.min_island_radius_m} m); check it with calnav check-scene")
+            # the report first: a content file without its report is regenerated, never half-counted
+            write_json_atomic(root / "generation" / f"{sid}.json", {**counts, "navmesh": navgrid.stats})
             write_json_gz(root / "content" / f"{sid}.json.gz", episodes_to_habitat(eps))
             cached[sid] = episodes_from_habitat(episodes_to_habitat(eps))  # exactly what a later load reads
         write_json_gz(root / f"{split}.json.gz", {
@@ -201,6 +259,26 @@ def load_split(split: str, env_cfg: EnvConfig, progress: bool = True) -> list[Ob
             "category_to_scene_annotation_category_id": {c: i for i, c in enumerate(GOAL_CATEGORIES)},
         })
     return [ep for sid in scene_ids for ep in cached[sid]]
+
+
+def ds_range(env_cfg: EnvConfig) -> str:
+    """The start-distance range of the dataset, as text."""
+    return f"{env_cfg.dataset.min_geodesic_m:g}-{env_cfg.dataset.max_geodesic_m:g} m from a view point"
+
+
+def generation_report(split: str, env_cfg: EnvConfig) -> dict[str, dict]:
+    """{scene id: its generation counts (drawn, kept, unsolvable, no_start) and navmesh
+    figures} of the split's generated scenes (``load_split`` first); scenes generated before
+    reports existed are missing."""
+    from calnav.envs.scenes import split_scene_ids
+
+    root = split_dir(split, env_cfg) / "generation"
+    out = {}
+    for sid in split_scene_ids(split, env_cfg.dataset):
+        path = root / f"{sid}.json"
+        if path.exists():
+            out[sid] = json.loads(path.read_text())
+    return out
 
 
 def parse_episode_range(spec: str, n_total: int) -> range:

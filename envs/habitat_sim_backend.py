@@ -236,7 +236,8 @@ class CalnavSim(Simulator):
     def get_sensor_observations(self):
         from calnav.envs.render import camera_pose
 
-        pose = camera_pose(self.position, self.yaw, self.scene.floor_z + self.env_config.camera_height_m, self.pitch)
+        z = self.navgrid.floor_height(self.position) + self.env_config.camera_height_m   # standing on the navmesh
+        pose = camera_pose(self.position, self.yaw, z, self.pitch)
         frame = self.renderer.render(pose)
         sim_obs = {"rgb": frame.rgb, "depth": frame.depth, "semantic": frame.semantic}
         return self._sensor_suite.get_observations(sim_obs)

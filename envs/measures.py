@@ -18,6 +18,11 @@ What differs from habitat-lab:
 - Success: 1 if STOP was called and d_T < success_distance (0.1 m), else 0.
 - SPL = Success * d_0 / max(d_0, L), L = sum of Euclidean step lengths actually travelled.
 - SoftSPL = max(0, 1 - d_T / d_0) * d_0 / max(d_0, L).
+
+One measure is calnav's own (not habitat-lab's), a diagnostic that no score reads:
+- StepsAtGoal (``steps_at_goal``): the longest run of consecutive steps in which a STOP would
+  have succeeded (d_t < success distance) with a goal instance in view, without a STOP -- an
+  approach that does not end.
 """
 from __future__ import annotations
 
@@ -34,11 +39,13 @@ class TaskState:
 
     position: (2,) float64 agent floor position, metres. stop_called: STOP was the last action.
     distance_fn: position (2,) -> geodesic DistanceToGoal in metres (inf if unreachable).
+    goal_in_view: some pixel of the current frame shows a goal instance.
     """
 
     position: np.ndarray
     distance_fn: Callable[[np.ndarray], float]
     stop_called: bool = False
+    goal_in_view: bool = False
     measures: dict[str, "Measure"] = field(default_factory=dict)
 
 
@@ -133,6 +140,27 @@ class SoftSPL(SPL):
         self.metric = soft_success * self._path_ratio()
 
 
+class StepsAtGoal(Measure):
+    """Longest run of consecutive steps spent where STOP would have succeeded, the goal in
+    view, without calling STOP (see the module docstring)."""
+
+    uuid = "steps_at_goal"
+    dependencies = ("distance_to_goal",)
+
+    def __init__(self, success_distance: float) -> None:
+        super().__init__()
+        self.success_distance = success_distance
+
+    def reset_metric(self, task: TaskState) -> None:
+        self._run = 0
+        self.metric = 0.0
+
+    def update_metric(self, task: TaskState) -> None:
+        at_goal = task.measures["distance_to_goal"].metric < self.success_distance and task.goal_in_view
+        self._run = self._run + 1 if at_goal and not task.stop_called else 0
+        self.metric = float(max(self.metric, self._run))
+
+
 class Measurements:
     """Owns the measures of a task and updates them in dependency order."""
 
@@ -180,4 +208,5 @@ class Measurements:
 
 
 def objectnav_measurements(success_distance: float) -> Measurements:
-    return Measurements([DistanceToGoal(), Success(success_distance), SPL(), SoftSPL()])
+    return Measurements([DistanceToGoal(), Success(success_distance), SPL(), SoftSPL(),
+                         StepsAtGoal(success_distance)])

@@ -1,8 +1,9 @@
 """Navigable grid, agent motion and geodesic distances.
 
 The navigable area is a 2D grid (``EnvConfig.nav_cell_m``, 5 cm) over the scene's xy bounds;
-row = y index, col = x index, cell (0, 0)'s lower corner at ``origin_xy``.
-Geodesic distance fields live in ``envs.geodesics``.
+row = y index, col = x index, cell (0, 0)'s lower corner at ``origin_xy``. It is computed as
+habitat-sim computes its navmesh, from the geometry alone (``envs.navmesh``). Geodesic distance
+fields live in ``envs.geodesics``.
 """
 from __future__ import annotations
 
@@ -11,108 +12,45 @@ from collections import OrderedDict
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import ndimage, sparse
+from scipy import sparse
 
+from calnav.common.jit import compiled
 from calnav.envs.geodesics import GeodesicField, grid_graph
-from calnav.envs.scene import Scene, sample_surface
+from calnav.envs.navmesh import build_navmesh
+from calnav.envs.scene import Scene
 
-FLOOR_TOL_M = 0.03          # a ray's first hit counts as floor within this of floor_z, metres
-RAYS_PER_CELL_SIDE = 3      # sub-sampled ray points per cell side (1.7 cm apart: thin legs show)
-RAY_START_BELOW_TOP_M = 0.005   # rays start this far below the agent's top, metres
-CAST_CHUNK_RAYS = 1 << 20   # rays cast per call (bounds memory on big scenes)
 FIELD_CACHE_SIZE = 8        # geodesic fields kept per NavGrid (LRU)
 MOVE_SAMPLE_FRACTION = 0.5  # move_forward checks the segment every this many cells
-OBSTACLE_SAMPLE_FRACTION = 0.5  # obstacle surfaces are sampled every this many cells
-OBSTACLE_SEED = 0           # surface sampling is random but fixed: the grid is deterministic
 
 
-def closed_solids(scene: Scene) -> bool:
-    """Whether the scene is built of closed, outward-facing solids (``envs.primitives``: the
-    procedural houses), so that face orientation tells inside from outside. Scans (calnav's
-    scanned houses, labelled PLYs) say ``meta["closed_solids"] = False``: open surfaces whose
-    normals are unreliable where the surface is thin or noisy."""
-    return bool(scene.meta.get("closed_solids", True))
-
-
-def _free_floor(scene: Scene, rc, origin: np.ndarray, shape: tuple[int, int], cell: float,
-                agent_height: float, floor_id: int) -> np.ndarray:
-    """(H, W) bool: every sub-sampled point of the cell has bare floor under the agent.
-
-    Per point two rays: one down from just below the agent's top, whose first hit must be
-    a front-facing ``floor`` triangle within FLOOR_TOL_M of floor_z; and one up from
-    FLOOR_TOL_M above the floor, which must hit nothing below the agent's top and no back
-    face. The up ray catches points inside closed solids taller than the agent (walls,
-    wardrobes): there the down ray starts inside the solid and may report the floor that
-    coincides with the solid's bottom face. Assumes outward-facing (counter-clockwise)
-    triangles on closed solids, as ``envs.primitives`` builds them. Scans (``closed_solids``
-    False) have no inside: there any up hit above the agent's top is fine, whatever its facing
-    (the underside of a scanned door lintel is a noisy sheet with normals of both signs).
-    """
-    import open3d as o3d
-
-    h, w = shape
-    s = RAYS_PER_CELL_SIDE
-    sub = (np.arange(s) + 0.5) / s * cell  # sub-ray offsets inside a cell
-    xs = (origin[0] + np.arange(w)[:, None] * cell + sub[None, :]).ravel()  # (W * s,)
-    ys = (origin[1] + np.arange(h)[:, None] * cell + sub[None, :]).ravel()  # (H * s,)
-    z_top = scene.floor_z + agent_height - RAY_START_BELOW_TOP_M
-    z_low = scene.floor_z + FLOOR_TOL_M
-    tri_class = np.append(scene.tri_class, np.int16(-1))  # extra row for misses
-    closed = closed_solids(scene)
-    ok = np.empty((len(ys), len(xs)), dtype=bool)
-    rows_per_chunk = max(1, CAST_CHUNK_RAYS // (2 * len(xs)))
-    for r0 in range(0, len(ys), rows_per_chunk):
-        yy = ys[r0:r0 + rows_per_chunk]
-        rays = np.zeros((2, len(yy), len(xs), 6), dtype=np.float32)  # [0] down, [1] up
-        rays[..., 0] = xs[None, None, :]
-        rays[..., 1] = yy[None, :, None]
-        rays[0, ..., 2], rays[0, ..., 5] = z_top, -1.0
-        rays[1, ..., 2], rays[1, ..., 5] = z_low, 1.0
-        hit = rc.cast_rays(o3d.core.Tensor(rays))
-        t = hit["t_hit"].numpy()
-        nz = hit["primitive_normals"].numpy()[..., 2]
-        prim = np.minimum(hit["primitive_ids"].numpy(), len(scene.triangles)).astype(np.intp)
-        down_ok = (tri_class[prim[0]] == floor_id) & (np.abs(z_top - t[0] - scene.floor_z) < FLOOR_TOL_M) & (nz[0] > 0)
-        above = z_low + t[1] >= z_top
-        up_ok = np.isinf(t[1]) | ((above & (nz[1] < 0)) if closed else above)
-        ok[r0:r0 + len(yy)] = down_ok & up_ok
-    return ok.reshape(h, s, w, s).all(axis=(1, 3))
-
-
-def _band_obstacles(scene: Scene, origin: np.ndarray, shape: tuple[int, int], cell: float,
-                    z_lo: float, z_hi: float, passable_ids: tuple[int, ...]) -> np.ndarray:
-    """(H, W) bool: cells that some obstacle surface crosses inside the agent's height band.
-
-    Every triangle that is not floor or ceiling (``passable_ids``; void clutter counts as an
-    obstacle) is sampled at OBSTACLE_SAMPLE_FRACTION cells spacing and its points with z in
-    [z_lo, z_hi] mark their cells. This does not depend on where rays start or on face
-    orientation, so it holds where ray tests are ambiguous: inside closed solids whose faces
-    coincide with the floor or the ceiling (every wall).
-    """
-    keep = ~np.isin(scene.tri_class, passable_ids)
-    tris = scene.vertices[scene.triangles[keep]].astype(np.float64)
-    z = tris[..., 2]
-    tris = tris[(z.max(axis=1) >= z_lo) & (z.min(axis=1) <= z_hi)]
-    blocked = np.zeros(shape, dtype=bool)
-    if len(tris) == 0:
-        return blocked
-    pts = sample_surface(tris, OBSTACLE_SAMPLE_FRACTION * cell, np.random.default_rng(OBSTACLE_SEED))
-    pts = pts[(pts[:, 2] >= z_lo) & (pts[:, 2] <= z_hi)]
-    col_row = np.floor((pts[:, :2] - origin) / cell).astype(np.int64)
-    h, w = shape
-    inside = (col_row[:, 0] >= 0) & (col_row[:, 0] < w) & (col_row[:, 1] >= 0) & (col_row[:, 1] < h)
-    blocked[col_row[inside, 1], col_row[inside, 0]] = True
-    return blocked
+@compiled
+def _segment_navigable(navigable, ox, oy, cell, ax, ay, bx, by, n):
+    """``NavGrid.segment_navigable`` compiled: the ``n`` points a + t (b - a), t = i / (n - 1)
+    as numpy's linspace makes them (the last exactly b), each on a navigable cell."""
+    h, w = navigable.shape
+    step = 1.0 / (n - 1) if n > 1 else 0.0
+    for i in range(n):
+        t = i * step + 0.0 if i < n - 1 or n == 1 else 1.0
+        px = ax + t * (bx - ax)
+        py = ay + t * (by - ay)
+        col = int(np.floor((px - ox) / cell))
+        row = int(np.floor((py - oy) / cell))
+        if row < 0 or row >= h or col < 0 or col >= w or not navigable[row, col]:
+            return False
+    return True
 
 
 @dataclass(eq=False)
 class NavGrid:
     """Where the agent (a cylinder) can stand.
 
-    navigable: (H, W) bool, row = y index, col = x index; the largest 8-connected component
-    of free floor eroded by the agent radius. free: (H, W) bool free floor before erosion.
-    origin_xy: (2,) float64 world xy of cell (0, 0)'s lower corner, metres. cell_m: cell
-    side, metres. floor_z: world z of the floor, metres.
+    navigable: (H, W) bool, row = y index, col = x index; the navmesh's islands (``envs.navmesh``:
+    walkable ground eroded by the agent radius, islands under ``region_min_size``^2 cells
+    dropped). free: (H, W) bool walkable ground before the erosion. floor_heights: (H, W)
+    float32 height of the ground under each cell, metres (NaN off the ground): the agent stands
+    there. islands: (H, W) int32 island id per navigable cell (-1 elsewhere; 0 = the largest).
+    origin_xy: (2,) float64 world xy of cell (0, 0)'s lower corner, metres. cell_m: cell side,
+    metres. floor_z: the scene's reference floor height, metres. stats: the navmesh's figures.
     """
 
     navigable: np.ndarray
@@ -120,6 +58,9 @@ class NavGrid:
     cell_m: float
     floor_z: float = 0.0
     free: np.ndarray | None = None
+    floor_heights: np.ndarray | None = None
+    islands: np.ndarray | None = None
+    stats: dict = field(default_factory=dict)
     _fields: OrderedDict = field(default_factory=OrderedDict, init=False, repr=False)
     _graph: tuple | None = field(default=None, init=False, repr=False)
 
@@ -138,55 +79,30 @@ class NavGrid:
     # ------------------------------------------------------------- building
     @classmethod
     def build(cls, scene: Scene, env_cfg, raycasting_scene=None) -> "NavGrid":
-        """Rasterise ``scene`` for an agent of ``env_cfg`` (nav_cell_m, agent_radius_m,
-        agent_height_m).
+        """The navigable grid of ``scene`` for the agent of ``env_cfg`` (``nav_cell_m``,
+        ``agent_radius_m``, ``agent_height_m``, ``navmesh``): ``envs.navmesh.build_navmesh``.
+        ``raycasting_scene`` is accepted for callers that hold one; the navmesh does not cast
+        rays. Raises ValueError if nothing is navigable."""
+        mesh = build_navmesh(scene, env_cfg)
+        return cls(navigable=mesh.navigable, origin_xy=mesh.origin_xy, cell_m=mesh.cell_m,
+                   floor_z=float(scene.floor_z), free=mesh.ground, floor_heights=mesh.floor_z,
+                   islands=mesh.islands, stats=mesh.stats)
 
-        A cell is free floor when at each of its RAYS_PER_CELL_SIDE^2 sub-sampled points (1.7
-        cm apart, so thin legs are not missed) a down ray cast from just below the agent's
-        top (agent_height_m above the floor) first hits a ``floor`` triangle within
-        FLOOR_TOL_M of ``scene.floor_z``, and an up ray finds nothing overhead below the
-        agent's top (see ``_free_floor``). Anything hit first above the floor (an obstacle in
-        the agent's height band from obstacle_min_height_m up to agent_height_m, but also
-        unlabelled low clutter) blocks the cell; things above the agent's top (shelves,
-        ceilings) do not. Ray tests are ambiguous inside closed solids whose faces coincide
-        with the floor or ceiling (walls), so obstacle surfaces crossing the height band are
-        also rasterised directly (``_band_obstacles``). Free floor is eroded by a disk of radius
-        agent_radius_m + cell_m / 2 (the half cell accounts for where the obstacle edge lies
-        inside its cells: true clearance >= radius - cell / 6). Only the largest 8-connected
-        component is kept: unreachable islands (inside closets with too-narrow doors, behind
-        furniture) would give episodes with no path and infinite geodesics.
-        Raises ValueError if nothing is navigable.
-        """
-        from calnav.envs.render import build_raycasting_scene
+    def floor_height(self, xy) -> float:
+        """Height of the ground under world point ``xy`` (2,), metres: where an agent standing
+        there has its feet (the scene's floor_z off the ground or off the grid)."""
+        rc = self.to_cell(xy)
+        if self.floor_heights is None or not self.in_grid(rc):
+            return float(self.floor_z)
+        z = float(self.floor_heights[rc])
+        return z if np.isfinite(z) else float(self.floor_z)
 
-        if "floor" not in scene.class_names:
-            raise ValueError(f"scene {scene.name!r} has no 'floor' class; cannot find navigable floor")
-        floor_id = scene.class_names.index("floor")
-        cell = float(env_cfg.nav_cell_m)
-        lo, hi = scene.bounds()
-        origin = lo[:2].astype(np.float64)
-        w = max(1, int(np.ceil((hi[0] - lo[0]) / cell)))
-        h = max(1, int(np.ceil((hi[1] - lo[1]) / cell)))
-        rc = raycasting_scene if raycasting_scene is not None else build_raycasting_scene(scene)
-
-        free = _free_floor(scene, rc, origin, (h, w), cell, env_cfg.agent_height_m, floor_id)
-        passable = tuple(scene.class_names.index(n) for n in ("floor", "ceiling") if n in scene.class_names)
-        free &= ~_band_obstacles(scene, origin, (h, w), cell, scene.floor_z + env_cfg.obstacle_min_height_m,
-                                 scene.floor_z + env_cfg.agent_height_m, passable)
-        # erosion: keep cells farther than radius + cell/2 from every blocked cell centre
-        # (pad so the grid border counts as blocked)
-        clearance = ndimage.distance_transform_edt(np.pad(free, 1))[1:-1, 1:-1] * cell
-        navigable = clearance > env_cfg.agent_radius_m + cell / 2
-        labels, n = ndimage.label(navigable, structure=np.ones((3, 3), dtype=bool))
-        if n == 0:
-            raise ValueError(
-                f"scene {scene.name!r} has no navigable area for an agent of radius "
-                f"{env_cfg.agent_radius_m} m and height {env_cfg.agent_height_m} m "
-                f"(floor at z = {scene.floor_z} m must be labelled 'floor' and unobstructed)")
-        sizes = np.bincount(labels.ravel())
-        sizes[0] = 0
-        navigable = labels == int(np.argmax(sizes))
-        return cls(navigable=navigable, origin_xy=origin, cell_m=cell, floor_z=float(scene.floor_z), free=free)
+    def island_of(self, xy) -> int:
+        """Island id (0 = the largest) of world point ``xy`` (2,); -1 when it is not navigable."""
+        rc = self.to_cell(xy)
+        if not self.in_grid(rc) or not self.navigable[rc]:
+            return -1
+        return int(self.islands[rc]) if self.islands is not None else 0
 
     # ---------------------------------------------------------- coordinates
     def to_cell(self, xy) -> tuple[int, int] | np.ndarray:
@@ -236,7 +152,8 @@ class NavGrid:
         MOVE_SAMPLE_FRACTION cells, both ends included)."""
         a, b = np.asarray(a_xy, dtype=np.float64), np.asarray(b_xy, dtype=np.float64)
         n = int(np.ceil(np.linalg.norm(b - a) / (MOVE_SAMPLE_FRACTION * self.cell_m))) + 1
-        return bool(self.is_navigable(a + np.linspace(0.0, 1.0, n)[:, None] * (b - a)).all())
+        return bool(_segment_navigable(self.navigable, float(self.origin_xy[0]), float(self.origin_xy[1]),
+                                       float(self.cell_m), float(a[0]), float(a[1]), float(b[0]), float(b[1]), n))
 
     # ------------------------------------------------------------ geodesics
     def geodesic_field(self, goal_mask: np.ndarray, use_cache: bool = True) -> "GeodesicField":

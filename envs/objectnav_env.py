@@ -122,11 +122,12 @@ class ObjectNavEnv(gym.Env):
         self.steps = 0
         self.collisions = 0
         self._noise_rng = np.random.default_rng(None if seed is None else seed + 1)
+        self._goal_instances = np.array([g.object_id for g in ep.goals], dtype=np.int64)
         self._task = TaskState(position=self.position.copy(), distance_fn=self.goal_field.distance)
         self._measurements = objectnav_measurements(self.config.success_distance_m)
+        self._last_obs = self._observe()
         self._measurements.reset(self._task)
         self._done = False
-        self._last_obs = self._observe()
         return self._last_obs, self._info()
 
     def _episode_from_options(self, options) -> int:
@@ -171,6 +172,7 @@ class ObjectNavEnv(gym.Env):
         self.steps += 1
         self._task.position = self.position.copy()
         self._task.stop_called = a == Action.STOP
+        self._last_obs = self._observe()
         self._measurements.update(self._task)
         terminated = a == Action.STOP
         truncated = not terminated and self.steps >= cfg.max_episode_steps
@@ -180,7 +182,6 @@ class ObjectNavEnv(gym.Env):
         reward = SLACK_REWARD + SUCCESS_REWARD * m["success"]
         if np.isfinite(d_before) and np.isfinite(d_after):
             reward += d_before - d_after
-        self._last_obs = self._observe()
         return self._last_obs, float(reward), terminated, truncated, self._info()
 
     def render(self):
@@ -192,12 +193,14 @@ class ObjectNavEnv(gym.Env):
     def camera_pose(self) -> np.ndarray:
         from calnav.envs.render import camera_pose
 
-        return camera_pose(self.position, self.yaw, self.scene.floor_z + self.config.camera_height_m,
+        # the agent stands on the navmesh, as in habitat-sim: the camera rides the floor under it
+        return camera_pose(self.position, self.yaw, self.navgrid.floor_height(self.position) + self.config.camera_height_m,
                            self.pitch)
 
     def _observe(self) -> dict:
         pose = self.camera_pose()
         frame = self.renderer.render(pose, rng=self._noise_rng)
+        self._task.goal_in_view = bool(np.isin(frame.instance, self._goal_instances).any())
         ep = self.episode
         cfg = self.config
         gps, compass = xy_yaw_to_gps_compass(self.position, self.yaw, ep.start_position, ep.start_rotation)

@@ -9,21 +9,24 @@ trapped where quantised headings cannot thread a doorway; planning over the latt
 """
 from __future__ import annotations
 
-import heapq
 import math
 
 import numpy as np
 
 from calnav.envs.config import EnvConfig
+from calnav.envs.lattice import lattice_search
+from calnav.envs.motion import apply_action
 from calnav.envs.task import Action
 
 STOP_RADIUS_FRACTION = 0.99   # STOP once DistanceToGoal < this fraction of the success distance
 TURN_COST_M = 1e-3            # tie-breaker: a turn costs as much as 1 mm of path
 # A* search tiers, tried in order: (state bin in metres -- positions in one bin per heading are
 # one state --, heuristic weight -- the path is at most this factor above the lattice optimum
-# --, state budget). If every tier gives up, a greedy step is taken. Measured on 200 val
-# episodes: an exact first tier (2 cm bins, weight 1.0) gave the same SPL at 3x the time.
-SEARCH_TIERS: tuple[tuple[float, float, int], ...] = ((0.06, 1.05, 40_000),)
+# --, expanded-state budget). If every tier gives up, a greedy step is taken. The first tier is
+# fast and finds almost every path; coarse bins lose the exact position a narrow gap needs
+# (a scanned house's neck: 6 cm bins found none of 10 paths that 2 cm bins found 3 of), so the
+# second searches finely.
+SEARCH_TIERS: tuple[tuple[float, float, int], ...] = ((0.06, 1.05, 40_000), (0.02, 1.0, 1_000_000))
 
 
 class ShortestPathFollower:
@@ -42,9 +45,6 @@ class ShortestPathFollower:
         self._field = None
 
     # ---------------------------------------------------------------- planning
-    def _key(self, xy, k: int, bin_m: float) -> tuple:
-        return (round(xy[0] / bin_m), round(xy[1] / bin_m), k % self.n_headings)
-
     def _turned(self, heading: float, direction: int) -> float:
         """The env's exact turn arithmetic (so planned and executed poses agree bit for bit)."""
         return (heading + direction * self.turn_rad) % (2 * math.pi)
@@ -60,47 +60,14 @@ class ShortestPathFollower:
 
     def _search(self, xy: np.ndarray, yaw: float, field, bin_m: float, weight: float,
                 budget: int) -> list[Action] | None:
-        start_key = self._key(xy, 0, bin_m)
-        # heap entries: (f, -g, tie, position, heading, turn index); ties on f go to the deeper
-        # node (larger g), which keeps A* from flooding the plateaus of near-equal paths
-        frontier = [(float(field.distance(xy)), 0.0, 0, (float(xy[0]), float(xy[1])), float(yaw), 0)]
-        parents: dict[tuple, tuple | None] = {start_key: None}
-        best_g = {start_key: 0.0}
-        tie = 0
-        while frontier and len(best_g) < budget:
-            _, neg_g, _, pos, heading, k = heapq.heappop(frontier)
-            g = -neg_g
-            key = self._key(pos, k, bin_m)
-            if g > best_g.get(key, math.inf) + 1e-12:
-                continue
-            if field.distance(np.array(pos)) < self.stop_distance:
-                return self._unwind(parents, key)
-            successors = [(Action.TURN_LEFT, pos, self._turned(heading, 1), k + 1, TURN_COST_M),
-                          (Action.TURN_RIGHT, pos, self._turned(heading, -1), k - 1, TURN_COST_M)]
-            new_xy, moved = self.navgrid.move_forward(np.array(pos), heading, self.step_m)
-            if moved:
-                successors.append((Action.MOVE_FORWARD, (float(new_xy[0]), float(new_xy[1])), heading, k,
-                                   self.step_m))
-            for action, p2, h2, k2, cost in successors:
-                key2 = self._key(p2, k2, bin_m)
-                g2 = g + cost
-                if g2 < best_g.get(key2, math.inf) - 1e-12:
-                    h = float(field.distance(np.array(p2)))
-                    if not math.isfinite(h):
-                        continue
-                    best_g[key2] = g2
-                    parents[key2] = (key, action)
-                    tie += 1
-                    f = g2 + weight * max(0.0, h - self.stop_distance)
-                    heapq.heappush(frontier, (f, -g2, tie, p2, h2, k2))
-        return None
-
-    def _unwind(self, parents: dict, key: tuple) -> list[Action]:
-        actions = [Action.STOP]
-        while parents[key] is not None:
-            key, action = parents[key]
-            actions.append(action)
-        return actions[::-1]
+        """One tier's lattice A* (``envs.lattice``), actions ending with STOP, or None."""
+        g = self.navgrid
+        moves, found = lattice_search(g.navigable, float(g.origin_xy[0]), float(g.origin_xy[1]), float(g.cell_m),
+                                      field.distances_m, field.goal_mask, float(xy[0]), float(xy[1]), float(yaw),
+                                      float(self.step_m), float(self.turn_rad), int(self.n_headings),
+                                      float(self.stop_distance), float(bin_m), float(weight), int(budget),
+                                      TURN_COST_M)
+        return [Action(int(m)) for m in moves] + [Action.STOP] if found else None
 
     def _greedy(self, xy: np.ndarray, yaw: float, field) -> Action:
         """Best single step (fallback when planning fails); never STOPs outside the goal."""
@@ -141,6 +108,23 @@ class ShortestPathFollower:
             elif a in (Action.TURN_LEFT, Action.TURN_RIGHT):
                 heading = self._turned(heading, 1 if a == Action.TURN_LEFT else -1)
         return out
+
+
+def oracle_solves(navgrid, env_cfg: EnvConfig, start_xy: np.ndarray, start_yaw: float, field) -> bool:
+    """Whether the follower's plan from (start_xy (2,) metres, start_yaw radians), executed with
+    the env's own motion (``envs.motion``), calls STOP within the success distance of
+    ``field``'s goal cells in at most ``env_cfg.dataset.oracle_max_steps`` actions: the check
+    that an episode can be solved with the task's discrete actions (a dataset property, like
+    Habitat's: a run's own step limit does not change the episodes). No plan within the search
+    budget counts as unsolvable."""
+    actions = ShortestPathFollower(navgrid, env_cfg).plan(np.asarray(start_xy, dtype=np.float64), float(start_yaw),
+                                                          field)
+    if actions is None or len(actions) > env_cfg.dataset.oracle_max_steps:
+        return False
+    xy, yaw = np.array(start_xy, dtype=np.float64), float(start_yaw)
+    for action in actions[:-1]:   # the last one is STOP
+        xy, yaw, _, _ = apply_action(navgrid, env_cfg, xy, yaw, 0.0, action)
+    return bool(field.distance(xy) < env_cfg.success_distance_m)
 
 
 def scan_trajectory(navgrid, env_cfg: EnvConfig, n_poses: int, seed: int = 0,

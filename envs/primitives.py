@@ -124,15 +124,23 @@ class MeshBuilder:
         self.add_mesh(*cylinder_mesh(center, radius, height, segments, radius_top), cls, instance,
                       albedo, texture)
 
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The parts so far as Scene arrays (vertices, triangles, tri_class, tri_instance,
+        tri_albedo, tri_texture), without building (or validating) a Scene: additions to
+        another scene may be all unlabelled."""
+        if not self._tris:
+            return {"vertices": np.zeros((0, 3), np.float32), "triangles": np.zeros((0, 3), np.int32),
+                    "tri_class": np.zeros(0, np.int16), "tri_instance": np.zeros(0, np.int32),
+                    "tri_albedo": np.zeros((0, 3), np.uint8), "tri_texture": np.zeros(0, np.uint8)}
+        return {"vertices": np.concatenate(self._verts), "triangles": np.concatenate(self._tris),
+                "tri_class": np.concatenate(self._cls), "tri_instance": np.concatenate(self._inst),
+                "tri_albedo": np.concatenate(self._alb), "tri_texture": np.concatenate(self._tex)}
+
     def build(self, floor_z: float = 0.0) -> Scene:
         if not self._tris:
             raise ValueError(f"scene {self.name!r} has no parts")
-        return Scene(
-            name=self.name, vertices=np.concatenate(self._verts), triangles=np.concatenate(self._tris),
-            tri_class=np.concatenate(self._cls), tri_instance=np.concatenate(self._inst),
-            tri_albedo=np.concatenate(self._alb), tri_texture=np.concatenate(self._tex),
-            class_names=self.class_names, rooms=list(self.rooms), floor_z=floor_z, meta=dict(self.meta),
-        )
+        return Scene(name=self.name, **self.arrays(), class_names=self.class_names, rooms=list(self.rooms),
+                     floor_z=floor_z, meta=dict(self.meta))
 
 
 def box_room_scene(size_x: float = 6.0, size_y: float = 4.0, wall_height: float = 2.6,

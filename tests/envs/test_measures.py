@@ -22,7 +22,8 @@ def run(task, measurements, path, stop_at_end=True):
 def test_direct_success_spl_one():
     task = straight_line_task(1.0)
     m = run(task, objectnav_measurements(0.1), [(0.25, 0), (0.5, 0), (0.75, 0), (1.0, 0), (1.0, 0)])
-    assert m == pytest.approx({"distance_to_goal": 0.0, "success": 1.0, "spl": 1.0, "softspl": 1.0})
+    assert m == pytest.approx({"distance_to_goal": 0.0, "success": 1.0, "spl": 1.0, "softspl": 1.0,
+                               "steps_at_goal": 0.0})
 
 
 def test_detour_spl_hand_computed():

@@ -108,14 +108,14 @@ def test_thin_pole_and_shelves(room_grid):
     assert g.is_navigable((HIGH_SHELF[0][0], -1.7))  # under a 1.2 m shelf, 0.3 m from the wall
 
 
-def test_only_largest_component_kept():
+def test_closed_room_is_an_island_of_its_own():
     b = MeshBuilder("two_rooms")
     b.add_box((0, 0, -0.05), (8, 3, 0.1), "floor", b.new_instance(), (100, 100, 100), faces="+z")
     _walls(b, [((-4, -1.5), (4, -1.5)), ((-4, 1.5), (4, 1.5)), ((-4, -1.5), (-4, 1.5)),
                ((4, -1.5), (4, 1.5)), ((1, -1.5), (1, 1.5))])  # closed wall: small room on the right
     g = NavGrid.build(b.build(), CFG)
-    assert g.is_navigable((-2, 0)) and not g.is_navigable((2.5, 0))
-    assert g.free[g.to_cell((2.5, 0))]  # free floor, but an unreachable island
+    assert g.island_of((-2, 0)) == 0 and g.island_of((2.5, 0)) == 1   # both kept, the larger first
+    assert np.isinf(g.geodesic_distance((-2, 0), (2.5, 0)))
 
 
 def test_no_navigable_area_raises():
@@ -123,8 +123,8 @@ def test_no_navigable_area_raises():
     b.add_box((0, 0, -0.05), (0.3, 0.3, 0.1), "floor", b.new_instance(), (100, 100, 100), faces="+z")
     with pytest.raises(ValueError, match="no navigable area"):
         NavGrid.build(b.build(), CFG)
-    b = MeshBuilder("no_floor")
-    b.add_box((0, 0, 0.4), (3, 3, 0.8), "table", b.new_instance(), (100, 100, 100))
+    b = MeshBuilder("no_floor")   # geometry only: nothing walkable, only a wall
+    b.add_box((0, 0, 1.2), (3, 0.1, 2.4), "wall", b.new_instance(), (100, 100, 100), faces="-y +y")
     with pytest.raises(ValueError, match="no navigable area"):
         NavGrid.build(b.build(), CFG)
 
@@ -281,5 +281,5 @@ def test_house_walls_block():
     nav = NavGrid.build(scene, cfg)
     wall = scene.tri_class == scene.class_names.index("wall")
     pts = sample_surface(scene.vertices[scene.triangles[wall]], 0.02, np.random.default_rng(1))
-    pts = pts[(pts[:, 2] > cfg.obstacle_min_height_m) & (pts[:, 2] < cfg.agent_height_m)]
+    pts = pts[(pts[:, 2] > cfg.navmesh.agent_max_climb_m) & (pts[:, 2] < cfg.agent_height_m)]
     assert not nav.is_navigable(pts[:, :2]).any()
