@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, fields
 
-SCANNER_VERSION = 1   # bump when a change to the scanner changes the scans (cache key)
+SCANNER_VERSION = 2   # 2: lived-in additions and floor artifacts; bump when a change to the scanner changes the scans (cache key)
 
 
 def _check_range(owner: str, name: str, value: float, lo: float, hi: float,
@@ -72,6 +72,20 @@ class ScanningConfig:
     min_component_triangles: int = 100  # smaller disconnected pieces (floaters) are dropped after decimation, triangles (0 = keep)
     triangles_per_m2: float = 2100.0    # decimate to this many triangles per m^2 of footprint (0 = keep all), 1/m^2
     label_distance_m: float = 0.05      # a vertex farther than this from the clean mesh is void, metres
+    # --- the lived-in house the scanner sees (envs.scanning.lived_in; all of it unlabelled)
+    rug_prob: float = 0.5               # chance a room has a rug, probability
+    rug_thickness_m: tuple[float, float] = (0.01, 0.03)       # rug thickness range, metres
+    threshold_prob: float = 0.5         # chance a doorway has a threshold strip, probability
+    threshold_height_m: tuple[float, float] = (0.015, 0.04)   # threshold height range, metres
+    clutter_per_m2: float = 0.08        # small objects on the floor per m^2 of room, 1/m^2
+    clutter_height_m: tuple[float, float] = (0.03, 0.3)       # their height range (up to 0.2 m the agent steps over them), metres
+    # --- floor artifacts of the reconstruction (envs.scanning.artifacts)
+    holes_per_m2: float = 0.06          # floor holes where the scanner never looked, per m^2 of room, 1/m^2
+    hole_near_furniture: float = 0.7    # chance a hole sits beside a piece of furniture, probability
+    hole_radius_m: tuple[float, float] = (0.08, 0.3)          # semi-axes of the elliptic holes, metres
+    unlabelled_floor_fraction: float = 0.35  # floor area left void by the annotators, fraction
+    floor_warp_m: float = 0.06          # most height of the floor's low-frequency warp (each house: 0.75-1 x this), metres
+    floor_warp_wavelength_m: tuple[float, float] = (2.0, 6.0)  # wavelengths of the warp, metres
 
     def __post_init__(self) -> None:
         c = "scanning"
@@ -119,6 +133,21 @@ class ScanningConfig:
             ("label_distance_m", 0.0, 1.0, True, False),
         ):
             _check_range(c, name, getattr(self, name), lo, hi, lo_open, hi_open)
+        for name, lo, hi in (("rug_prob", 0.0, 1.0), ("threshold_prob", 0.0, 1.0), ("clutter_per_m2", 0.0, 10.0),
+                             ("holes_per_m2", 0.0, 10.0), ("hole_near_furniture", 0.0, 1.0),
+                             ("unlabelled_floor_fraction", 0.0, 1.0), ("floor_warp_m", 0.0, 0.5)):
+            _check_range(c, name, getattr(self, name), lo, hi)
+        for name, lo, hi in (("rug_thickness_m", 0.001, 0.2), ("threshold_height_m", 0.001, 0.2),
+                             ("clutter_height_m", 0.005, 2.0), ("hole_radius_m", 0.01, 3.0),
+                             ("floor_warp_wavelength_m", 0.1, 100.0)):
+            pair = getattr(self, name)
+            if not (isinstance(pair, (tuple, list)) and len(pair) == 2):
+                raise ValueError(f"{c}.{name} must be a [low, high] pair, got {pair!r}")
+            setattr(self, name, tuple(float(v) for v in pair))
+            for v in getattr(self, name):
+                _check_range(c, name, v, lo, hi)
+            if not pair[0] <= pair[1]:
+                raise ValueError(f"{c}.{name} must be [low, high] with low <= high, got {list(pair)}")
         if not self.min_depth_m < self.max_depth_m:
             raise ValueError(f"need {c}.min_depth_m < {c}.max_depth_m, got {self.min_depth_m}, {self.max_depth_m}")
         if not self.dark_level < self.bright_level:

@@ -12,6 +12,12 @@
   of the house;
 - ``void_fraction``, ``void_area_fraction``: unlabelled triangles / surface area;
 - ``median_error_mm``, ``p90_error_mm``: distance from scanned surface samples to the clean mesh.
+
+``floor_quality(scene, env_cfg)`` -> dict: what a navmesh makes of the scan's floor
+(``envs.scene_check.navmesh_figures``: walkable ground, navigable area, islands, the floor's
+height above the reference) and ``label_rule_fraction``, the share of that ground a
+label-based rule would call floor (a ray's first hit a ``floor`` triangle within
+``LABEL_RULE_TOL_M`` of the reference height): on a real scan about half.
 """
 from __future__ import annotations
 
@@ -27,6 +33,7 @@ COVER_DISTANCE_M = 0.05         # a clean surface point is covered by a scan sur
 OBSERVABLE_CLEARANCE_M = 0.3    # free space needed in front of a clean surface point to count it, metres
 SAMPLE_SPACING_M = 0.05         # surface sample spacing of the figures, metres
 SAMPLE_SEED = 0                 # surface samples are random but fixed: the figures are deterministic
+LABEL_RULE_TOL_M = 0.03        # the label rule's tolerance around the reference floor height, metres
 QUALITY_KEYS = ("triangles", "triangles_per_m2", "floor_missing", "wall_missing", "ceiling_missing", "void_fraction",
                 "void_area_fraction", "median_error_mm", "p90_error_mm")
 
@@ -83,3 +90,36 @@ def scan_quality(clean: Scene, scanned: Scene) -> dict[str, float]:
     out["median_error_mm"] = float(np.median(err) * 1000.0)
     out["p90_error_mm"] = float(np.percentile(err, 90) * 1000.0)
     return out
+
+
+def label_rule_floor(scene: Scene, ground: np.ndarray, origin_xy: np.ndarray, cell_m: float,
+                     ray_start_m: float) -> np.ndarray:
+    """(H, W) bool: ground cells whose centre's down ray (from ``ray_start_m`` above the
+    reference floor) first hits a ``floor``-labelled triangle within LABEL_RULE_TOL_M of it."""
+    rows, cols = np.nonzero(ground)
+    xy = origin_xy + (np.stack([cols, rows], axis=1) + 0.5) * cell_m
+    z0 = scene.floor_z + ray_start_m
+    rays = np.zeros((len(xy), 6), np.float32)
+    rays[:, :2], rays[:, 2], rays[:, 5] = xy, z0, -1.0
+    hit = build_raycasting_scene(scene).cast_rays(o3c.Tensor(rays))
+    t = hit["t_hit"].numpy()
+    prim = np.minimum(hit["primitive_ids"].numpy(), len(scene.triangles)).astype(np.int64)
+    cls = np.append(scene.tri_class, np.int16(VOID))[prim]
+    ok = (cls == CLASS_ID["floor"]) & (np.abs(z0 - t - scene.floor_z) < LABEL_RULE_TOL_M)
+    out = np.zeros(ground.shape, bool)
+    out[rows[ok], cols[ok]] = True
+    return out
+
+
+def floor_quality(scene: Scene, env_cfg) -> dict[str, float]:
+    """The navmesh's figures of ``scene`` and the label rule's share of its ground (module docstring)."""
+    from calnav.envs.navmesh import build_navmesh
+    from calnav.envs.scene_check import navmesh_figures
+
+    mesh = build_navmesh(scene, env_cfg, require_navigable=False)   # a failed scan is a figure too
+    fig = navmesh_figures(mesh, scene.floor_z)
+    label = label_rule_floor(scene, mesh.ground, mesh.origin_xy, mesh.cell_m, env_cfg.agent_height_m)
+    return {"ground_m2": fig["ground_m2"], "navigable_m2": fig["navigable_m2"],
+            "navigable_fraction": fig["navigable_fraction"], "islands": float(fig["islands"]),
+            "label_rule_fraction": float(label.sum() / max(mesh.ground.sum(), 1)),
+            "floor_above_median_m": fig["floor_above_median_m"], "floor_above_p95_m": fig["floor_above_p95_m"]}

@@ -22,7 +22,10 @@ from calnav.envs.semantics import CLASS_ID, VOID
 QUIET = dict(lateral_jitter_px=0.0, axial_noise_m=0.0, axial_noise_quad=0.0, disparity_step_px=0.0,
              random_dropout=0.0, absorb_dropout=0.0, edge_width_px=0, grazing_max_deg=89.9)
 # a coarse, fast scanner for the tests (the default one takes ~30 s per house)
-FAST = dict(resolution=(96, 72), voxel_m=0.05, min_weight=1.0, triangles_per_m2=0.0, min_component_triangles=0)
+# the scanner's core on its own: no lived-in additions, no floor artifacts (test_scan_artifacts.py has those)
+BARE = dict(rug_prob=0.0, threshold_prob=0.0, clutter_per_m2=0.0, holes_per_m2=0.0, unlabelled_floor_fraction=0.0,
+            floor_warp_m=0.0)
+FAST = dict(resolution=(96, 72), voxel_m=0.05, min_weight=1.0, triangles_per_m2=0.0, min_component_triangles=0, **BARE)
 
 
 def _flat(depth_m: float, shape=(40, 50)):
