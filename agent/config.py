@@ -38,6 +38,7 @@ class AgentConfig:
     map_size_m: float = 40.0            # square map side centred on the start position, metres
     obstacle_min_height_m: float = 0.25  # points above the floor by at least this are obstacles, metres
     obstacle_above_camera_m: float = 0.01  # ... and below camera height + this, metres
+    view_block_below_camera_m: float = 0.1  # obstacle points above camera height - this hide what is behind them (stop line of sight), metres
     agent_radius_m: float = 0.18        # obstacle dilation for traversability, metres
     free_ray_samples: int = 64          # samples per image column when tracing free space
     hole_margin_m: float = 0.0          # floor holes: no depth where the floor should be, this far inside the depth range, metres (0 = off: see docs/scanned_houses.md)
@@ -64,7 +65,9 @@ class AgentConfig:
     clearance_m: float = 0.1            # cells this close to a (dilated) obstacle cost extra, metres
     clearance_cost: float = 4.0         # their traversal cost per cell (free cells cost 1)
     turn_threshold_deg: float = 15.0    # turn when |relative angle| exceeds this, degrees
-    stop_distance_m: float = 0.75       # STOP within this of the goal component, metres
+    stop_margin_m: float = 0.15         # STOP within the task's view-point radius (env.view_point_radius_m) less this of the goal, metres
+    blocked_stop_margin_m: float = 0.05  # ... less only this once a forward step toward it was blocked, metres
+    stop_view_margin_deg: float = 10.0  # STOP facing the goal within half the field of view less this, degrees
     # --- collisions -----------------------------------------------------------------------------
     collision_min_move_m: float = 0.2   # a forward step travelling less than this is a collision, metres
     collision_mark_length_m: float = 0.3  # obstacle strip marked ahead of a collision, metres
@@ -85,7 +88,7 @@ class AgentConfig:
         check_segmenter_spec(self.segmenter)   # a misspelt name fails here, importing nothing of it
         if self.map_type not in MAP_TYPES:
             raise ValueError(f"unknown agent.map_type {self.map_type!r}; valid: {', '.join(MAP_TYPES)}")
-        for key in ("cell_m", "map_size_m", "agent_radius_m", "goal_dilation_m", "stop_distance_m",
+        for key in ("cell_m", "map_size_m", "agent_radius_m", "goal_dilation_m",
                     "collision_min_move_m", "turn_threshold_deg"):
             if not getattr(self, key) > 0:
                 raise ValueError(f"agent.{key} must be > 0, got {getattr(self, key)}")
@@ -104,8 +107,15 @@ class AgentConfig:
                     "loop_steps", "goal_min_area_cells"):
             if getattr(self, key) < 1:
                 raise ValueError(f"agent.{key} must be >= 1, got {getattr(self, key)}")
+        for key, hi in (("stop_margin_m", 5.0), ("blocked_stop_margin_m", 5.0), ("stop_view_margin_deg", 90.0)):
+            if not 0 <= getattr(self, key) <= hi:   # written so that NaN fails too
+                raise ValueError(f"agent.{key} must be in [0, {hi:g}], got {getattr(self, key)}")
+        if not self.blocked_stop_margin_m <= self.stop_margin_m:
+            raise ValueError(f"agent.blocked_stop_margin_m ({self.blocked_stop_margin_m}) must not exceed "
+                             f"agent.stop_margin_m ({self.stop_margin_m}): a blocked step never makes the stop stricter")
         for key in ("frontier_min_cells", "frontier_size_weight_m", "prior_bonus_m", "prior_radius_m", "clearance_m",
-                    "obstacle_min_height_m", "obstacle_above_camera_m", "verify_distance_m"):
+                    "obstacle_min_height_m", "obstacle_above_camera_m", "verify_distance_m",
+                    "view_block_below_camera_m"):
             if not getattr(self, key) >= 0:   # written so that NaN fails too
                 raise ValueError(f"agent.{key} must be >= 0, got {getattr(self, key)}")
         if self.uncertainty_aware and not self.uncertain_low < self.goal_threshold:

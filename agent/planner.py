@@ -106,12 +106,15 @@ class Planner:
         """The goal mask dilated by goal_dilation_m (bool (n, n))."""
         return dilate(goal, self.cfg.goal_dilation_m / self.cfg.cell_m)
 
-    def plan(self, free: np.ndarray, goal: np.ndarray, agent_rc: tuple[int, int], yaw: float) -> Plan:
-        """free (h, w) bool planning map; goal (h, w) bool goal cells; agent cell; yaw rad."""
+    def plan(self, free: np.ndarray, goal: np.ndarray, agent_rc: tuple[int, int], yaw: float,
+             dilate_goal: bool = True) -> Plan:
+        """free (h, w) bool planning map; goal (h, w) bool goal cells; agent cell; yaw rad.
+        dilate_goal: plan to the goal dilated by goal_dilation_m (a frontier, an object's cells),
+        or (False) to exactly the goal cells (cells already chosen as reachable targets)."""
         free = free.copy()
         disc = inside(self._start_disc + agent_rc, free.shape)   # the agent's own footprint is never blocked
         free[disc[:, 0], disc[:, 1]] = True
-        region = self.goal_region(goal)
+        region = self.goal_region(goal) if dilate_goal else goal
         near_obstacle = dilate(~free, self.cfg.clearance_m / self.cfg.cell_m)
         cost = np.where(near_obstacle, self.cfg.clearance_cost, 1.0)
         ring = inside(self._ring + agent_rc, free.shape)

@@ -16,11 +16,11 @@ which counts path length only) so the first frontier choice sees all around.
 from __future__ import annotations
 
 import math
-from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
 
+from calnav.agent.approach import nearest_cell, view_region
 from calnav.agent.collision import CollisionTracker, collision_points, is_collision
 from calnav.agent.config import AgentConfig
 from calnav.agent.exploration import choose_frontier, prior_mask
@@ -30,6 +30,7 @@ from calnav.agent.planner import Plan, Planner, heading_to
 from calnav.agent.projection import cell_of, dilate
 from calnav.agent.semantic_map import MapChannels, MapState, SemanticMapModule
 from calnav.agent.sensors import SensorModel
+from calnav.agent.watchdog import ProgressWatchdog
 from calnav.envs.task import OBJECTGOAL, Action
 
 PLAN_MARGIN_M = 1.0  # the planning window: explored bounding box + this margin (unknown = optimistic), metres
@@ -60,6 +61,15 @@ class PeanutAgent:
         self.max_steps = int(cfg.env.max_episode_steps)
         self.spin_turns = int(round(360.0 / cfg.env.turn_angle_deg))
         self.sensors = SensorModel.from_env_config(cfg.env)
+        # the task's view points reach view_point_radius_m from the goal: STOP inside that, less
+        # the map's error (or less only blocked_stop_margin_m once a step toward it is blocked)
+        radius = float(cfg.env.view_point_radius_m)
+        if not self.cfg.blocked_stop_margin_m <= self.cfg.stop_margin_m < radius:
+            raise ValueError(f"need agent.blocked_stop_margin_m ({self.cfg.blocked_stop_margin_m}) <= "
+                             f"agent.stop_margin_m ({self.cfg.stop_margin_m}) < env.view_point_radius_m ({radius})")
+        self.reach_cells = (radius - self.cfg.stop_margin_m) / self.cfg.cell_m
+        self.blocked_reach_cells = (radius - self.cfg.blocked_stop_margin_m) / self.cfg.cell_m
+        self.view_half_rad = math.radians(max(cfg.env.hfov_deg / 2 - self.cfg.stop_view_margin_deg, 1.0))
         self.perception = Perception(self.cfg, self.sensors, device)
         self.class_names = self.perception.class_names   # class names and ids come from the segmenter
         self.num_classes = len(self.class_names)
@@ -96,21 +106,20 @@ class PeanutAgent:
         self.frontiers: np.ndarray | None = None
         self.excluded = np.zeros((self.state.size,) * 2, bool)  # unreachable frontier cells
         self.rejected = np.zeros_like(self.excluded)             # goal candidates verified as wrong
-        self.deferred = np.zeros_like(self.excluded)             # goal components the agent looped near
-        self.deferred_until = 0                                  # ... ignored until this step
+        self.hits = np.zeros(self.excluded.shape, np.uint8)     # blocked forwards that marked each cell
+        self.collided = False                                    # the last forward was blocked
+        self.watchdog = ProgressWatchdog(self.cfg, self.state.size)
         self.info = None
         self.frame = None
         self.path: list[tuple[int, int]] = []
         self.window: tuple[slice, slice] | None = None
-        self.recent: deque[np.ndarray] = deque(maxlen=self.cfg.stuck_steps)   # positions for the watchdog
-        self.loop: deque[np.ndarray] = deque(maxlen=self.cfg.loop_steps)      # ... and for the loop check
 
     def act(self, obs: dict) -> int:
         self.sensors.check(obs)
         xy, yaw = self.sensors.xy_yaw(obs)
         pose = self.pose = self.sensors.pose(obs)   # the camera pose this step maps with (start frame)
         if self.last_action is not None:
-            collided = is_collision(self.prev_xy, xy, self.last_action, self.cfg.collision_min_move_m)
+            collided = self.collided = is_collision(self.prev_xy, xy, self.last_action, self.cfg.collision_min_move_m)
             if collided:
                 self._mark_collision(xy, yaw)
             routines = self.collisions.routines
@@ -131,43 +140,35 @@ class PeanutAgent:
         return action
 
     def _watch_progress(self, xy: np.ndarray) -> None:
-        """The no-progress watchdog, after the opening spin: if every position of the last
-        ``stuck_steps`` steps lies within ``stuck_radius_m`` of this one, whatever the agent is
-        doing is not working (a planner alternating between two blocked headings): escape. If
-        every position of the last ``loop_steps`` lies within ``loop_radius_m``, the agent is
-        going round in circles: escape, give up the long-term goal and defer the goal component
-        it was heading for (``loop_steps`` steps). Both are bounded: the agent never repeats
-        the same thing for more than ``loop_steps`` steps."""
+        """After the opening spin, the watchdog (``agent.watchdog``): stuck -> escape; round in
+        circles -> escape, give up the long-term goal and set aside the goal component headed
+        for (unless the agent is within reach of it)."""
         if self.steps < self.spin_turns:
             return
-        self.recent.append(xy.copy())
-        self.loop.append(xy.copy())
-        if self.collisions.escaping:
-            return
-        if len(self.recent) == self.recent.maxlen and max(math.dist(p, xy) for p in self.recent) < self.cfg.stuck_radius_m:
-            self.collisions.force()
-            self.recent.clear()
-        elif len(self.loop) == self.loop.maxlen and max(math.dist(p, xy) for p in self.loop) < self.cfg.loop_radius_m:
-            # moving, but round in circles: the goal (or frontier) it keeps heading for cannot be
-            # reached the way the map suggests (a hole in a wall, a gap the simulator blocks).
-            # Leave it for loop_steps and explore: other views usually reveal the real way.
-            if self.info is not None and self.info.detection is not None and self.info.window is not None \
-                    and self.info.mode in ("goal", "verify"):
-                self.deferred[:] = False
-                self.deferred[self.info.window] |= self.info.detection.mask
-                self.deferred_until = self.steps + self.cfg.loop_steps
+        event = self.watchdog.observe(xy, self.collisions.escaping)
+        if event == "loop":
+            info = self.info
+            if info is not None and info.detection is not None and info.window is not None \
+                    and info.mode in ("goal", "verify"):
+                component = np.zeros_like(self.excluded)
+                component[info.window] = info.detection.mask
+                r, c = self.state.to_cell(xy, self.cfg.cell_m)
+                d = np.hypot(*(np.argwhere(component) - (r, c)).T).min() if component.any() else np.inf
+                self.watchdog.set_aside(component, within_reach=bool(d <= self.blocked_reach_cells))
             if self.ltg is not None:
                 self._exclude_around(self.ltg)
                 self.ltg = None
+        if event is not None:
             self.collisions.force()
-            self.loop.clear()
-            self.recent.clear()
 
     # ------------------------------------------------------------------ decisions
     def _mark_collision(self, xy: np.ndarray, yaw: float) -> None:
         cells, inside = cell_of(collision_points(xy, yaw, self.cfg), self.state.origin, self.cfg.cell_m,
                                    self.state.size)
-        self.state.channels[MapChannels.COLLISION].reshape(-1)[cells[inside]] = True
+        cells = np.unique(cells[inside])
+        self.state.channels[MapChannels.COLLISION].reshape(-1)[cells] = True
+        hits = self.hits.reshape(-1)
+        hits[cells] = np.minimum(hits[cells], 254) + 1
 
     def _decide(self, xy: np.ndarray, yaw: float) -> int:
         """Everything below works on the window of the explored area (+ PLAN_MARGIN_M), so the
@@ -185,8 +186,9 @@ class PeanutAgent:
         agent_rc = (r - win[0].start, c - win[1].start)
         conf = st.semantic[self.goal_id][win]
         rejected = self.rejected[win]
-        if self.steps < self.deferred_until:
-            rejected = rejected | self.deferred[win]
+        hidden = self.watchdog.hidden()
+        if hidden is not None:
+            rejected = rejected | hidden[win]
         det = detect_goal(conf, cfg.goal_threshold, cfg.goal_min_area_cells, exclude=rejected)
         free = ~dilate(st.obstacles(win), cfg.dilation_cells)  # unknown cells are optimistic
         if det.found:
@@ -202,22 +204,37 @@ class PeanutAgent:
         return self._explore(agent_rc, yaw, free, det)
 
     def _approach(self, det: GoalDetection, agent_rc, yaw: float, free: np.ndarray, mode: str) -> int | None:
-        """Go to a detected component; STOP (mode 'goal') or reject it (mode 'verify': still
-        uncertain once within verify_distance_m) when close and facing. None if unreachable.
+        """Go to a detected component. Mode 'goal': STOP once inside its view region
+        (``agent.approach``: within reach, line of sight) and facing it within the camera's
+        view; plan to the region's traversable cells. Mode 'verify': reject the component if it
+        is still uncertain once within verify_distance_m and facing it. None if unreachable.
         All cells are in window coordinates."""
         cfg = self.cfg
-        cells = np.argwhere(det.mask)
-        d = np.hypot(*(cells - agent_rc).T) * cfg.cell_m
-        nearest = tuple(int(v) for v in cells[int(np.argmin(d))])
-        close = cfg.stop_distance_m if mode == "goal" else cfg.verify_distance_m
-        if d.min() <= close:
+        if mode == "goal":
+            reach = self.blocked_reach_cells if self.collided else self.reach_cells
+            region = view_region(det.mask, self.state.channels[MapChannels.VIEW_BLOCK][self.window], reach)
+            nearest = nearest_cell(det.mask, agent_rc)[0]
+            if region[agent_rc]:
+                ang = heading_to(agent_rc, nearest, yaw)
+                if abs(ang) > self.view_half_rad:
+                    self.info = StepInfo(mode, det, None, nearest, self.frontiers, self.window)
+                    return int(Action.TURN_LEFT if ang > 0 else Action.TURN_RIGHT)
+                self.info = StepInfo("stop", det, None, nearest, self.frontiers, self.window)
+                return int(Action.STOP)
+            # aim at floor seen free (not at unseen cells: a scan's floor holes look like those)
+            target = region & self.state.traversable(cfg, self.window) & ~det.mask
+            if not target.any():
+                target = region & free & ~det.mask
+            plan = self.planner.plan(free, target if target.any() else det.mask, agent_rc, yaw,
+                                     dilate_goal=not target.any())
+            self.info = StepInfo(mode, det, plan, nearest, self.frontiers, self.window)
+            return plan.action if plan.reachable else None
+        nearest, d = nearest_cell(det.mask, agent_rc)
+        if d * cfg.cell_m <= cfg.verify_distance_m:
             ang = heading_to(agent_rc, nearest, yaw)
             if abs(ang) > self.planner.turn_rad:
                 self.info = StepInfo(mode, det, None, nearest, self.frontiers, self.window)
                 return int(Action.TURN_LEFT if ang > 0 else Action.TURN_RIGHT)
-            if mode == "goal":
-                self.info = StepInfo("stop", det, None, nearest, self.frontiers, self.window)
-                return int(Action.STOP)
             self.rejected[self.window] |= det.mask  # re-observed up close and still below the threshold
             return None
         plan = self.planner.plan(free, det.mask, agent_rc, yaw)
@@ -252,11 +269,16 @@ class PeanutAgent:
             local = self._choose_ltg(agent_rc, free)
         # Nothing reachable to explore: collision marks (or frontiers judged unreachable) may be
         # blocking a doorway, so forget them and look around; the next step re-plans.
-        self.state.channels[MapChannels.COLLISION] = False
+        self._forget_collisions()
         self.excluded[:] = False
         self.ltg = None
         self.info = StepInfo("explore", det, None, None, self.frontiers, win)
         return int(Action.TURN_LEFT)
+
+    def _forget_collisions(self) -> None:
+        """Drop the collision marks, except cells that more than one blocked forward marked: an
+        obstacle the agent cannot see (a floor hole, a step) that it would walk into again."""
+        self.state.channels[MapChannels.COLLISION] = self.hits >= 2
 
     def _exclude_around(self, rc: tuple[int, int]) -> None:
         """Never choose frontier cells within goal_dilation_m of map cell ``rc`` again."""

@@ -56,6 +56,7 @@ class MapChannels(IntEnum):
     VISITED = 3       # cells the agent stood on
     HOLE = 4          # floor expected but no depth returned (a hole in a scanned floor), not since seen as floor
     FLOOR = 5         # cells where floor points were seen (clears HOLE for good)
+    VIEW_BLOCK = 6    # obstacle points at about the camera's height (walls, tall furniture): they hide what is behind
 
 
 NUM_CHANNELS = len(MapChannels)
@@ -175,6 +176,8 @@ class SemanticMapModule:
         cells, inside = pj.cell_of(points[:, :2], state.origin, cfg.cell_m, n)
         flat_channels = state.channels.reshape(NUM_CHANNELS, -1)
         flat_channels[MapChannels.OBSTACLE, cells[inside & obst]] = True
+        tall = inside & obst & (points[:, 2] >= pose[2, 3] - cfg.view_block_below_camera_m)
+        flat_channels[MapChannels.VIEW_BLOCK, cells[tall]] = True
         free = pj.free_rays(cam_xy, points, pix, depth.shape[1], obst, cfg.free_ray_samples)
         fcells, finside = pj.cell_of(free, state.origin, cfg.cell_m, n)
         flat_channels[MapChannels.EXPLORED, fcells[finside]] = True
@@ -219,6 +222,7 @@ class SemanticMapModule:
         off = off[((off >= 0) & (off < state.size)).all(axis=1)]
         state.channels[MapChannels.EXPLORED][off[:, 0], off[:, 1]] = True
         state.channels[MapChannels.OBSTACLE][off[:, 0], off[:, 1]] = False
+        state.channels[MapChannels.VIEW_BLOCK][off[:, 0], off[:, 1]] = False
         state.channels[MapChannels.HOLE][off[:, 0], off[:, 1]] = False   # it stands there: floor
         state.channels[MapChannels.VISITED][r, c] = True
         state.grow_bbox(off[:, 0] * state.size + off[:, 1])

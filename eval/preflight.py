@@ -65,6 +65,9 @@ def check_run_resources(cfg: Any, checks: tuple[str, ...] = CHECKS) -> None:
             check_predictor(agent.predictor_weights or DEFAULT_PREDICTOR, names,
                             tuple(g for g in goal_categories() if g in names), agent.cell_m)
         _check_sensors_feed_the_segmenter(cfg)
+        if not agent.stop_margin_m < cfg.env.view_point_radius_m:
+            raise ValueError(f"agent.stop_margin_m ({agent.stop_margin_m} m) must be below env.view_point_radius_m "
+                             f"({cfg.env.view_point_radius_m} m): the agent stops within the difference of the goal")
         if cfg.env.dataset.scene_dir:
             from calnav.envs.scenes import split_scene_ids
 

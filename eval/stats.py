@@ -63,16 +63,24 @@ def paired_difference(a: list[dict], b: list[dict], metric: str) -> tuple[float,
     return m, sem, len(diffs)
 
 
+LINGER_STEPS = 20   # an episode "lingered" when it stood at the goal, in view, longer than this without STOP
+
+
 def failure_modes(records: list[dict], max_steps: int) -> dict[str, int]:
     """Counts of how episodes failed: ``false_stop`` (STOP called away from the goal before the
     step limit), ``timeout`` (still searching at ``max_steps`` actions; the agent's forced last
-    STOP does not make it a decision) and ``crashed`` (``status != "ok"``)."""
-    out = {"false_stop": 0, "timeout": 0, "crashed": 0}
+    STOP does not make it a decision) and ``crashed`` (``status != "ok"``); and, failed or not,
+    ``lingered``: episodes whose agent stood where STOP would have succeeded, the goal in view,
+    for more than LINGER_STEPS consecutive steps without calling it (records' ``steps_at_goal``;
+    older records without it count 0)."""
+    out = {"false_stop": 0, "timeout": 0, "crashed": 0, "lingered": 0}
     for r in records:
         if r.get("status", "ok") != "ok":
             out["crashed"] += 1
-        elif not r.get("success"):
+            continue
+        if not r.get("success"):
             out["timeout" if r.get("steps", 0) >= max_steps else "false_stop"] += 1
+        out["lingered"] += int(r.get("steps_at_goal", 0) > LINGER_STEPS)
     return out
 
 

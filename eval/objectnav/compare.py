@@ -19,7 +19,7 @@ from pathlib import Path
 
 from calnav.eval.config import ConfigError
 from calnav.eval.results_dir import NEUTRAL_KEYS, read_records
-from calnav.eval.stats import METRIC_LABELS, failure_modes, paired_difference, summarize
+from calnav.eval.stats import LINGER_STEPS, METRIC_LABELS, failure_modes, paired_difference, summarize
 
 PAIRED_METRICS: tuple[str, ...] = ("spl", "success")
 
@@ -129,10 +129,12 @@ def failures_markdown(names: list[str], loaded: list[tuple[dict, list[dict]]]) -
     from calnav.envs.config import EnvConfig
 
     default_steps = EnvConfig().max_episode_steps  # for a config that does not name it
-    lines = ["| Run | Failed | False STOP | Out of steps | Crashed | N |", "|---|---|---|---|---|---|"]
+    lines = [f"| Run | Failed | False STOP | Out of steps | Crashed | At the goal > {LINGER_STEPS} steps | N |",
+             "|---|---|---|---|---|---|---|"]
     for name, (cfg, records) in zip(names, loaded):
         f = failure_modes(records, int(cfg.get("env.max_episode_steps", default_steps)))
-        lines.append(f"| {name} | {sum(f.values())} | {f['false_stop']} | {f['timeout']} | {f['crashed']} "
+        failed = f["false_stop"] + f["timeout"] + f["crashed"]
+        lines.append(f"| {name} | {failed} | {f['false_stop']} | {f['timeout']} | {f['crashed']} | {f['lingered']} "
                      f"| {len(records)} |")
     return "\n".join(lines)
 

@@ -28,7 +28,7 @@ from pathlib import Path
 
 from calnav.eval.config import Config, build_dataclass, load_config, to_dict
 from calnav.eval.results_dir import RECORDS_NAME, AllEpisodesFailed, ResultsDir, writing
-from calnav.eval.stats import format_metrics_table, summarize
+from calnav.eval.stats import failure_modes, format_metrics_table, summarize
 
 # What --force deletes from a directory that holds another config's results.
 RUN_RESULTS: tuple[str, ...] = (RECORDS_NAME, "summary.json", "plots", "videos", "rerun")
@@ -76,6 +76,7 @@ def run_one_episode(env, agent, index: int, video_dir: Path | None = None, rerun
         "success": info["success"], "spl": info["spl"], "softspl": info["softspl"],
         "distance_to_goal": info["distance_to_goal"], "geodesic_distance": ep.geodesic_distance,
         "steps": info["steps"], "path_length": info["path_length"], "collisions": info["collisions"],
+        "steps_at_goal": int(info["steps_at_goal"]),
         "stop_reason": "stop" if terminated else "max_steps",
         "wall_time_s": round(time.perf_counter() - t0, 3), "status": "ok",
     }
@@ -250,6 +251,7 @@ def run_jobs(jobs: list[EpisodeJob], force: bool = False, progress: bool = True,
         for job, results, recs, dup in zip(jobs, dirs, records, duplicates):
             ordered = [recs[i] for i in job.indices if i in recs]
             summary = summarize(ordered)
+            summary["failures"] = failure_modes(ordered, job.cfg.env.max_episode_steps)
             summary["agent"] = job.cfg.run.agent
             summary["duplicates"] = dup  # found (and dropped) in the records file
             results.write_json("summary.json", summary)

@@ -37,8 +37,10 @@ def test_failure_modes_counts():
             {"success": 0.0, "steps": 120, "status": "ok"},          # false STOP
             {"success": 0.0, "steps": 500, "status": "ok"},          # out of steps
             {"success": 0.0, "steps": 499, "status": "ok"},          # STOP one step before the limit
-            {"index": 4, "status": "error"}]
-    assert failure_modes(recs, 500) == {"false_stop": 2, "timeout": 1, "crashed": 1}
+            {"index": 4, "status": "error"},
+            {"success": 1.0, "steps": 80, "status": "ok", "steps_at_goal": 21},   # lingered, then stopped
+            {"success": 0.0, "steps": 500, "status": "ok", "steps_at_goal": 20}]  # at the limit: not lingering
+    assert failure_modes(recs, 500) == {"false_stop": 2, "timeout": 2, "crashed": 1, "lingered": 1}
 
 
 def test_flatten_and_differing_keys():
@@ -81,7 +83,7 @@ def test_compare_run_directories(tmp_path, capsys):
     assert row["spl_z"] == "inf" and float(row["success_z"]) == pytest.approx(1.0)  # 0.5 / 0.5
     assert "Paired differences" in capsys.readouterr().out
     failures = (out / "failures.md").read_text().splitlines()
-    assert failures[3].endswith("| 1 | 1 | 0 | 0 | 2 |")  # ndf: episode 0 failed with steps absent -> false STOP
+    assert failures[3].endswith("| 1 | 1 | 0 | 0 | 0 | 2 |")  # ndf: episode 0 failed with steps absent -> false STOP
 
 
 def test_paired_identical_runs_render_dash(tmp_path):
