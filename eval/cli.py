@@ -81,6 +81,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--output", default="runs/scan_quality", help="results directory")
     p.add_argument("--force", action="store_true", help="discard results of a different config in --output")
 
+    p = sub.add_parser("check-scene", help="what the simulator makes of a scene: walkable floor, navigable area, "
+                                           "islands, passages too narrow for the agent, episodes generated / "
+                                           "rejected; a top-down PNG (and a Rerun recording with the viz extra)")
+    p.add_argument("target", help="a scene file (.ply / .npz), a directory of them, or a calnav scene id "
+                                  "(house_val_0003; with env.dataset.style=scanned its scan)")
+    _add_config_args(p, "configs/objectnav.yaml")
+    p.add_argument("--episodes", type=int, default=20, help="episodes to generate per scene (default 20)")
+    p.add_argument("--output", default="runs/check_scene", help="results directory")
+    p.add_argument("--force", action="store_true", help="discard results of a different config in --output")
+
     p = sub.add_parser("bench", help="speed/memory figures as a flat JSON of name -> number")
     p.add_argument("--output", default="bench.json", help="JSON output path")
     p.add_argument("--only", default="", help="comma-separated sections (default: all)")
@@ -242,6 +252,8 @@ COMMANDS: dict[str, Command] = {
     "view-episode": Command("calnav.eval.objectnav.view_episode", "main_view_episode", "view_episode_configs"),
     "scan-houses": Command("calnav.eval.scanning.run", "main_scan_houses", "scan_houses_configs",
                            checks=("run",)),   # runs no agent: builds scans (splits checked by it)
+    "check-scene": Command("calnav.eval.scanning.check", "main_check_scene", "check_scene_configs",
+                           checks=("run",)),   # runs no agent: loads scenes, builds navmeshes, draws episodes
     "bench": Command("calnav.eval.bench.run", "main_bench", None),              # fixed workloads, no config
     "train-segmenter": Command("calnav.eval.segmenter.train", "main_train_segmenter",
                                "calnav.eval.segmenter.data:segmenter_configs"),

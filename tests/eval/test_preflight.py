@@ -133,6 +133,7 @@ def _argv(command: str, tmp_path) -> list[str]:
         "compare": ["compare", out, "--output", out],
         "calibrate-map": ["calibrate-map", "--quick", "--sequences", str(tmp_path / "list.txt")],
         "view": ["view", str(tmp_path)],
+        "check-scene": ["check-scene", "house_val_0000", "--output", out],
     }.get(command, [command, "--output", out])
 
 
