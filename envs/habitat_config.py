@@ -20,12 +20,13 @@ from dataclasses import asdict, replace
 from pathlib import Path
 
 from calnav.common.atomic import write_text_atomic
-from calnav.envs.config import DatasetConfig, EnvConfig
+from calnav.envs.config import DatasetConfig, EnvConfig, NavMeshConfig
+from calnav.envs.scanning.config import ScanningConfig
 from calnav.envs.episodes import dataset_key, load_split, split_dir
 
 DESCRIPTOR = "calnav_env.json"          # beside <split>.json.gz: the EnvConfig of the episodes
 DESCRIPTOR_FORMAT = "calnav-habitat-dataset"
-DESCRIPTOR_VERSION = 1
+DESCRIPTOR_VERSION = 2
 AGENT = "main_agent"                     # habitat-lab's single-agent name
 HABITAT_CONFIG = str(Path(__file__).resolve().parents[1] / "configs" / "habitat_objectnav.yaml")  # the default
 # EnvConfig keys that habitat-lab's config sets (a calnav override of one of them is refused)
@@ -129,7 +130,10 @@ def read_descriptor(scene_path: str) -> tuple[EnvConfig, str]:
     if data.get("format") != DESCRIPTOR_FORMAT or data.get("version") != DESCRIPTOR_VERSION:
         raise ValueError(f"{desc} is not a calnav {DESCRIPTOR_FORMAT} v{DESCRIPTOR_VERSION} file")
     env = dict(data["env"])
-    env_cfg = EnvConfig(**{**env, "resolution": tuple(env["resolution"]), "dataset": DatasetConfig(**env["dataset"])})
+    ds = dict(env["dataset"])
+    ds["scanning"] = ScanningConfig(**ds["scanning"])
+    env_cfg = EnvConfig(**{**env, "resolution": tuple(env["resolution"]), "dataset": DatasetConfig(**ds),
+                           "navmesh": NavMeshConfig(**env["navmesh"])})
     from calnav.envs.scenes import split_scene_ids
 
     valid = split_scene_ids(env_cfg.split, env_cfg.dataset)

@@ -239,6 +239,7 @@ class CalnavSim(Simulator):
         z = self.navgrid.floor_height(self.position) + self.env_config.camera_height_m   # standing on the navmesh
         pose = camera_pose(self.position, self.yaw, z, self.pitch)
         frame = self.renderer.render(pose)
+        self.last_instances = frame.instance   # (H, W) instance ids of the last frame (what is in view)
         sim_obs = {"rgb": frame.rgb, "depth": frame.depth, "semantic": frame.semantic}
         return self._sensor_suite.get_observations(sim_obs)
 

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from calnav.common.habitat_import import import_habitat
+from calnav.envs.measures import StepsAtGoal, TaskState
 
 habitat = import_habitat()
 
@@ -27,10 +28,13 @@ class EnvBenchmark(habitat.Benchmark):
 class RecordingEnv:
     """A ``habitat.Env`` as ``Benchmark.local_evaluate`` uses it (reset, step, episode_over,
     get_metrics, episodes), recording one result per episode when its metrics are read (once
-    per episode, right after it ends). Collisions and path length come from the simulator."""
+    per episode, right after it ends). Collisions, path length and calnav's ``steps_at_goal``
+    (``envs.measures.StepsAtGoal``, fed habitat-lab's DistanceToGoal and the simulator's last
+    frame) come from the simulator."""
 
-    def __init__(self, env, index_of: dict[tuple[str, str], int], on_record):
+    def __init__(self, env, index_of: dict[tuple[str, str], int], on_record, success_distance: float):
         self.env, self.index_of, self.on_record = env, index_of, on_record
+        self.success_distance = success_distance
 
     @property
     def episodes(self):
@@ -45,7 +49,18 @@ class RecordingEnv:
         self._t0, self._steps, self._collisions, self._path = time.perf_counter(), 0, 0, 0.0
         self._prev = self.env.sim.position.copy()
         self._stopped = False
+        self._goals = np.array([int(g.object_id) for g in self.env.current_episode.goals], np.int64)
+        self._at_goal = StepsAtGoal(self.success_distance)
+        self._at_goal.reset_metric(self._task_state())
         return obs
+
+    def _task_state(self) -> TaskState:
+        """What StepsAtGoal reads, from habitat-lab's measures and the simulator's last frame."""
+        d = float(self.env.get_metrics()["distance_to_goal"])
+        task = TaskState(position=np.zeros(2), distance_fn=lambda _: d, stop_called=self._stopped,
+                         goal_in_view=bool(np.isin(self.env.sim.last_instances, self._goals).any()))
+        task.measures = {"distance_to_goal": _Fixed(d)}
+        return task
 
     def step(self, action):
         obs = self.env.step(action)
@@ -55,6 +70,7 @@ class RecordingEnv:
         self._path += float(np.linalg.norm(sim.position - self._prev))
         self._prev = sim.position.copy()
         self._stopped = bool(getattr(self.env.task, "is_stop_called", False))
+        self._at_goal.update_metric(self._task_state())
         return obs
 
     def get_metrics(self) -> dict:
@@ -67,10 +83,17 @@ class RecordingEnv:
             **{ours: float(m[theirs]) for theirs, ours in METRIC_KEYS.items()},
             "geodesic_distance": float(ep.info["geodesic_distance"]), "steps": self._steps,
             "path_length": self._path, "collisions": self._collisions,
-            "stop_reason": "stop" if self._stopped else "max_steps",
+            "steps_at_goal": int(self._at_goal.metric), "stop_reason": "stop" if self._stopped else "max_steps",
             "wall_time_s": round(time.perf_counter() - self._t0, 3), "status": "ok",
         })
         return m
+
+
+class _Fixed:
+    """A measure holding one value (habitat-lab's DistanceToGoal of this step)."""
+
+    def __init__(self, metric: float):
+        self.metric = metric
 
 
 def episode_index(episodes) -> dict[tuple[str, str], int]:

@@ -93,7 +93,7 @@ def run_habitat_benchmark(cfg, habitat_cfg, indices: list[int], out: Path, force
                     records_file.append(rec)
                     records[rec["index"]] = rec
 
-                bench = EnvBenchmark(RecordingEnv(env, index_of, record))
+                bench = EnvBenchmark(RecordingEnv(env, index_of, record, cfg.env.success_distance_m))
                 try:  # finished episodes are on disk already; an error stops the run (rerun resumes)
                     bench.evaluate(agent, num_episodes=len(todo))
                 finally:
