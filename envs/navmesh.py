@@ -27,8 +27,6 @@ from scipy import ndimage
 from calnav.envs import heightfield as hf
 from calnav.envs.scene import Scene
 
-STOREY_GRACE_UNITS = 0          # extra height units (beyond the climb) a surface may sit off the storey
-
 
 def closed_solids(scene: Scene) -> bool:
     """Whether the scene is built of closed, outward-facing solids (``envs.primitives``: the
@@ -130,7 +128,7 @@ def _ground(field: dict) -> tuple[np.ndarray, np.ndarray, dict]:
     sizes = np.bincount(labels)
     heights = np.array([np.median(smax[walk[labels == k]]) for k in range(len(sizes))])
     main = int(np.argmax(sizes))
-    storey = np.abs(heights - heights[main]) <= field["climb"] + STOREY_GRACE_UNITS
+    storey = np.abs(heights - heights[main]) <= field["climb"]
     info.update(surfaces=int(len(sizes)), ground_surfaces=int(storey.sum()))
     keep = walk[storey[labels]]
     cols = np.searchsorted(start, keep, side="right") - 1   # the column of each span
@@ -158,7 +156,7 @@ def build_navmesh(scene: Scene, env_cfg, require_navigable: bool = True) -> NavM
     cell = float(env_cfg.nav_cell_m)
     field = build_heightfield(scene, env_cfg)
     h, w = field["shape"]
-    span, edge = _ground(field)[:2]
+    span, edge, surfaces = _ground(field)
     ground = span >= 0
     floor_z = np.full((h, w), np.nan, np.float32)
     floor_z[ground] = field["ztop"][span[ground]]
@@ -187,6 +185,7 @@ def build_navmesh(scene: Scene, env_cfg, require_navigable: bool = True) -> NavM
         "ground_m2": float(free.sum() * area), "navigable_m2": float(navigable.sum() * area),
         "islands": int(len(kept)), "island_m2": [float(sizes[k] * area) for k in kept],
         "dropped_islands": int(n - len(kept)), "dropped_m2": float((sizes.sum() - sizes[kept].sum()) * area),
+        **surfaces,   # walkable surfaces in all, and those that make the storey's ground
     }
     return NavMesh(navigable=navigable, ground=free, floor_z=floor_z, clearance=clearance, islands=islands,
                    eroded=labels.astype(np.int32), origin_xy=field["origin"][:2].copy(), cell_m=cell, stats=stats)

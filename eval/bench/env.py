@@ -7,8 +7,11 @@ Figures (all measured in this run, on ``ctx.scene``, along ``ctx.poses``):
 - env.render_ratio_640x480 = render_ms / raycast_ms: the cost of everything beyond the cast.
 - env.steps_per_s_*: agent steps per second, a step = MOVE_FORWARD (or a turn when blocked,
   and every few steps to look around) on the NavGrid + one render at the new pose.
-- env.navgrid_build_ms: ``NavGrid.build`` (ray casting scene, down rays, erosion,
-  components) plus its geodesic graph. env.geodesic_field_ms: one uncached single-goal field.
+- env.navgrid_build_ms: ``NavGrid.build`` (the navmesh: rasterising the mesh into the
+  heightfield, its filters, the erosion, the islands) plus its geodesic graph.
+  env.geodesic_field_ms: one uncached single-goal field. env.episode_check_ms: median
+  ``oracle_solves`` (the discrete-action check every generated episode passes) from random
+  starts to that goal.
 - env.scene_triangles: triangle count of the scene.
 - env.house_gen_ms: median ``generate_house`` of a procedural house (default spec; seeds 500,
   501, 502, only 500 with --quick), ms: episode generation builds houses, a cost users pay.
@@ -94,4 +97,10 @@ def run(ctx: BenchContext) -> dict[str, float]:
     goal[grid.to_cell(grid.sample_navigable(rng, 1)[0])] = True
     out["env.geodesic_field_ms"] = timeit_ms(lambda: grid.geodesic_field(goal, use_cache=False),
                                              repeats=3 if ctx.quick else 10)
+    from calnav.envs.oracle import oracle_solves
+
+    field = grid.geodesic_field(goal)
+    starts = iter(grid.sample_navigable(rng, 40))
+    out["env.episode_check_ms"] = timeit_ms(lambda: oracle_solves(grid, cfg, next(starts), 0.0, field),
+                                            repeats=3 if ctx.quick else 10)
     return out

@@ -95,7 +95,9 @@ def scene_markdown(r: dict) -> str:
                   f"- islands: {f['islands']} kept ({kept} m^2), {f['dropped_islands']} dropped as too small "
                   f"({f['dropped_m2']:.2f} m^2)",
                   f"- floor above the reference height: median {100 * f['floor_above_median_m']:.1f} cm, "
-                  f"95th percentile {100 * f['floor_above_p95_m']:.1f} cm"]
+                  f"95th percentile {100 * f['floor_above_p95_m']:.1f} cm",
+                  f"- walkable surfaces: {f['surfaces']}, {f['ground_surfaces']} of them at the storey's height "
+                  "(the others: table tops, seats, bed tops, wall tops)"]
         for p in r["passages"]:
             fate = "kept as its own island" if p["kept"] else "dropped"
             lines.append(f"- passage {p['width_m']:.2f} m wide (needs {p['needed_m']:.2f} m) at "
