@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import csv
 import math
+import statistics
 from pathlib import Path
 
 from calnav.eval.config import ConfigError
@@ -129,13 +130,15 @@ def failures_markdown(names: list[str], loaded: list[tuple[dict, list[dict]]]) -
     from calnav.envs.config import EnvConfig
 
     default_steps = EnvConfig().max_episode_steps  # for a config that does not name it
-    lines = [f"| Run | Failed | False STOP | Out of steps | Crashed | At the goal > {LINGER_STEPS} steps | N |",
-             "|---|---|---|---|---|---|---|"]
+    lines = [f"| Run | Failed | False STOP | Out of steps | Crashed | At the goal > {LINGER_STEPS} steps | "
+             "Median collisions | N |", "|---|---|---|---|---|---|---|---|"]
     for name, (cfg, records) in zip(names, loaded):
         f = failure_modes(records, int(cfg.get("env.max_episode_steps", default_steps)))
         failed = f["false_stop"] + f["timeout"] + f["crashed"]
+        hits = [r["collisions"] for r in records if r.get("status", "ok") == "ok" and "collisions" in r]
+        median = f"{statistics.median(hits):g}" if hits else "-"
         lines.append(f"| {name} | {failed} | {f['false_stop']} | {f['timeout']} | {f['crashed']} | {f['lingered']} "
-                     f"| {len(records)} |")
+                     f"| {median} | {len(records)} |")
     return "\n".join(lines)
 
 

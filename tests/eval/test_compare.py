@@ -83,7 +83,7 @@ def test_compare_run_directories(tmp_path, capsys):
     assert row["spl_z"] == "inf" and float(row["success_z"]) == pytest.approx(1.0)  # 0.5 / 0.5
     assert "Paired differences" in capsys.readouterr().out
     failures = (out / "failures.md").read_text().splitlines()
-    assert failures[3].endswith("| 1 | 1 | 0 | 0 | 0 | 2 |")  # ndf: episode 0 failed with steps absent -> false STOP
+    assert failures[3].endswith("| 1 | 1 | 0 | 0 | 0 | - | 2 |")  # ndf: episode 0 failed with steps absent -> false STOP
 
 
 def test_paired_identical_runs_render_dash(tmp_path):
