@@ -1,4 +1,13 @@
-"""Summary statistics of episode results: mean and standard error of the mean (SEM)."""
+"""Summary statistics of episode results: mean and standard error of the mean (SEM).
+
+Every mean is over one set of episodes, never over the episodes where a metric happens to be a
+number: a finished record (``status: ok``) whose metric is missing or not finite (a NaN SPL, an
+infinite distance to an unreachable goal) is an error record (``finite_or_error``: status
+``error``, counted in ``failed``, retried on resume), and an error record scores 0 in Success,
+SPL and SoftSPL. So Success, SPL and SoftSPL are means over all episodes, and DistanceToGoal --
+which a crashed episode does not have -- over the finished ones (``count - failed``); a mean of
+no episodes is ``None`` (JSON null, ``-`` in tables), never NaN.
+"""
 from __future__ import annotations
 
 import math
@@ -8,6 +17,7 @@ import numpy as np
 METRICS: tuple[str, ...] = ("success", "spl", "softspl", "distance_to_goal")
 METRIC_LABELS: dict[str, str] = {"success": "Success", "spl": "SPL", "softspl": "SoftSPL",
                                  "distance_to_goal": "DTG"}
+FAILURE_SCORED: tuple[str, ...] = ("success", "spl", "softspl")   # 0 for an error record; DTG: finished only
 
 
 def mean_sem(values) -> tuple[float, float]:
@@ -20,47 +30,90 @@ def mean_sem(values) -> tuple[float, float]:
     return float(x.mean()), float(x.std(ddof=1) / math.sqrt(len(x)))
 
 
+def _finite_number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def is_finished(record: dict) -> bool:
+    """A finished episode (``status`` ok) whose every metric is a finite number."""
+    return record.get("status", "ok") == "ok" and all(_finite_number(record.get(m)) for m in METRICS)
+
+
+def finite_or_error(record: dict) -> dict:
+    """``record`` when it is an error record already or every metric is a finite number;
+    otherwise the error record it becomes: ``status: error``, an ``error`` naming the metrics,
+    and those values removed (so the record stays strict JSON). Applied where records are made
+    (``eval.objectnav.run``, ``eval.habitat.recording``) and read (``eval.results_dir``)."""
+    if record.get("status", "ok") != "ok" or is_finished(record):
+        return record
+    bad = {m: record.get(m) for m in METRICS if not _finite_number(record.get(m))}
+    shown = ", ".join(f"{m} {v}" for m, v in bad.items())
+    return {**{k: v for k, v in record.items() if k not in bad}, "status": "error",
+            "error": f"non-finite metrics ({shown}): an episode without a finite score counts as failed"}
+
+
+def _mean_sem_or_none(values: list[float]) -> tuple[float | None, float | None]:
+    """``mean_sem``, with None (JSON null) instead of NaN for no values."""
+    if not values:
+        return None, None
+    return mean_sem(values)
+
+
+def _means(rows: list[dict]) -> dict:
+    """{metric: mean, metric_sem: SEM} of scored rows (module docstring: one episode set per
+    metric kind, never a per-metric filter)."""
+    out: dict = {}
+    finished = [r for r in rows if r.get("status", "ok") == "ok"]
+    for m in METRICS:
+        over = rows if m in FAILURE_SCORED else finished
+        out[m], out[f"{m}_sem"] = _mean_sem_or_none([float(r[m]) for r in over])
+    return out
+
+
 def summarize(records: list[dict]) -> dict:
     """Episode records -> {metric: mean, metric_sem: SEM, count, failed, per_category: {...}}.
-    Records with ``status != "ok"`` (crashed episodes) count as failures with Success/SPL 0
-    and are reported in ``failed``."""
-    ok = [r for r in records if r.get("status", "ok") == "ok"]
-    out: dict = {"count": len(records), "failed": len(records) - len(ok)}
+    Error records (crashed episodes, and finished ones with a non-finite metric) count in
+    ``failed`` and as failures with Success / SPL / SoftSPL 0 (module docstring)."""
     rows = [scored(r) for r in records]
-    for m in METRICS:
-        vals = [r[m] for r in rows if r.get(m) is not None and math.isfinite(r[m])]
-        out[m], out[f"{m}_sem"] = mean_sem(vals)
+    failed = sum(r.get("status", "ok") != "ok" for r in rows)
+    out: dict = {"count": len(records), "failed": failed, **_means(rows)}
     per_cat: dict[str, dict] = {}
-    for cat in sorted({r["category"] for r in records if "category" in r}):
+    for cat in sorted({r["category"] for r in rows if "category" in r}):
         sub = [r for r in rows if r.get("category") == cat]
-        per_cat[cat] = {"count": len(sub)}
-        for m in METRICS:
-            vals = [r[m] for r in sub if r.get(m) is not None and math.isfinite(r[m])]
-            per_cat[cat][m], per_cat[cat][f"{m}_sem"] = mean_sem(vals)
+        per_cat[cat] = {"count": len(sub), **_means(sub)}
     out["per_category"] = per_cat
     return out
 
 
 def scored(record: dict) -> dict:
-    """The record as it is scored: a crashed episode (``status != "ok"``) counts as a failure
-    (Success, SPL, SoftSPL 0)."""
+    """The record as it is scored: an error record (``finite_or_error``: a crash, or a
+    non-finite metric) counts as a failure (Success, SPL, SoftSPL 0)."""
+    record = finite_or_error(record)
     if record.get("status", "ok") == "ok":
         return record
-    return {**record, "success": 0.0, "spl": 0.0, "softspl": 0.0}
+    return {**record, **{m: 0.0 for m in FAILURE_SCORED}}
+
+
+EPISODE_KEYS: tuple[str, ...] = ("episode_id", "geodesic_distance")   # what names an episode in a record
+
+
+def same_episode(a: dict, b: dict) -> bool:
+    """Whether two records of one index are the same episode: their ``EPISODE_KEYS`` agree
+    (where both hold them). Runs on other datasets (another house style, scan settings or
+    generator) reuse indices and ids for other starts; their geodesic distances differ."""
+    return all(a[k] == b[k] for k in EPISODE_KEYS if k in a and k in b)
 
 
 def paired_difference(a: list[dict], b: list[dict], metric: str) -> tuple[float, float, int]:
     """Mean and SEM of ``metric``(b) - ``metric``(a) over the episodes (matched by ``index``)
-    both record lists hold, and their count. Pairing removes the episode-difficulty variance
-    both runs share, so this SEM is the one that says whether two configs differ."""
-    va = {r["index"]: scored(r).get(metric) for r in a if "index" in r}
-    diffs = []
-    for r in b:
-        x, y = va.get(r.get("index")), scored(r).get(metric)
-        if x is not None and y is not None and math.isfinite(x) and math.isfinite(y):
-            diffs.append(y - x)
+    both runs finished (``is_finished``: an episode that crashed, or has a non-finite metric, in either
+    run is left out, for every metric alike), and their count. Pairing removes the
+    episode-difficulty variance both runs share, so this SEM is the one that says whether two
+    configs differ; with fewer than 2 pairs it is NaN (one difference has no spread)."""
+    va = {r["index"]: r for r in a if "index" in r and is_finished(r)}
+    diffs = [float(r[metric]) - float(va[r["index"]][metric]) for r in b if is_finished(r) and r.get("index") in va]
     m, sem = mean_sem(diffs)
-    return m, sem, len(diffs)
+    return m, (sem if len(diffs) >= 2 else math.nan), len(diffs)
 
 
 LINGER_STEPS = 20   # an episode "lingered" when it stood at the goal, in view, longer than this without STOP
@@ -69,12 +122,12 @@ LINGER_STEPS = 20   # an episode "lingered" when it stood at the goal, in view, 
 def failure_modes(records: list[dict], max_steps: int) -> dict[str, int]:
     """Counts of how episodes failed: ``false_stop`` (STOP called away from the goal before the
     step limit), ``timeout`` (still searching at ``max_steps`` actions; the agent's forced last
-    STOP does not make it a decision) and ``crashed`` (``status != "ok"``); and, failed or not,
+    STOP does not make it a decision) and ``crashed`` (an error record, ``finite_or_error``); and, failed or not,
     ``lingered``: episodes whose agent stood where STOP would have succeeded, the goal in view,
     for more than LINGER_STEPS consecutive steps without calling it (records' ``steps_at_goal``;
     older records without it count 0)."""
     out = {"false_stop": 0, "timeout": 0, "crashed": 0, "lingered": 0}
-    for r in records:
+    for r in map(finite_or_error, records):
         if r.get("status", "ok") != "ok":
             out["crashed"] += 1
             continue
@@ -90,6 +143,14 @@ def format_metrics_table(rows: list[tuple[str, dict]], first_header: str = "Run"
     sep = "|" + "---|" * (len(METRICS) + 2)
     lines = [header, sep]
     for name, s in rows:
-        cells = [f"{s[m]:.3f} ({s[m + '_sem']:.3f})" for m in METRICS]
+        cells = [mean_sem_cell(s, m) for m in METRICS]
         lines.append(f"| {name} | " + " | ".join(cells) + f" | {s['count']} |")
     return "\n".join(lines)
+
+
+def mean_sem_cell(summary: dict, metric: str) -> str:
+    """'mean (SEM)' of a summary's metric, '-' for a mean of no episodes (None)."""
+    mean, sem = summary.get(metric), summary.get(f"{metric}_sem")
+    if mean is None:
+        return "-"
+    return f"{mean:.3f} ({sem:.3f})"

@@ -6,8 +6,10 @@ config keys that differ between the runs as the leading columns, plus ``paired.m
 each run minus a baseline run on the episodes both hold (matched by index), mean and paired
 SEM (``eval.stats.paired_difference``), and ``|diff| / SEM``; and ``failures.md``: per run, how
 many episodes failed by a false STOP, by running out of steps, or by a crash
-(``eval.stats.failure_modes``, step limit from each run's ``env.max_episode_steps``). A run that
-shares no episode with the baseline is refused (no paired difference exists); each episode
+(``eval.stats.failure_modes``, step limit from each run's ``env.max_episode_steps``). The pairs
+are the episodes both runs finished (``eval.stats.is_finished``: an episode that crashed, or has a
+non-finite metric, in either run is left out of every metric's pairs and counted in
+``failures.md``); a run with no such pair is refused (no paired difference exists); each episode
 counts once (``eval.results_dir.read_records``: the last valid record of an index). Keys under ``mapping.`` are shown
 as ``-`` for ``agent.map_type: ndf`` runs, which do not use the 3D map.
 """
@@ -20,7 +22,8 @@ from pathlib import Path
 
 from calnav.eval.config import ConfigError
 from calnav.eval.results_dir import NEUTRAL_KEYS, read_records
-from calnav.eval.stats import LINGER_STEPS, METRIC_LABELS, failure_modes, paired_difference, summarize
+from calnav.eval.stats import (LINGER_STEPS, METRIC_LABELS, failure_modes, is_finished, paired_difference,
+                               same_episode, summarize)
 
 PAIRED_METRICS: tuple[str, ...] = ("spl", "success")
 
@@ -70,7 +73,8 @@ def cell_value(cfg: dict[str, object], key: str) -> str:
 
 
 def _ratio(d: float, sem: float) -> float:
-    """|d| / SEM (inf for a nonzero d with SEM 0, NaN for 0 / 0 or no pairs)."""
+    """|d| / SEM (inf for a nonzero d with SEM 0 over 2 or more pairs; NaN for 0 / 0 and for an
+    undefined SEM: fewer than 2 pairs)."""
     if not (math.isfinite(d) and math.isfinite(sem)):
         return math.nan
     if sem > 0:
@@ -82,6 +86,12 @@ def _ratio_cell(z: float) -> str:
     return "-" if math.isnan(z) else f"{z:.1f}"
 
 
+def _diff_cell(d: float, sem: float) -> str:
+    if math.isnan(d):
+        return "-"
+    return f"{d:+.3f} ({'-' if math.isnan(sem) else f'{sem:.3f}'})"
+
+
 def episode_span(records: list[dict]) -> str:
     """'episodes A:B' (a contiguous range) or 'N episodes in A:B' of ``records``' indices."""
     idx = sorted(r["index"] for r in records)
@@ -89,22 +99,44 @@ def episode_span(records: list[dict]) -> str:
     return f"episodes {span}" if len(idx) == idx[-1] + 1 - idx[0] else f"{len(idx)} episodes in {span}"
 
 
+def other_episodes(base_records: list[dict], records: list[dict]) -> bool:
+    """Whether ``records`` hold other episodes than the baseline's under the same indices
+    (``eval.stats.same_episode``): no paired difference exists between them."""
+    by_index = {r["index"]: r for r in base_records}
+    return any(not same_episode(by_index[r["index"]], r) for r in records if r["index"] in by_index)
+
+
 def check_shared_episodes(names: list[str], loaded: list[tuple[dict, list[dict]]], base: int) -> None:
-    """Refuse (ConfigError) a run that shares no episode index with the baseline: its paired
+    """Refuse (ConfigError) a run that shares no episode index with the baseline, or shares some
+    but finished none of them where the baseline did too (``eval.stats.is_finished``): its paired
     difference has no pairs, so any number printed for it would be made up."""
-    base_idx = {r["index"] for r in loaded[base][1]}
+    base_records = loaded[base][1]
+    base_idx, base_ok = {r["index"] for r in base_records}, {r["index"] for r in base_records if is_finished(r)}
     for i, (name, (_, records)) in enumerate(zip(names, loaded)):
-        if i != base and not base_idx & {r["index"] for r in records}:
+        if i == base or other_episodes(base_records, records):   # reported unpaired, not refused
+            continue
+        shared = base_idx & {r["index"] for r in records}
+        if not shared:
             raise ConfigError(f"{name} ({episode_span(records)}) shares no episodes with the baseline "
-                              f"{names[base]} ({episode_span(loaded[base][1])}); compare runs over the same "
+                              f"{names[base]} ({episode_span(base_records)}); compare runs over the same "
                               "episode range (--episodes) or pick another --baseline")
+        if not base_ok & {r["index"] for r in records if is_finished(r)}:
+            raise ConfigError(f"{name} and the baseline {names[base]} share {len(shared)} episode(s), none of "
+                              "which finished in both runs (each crashed, or has a non-finite metric, in one of "
+                              "them): no paired difference exists; rerun the failed episodes (the same calnav "
+                              "objectnav command retries them) or pick another --baseline")
 
 
 def paired_rows(baseline: list[dict], runs: list[tuple[str, list[dict]]]) -> list[dict]:
     """One row per run: {'run', 'n', metric, metric_sem, metric_z} (run - baseline)."""
     rows = []
     for name, records in runs:
-        row: dict = {"run": name}
+        row: dict = {"run": name, "other_episodes": other_episodes(baseline, records)}
+        if row["other_episodes"]:
+            row.update({k: v for m in PAIRED_METRICS for k, v in ((m, math.nan), (f"{m}_sem", math.nan),
+                                                                  (f"{m}_z", math.nan))}, n=0)
+            rows.append(row)
+            continue
         for m in PAIRED_METRICS:
             d, sem, n = paired_difference(baseline, records, m)
             row.update({m: d, f"{m}_sem": sem, f"{m}_z": _ratio(d, sem), "n": n})
@@ -118,11 +150,17 @@ def paired_markdown(base_name: str, rows: list[dict]) -> str:
     lines = [f"Paired differences, run minus {base_name} (same episodes):", "",
              "| " + " | ".join(heads) + " |", "|" + "---|" * len(heads)]
     for r in rows:
-        cells = [r["run"]] + [f"{r[m]:+.3f} ({r[m + '_sem']:.3f})" for m in PAIRED_METRICS] + \
-                [_ratio_cell(r[m + "_z"]) for m in PAIRED_METRICS] + [str(r["n"])]
+        cells = [r["run"]] + [_diff_cell(r[m], r[m + "_sem"]) for m in PAIRED_METRICS] + \
+                [_ratio_cell(r[m + "_z"]) for m in PAIRED_METRICS] + \
+                ["0 (other episodes)" if r["other_episodes"] else str(r["n"])]
         lines.append("| " + " | ".join(cells) + " |")
-    if any(math.isnan(r[m + "_z"]) for r in rows for m in PAIRED_METRICS):
-        lines += ["", "abs d / SEM \"-\": the metric is identical on every paired episode (or no episodes pair)."]
+    if any(r["other_episodes"] for r in rows):
+        lines += ["", "other episodes: the run holds other episodes than the baseline under the same indices "
+                  "(another house style, scan settings or generator): no paired difference exists; compare "
+                  "their means with the unpaired SEMs of comparison.md."]
+    if any(math.isnan(r[m + "_z"]) and not r["other_episodes"] for r in rows for m in PAIRED_METRICS):
+        lines += ["", "abs d / SEM \"-\": the metric is identical on every paired episode, or a single episode "
+                  "pairs (SEM \"-\": one difference has no spread)."]
     return "\n".join(lines)
 
 
@@ -135,7 +173,7 @@ def failures_markdown(names: list[str], loaded: list[tuple[dict, list[dict]]]) -
     for name, (cfg, records) in zip(names, loaded):
         f = failure_modes(records, int(cfg.get("env.max_episode_steps", default_steps)))
         failed = f["false_stop"] + f["timeout"] + f["crashed"]
-        hits = [r["collisions"] for r in records if r.get("status", "ok") == "ok" and "collisions" in r]
+        hits = [r["collisions"] for r in records if is_finished(r) and "collisions" in r]
         median = f"{statistics.median(hits):g}" if hits else "-"
         lines.append(f"| {name} | {failed} | {f['false_stop']} | {f['timeout']} | {f['crashed']} | {f['lingered']} "
                      f"| {median} | {len(records)} |")

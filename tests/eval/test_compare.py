@@ -26,13 +26,19 @@ def test_paired_difference_hand_computed():
     assert n == 3
     assert d == pytest.approx(0.3)
     assert sem == pytest.approx(math.sqrt(0.21) / math.sqrt(3))
-    # a crashed episode scores as a failure: success diffs 0, 1 - 0 = 1, 0 - 1 = -1
+    # an episode that crashed (or has a non-finite metric) in either run pairs for no metric:
+    # success diffs 1 - 1 = 0 and 1 - 0 = 1 over episodes 0 and 1
     b_crash = [_rec(0, 1.0, 0.9), _rec(1, 1.0, 0.7), {"index": 2, "status": "error", "category": "bed"}]
+    for m in ("success", "spl"):
+        assert paired_difference(a, b_crash, m)[2] == 2
     d, _, n = paired_difference(a, b_crash, "success")
-    assert (d, n) == (pytest.approx(0.0), 3)
+    assert (d, n) == (pytest.approx(0.5), 2)
+    b_nan = [_rec(0, 1.0, float("nan")), _rec(1, 1.0, 0.7)]
+    assert paired_difference(a, b_nan, "success")[2] == paired_difference(a, b_nan, "spl")[2] == 1
 
 
 def test_failure_modes_counts():
+    scores = {"spl": 0.0, "softspl": 0.0, "distance_to_goal": 1.0}
     recs = [{"success": 1.0, "steps": 500, "status": "ok"},          # success on the forced STOP
             {"success": 0.0, "steps": 120, "status": "ok"},          # false STOP
             {"success": 0.0, "steps": 500, "status": "ok"},          # out of steps
@@ -40,7 +46,10 @@ def test_failure_modes_counts():
             {"index": 4, "status": "error"},
             {"success": 1.0, "steps": 80, "status": "ok", "steps_at_goal": 21},   # lingered, then stopped
             {"success": 0.0, "steps": 500, "status": "ok", "steps_at_goal": 20}]  # at the limit: not lingering
+    recs = [{**scores, **r} if r["status"] == "ok" else r for r in recs]
     assert failure_modes(recs, 500) == {"false_stop": 2, "timeout": 2, "crashed": 1, "lingered": 1}
+    recs[2]["distance_to_goal"] = math.inf   # a non-finite metric: an error record, counted as crashed
+    assert failure_modes(recs, 500) == {"false_stop": 2, "timeout": 1, "crashed": 2, "lingered": 1}
 
 
 def test_flatten_and_differing_keys():
@@ -137,3 +146,45 @@ def test_compare_counts_a_duplicated_episode_once(tmp_path, capsys):
     md = (tmp_path / "cmp" / "comparison.md").read_text().splitlines()
     assert md[2] == "| rbu | 0.750 (0.250) | 1.000 (0.000) | 0.750 (0.250) | 0.000 (0.000) | 2 |"
     assert "1 duplicate record(s) of episode(s) 1" in capsys.readouterr().err
+
+
+def test_compare_excludes_crashed_episodes_from_the_pairs(tmp_path, capsys):
+    """A baseline whose only shared episode crashed printed '+1.000 (0.000) ... inf': crashed
+    episodes pair for no metric, and a run left without a pair is refused in one line; one pair
+    left gives its difference with SEM '-' (one difference has no spread), never inf."""
+    cfg = {"agent": {"segmenter": "gt"}, "mapping": {"fusion": "rbu"}}
+    crashed = {"index": 0, "status": "error", "error": "RuntimeError: boom"}
+    r0 = _run_dir(tmp_path / "a", cfg, [crashed])
+    r1 = _run_dir(tmp_path / "b", {**cfg, "mapping": {"fusion": "glfs"}}, [_rec(0, 1.0, 1.0)])
+    out = tmp_path / "cmp"
+    with pytest.raises(ConfigError, match=rf"^{r1} and the baseline {r0} share 1 episode\(s\), none of which finished "
+                                          r"in both runs .*no paired difference exists"):
+        main_compare(argparse.Namespace(runs=[r0, r1], keys="", baseline="0", output=str(out)))
+    assert not (out / "paired.md").exists()
+    r2 = _run_dir(tmp_path / "c", cfg, [crashed, _rec(1, 0.0, 0.0)])
+    r3 = _run_dir(tmp_path / "d", {**cfg, "mapping": {"fusion": "glfs"}}, [_rec(0, 1.0, 1.0), _rec(1, 1.0, 0.5)])
+    main_compare(argparse.Namespace(runs=[r2, r3], keys="", baseline="0", output=str(out)))
+    row = next(line for line in (out / "paired.md").read_text().splitlines() if line.startswith(f"| {r3} "))
+    assert row.endswith("| +0.500 (-) | +1.000 (-) | - | - | 1 |")
+    assert "inf" not in capsys.readouterr().out
+    failures = (out / "failures.md").read_text().splitlines()
+    assert failures[2].startswith(f"| {r2} | 2 |") and "| 1 | 0 |" in failures[2]   # the crash counts as failed
+
+
+def test_runs_on_other_episodes_under_the_same_indices_are_not_paired(tmp_path, capsys):
+    # Another house style (or scan settings) regenerates the episodes: index 0 names another
+    # start, which the records' geodesic distance tells apart. Pairing them would compare
+    # different episodes as if they were one.
+    cfg = {"agent": {"map_type": "fused", "segmenter": "gt"}, "env": {"dataset": {"style": "clean"}}}
+    same = [{**_rec(i, 1.0, 0.5), "episode_id": f"h:{i:03d}", "geodesic_distance": 3.0 + i} for i in range(2)]
+    other = [{**_rec(i, 0.0, 0.0), "episode_id": f"h:{i:03d}", "geodesic_distance": 7.5 + i} for i in range(2)]
+    r0 = _run_dir(tmp_path / "clean", cfg, same)
+    r1 = _run_dir(tmp_path / "scanned", {**cfg, "env": {"dataset": {"style": "scanned"}}}, other)
+    r2 = _run_dir(tmp_path / "clean_glfs", {**cfg, "mapping": {"fusion": "glfs"}}, same)
+    out = tmp_path / "cmp"
+    main_compare(argparse.Namespace(runs=[r0, r1, r2], keys="", baseline="0", output=str(out)))
+    paired = (out / "paired.md").read_text()
+    row = next(line for line in paired.splitlines() if line.startswith(f"| {r1} "))
+    assert row == f"| {r1} | - | - | - | - | 0 (other episodes) |"
+    assert "no paired difference exists" in paired
+    assert next(line for line in paired.splitlines() if line.startswith(f"| {r2} ")).endswith("| 2 |")
