@@ -16,7 +16,51 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 from calnav.agent.segmenters import check_segmenter_spec
+from calnav.common.ranges import Range, check_ranges
 from calnav.agent.segmenters.base import SegmenterConfig
+
+METRES = "metres"
+MAX_IMAGE_SIDE_PX = 4096   # largest mapping image side, pixels (envs.config.MAX_RESOLUTION_PX, the sensor's)
+# The 2D map's side, metres: at least 2 m (one small room around the start), at most 200 m (ten
+# times calnav's longest house, ~20 m; the map is centred on the start, so 40 m holds any of
+# them). Its memory grows as (map_size_m / cell_m)^2 cells, checked by the preflight.
+MAP_SIZE_RANGE = Range(2.0, 200.0, METRES)
+
+# Size-like keys of the agent (``agent``), and why their bounds:
+AGENT_RANGES = {
+    # a map cell of 1 cm to 0.5 m: finer than the depth noise gains nothing and costs
+    # (map_size_m / cell_m)^2 cells of 7 + 12 K bytes (checked against memory by the preflight);
+    # coarser than 0.5 m, cells are wider than half a doorway (calnav's are 0.9-1 m), which closes
+    "cell_m": Range(0.01, 0.5, METRES),
+    "map_size_m": MAP_SIZE_RANGE,
+    # heights of the obstacle band, relative to the floor / the camera: within one storey (3 m)
+    "obstacle_min_height_m": Range(0.0, 3.0, METRES),
+    "obstacle_above_camera_m": Range(0.0, 3.0, METRES),
+    "view_block_below_camera_m": Range(0.0, 3.0, METRES),
+    # the body the planner dilates obstacles by: as env.agent_radius_m (a 2 cm to 1 m radius)
+    "agent_radius_m": Range(0.02, 1.0, METRES),
+    # planning distances: within a 10 m room-scale neighbourhood (farther is not "around" the
+    # goal / the obstacle), the goal dilation above 0 (else the goal region may be empty)
+    "goal_dilation_m": Range(0.0, 10.0, METRES, lo_open=True),
+    "clearance_m": Range(0.0, 10.0, METRES),
+    "verify_distance_m": Range(0.0, 10.0, METRES),
+    "prior_radius_m": Range(0.0, 10.0, METRES),
+    # frontier utility and prior bonus: metres of path traded against frontier cells / a related
+    # class, within the map's largest side
+    "frontier_size_weight_m": Range(0.0, MAP_SIZE_RANGE.hi, METRES),
+    "prior_bonus_m": Range(0.0, MAP_SIZE_RANGE.hi, METRES),
+    # collision test and marks: a blocked step moves less than 2 m (env.forward_step_m's largest),
+    # the marked strip is within 2 m of the agent
+    "collision_min_move_m": Range(0.0, 2.0, METRES, lo_open=True),
+    "collision_mark_length_m": Range(0.0, 2.0, METRES),
+    "collision_mark_width_m": Range(0.0, 2.0, METRES),
+    # escape tests: positions within 100 m (the map's half side) of the current one
+    "stuck_radius_m": Range(0.0, 100.0, METRES, lo_open=True, hi_open=True),
+    "loop_radius_m": Range(0.0, 100.0, METRES, lo_open=True, hi_open=True),
+    "prediction_distance_m": Range(0.0, 100.0, METRES, lo_open=True),
+    "hole_margin_m": Range(0.0, 2.0, METRES),
+    "floor_tolerance_m": Range(0.0, 2.0, METRES),
+}
 
 MapType = Literal["fused", "ndf"]
 MAP_TYPES: tuple[str, ...] = MapType.__args__  # type: ignore[attr-defined]
@@ -88,21 +132,12 @@ class AgentConfig:
         check_segmenter_spec(self.segmenter)   # a misspelt name fails here, importing nothing of it
         if self.map_type not in MAP_TYPES:
             raise ValueError(f"unknown agent.map_type {self.map_type!r}; valid: {', '.join(MAP_TYPES)}")
-        for key in ("cell_m", "map_size_m", "agent_radius_m", "goal_dilation_m",
-                    "collision_min_move_m", "turn_threshold_deg"):
-            if not getattr(self, key) > 0:
-                raise ValueError(f"agent.{key} must be > 0, got {getattr(self, key)}")
+        check_ranges(self, "agent", AGENT_RANGES)
+        if not self.turn_threshold_deg > 0:
+            raise ValueError(f"agent.turn_threshold_deg must be > 0, got {self.turn_threshold_deg}")
         for key in ("goal_threshold", "uncertain_low", "ndf_pixel_threshold"):
             if not 0 <= getattr(self, key) <= 1:
                 raise ValueError(f"agent.{key} must be in [0, 1], got {getattr(self, key)}")
-        for key in ("hole_margin_m", "floor_tolerance_m"):
-            if not 0 <= getattr(self, key) <= 2:
-                raise ValueError(f"agent.{key} must be in [0, 2] metres, got {getattr(self, key)}")
-        if not 0 < self.prediction_distance_m <= 100:
-            raise ValueError(f"agent.prediction_distance_m must be in (0, 100] metres, got {self.prediction_distance_m}")
-        for key in ("stuck_radius_m", "loop_radius_m"):
-            if not 0 < getattr(self, key) < 100:
-                raise ValueError(f"agent.{key} must be in (0, 100) metres, got {getattr(self, key)}")
         for key in ("ring_cells", "replan_steps", "untrap_after", "untrap_steps", "free_ray_samples", "stuck_steps",
                     "loop_steps", "goal_min_area_cells"):
             if getattr(self, key) < 1:
@@ -113,11 +148,8 @@ class AgentConfig:
         if not self.blocked_stop_margin_m <= self.stop_margin_m:
             raise ValueError(f"agent.blocked_stop_margin_m ({self.blocked_stop_margin_m}) must not exceed "
                              f"agent.stop_margin_m ({self.stop_margin_m}): a blocked step never makes the stop stricter")
-        for key in ("frontier_min_cells", "frontier_size_weight_m", "prior_bonus_m", "prior_radius_m", "clearance_m",
-                    "obstacle_min_height_m", "obstacle_above_camera_m", "verify_distance_m",
-                    "view_block_below_camera_m"):
-            if not getattr(self, key) >= 0:   # written so that NaN fails too
-                raise ValueError(f"agent.{key} must be >= 0, got {getattr(self, key)}")
+        if not self.frontier_min_cells >= 0:
+            raise ValueError(f"agent.frontier_min_cells must be >= 0, got {self.frontier_min_cells}")
         if self.uncertainty_aware and not self.uncertain_low < self.goal_threshold:
             raise ValueError(f"agent.uncertain_low ({self.uncertain_low}) must be below agent.goal_threshold "
                              f"({self.goal_threshold}) with agent.uncertainty_aware: the band of candidates to "
@@ -125,8 +157,9 @@ class AgentConfig:
         if not self.clearance_cost >= 1:
             raise ValueError(f"agent.clearance_cost must be >= 1 (free cells cost 1), got {self.clearance_cost}")
         w, h = self.map_resolution
-        if w < 8 or h < 8:
-            raise ValueError(f"agent.map_resolution must be at least 8x8, got {w}x{h}")
+        if not (8 <= w <= MAX_IMAGE_SIDE_PX and 8 <= h <= MAX_IMAGE_SIDE_PX):
+            raise ValueError(f"agent.map_resolution must be between 8x8 and {MAX_IMAGE_SIDE_PX}x{MAX_IMAGE_SIDE_PX} "
+                             f"pixels, got {w}x{h}")
 
     @property
     def dilation_cells(self) -> float:

@@ -38,7 +38,7 @@ class Perception:
     def __init__(self, cfg: AgentConfig, sensors: SensorModel, device: str = "cpu"):
         self.cfg = cfg
         self.sensors = sensors
-        self.segmenter = make_segmenter(cfg.segmenter, cfg.segmenter_config, device)
+        self.segmenter = make_segmenter(cfg.segmenter, cfg.segmenter_config, device, key="agent.segmenter_config")
         self.num_classes = self.segmenter.num_classes
         self.class_names: tuple[str, ...] = tuple(self.segmenter.class_names)
 

@@ -28,6 +28,7 @@ from calnav.agent.goal_detection import GoalDetection, detect_goal
 from calnav.agent.perception import Perception
 from calnav.agent.planner import Plan, Planner, heading_to
 from calnav.agent.projection import cell_of, dilate
+from calnav.agent.segmenters.base import goal_categories
 from calnav.agent.semantic_map import MapChannels, MapState, SemanticMapModule
 from calnav.agent.sensors import SensorModel
 from calnav.agent.watchdog import ProgressWatchdog
@@ -71,7 +72,8 @@ class PeanutAgent:
         self.blocked_reach_cells = (radius - self.cfg.blocked_stop_margin_m) / self.cfg.cell_m
         self.view_half_rad = math.radians(max(cfg.env.hfov_deg / 2 - self.cfg.stop_view_margin_deg, 1.0))
         self.perception = Perception(self.cfg, self.sensors, device)
-        self.class_names = self.perception.class_names   # class names and ids come from the segmenter
+        self.class_names = self.perception.class_names   # the map's channels: the segmenter's classes
+        self.goal_categories = goal_categories()          # what objectgoal ids index (the task's contract)
         self.num_classes = len(self.class_names)
         self.map_module = SemanticMapModule(self.cfg, cfg.mapping, self.class_names,
                                             (self.sensors.min_depth_m, self.sensors.max_depth_m))
@@ -92,8 +94,17 @@ class PeanutAgent:
     def reset(self, obs: dict) -> None:
         self.sensors.check(obs)
         xy, _ = self.sensors.xy_yaw(obs)
+        # the task's objectgoal id indexes calnav's goal categories; the map's channels are the
+        # segmenter's classes, matched by name (a segmenter need not list them in calnav's order)
         self.goal_id = int(np.asarray(obs[OBJECTGOAL]).reshape(-1)[0])
-        self.goal_name = self.class_names[self.goal_id]
+        if not 0 <= self.goal_id < len(self.goal_categories):
+            raise ValueError(f"objectgoal {self.goal_id} is not a goal category id; valid: 0 to "
+                             f"{len(self.goal_categories) - 1} ({', '.join(self.goal_categories)})")
+        self.goal_name = self.goal_categories[self.goal_id]
+        if self.goal_name not in self.class_names:
+            raise ValueError(f"the goal {self.goal_name!r} is not among the segmenter's classes "
+                             f"({', '.join(self.class_names)})")
+        self.goal_channel = self.class_names.index(self.goal_name)   # its map channel
         self.state = self.map_module.new_state(xy)
         self.collisions.reset()
         self.steps = 0
@@ -184,7 +195,7 @@ class PeanutAgent:
         win = self.window = st.window(int(PLAN_MARGIN_M / cfg.cell_m))
         r, c = st.to_cell(xy, cfg.cell_m)
         agent_rc = (r - win[0].start, c - win[1].start)
-        conf = st.semantic[self.goal_id][win]
+        conf = st.semantic[self.goal_channel][win]
         rejected = self.rejected[win]
         hidden = self.watchdog.hidden()
         if hidden is not None:
@@ -286,11 +297,9 @@ class PeanutAgent:
         self.excluded[max(0, rc[0] - rad):rc[0] + rad + 1, max(0, rc[1] - rad):rc[1] + rad + 1] = True
 
     def goal_names(self) -> tuple[str, ...]:
-        """The goal categories the agent may be asked for: the segmenter's classes that are
-        ObjectNav goals (the task's ``objectgoal`` ids index the segmenter's classes)."""
-        from calnav.agent.segmenters.base import goal_categories
-
-        return tuple(g for g in goal_categories() if g in self.class_names)
+        """The goal categories the agent may be asked for: the ObjectNav goals (the task's
+        ``objectgoal`` ids index them) that are among the segmenter's classes."""
+        return tuple(g for g in self.goal_categories if g in self.class_names)
 
     def _predicted_ltg(self, agent_rc, free: np.ndarray) -> tuple[int, int] | None:
         """PEANUT's long-term goal (window coordinates): the most valuable reachable unexplored

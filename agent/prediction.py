@@ -28,6 +28,7 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
+from calnav.agent.segmenters.base import class_list
 from calnav.agent.segmenters.network import DSBlock, Encoder, conv_bn, fuse_batchnorm
 
 PREDICTOR_FORMAT = 1
@@ -62,7 +63,8 @@ class PredictorSpec:
     @classmethod
     def from_dict(cls, d: dict) -> "PredictorSpec":
         d = dict(d)
-        d["class_names"], d["goal_categories"] = tuple(d["class_names"]), tuple(d["goal_categories"])
+        d["class_names"] = class_list(d["class_names"], "predictor spec")
+        d["goal_categories"] = class_list(d["goal_categories"], "predictor spec goal_categories")
         d["stages"] = tuple(tuple(int(v) for v in s) for s in d["stages"])
         return cls(**d)
 

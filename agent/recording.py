@@ -110,7 +110,7 @@ class EpisodeRecording:
             layers["detection"][info.window] = info.detection.mask
         for name, layer in layers.items():
             rec.log(f"map2d/{name}", rr.Image(layer[win][::-1].astype(np.uint8) * 255))
-        rec.log("map2d/goal_confidence", rr.Image(st.semantic[agent.goal_id][win][::-1].astype(np.float32)))
+        rec.log("map2d/goal_confidence", rr.Image(st.semantic[agent.goal_channel][win][::-1].astype(np.float32)))
         points, labels = [], []
         # the step's goals are in window coordinates (``StepInfo``): to map cells, then to the crop
         off = np.array([info.window[0].start, info.window[1].start]) if info is not None and info.window else np.zeros(2)

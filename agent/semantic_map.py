@@ -88,6 +88,14 @@ class MapState:
                    np.zeros((num_classes, n * n), np.float32), np.zeros((num_classes, n * n), np.int32),
                    voxels=voxels)
 
+    @staticmethod
+    def estimate_bytes(cfg: AgentConfig, num_classes: int) -> int:
+        """Bytes of ``empty``'s arrays: per cell, NUM_CHANNELS bool layers and K float32
+        (semantic), float32 (sums) and int32 (counts) entries."""
+        per_cell = NUM_CHANNELS * np.dtype(bool).itemsize + num_classes * (
+            np.dtype(np.float32).itemsize * 2 + np.dtype(np.int32).itemsize)
+        return cfg.map_cells ** 2 * per_cell
+
     @property
     def size(self) -> int:
         return self.channels.shape[1]

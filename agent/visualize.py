@@ -30,7 +30,7 @@ def topdown(agent) -> np.ndarray:
     img = np.empty(ch.shape[1:] + (3,), np.uint8)
     img[:] = COLORS["unknown"]
     img[ch[MapChannels.EXPLORED]] = COLORS["explored"]
-    conf = st.semantic[agent.goal_id]
+    conf = st.semantic[agent.goal_channel]
     shade = conf > 0
     red = np.array([255, 0, 0], np.float32)
     img[shade] = (img[shade] * (1 - conf[shade, None]) + red * conf[shade, None]).astype(np.uint8)

@@ -9,6 +9,10 @@ never share a temporary file, and it keeps the target's suffix, because some wri
 (``np.savez``) append one when it is missing.
 
 - ``write_bytes_atomic`` / ``write_text_atomic`` / ``write_json_atomic``: whole contents at once.
+- ``json_text``: the one way calnav turns an object into JSON text: strict JSON (RFC 8259), so
+  a NaN or an infinity is a ValueError naming where it is, never the bare ``NaN`` /
+  ``Infinity`` that ``json.dumps`` writes by default and other JSON readers reject (a value
+  that may be undefined is written as ``null`` by the code that knows it may be).
 - ``atomic_path``: a context manager yielding the temporary path, for writers that need a path
   (``np.savez_compressed``, ``torch.save``, ``gzip.open``); the rename happens only when the
   block finishes without an exception, and the temporary file is removed otherwise.
@@ -17,6 +21,7 @@ never share a temporary file, and it keeps the target's suffix, because some wri
 from __future__ import annotations
 
 import json
+import math
 import os
 import re
 import uuid
@@ -83,6 +88,39 @@ def write_text_atomic(path: str | os.PathLike, text: str, encoding: str = "utf-8
     return write_bytes_atomic(path, text.encode(encoding))
 
 
+def _non_finite(obj, where: str = "") -> tuple[str, float] | None:
+    """(place, value) of the first NaN / infinite float in ``obj``'s dicts and lists, or None."""
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return where or "the value", obj
+    if isinstance(obj, dict):
+        items = ((f"{where}.{k}" if where else str(k), v) for k, v in obj.items())
+    elif isinstance(obj, (list, tuple)):
+        items = ((f"{where}[{i}]", v) for i, v in enumerate(obj))
+    else:
+        return None
+    for place, value in items:
+        found = _non_finite(value, place)
+        if found is not None:
+            return found
+    return None
+
+
+def json_text(obj, indent: int | None = 2, what: str = "") -> str:
+    """``obj`` as strict JSON text (``allow_nan=False``). ValueError in one line naming the
+    first non-finite value's place (``what``: the file or record it is for) otherwise."""
+    try:
+        return json.dumps(obj, indent=indent, allow_nan=False)
+    except ValueError:
+        found = _non_finite(obj)
+        if found is None:
+            raise
+        place, value = found
+        raise ValueError(f"{what + ': ' if what else ''}{place} is {value}, which JSON cannot hold; "
+                         "a non-finite number must not reach a JSON file") from None
+
+
 def write_json_atomic(path: str | os.PathLike, obj, indent: int | None = 2) -> Path:
-    """Write ``obj`` as JSON (with a final newline) to ``path`` atomically. Returns the path."""
-    return write_text_atomic(path, json.dumps(obj, indent=indent) + "\n")
+    """Write ``obj`` as strict JSON (``json_text``, with a final newline) to ``path``
+    atomically; ValueError naming the file and the place of a non-finite value, before anything
+    is written. Returns the path."""
+    return write_text_atomic(path, json_text(obj, indent, what=str(path)) + "\n")

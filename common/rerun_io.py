@@ -24,6 +24,9 @@ import numpy as np
 
 VIZ_HINT = 'needs Rerun: pip install -e ".[viz]" (make test installs it into .venv)'
 VOXEL_RADIUS_FRACTION = 0.5   # point radius / voxel size: neighbouring voxels' points touch
+# The first bytes of every .rrd file: Rerun's stream FourCC "RRF" plus a format digit (RRF2 since
+# Rerun 0.2x); checked before Rerun's reader is asked, so a stray file gets a plain message.
+RRD_MAGIC = b"RRF"
 
 
 def require_rerun(what: str = "--rerun"):
@@ -102,6 +105,34 @@ def log_mask_points(rec, entity: str, coords: np.ndarray, colours: np.ndarray, v
     extra = [rr.AnyValues(**values)] if values else []
     rec.log(entity, rr.Points3D(np.asarray(coords, np.float32), colors=colours,
                                 radii=VOXEL_RADIUS_FRACTION * voxel_size_m), *extra, static=static)
+
+
+def check_recording(path: str | Path) -> None:
+    """ValueError (one line) unless ``path`` is a Rerun recording the viewer can open: a
+    non-empty file that starts with Rerun's stream header (``RRD_MAGIC`` and its version)
+    and that Rerun's reader opens. A recording cut short by a killed run still opens (its
+    complete messages are shown); only the start of the file is read, never the whole stream."""
+    path = Path(path)
+    size = path.stat().st_size
+    if size == 0:
+        raise ValueError(f"{path} is empty (0 bytes), not a Rerun recording; record it again")
+    with path.open("rb") as f:
+        head = f.read(len(RRD_MAGIC) + 1)   # the FourCC: the magic and its format digit
+    if not head.startswith(RRD_MAGIC):
+        raise ValueError(f"{path} is not a Rerun recording: an .rrd file starts with {RRD_MAGIC.decode()!r} "
+                         f"(e.g. RRF2), this one with {head!r}")
+    require_rerun("reading a recording")
+    import warnings
+
+    from rerun.chunk import RrdReader
+
+    try:
+        with warnings.catch_warnings():   # a recording without its footer (cut short) is read by a scan
+            warnings.simplefilter("ignore")
+            RrdReader(str(path))
+    except (RuntimeError, ValueError, OSError) as exc:
+        detail = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise ValueError(f"{path} is not a readable Rerun recording ({size} bytes): {detail}") from None
 
 
 def read_columns(path: str | Path) -> dict[str, Any]:

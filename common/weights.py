@@ -35,4 +35,20 @@ def load_weight_dict(path: Path | str, what: str, fmt: int, create: str) -> dict
         raise ValueError(f"cannot read {what} weights {path}: {first}") from None
     if not isinstance(data, dict) or data.get("format") != fmt:
         raise ValueError(f"{path} is not a calnav {what} weight file (format {fmt})")
+    check_finite_tensors(data.get("state_dict"), path, what, create)
     return data
+
+
+def check_finite_tensors(state_dict, path: Path | str, what: str, create: str) -> None:
+    """ValueError naming ``path`` and the first tensor of ``state_dict`` ({name: tensor}) that
+    holds NaN or inf: such weights load and run, but every output they feed is NaN, which the
+    consumers would otherwise treat as "no information" (a NaN predictor silently turns the
+    prediction agent into the frontier agent)."""
+    import torch
+
+    if not isinstance(state_dict, dict):
+        return   # not a tensor dict: the loader's own shape check names the damage
+    for name, tensor in state_dict.items():
+        if isinstance(tensor, torch.Tensor) and tensor.is_floating_point() and not bool(torch.isfinite(tensor).all()):
+            raise ValueError(f"{what} weights {path} hold NaN or inf (tensor {name!r}); create them again with: "
+                             f"{create}")

@@ -5,6 +5,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Literal
 
+from calnav.common.ranges import Range, check_ranges
 from calnav.envs.scanning.config import ScanningConfig
 
 SplitName = Literal["train", "val", "test"]
@@ -18,6 +19,59 @@ FOV_BOUNDS_DEG = (1.0, 179.0)
 
 
 MAX_RESOLUTION_PX = 4096   # largest sensor side, pixels (a 40000x30000 typo fails here, not in an allocation)
+# Scenes per split at most: ``envs.scenes.SPLIT_BLOCK``, the seeds of one split's block (a test
+# keeps them equal; envs.scenes imports this module, so the constant cannot be imported from it).
+MAX_SCENES_PER_SPLIT = 1_000_000
+# Largest distance of the task, metres: no start lies farther than 1 km from its goal in any
+# building (calnav's houses are at most ~20 m long, HM3D's longest episodes ~30 m of geodesic).
+MAX_TASK_DISTANCE_M = 1000.0
+METRES = "metres"
+
+# Size-like keys of the dataset (``env.dataset``), and why their bounds:
+DATASET_RANGES = {
+    # start-to-goal geodesic bounds: 0 = any start, up to the task's largest distance
+    "min_geodesic_m": Range(0.0, MAX_TASK_DISTANCE_M, METRES),
+    "max_geodesic_m": Range(0.0, MAX_TASK_DISTANCE_M, METRES, lo_open=True),
+    # geodesic / euclidean is >= 1 by the triangle inequality, so 1 keeps every episode; above 10
+    # every start would have to lie behind a maze of walls
+    "min_euclid_ratio": Range(1.0, 10.0),
+    # an island radius of 0 keeps every island; 100 m is wider than any building
+    "min_island_radius_m": Range(0.0, 100.0, METRES),
+    "train_scenes": Range(0, MAX_SCENES_PER_SPLIT, "houses"),
+    "val_scenes": Range(0, MAX_SCENES_PER_SPLIT, "houses"),
+    "test_scenes": Range(0, MAX_SCENES_PER_SPLIT, "houses"),
+    "calib_scenes": Range(0, MAX_SCENES_PER_SPLIT, "houses"),
+    # a house yields at least one episode (0 would reject every house of the split); 10,000 per
+    # house is beyond any benchmark (HM3D: ~50 per scene in val)
+    "episodes_per_scene": Range(1, 10_000, "episodes"),
+    "oracle_max_steps": Range(1, 100_000, "actions"),
+}
+
+# Size-like keys of the agent, its sensor and its task (``env``), and why their bounds:
+ENV_RANGES = {
+    # the camera stands inside one storey (calnav's walls are 2.5-3 m high; HM3D's camera 0.88 m);
+    # below 5 cm it would look along the floor
+    "camera_height_m": Range(0.05, 3.0, METRES),
+    # depth range: above 0 (a pinhole sees nothing at 0) and within 100 m (beyond any indoor
+    # sensor; HM3D's is 0.5-5 m): the voxel map's per-frame table covers the frustum up to it
+    "min_depth_m": Range(0.0, 100.0, METRES, lo_open=True),
+    "max_depth_m": Range(0.0, 100.0, METRES, lo_open=True),
+    # a step of 1 cm (the smallest move a depth sensor tells from its noise) to 2 m (beyond the
+    # stride of any indoor robot; HM3D's is 0.25 m)
+    "forward_step_m": Range(0.01, 2.0, METRES),
+    # the body: a radius of 2 cm (below, the 5 cm grid sees a point) to 1 m (wider passes no
+    # doorway: calnav's are 0.9-1 m), a height from a toy robot to a storey
+    "agent_radius_m": Range(0.02, 1.0, METRES),
+    "agent_height_m": Range(0.1, 3.0, METRES),
+    # the navigation grid: 5 mm resolves every passage a 2 cm body fits through (finer cells only
+    # cost memory: (house extent / cell)^2 cells, checked by the preflight); 0.5 m cells are wider
+    # than half a doorway, which would close
+    "nav_cell_m": Range(0.005, 0.5, METRES),
+    # success and view-point radii: above 0 (a point is never reached) and within 10 m (farther
+    # is not "at" the object in any room)
+    "success_distance_m": Range(0.0, 10.0, METRES, lo_open=True),
+    "view_point_radius_m": Range(0.0, 10.0, METRES, lo_open=True),
+}
 
 
 @dataclass
@@ -40,10 +94,11 @@ class DatasetConfig:
     scanning: ScanningConfig = field(default_factory=ScanningConfig)  # scan settings (style scanned only)
 
     def __post_init__(self) -> None:
-        if not 0 <= self.min_island_radius_m <= 100:   # written so that NaN fails too
-            raise ValueError(f"dataset.min_island_radius_m must be in [0, 100] metres, got {self.min_island_radius_m}")
-        if not 1 <= self.oracle_max_steps <= 100_000:
-            raise ValueError(f"dataset.oracle_max_steps must be in [1, 100000] actions, got {self.oracle_max_steps}")
+        check_ranges(self, "env.dataset", DATASET_RANGES)
+        if not self.min_geodesic_m < self.max_geodesic_m:
+            raise ValueError(f"env.dataset.max_geodesic_m ({self.max_geodesic_m:g} m) must be above "
+                             f"env.dataset.min_geodesic_m ({self.min_geodesic_m:g} m): no start distance lies between "
+                             "them, so every episode drawn would be rejected")
         if self.style not in ("clean", "scanned"):
             raise ValueError(f"unknown dataset.style {self.style!r}; valid choices: clean, scanned")
         if self.style == "scanned" and self.scene_dir:
@@ -121,14 +176,14 @@ class EnvConfig:
         if not lo < vfov < hi:
             raise ValueError(f"env.hfov_deg = {self.hfov_deg} at {w}x{h} gives a vertical field of view of "
                              f"{vfov:.3g} deg, outside ({lo:g}, {hi:g}); use a wider view or a taller image")
-        if not 0 < self.min_depth_m < self.max_depth_m:
+        check_ranges(self, "env", ENV_RANGES)
+        if not self.min_depth_m < self.max_depth_m:
             raise ValueError(f"need 0 < env.min_depth_m < env.max_depth_m, got {self.min_depth_m}, {self.max_depth_m}")
-        if not 0.005 <= self.nav_cell_m <= 0.5:   # written so that NaN fails too
-            raise ValueError(f"env.nav_cell_m must be in [0.005, 0.5] metres, got {self.nav_cell_m}")
-        for key in ("camera_height_m", "forward_step_m", "agent_radius_m", "agent_height_m",
-                    "success_distance_m", "view_point_radius_m"):
-            if not getattr(self, key) > 0:   # written so that NaN fails too
-                raise ValueError(f"env.{key} must be > 0 metres, got {getattr(self, key)}")
+        count_key = f"{self.split}_scenes"
+        if not self.dataset.scene_dir and getattr(self.dataset, count_key) < 1:
+            raise ValueError(f"env.split={self.split} has no houses: env.dataset.{count_key} is "
+                             f"{getattr(self.dataset, count_key)}; set env.dataset.{count_key} >= 1 or pick another "
+                             "env.split")
         for key in ("turn_angle_deg", "tilt_angle_deg"):
             if not 0 < getattr(self, key) <= 180:
                 raise ValueError(f"env.{key} must be in (0, 180] degrees, got {getattr(self, key)}")

@@ -221,44 +221,99 @@ def split_dir(split: str, env_cfg: EnvConfig) -> Path:
     return cache_dir() / "episodes" / f"{split}_{dataset_key(env_cfg)}"
 
 
-def load_split(split: str, env_cfg: EnvConfig, progress: bool = True) -> list[ObjectNavEpisode]:
-    """All episodes of a split, generating (and caching) missing or damaged scenes' episodes first."""
-    from calnav.envs.scenes import generation_seed, load_scene, split_scene_ids
+def generate_scene(split: str, scene_id: str, env_cfg: EnvConfig) -> tuple[dict, dict]:
+    """One scene's episodes, generated (the scene loaded, or scanned, first): (its generation
+    report: counts and navmesh figures, its habitat-lab content file as a dict). Writes nothing:
+    ``write_scene`` caches them (in the driver, so a Ray worker on another node needs no shared
+    disk)."""
     from calnav.envs.navigation import NavGrid
     from calnav.envs.render import Camera, Renderer
+    from calnav.envs.scenes import generation_seed, load_scene
+
+    scene = load_scene(scene_id, env_cfg.dataset)
+    renderer = Renderer(scene, Camera.from_config(env_cfg))
+    navgrid = NavGrid.build(scene, env_cfg, renderer.raycasting_scene)
+    counts: dict = {}
+    eps = generate_scene_episodes(scene_id, scene, navgrid, renderer.raycasting_scene, env_cfg,
+                                  env_cfg.dataset.episodes_per_scene, generation_seed(scene_id, env_cfg.dataset.seed),
+                                  report=counts)
+    if not eps:
+        raise ValueError(f"scene {scene_id!r}: every episode drawn was rejected ({counts['unsolvable']} "
+                         f"unsolvable by the oracle, {counts['no_start']} category draws without a start "
+                         f"{ds_range(env_cfg)} on an island of radius >= "
+                         f"{env_cfg.dataset.min_island_radius_m} m); check it with calnav check-scene")
+    return {**counts, "navmesh": navgrid.stats}, episodes_to_habitat(eps)
+
+
+def write_scene(split: str, scene_id: str, env_cfg: EnvConfig, report: dict, content: dict) -> None:
+    """Cache ``generate_scene``'s result: ``<split>/generation/<scene>.json``, then
+    ``<split>/content/<scene>.json.gz`` (a content file without its report is regenerated,
+    never half-counted) and habitat-lab's ``<split>.json.gz`` beside them."""
+    root = split_dir(split, env_cfg)
+    write_json_atomic(root / "generation" / f"{scene_id}.json", report)
+    write_json_gz(root / "content" / f"{scene_id}.json.gz", content)
+    write_json_gz(root / f"{split}.json.gz", {   # the split file: its scenes are under content/
+        "episodes": [],
+        "category_to_task_category_id": {c: i for i, c in enumerate(GOAL_CATEGORIES)},
+        "category_to_scene_annotation_category_id": {c: i for i, c in enumerate(GOAL_CATEGORIES)},
+    })
+
+
+def scenes_needed(split: str, env_cfg: EnvConfig, upto: int | None) -> tuple[list[str], list[str]]:
+    """(the leading scenes of ``split`` that hold episodes ``0:upto``, those of them not cached
+    yet). A scene not generated yet counts as ``episodes_per_scene`` episodes, its most; after
+    generating it the caller asks again (a scene that yields fewer moves the range on). Episode
+    indices are positions in the scenes' concatenation, so a range needs every scene before it
+    too. ``upto`` None: every scene."""
+    from calnav.envs.scenes import split_scene_ids
 
     if split not in ("train", "val", "test"):
         raise ValueError(f"unknown split {split!r}; valid splits: train, val, test")
-    root = split_dir(split, env_cfg)
-    scene_ids = split_scene_ids(split, env_cfg.dataset)
-    cached = {s: cached_episodes(root / "content" / f"{s}.json.gz") for s in scene_ids}
-    todo = [s for s in scene_ids if cached[s] is None]
-    if todo:
-        from tqdm import tqdm
+    root = split_dir(split, env_cfg) / "content"
+    needed, todo, total = [], [], 0
+    for sid in split_scene_ids(split, env_cfg.dataset):
+        if upto is not None and total >= upto:
+            break
+        cached = cached_episodes(root / f"{sid}.json.gz")
+        needed.append(sid)
+        if cached is None:
+            todo.append(sid)
+        total += env_cfg.dataset.episodes_per_scene if cached is None else len(cached)
+    return needed, todo
 
+
+def load_split(split: str, env_cfg: EnvConfig, progress: bool = True, upto: int | None = None
+               ) -> list[ObjectNavEpisode]:
+    """The episodes of ``split``'s leading scenes that hold episodes ``0:upto`` (all scenes when
+    ``upto`` is None; the list is then a prefix of the full split's, with the same indices),
+    generating (and caching) missing or damaged scenes' episodes first, one after another here
+    (``eval.episodes.prepare_episodes`` generates them on a run's worker pool)."""
+    from tqdm import tqdm
+
+    generated: set[str] = set()
+    while True:   # ends: every pass generates scenes not generated before, of finitely many
+        needed, todo = scenes_needed(split, env_cfg, upto)
+        if not todo:
+            return split_prefix(split, env_cfg, needed)
+        check_read_back(split, env_cfg, todo, generated)
         for sid in tqdm(todo, desc=f"generating {split} episodes", disable=not progress, unit="scene"):
-            scene = load_scene(sid, env_cfg.dataset)
-            renderer = Renderer(scene, Camera.from_config(env_cfg))
-            navgrid = NavGrid.build(scene, env_cfg, renderer.raycasting_scene)
-            seed = generation_seed(sid, env_cfg.dataset.seed)
-            counts: dict = {}
-            eps = generate_scene_episodes(sid, scene, navgrid, renderer.raycasting_scene, env_cfg,
-                                          env_cfg.dataset.episodes_per_scene, seed, report=counts)
-            if not eps:
-                raise ValueError(f"scene {sid!r}: every episode drawn was rejected ({counts['unsolvable']} "
-                                 f"unsolvable by the oracle, {counts['no_start']} category draws without a start "
-                                 f"{ds_range(env_cfg)} on an island of radius >= "
-                                 f"{env_cfg.dataset.min_island_radius_m} m); check it with calnav check-scene")
-            # the report first: a content file without its report is regenerated, never half-counted
-            write_json_atomic(root / "generation" / f"{sid}.json", {**counts, "navmesh": navgrid.stats})
-            write_json_gz(root / "content" / f"{sid}.json.gz", episodes_to_habitat(eps))
-            cached[sid] = episodes_from_habitat(episodes_to_habitat(eps))  # exactly what a later load reads
-        write_json_gz(root / f"{split}.json.gz", {
-            "episodes": [],
-            "category_to_task_category_id": {c: i for i, c in enumerate(GOAL_CATEGORIES)},
-            "category_to_scene_annotation_category_id": {c: i for i, c in enumerate(GOAL_CATEGORIES)},
-        })
-    return [ep for sid in scene_ids for ep in cached[sid]]
+            write_scene(split, sid, env_cfg, *generate_scene(split, sid, env_cfg))
+            generated.add(sid)
+
+
+def split_prefix(split: str, env_cfg: EnvConfig, scene_ids: list[str]) -> list[ObjectNavEpisode]:
+    """The cached episodes of ``scene_ids`` (generated), concatenated in order."""
+    root = split_dir(split, env_cfg) / "content"
+    return [ep for sid in scene_ids for ep in cached_episodes(root / f"{sid}.json.gz")]
+
+
+def check_read_back(split: str, env_cfg: EnvConfig, todo: list[str], generated: set[str]) -> None:
+    """Raise when a scene generated in this call is still not readable from the cache (a cache
+    directory that drops writes): generating it again would loop for ever."""
+    lost = [s for s in todo if s in generated]
+    if lost:
+        raise OSError(f"the episodes of {lost[0]} were generated but cannot be read back from "
+                      f"{split_dir(split, env_cfg) / 'content'}; check that CALNAV_CACHE is writable")
 
 
 def ds_range(env_cfg: EnvConfig) -> str:
@@ -281,8 +336,10 @@ def generation_report(split: str, env_cfg: EnvConfig) -> dict[str, dict]:
     return out
 
 
-def parse_episode_range(spec: str, n_total: int) -> range:
-    """'N' -> first N episodes; 'A:B' -> episodes A..B-1. Errors name the valid range."""
+def parse_episode_range(spec: str, n_total: int | None) -> range:
+    """'N' -> first N episodes; 'A:B' -> episodes A..B-1. Errors name the valid range.
+    ``n_total`` None: the split's size is not known yet (its scenes are not all generated), so
+    only the form is checked."""
     try:
         if ":" in spec:
             a, b = (int(x) for x in spec.split(":", 1))
@@ -290,6 +347,8 @@ def parse_episode_range(spec: str, n_total: int) -> range:
             a, b = 0, int(spec)
     except ValueError:
         raise ValueError(f"bad episode range {spec!r}; use N or A:B") from None
-    if not (0 <= a < b <= n_total):
+    if a < 0 or b <= a:
+        raise ValueError(f"episode range {spec!r} is empty or reversed; use N (> 0) or A:B with 0 <= A < B")
+    if n_total is not None and b > n_total:
         raise ValueError(f"episode range {spec!r} is outside the split, which has episodes 0:{n_total}")
     return range(a, b)

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -91,6 +92,16 @@ class HouseSpec:
     max_layout_tries: int = 50                          # layouts drawn before giving up
     kind_sequence: tuple[str, ...] = ("living_room", "bathroom", "bedroom", "kitchen", "bedroom", "office",
                                       "bathroom", "bedroom", "living_room", "office")  # kinds by room count
+
+    def max_extent_m(self) -> tuple[float, float]:
+        """(long, short) sides of the largest house's xy bounds, metres: the footprint of the
+        largest floor area ``_split_footprint`` draws at the most elongated aspect (the largest
+        perimeter, hence the largest bounds once walls are added), plus half an exterior wall on
+        each side. Memory estimates size the navigation grid for it."""
+        area = self.max_floor_area_m2 * (1 - self.area_margin)
+        aspect = self.footprint_aspect[1]
+        wall = self.wall_thickness_m
+        return math.sqrt(area * aspect) + wall, math.sqrt(area / aspect) + wall
 
     def digest(self) -> str:
         """Short hash of the spec and ``GENERATOR_VERSION`` (cache keys)."""

@@ -49,6 +49,20 @@ _FAR_T = 1.0e4                   # misses (t = inf) are clamped to this before t
 MAX_POST_THREADS = 2             # row bands for per-pixel work (more adds GIL hand-offs, little speed)
 MIN_PIXELS_PER_BAND = 50_000     # below this a band's work (~1 ms) is not worth a thread hand-off
 INVALID_ID = o3d.t.geometry.RaycastingScene.INVALID_ID
+# Per-pixel buffers of a Renderer: its reusable scratch layers (name, dtype), the ray buffer
+# (6 float32), Open3D's cast_rays result (t_hit, geometry and primitive ids, primitive uvs (2)
+# and normals (3): 8 x 4 bytes), a frame (rgb 3 uint8, depth float32, semantic int16, instance
+# int32) and the rgb noise drawn for it (3 float32).
+SCRATCH_LAYERS = (("idx", np.intp), ("valid", bool), ("valid2", bool), ("tc", np.float32), ("a", np.float32),
+                  ("b", np.float32), ("u", np.float32), ("texel", np.int32), ("iu", np.int32),
+                  ("pattern", np.float32), ("rgba", np.uint32))
+PIXEL_BYTES = (sum(np.dtype(dtype).itemsize for _, dtype in SCRATCH_LAYERS) + 6 * 4 + 8 * 4
+               + 3 + 4 + 2 + 4 + 3 * 4)
+
+
+def estimate_bytes(width: int, height: int) -> int:
+    """Bytes a Renderer's buffers and one rendered frame take at ``width`` x ``height`` pixels."""
+    return int(width) * int(height) * PIXEL_BYTES
 
 
 def _texture_tiles(seed: int = 12345) -> np.ndarray:
@@ -225,10 +239,7 @@ class Renderer:
         hw = (camera.height, camera.width)
         # Fresh multi-megabyte temporaries cost page faults worth ~40 % of a 640x480 cast,
         # so every intermediate lives here (rows are split between threads, never shared).
-        self._scratch = {name: np.empty(hw, dtype) for name, dtype in (
-            ("idx", np.intp), ("valid", bool), ("valid2", bool), ("tc", np.float32), ("a", np.float32),
-            ("b", np.float32), ("u", np.float32), ("texel", np.int32), ("iu", np.int32),
-            ("pattern", np.float32), ("rgba", np.uint32))}
+        self._scratch = {name: np.empty(hw, dtype) for name, dtype in SCRATCH_LAYERS}
         n_bands = min(MAX_POST_THREADS, self.nthreads,
                       max(1, camera.width * camera.height // MIN_PIXELS_PER_BAND))
         edges = np.linspace(0, camera.height, n_bands + 1).astype(int)

@@ -30,6 +30,14 @@ Scanned houses (``DatasetConfig.style == "scanned"``)
     ``ScanningConfig`` and ``SCANNER_VERSION``. User scenes are scans already: the style is
     refused with a ``scene_dir``.
 
+Every cache file carries its identity in its metadata and is checked on load, like the parsed
+episode sidecar (``envs.episode_files``): a generated house its ``scene_id``, ``seed`` and
+``spec_digest`` (``procedural_identity``); a scan also its ``scan_seed``, ``scanner_version``
+and ``scanning`` settings (``scanned_identity``); a converted PLY the file and stat key it was
+converted from (``converted_from``). A cache file that is damaged, or holds another scene (a
+file copied over another, another house's scan), is a cache and nothing else: it is rebuilt,
+with a warning naming the file and what it held.
+
 Loaded scenes are kept in a small in-process LRU (``LRU_SIZE``); treat them as read-only.
 """
 from __future__ import annotations
@@ -169,13 +177,12 @@ def _load_user_scene(path: Path) -> Scene:
     key = hashlib.sha1(json.dumps([PLY_CONVERSION_VERSION, str(path.resolve()), st.st_mtime_ns, st.st_size, settings],
                                   sort_keys=True, default=str).encode()).hexdigest()[:12]
     cached = cache_dir() / "scenes" / f"user_{path.stem}_{key}.npz"
-    if cached.exists():
-        try:
-            return Scene.load(cached)
-        except SceneError:
-            pass   # a corrupt cache entry: convert again
-    scene = load_labelled_ply(path, name=path.stem, **settings)
-    _save_atomic(scene, cached)
+    identity = {"converted_from": {"ply": str(path.resolve()), "key": key}}
+    scene = _cached_scene(cached, identity)
+    if scene is None:
+        scene = load_labelled_ply(path, name=path.stem, **settings)
+        scene.meta.update(identity)
+        _save_atomic(scene, cached)
     return scene
 
 
@@ -254,7 +261,8 @@ def load_scene(scene_id: str, dataset_cfg: DatasetConfig | None = None, spec: Ho
         if cfg.style == "scanned":
             clean_loader, scan_path = loader, scanned_cache_path(scene_id, cfg, spec)
             key = ("scanned", str(scan_path))
-            loader = lambda: _load_scanned(scan_path, clean_loader, seed, cfg)  # noqa: E731
+            identity = scanned_identity(scene_id, seed, spec, cfg)
+            loader = lambda: _load_scanned(scan_path, clean_loader, identity, seed, cfg)  # noqa: E731
     if key in _lru:
         _lru.move_to_end(key)
         return _lru[key]
@@ -265,12 +273,51 @@ def load_scene(scene_id: str, dataset_cfg: DatasetConfig | None = None, spec: Ho
     return scene
 
 
+def procedural_identity(scene_id: str, seed: int, spec: HouseSpec) -> dict:
+    """The metadata that makes a generated house's cache file this house's (``generate_house``
+    writes ``seed`` and ``spec_digest``, ``_load_procedural`` the ``scene_id``)."""
+    return {"scene_id": scene_id, "seed": int(seed), "spec_digest": spec.digest()}
+
+
+def scanned_identity(scene_id: str, seed: int, spec: HouseSpec, cfg: DatasetConfig) -> dict:
+    """The metadata that makes a scan's cache file the scan of this house with these settings
+    (``scan_house`` writes the scan keys, JSON-normalised here as they are read back)."""
+    from calnav.envs.scanning.config import SCANNER_VERSION
+
+    scanning = json.loads(json.dumps(cfg.scanning.digest_items(), default=list))
+    return {**procedural_identity(scene_id, seed, spec), "scan_seed": int(seed), "scanner_version": SCANNER_VERSION,
+            "scanning": scanning}
+
+
+def _cached_scene(path: Path, identity: dict) -> Scene | None:
+    """The scene cached at ``path`` when it is readable and its metadata holds ``identity``;
+    None (rebuild it) when it is missing, damaged, or another scene's (with a warning naming the
+    file and the first field that differs)."""
+    if not path.exists():
+        return None
+    try:
+        scene = Scene.load(path)
+    except SceneError:
+        return None   # a corrupt cache entry (a killed writer): rebuilt
+    for key, want in identity.items():
+        held = scene.meta.get(key)
+        if held != want:
+            warnings.warn(f"scene cache {path} holds another scene ({key} {_short(held)}, expected {_short(want)}); "
+                          "rebuilding it")
+            return None
+    return scene
+
+
+def _short(value, limit: int = 60) -> str:
+    """``repr(value)``, or a placeholder when it is too long for a one-line warning (a settings dict)."""
+    text = repr(value)
+    return text if len(text) <= limit else "other settings"
+
+
 def _load_procedural(scene_id: str, path: Path, seed: int, spec: HouseSpec) -> Scene:
-    if path.exists():
-        try:
-            return Scene.load(path)
-        except SceneError:
-            pass   # corrupt cache entry: generate again
+    scene = _cached_scene(path, procedural_identity(scene_id, seed, spec))
+    if scene is not None:
+        return scene
     scene = generate_house(seed, spec)
     scene.name = scene_id
     scene.meta["scene_id"] = scene_id
@@ -279,15 +326,14 @@ def _load_procedural(scene_id: str, path: Path, seed: int, spec: HouseSpec) -> S
     return scene
 
 
-def _load_scanned(path: Path, clean_loader, seed: int, cfg: DatasetConfig) -> Scene:
-    """The cached scan at ``path``, or scan the clean house (``clean_loader()``) and cache it."""
+def _load_scanned(path: Path, clean_loader, identity: dict, seed: int, cfg: DatasetConfig) -> Scene:
+    """The cached scan at ``path`` when it holds ``identity`` (``scanned_identity``), or scan the
+    clean house (``clean_loader()``) and cache it."""
     from calnav.envs.scanning.scanner import scan_house
 
-    if path.exists():
-        try:
-            return Scene.load(path)
-        except SceneError:
-            pass   # corrupt cache entry: scan again
+    scene = _cached_scene(path, identity)
+    if scene is not None:
+        return scene
     scene = scan_house(clean_loader(), cfg.scanning, seed)
     path.parent.mkdir(parents=True, exist_ok=True)
     _save_atomic(scene, path)

@@ -20,7 +20,19 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from calnav.common.ranges import Range, check_ranges
 from calnav.envs.render import camera_pose
+
+
+# Size-like keys of a calibration scan (``scan``), and why their bounds: a hand-held walk moves
+# up to 2 m per frame (a longer stride skips rooms; as ``env.dataset.scanning.step_m``, which
+# builds one), its hand jitters by less than 0.5 m, and its look-around stops lie within 20 m of
+# each other (a house is ~20 m long; 0 = one per room centre).
+SCAN_RANGES = {
+    "step_m": Range(0.0, 2.0, "metres", lo_open=True),
+    "jitter_m": Range(0.0, 0.5, "metres"),
+    "stop_spacing_m": Range(0.0, 20.0, "metres"),
+}
 
 
 @dataclass
@@ -43,6 +55,7 @@ class ScanConfig:
     def __post_init__(self) -> None:
         if self.frames < 1:
             raise ValueError(f"scan.frames must be >= 1, got {self.frames}")
+        check_ranges(self, "scan", SCAN_RANGES)
         for name in ("step_m", "max_turn_deg", "pause_mean_frames"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"scan.{name} must be > 0, got {getattr(self, name)}")

@@ -12,6 +12,12 @@ as they finish, in completion order, so the driver can write each result as it a
 | ``local`` | this machine: in-process for 1 worker, else a spawn ``ProcessPoolExecutor`` whose workers die with the driver (kill -9 included) and share the cores (``common.threads``: cores // workers threads each) | ``run.workers`` (0 = all cores) |
 | ``ray`` | Ray tasks on a local Ray instance (``run.ray_address: ""``) or a cluster (``auto``, ``ray://host:port``) | the cluster's CPUs; ``run.workers`` > 0 caps the tasks in flight |
 
+On Ctrl-C (a ``KeyboardInterrupt`` in the driver, also thrown into the generator by
+``eval.runner.run_tasks`` when it came while a result was being saved) a backend stops its
+workers at once (pool workers are killed: they ignore SIGINT themselves; Ray tasks are
+cancelled), yields the items that finished before, and re-raises; when the driver stops reading
+(closes the generator) its workers stop too.
+
 Functions keep expensive per-process state (an env and an agent) in module-level caches, so a
 pool worker or a Ray worker process stays warm across items (Ray reuses worker processes for
 tasks of the same function). Ray retries a task whose worker process or node died
@@ -76,12 +82,18 @@ PR_SET_PDEATHSIG = 1   # prctl(2) option: the signal a process gets when its par
 
 
 def init_worker(threads: int) -> None:
-    """Pool-worker initializer: die with the driver, and use ``threads`` threads in every
-    threading library (``common.threads``; before anything imports Open3D or torch here), so
-    N workers share the cores instead of each starting one thread per core."""
+    """Pool-worker initializer: die with the driver, leave Ctrl-C to it, and use ``threads``
+    threads in every threading library (``common.threads``; before anything imports Open3D or
+    torch here), so N workers share the cores instead of each starting one thread per core."""
+    import signal
+
     from calnav.common.threads import pin_threads
 
     die_with_parent()
+    # A terminal sends SIGINT to the whole process group: the driver alone decides what it
+    # means (it stops the pool and saves what finished, LocalBackend.map_unordered); in a
+    # worker it would end a task half-way or the worker itself, and break the pool.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     pin_threads(threads)
 
 
@@ -102,6 +114,26 @@ def die_with_parent() -> None:
         os._exit(1)
 
 
+def kill_workers(pool: ProcessPoolExecutor) -> None:
+    """SIGKILL the worker processes of ``pool`` (their tasks in flight are lost; the pool then
+    marks its pending futures broken, so its shutdown returns at once instead of waiting for
+    them). ``ProcessPoolExecutor`` has no public way to do it before Python 3.14."""
+    kill = getattr(pool, "kill_workers", None)   # Python >= 3.14
+    if kill is not None:
+        kill()
+        return
+    for process in list((getattr(pool, "_processes", None) or {}).values()):
+        try:
+            process.kill()
+        except (OSError, ValueError):   # already gone, or closed
+            pass
+
+
+def finished_ok(future) -> bool:
+    """Whether ``future`` finished with a result (not cancelled, no exception), without waiting."""
+    return future.done() and not future.cancelled() and future.exception() is None
+
+
 class LocalBackend:
     """This machine's cores: in-process for one worker, a spawn process pool otherwise
     (Open3D's thread pools do not survive fork())."""
@@ -119,13 +151,32 @@ class LocalBackend:
                 yield item, fn(item)
             return
         threads = max(1, (os.cpu_count() or 1) // workers)
-        with ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"), initializer=init_worker,
-                                 initargs=(threads,)) as pool:
-            pending = {pool.submit(fn, item): item for item in items}
-            while pending:
-                done, _ = wait(pending, return_when=FIRST_COMPLETED)
-                for fut in done:
+        pool = ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"), initializer=init_worker,
+                                   initargs=(threads,))
+        pending: dict = {}
+        completed = False
+        try:
+            pending.update({pool.submit(fn, item): item for item in items})
+            try:
+                while pending:
+                    done, _ = wait(pending, return_when=FIRST_COMPLETED)
+                    for fut in done:
+                        yield pending.pop(fut), fut.result()
+            except KeyboardInterrupt:
+                # Ctrl-C, here or thrown in by the driver while it saved a result
+                # (eval.runner.run_tasks): stop the workers now, then hand back the results
+                # that finished before they stopped, so that every finished task is saved
+                kill_workers(pool)
+                for fut in [f for f in pending if finished_ok(f)]:
                     yield pending.pop(fut), fut.result()
+                raise
+            completed = True
+        finally:
+            # interrupted, or the driver stopped reading (an error while it saved a result): its
+            # workers go now, without finishing the tasks in flight, whose results nobody reads
+            if not completed:
+                kill_workers(pool)
+            pool.shutdown(wait=True, cancel_futures=True)
 
 
 class RayBackend:
@@ -155,13 +206,25 @@ class RayBackend:
         cap = self.workers if self.workers > 0 else len(items)
         queue = list(reversed(items))
         pending: dict = {}
-        while queue or pending:
-            while queue and len(pending) < cap:
-                item = queue.pop()
-                pending[remote.remote(fn, item)] = item
-            done, _ = ray.wait(list(pending), num_returns=1)
-            for ref in done:
+        try:
+            while queue or pending:
+                while queue and len(pending) < cap:
+                    item = queue.pop()
+                    pending[remote.remote(fn, item)] = item
+                done, _ = ray.wait(list(pending), num_returns=1)
+                for ref in done:
+                    yield pending.pop(ref), ray.get(ref)
+        except KeyboardInterrupt:   # as LocalBackend: hand back what finished, the rest is cancelled below
+            ready, _ = ray.wait(list(pending), num_returns=len(pending), timeout=0) if pending else ([], [])
+            for ref in ready:
                 yield pending.pop(ref), ray.get(ref)
+            raise
+        finally:
+            for ref in pending:   # interrupted, or the driver stopped reading: the tasks in flight go now
+                try:
+                    ray.cancel(ref, force=True)
+                except Exception:  # noqa: BLE001 -- best effort: Ray ends a dead driver's tasks itself
+                    pass
 
 
 def _apply(fn: Callable[[Any], Any], item: Any) -> Any:

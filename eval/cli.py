@@ -13,6 +13,7 @@ from dataclasses import dataclass
 # before torch is imported.
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
+from calnav.common.interrupt import sigint_flag
 from calnav.eval.config import ConfigError
 from calnav.eval.results_dir import ResultsError
 
@@ -290,16 +291,18 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     try:
-        from calnav.envs.scene import check_cache_dir
+        # a real Ctrl-C, told apart from a plugin's own KeyboardInterrupt (in the preflight's probe too)
+        with sigint_flag():
+            from calnav.envs.scene import check_cache_dir
 
-        check_cache_dir()   # every command reads or writes the cache
-        from calnav.eval.preflight import check_configs
+            check_cache_dir()   # every command reads or writes the cache
+            from calnav.eval.preflight import check_configs
 
-        command = COMMANDS[args.command]
-        command_main, load_configs = command.load()
-        configs = load_configs(args)   # every config the command runs (all multirun combinations)
-        check_configs(configs, command.checks)   # every file and service they name, before anything is written
-        command_main(args, configs)
+            command = COMMANDS[args.command]
+            command_main, load_configs = command.load()
+            configs = load_configs(args)   # every config the command runs (all multirun combinations)
+            check_configs(configs, command.checks)   # every file and service they name, before anything is written
+            command_main(args, configs)
     except (ConfigError, ValueError, FileNotFoundError, ResultsError) as exc:
         print(f"calnav {args.command}: error: {exc}", file=sys.stderr)
         return 2

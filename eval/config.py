@@ -18,6 +18,7 @@ from typing import Any, Literal
 import yaml
 from pydantic import ConfigDict, TypeAdapter, ValidationError
 
+from calnav.common.yaml_keys import unique_key_loader
 from calnav.agent.config import AgentConfig
 from calnav.envs.config import EnvConfig
 from calnav.mapping.config import MappingConfig
@@ -34,25 +35,10 @@ class ConfigError(ValueError):
 WXH_RE = re.compile(r"^\d+x\d+$")
 
 
-class StrictLoader(yaml.SafeLoader):
+class StrictLoader(unique_key_loader(lambda key, first, line: ConfigError(
+        f"duplicate key {key!r} at line {line} (first at line {first}); write each key once"))):
     """SafeLoader that refuses a mapping key written twice (plain YAML keeps the last, silently
     dropping e.g. a whole section) and reads ``WxH`` as text, never as a hex integer."""
-
-    def construct_mapping(self, node, deep=False):
-        seen: dict = {}
-        for key_node, _ in node.value:
-            key = self.construct_object(key_node, deep=deep)
-            line = key_node.start_mark.line + 1
-            try:
-                duplicate = key in seen
-            except TypeError:  # an unhashable key: SafeLoader's own error names it below
-                continue
-            if duplicate:
-                raise ConfigError(f"duplicate key {key!r} at line {line} (first at line {seen[key]}); "
-                                  "write each key once")
-            seen[key] = line
-        return super().construct_mapping(node, deep=deep)
-
 
 
 StrictLoader.yaml_implicit_resolvers = {k: list(v) for k, v in yaml.SafeLoader.yaml_implicit_resolvers.items()}
@@ -252,6 +238,27 @@ def build_dataclass(cls: type, data: dict, prefix: str = "") -> Any:
         raise _config_error(cls, exc, prefix) from None
 
 
+def _yaml_text(value: Any) -> str:
+    """``value`` as YAML writes it (null, true, 3, [1, 2]), for messages."""
+    return yaml.safe_dump(value, default_flow_style=True).strip().removesuffix("...").strip()
+
+
+def _check_sections(cls: type, tree: dict, source: str, prefix: str = "") -> None:
+    """Every key of ``tree`` (a YAML file's nested dict) naming a section of ``cls`` (a
+    dataclass field) holds a mapping: ``env:`` left empty or ``env: null`` is named as the
+    section it is, not as the first override that would be set under it."""
+    hints = typing.get_type_hints(cls)
+    for name, value in tree.items():
+        tp = hints.get(name) if isinstance(name, str) else None
+        if tp is None or not dataclasses.is_dataclass(tp):
+            continue
+        key = f"{prefix}.{name}" if prefix else name
+        if not isinstance(value, dict):
+            raise ConfigError(f"{source}: {key}: expected a mapping of {tp.__name__} keys, got {_yaml_text(value)}; "
+                              f"write the keys under '{name}:' or delete the section")
+        _check_sections(tp, value, source, key)
+
+
 def _set_dotted(tree: dict, dotted: str, value: Any) -> None:
     parts = dotted.split(".")
     node = tree
@@ -296,6 +303,7 @@ def load_config(path: str | Path | None = None, overrides: list[str] | tuple[str
         loaded = load_yaml_text(text, str(path)) or {}
         if not isinstance(loaded, dict):
             raise ConfigError(f"config file {path} must hold a mapping at the top level")
+        _check_sections(cls, loaded, str(path))   # before an override is set under a null section
         tree = loaded
     for text in overrides:
         key, value = parse_override(text)

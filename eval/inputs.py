@@ -6,23 +6,33 @@ its inputs only by path -- and the default ones not at all: ``segmenter.weights:
 would mix maps, scans or episodes of two networks under one config. ``input_fingerprints(cfg)``
 lists every file the config reads, with its sha256:
 
-- every string value of the resolved config that names an existing file (weights, GLFS
-  parameters, label maps, ...: a value with a file suffix or a directory part, found from the
-  working directory or, as the loaders also look, from the repository root), under its dotted key;
+- the keys whose value always names something a loader reads (``FILE_KEYS``: segmenter
+  ``weights``, ``model`` and ``label_map``, ``predictor_weights``, ``glfs_params``), whatever
+  the value looks like: a file is hashed; a model directory (``hf``: a ``save_pretrained``
+  folder) is hashed as the list of its files and their sha256 (a file added, removed or
+  replaced changes it); a Hugging Face hub id (``org/name``) is hashed as its snapshot in the
+  local Hugging Face cache when there is one; a built-in label map name (``ade20k``, ...) as
+  its shipped ``.tsv``;
+- every other string value of the resolved config that names an existing file (a value with
+  a file suffix or a directory part, found from the working directory or, as the loaders also
+  look, from the repository root), under its dotted key;
 - the default weight files a config reads without naming them: each learned segmenter it runs
   (``agent.segmenter``, ``study.segmenters``) when its segmenter section's ``weights`` is empty
   (``agent.segmenter_config`` or the top-level ``segmenter``), and the target predictor
   (``agent.exploration: prediction``) when ``agent.predictor_weights`` is empty.
 
-Directories (a recorded sequence, a Hugging Face model folder) are not hashed. Hashes are
-cached per process by the file's stat, so a multirun hashes each file once.
+Other directories (a recorded sequence, a scene folder) are not hashed. Hashes are cached per
+process by the file's stat, so a multirun hashes each file once.
 """
 from __future__ import annotations
 
 import hashlib
 import json
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator
+
+from calnav.common.weights import resolve_repo_path
 
 INPUTS_NAME = "inputs.json"
 _CHUNK = 1 << 20
@@ -44,17 +54,61 @@ def sha256_file(path: Path) -> str:
     return _HASHES[key]
 
 
+# Keys (the last part of a dotted key) whose value always names an input the loaders read, so
+# they are resolved whatever the value looks like (``pred`` without a suffix is still a file).
+FILE_KEYS: tuple[str, ...] = ("weights", "model", "label_map", "predictor_weights", "glfs_params")
+DIRECTORY_KEYS: tuple[str, ...] = ("model",)   # of those, the ones that may name a directory (hf)
+
+
+@dataclass(frozen=True)
+class InputDir:
+    """A model directory a loader reads as a whole (``hf``'s ``save_pretrained`` folder)."""
+
+    path: Path
+
+
 def _as_file(value: str) -> Path | None:
     """The existing file a config string names, resolved as the loaders do (working directory,
     then the repository root for a relative path), or None. Only strings that look like paths
     (a suffix or a directory part) are considered, so a value such as ``val`` never matches a
     stray file of that name."""
-    from calnav.common.weights import resolve_repo_path
-
     if not Path(value).suffix and len(Path(value).parts) < 2:
         return None
     path = resolve_repo_path(value)
     return path if path.is_file() else None
+
+
+def _hub_snapshot(model_id: str) -> Path | None:
+    """The local Hugging Face cache's snapshot of hub id ``model_id`` (what ``from_pretrained``
+    loads offline), or None when it is not cached or ``huggingface_hub`` is not installed."""
+    if model_id.count("/") != 1 or model_id.startswith(("/", ".", "~")):
+        return None
+    try:
+        from huggingface_hub import snapshot_download
+    except ImportError:
+        return None
+    try:
+        return Path(snapshot_download(model_id, local_files_only=True))
+    except Exception:  # noqa: BLE001 -- not cached, or not a valid hub id: nothing calnav can name
+        return None
+
+
+def _named_input(key: str, value: str) -> Path | InputDir | None:
+    """What a ``FILE_KEYS`` value names (module docstring), or None."""
+    from calnav.agent.segmenters.label_map import BUILTIN_LABEL_MAPS, LABEL_MAP_DIR
+
+    name = key.rsplit(".", 1)[-1]
+    if name == "label_map" and value in BUILTIN_LABEL_MAPS:   # read_label_map: a built-in name wins
+        return LABEL_MAP_DIR / f"{value}.tsv"
+    path = resolve_repo_path(value)
+    if path.is_file():
+        return path
+    if name in DIRECTORY_KEYS:
+        if path.is_dir():
+            return InputDir(path)
+        snapshot = _hub_snapshot(value)
+        return InputDir(snapshot) if snapshot is not None else None
+    return None
 
 
 def _leaves(d: dict, prefix: str = "") -> Iterator[tuple[str, object]]:
@@ -70,20 +124,20 @@ def _leaves(d: dict, prefix: str = "") -> Iterator[tuple[str, object]]:
 
 
 def input_files(cfg_dict: dict, neutral_keys: tuple[str, ...] = (),
-                segmenters: tuple[str, ...] | None = None) -> dict[str, Path]:
-    """{label: file} the resolved config dict reads (module docstring); ``neutral_keys`` are
-    skipped (output directories and the like); ``segmenters``: the segmenters the command runs
-    when they are not the config's (``fit-glfs --segmenter``)."""
+                segmenters: tuple[str, ...] | None = None) -> dict[str, Path | InputDir]:
+    """{label: file or model directory} the resolved config dict reads (module docstring);
+    ``neutral_keys`` are skipped (output directories and the like); ``segmenters``: the
+    segmenters the command runs when they are not the config's (``fit-glfs --segmenter``)."""
     from calnav.agent.prediction import DEFAULT_PREDICTOR
     from calnav.agent.segmenters.learned import LEARNED_MODELS, default_weights_path
 
-    out: dict[str, Path] = {}
+    out: dict[str, Path | InputDir] = {}
     for key, value in _leaves(cfg_dict):
         if key in neutral_keys or not isinstance(value, str) or not value:
             continue
-        path = _as_file(value)
-        if path is not None:
-            out[key] = path
+        found = _named_input(key, value) if key.rsplit(".", 1)[-1] in FILE_KEYS else _as_file(value)
+        if found is not None:
+            out[key] = found
     agent, study = cfg_dict.get("agent") or {}, cfg_dict.get("study") or {}
     seg = agent.get("segmenter_config") or cfg_dict.get("segmenter") or {}   # the section the run reads
     if not seg.get("weights"):
@@ -96,12 +150,30 @@ def input_files(cfg_dict: dict, neutral_keys: tuple[str, ...] = (),
     return out
 
 
+def _dir_files(root: Path) -> list[Path]:
+    """The files under ``root`` a loader may read, sorted: every regular file (symlinks
+    followed, as the Hugging Face cache's snapshots are links), hidden ones left out (a
+    download's ``.cache`` / lock files, ``.git``)."""
+    return sorted(p for p in root.rglob("*")
+                  if p.is_file() and not any(part.startswith(".") for part in p.relative_to(root).parts))
+
+
+def fingerprint(found: Path | InputDir) -> dict:
+    """{"path", "sha256"} of a file; of a model directory also {"files": {relative path:
+    sha256}}, its sha256 being that of the sorted list of (relative path, sha256) pairs."""
+    if isinstance(found, Path):
+        return {"path": str(found), "sha256": sha256_file(found)}
+    files = {str(p.relative_to(found.path)): sha256_file(p) for p in _dir_files(found.path)}
+    listing = "".join(f"{rel}\0{sha}\n" for rel, sha in files.items())
+    return {"path": str(found.path), "sha256": hashlib.sha256(listing.encode()).hexdigest(), "files": files}
+
+
 def input_fingerprints(cfg_dict: dict, neutral_keys: tuple[str, ...] = (),
-                       segmenters: tuple[str, ...] | None = None) -> dict[str, dict[str, str]]:
-    """{label: {"path": str, "sha256": hex}} of ``input_files`` (a missing default file is left
-    out: the command itself reports it)."""
-    return {key: {"path": str(path), "sha256": sha256_file(path)}
-            for key, path in input_files(cfg_dict, neutral_keys, segmenters).items() if path.is_file()}
+                       segmenters: tuple[str, ...] | None = None) -> dict[str, dict]:
+    """{label: ``fingerprint``} of ``input_files`` (a missing default file is left out: the
+    command itself reports it)."""
+    return {key: fingerprint(found) for key, found in input_files(cfg_dict, neutral_keys, segmenters).items()
+            if isinstance(found, InputDir) or found.is_file()}
 
 
 def changed_inputs(saved: dict, now: dict) -> list[str]:

@@ -15,10 +15,14 @@ runs. Checked per config, by the section it has, with the loaders that own the d
   file (``agent.segmenters.check_segmenter``); a segmenter that reads the ground-truth semantic
   image only with a semantic sensor (the habitat config's, for habitat-benchmark); ``env.dataset.scene_dir`` when set: a directory
   holding scenes for the split the episodes come from (``envs.scenes.split_scene_ids``);
-- ``study`` (the calibration study): every ``study.segmenters`` entry, and the houses or
+- ``study`` (the calibration study): every ``study.segmenters`` entry (predicting every calnav
+  class), and the houses or
   recorded sequences of every role (``eval.calibration.record.role_scene_ids``);
 - ``mapping.glfs_params`` when set: readable, finite, valid, and for the segmenter's classes
-  (``mapping.glfs.GLFSParams.load``).
+  (``mapping.glfs.GLFSParams.load``);
+- first of all, the memory one worker of the run needs (the agent's 2D map, the voxel map, the
+  navigation grid of the largest house, the renderer's buffers) against the memory available
+  (``eval.memory.check_memory``).
 
 Other objects a command runs with (habitat-lab's own config) are validated by their loaders.
 Like ``eval.cli`` it sits above the experiments; no experiment imports it.
@@ -45,20 +49,24 @@ def check_run_resources(cfg: Any, checks: tuple[str, ...] = CHECKS) -> None:
         raise ValueError(f"unknown preflight checks {sorted(unknown)}; valid: {', '.join(CHECKS)}")
     if not is_dataclass(cfg):
         return
+    from calnav.eval.memory import check_memory
+
+    check_memory(cfg, checks)   # the memory one worker needs (maps, grids, buffers), before any file is opened
     run = getattr(cfg, "run", None)
     if run is not None and "run" in checks:
         check_backend(run.backend, run.ray_address)   # run.backend=ray without Ray: the install command
         if run.device != "cpu":
             from calnav.agent.segmenters.base import resolve_device
 
-            resolve_device(run.device)
+            resolve_device(run.device, "run.device")
     names = None
     agent = getattr(cfg, "agent", None) if "agent" in checks else None
     if agent is not None:
         from calnav.agent.segmenters.base import goal_categories
 
         names = check_segmenter(agent.segmenter, agent.segmenter_config, run.device if run else None,
-                                probe_size=tuple(cfg.env.resolution), goals=goal_categories())
+                                probe_size=tuple(cfg.env.resolution), goals=goal_categories(),
+                                key="agent.segmenter_config")
         if agent.exploration == "prediction" and getattr(run, "agent", "peanut") == "peanut":
             from calnav.agent.prediction import DEFAULT_PREDICTOR, check_predictor
 
@@ -68,14 +76,26 @@ def check_run_resources(cfg: Any, checks: tuple[str, ...] = CHECKS) -> None:
         if not agent.stop_margin_m < cfg.env.view_point_radius_m:
             raise ValueError(f"agent.stop_margin_m ({agent.stop_margin_m} m) must be below env.view_point_radius_m "
                              f"({cfg.env.view_point_radius_m} m): the agent stops within the difference of the goal")
+        if not agent.collision_min_move_m < cfg.env.forward_step_m:
+            raise ValueError(f"agent.collision_min_move_m ({agent.collision_min_move_m:g} m) must be below "
+                             f"env.forward_step_m ({cfg.env.forward_step_m:g} m): every forward step would count as a "
+                             "collision")
         if cfg.env.dataset.scene_dir:
             from calnav.envs.scenes import split_scene_ids
 
             split_scene_ids(cfg.env.split, cfg.env.dataset)
     study = getattr(cfg, "study", None) if "study" in checks else None
     if study is not None:
+        from calnav.agent.segmenters.base import default_class_names
+
+        calnav = default_class_names()
         for name in study.segmenters:
-            check_segmenter(name, getattr(cfg, "segmenter", None), device=run.device if run else None)
+            predicted = check_segmenter(name, getattr(cfg, "segmenter", None), device=run.device if run else None)
+            if predicted != calnav:   # the study scores its maps against labels of every calnav class
+                missing = [n for n in calnav if n not in predicted]
+                raise ValueError(f"study.segmenters: segmenter {name} predicts no {', '.join(missing)}; the "
+                                 "calibration study needs every calnav class: map the model's classes to calnav's "
+                                 "with segmenter.label_map")
     mapping = getattr(cfg, "mapping", None) if "mapping" in checks else None
     if mapping is not None and mapping.glfs_params:   # a study fits its own GLFS; a named file must still be sound
         GLFSParams.load(mapping.glfs_params, class_names=names)

@@ -41,9 +41,9 @@ from typing import Callable, Iterable, Iterator
 
 import yaml
 
-from calnav.common.atomic import write_text_atomic
+from calnav.common.atomic import json_text, write_text_atomic
 from calnav.eval.inputs import INPUTS_NAME, changed_inputs, input_fingerprints, read_saved_inputs
-from calnav.eval.stats import METRICS
+from calnav.eval.stats import METRICS, finite_or_error
 
 # Dotted config keys that do not change results: a rerun with other values may resume the same
 # directory, and `calnav compare` never makes them columns.
@@ -294,7 +294,9 @@ class ResultsDir:
             return write_text_atomic(self.path / name, text)
 
     def write_json(self, name: str, obj) -> Path:
-        return self.write_text(name, json.dumps(obj, indent=2) + "\n")
+        """Write ``<dir>/name`` as strict JSON (``common.atomic.json_text``: a NaN or infinity is
+        a ValueError naming the file and the key, never a bare ``NaN`` in the file)."""
+        return self.write_text(name, json_text(obj, 2, what=str(self.path / name)) + "\n")
 
     def records(self, name: str = RECORDS_NAME) -> "RecordsFile":
         return RecordsFile(self.path / name)
@@ -325,7 +327,9 @@ def _parse(line: str) -> tuple[dict | None, str]:
         missing = [m for m in METRICS if not isinstance(rec.get(m), (int, float)) or isinstance(rec.get(m), bool)]
         if missing:
             return None, f"episode {rec[RECORD_KEY]} has no number for {', '.join(missing)}; it runs again"
-    return rec, ""
+    # a NaN / infinite metric (a file written before records were checked): an error record,
+    # counted as failed and retried on resume like a crash (eval.stats.finite_or_error)
+    return finite_or_error(rec), ""
 
 
 def read_records(path: str | os.PathLike, quiet: bool = False) -> RecordsRead:
@@ -381,22 +385,42 @@ class RecordsFile:
         kept = {i: r for i, r in read.records.items() if not ((scope is None or i in scope) and retry(r))}
         if len(kept) < len(read.records) or read.damaged or read.duplicates or not read.clean_end:
             with writing(self.path):
-                write_text_atomic(self.path, "".join(json.dumps(r) + "\n" for r in kept.values()))
+                write_text_atomic(self.path, "".join(json_text(r, None, what=str(self.path)) + "\n"
+                                                     for r in kept.values()))
         read.records = kept
         return read
 
     def __enter__(self) -> "RecordsFile":
         with writing(self.path):
-            self._f = open(self.path, "a")
+            # unbuffered: each record goes to the file in ``append`` itself, so a failed append
+            # (disk full) leaves nothing in a buffer for ``close`` to fail on a second time
+            self._f = open(self.path, "ab", buffering=0)
         return self
 
-    def __exit__(self, *exc) -> None:
-        if self._f is not None:
-            self._f.close()
-            self._f = None
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if self._f is None:
+            return
+        f, self._f = self._f, None
+        try:
+            f.close()
+        except OSError as err:
+            if exc_type is None:
+                raise ResultsError(f"cannot write {self.path}: {err.strerror or err}") from err
+            # else the error already on its way out is the one to report: not masked by this one
 
     def append(self, record: dict) -> None:
-        """Append one record and flush it, so a killed run loses only the episodes in flight."""
+        """Append one record (one JSON line), written through to the file before it returns, so
+        a killed run loses only the episodes in flight. A write that fails part-way (disk full)
+        is cut off again, so the file keeps ending with whole records; ResultsError (one line)."""
+        data = memoryview((json_text(record, None, str(self.path)) + "\n").encode())   # strict: no NaN
         with writing(self.path):
-            self._f.write(json.dumps(record) + "\n")
-            self._f.flush()
+            end = os.fstat(self._f.fileno()).st_size
+            try:
+                while data:   # an unbuffered write may write only part (a nearly full disk)
+                    data = data[self._f.write(data):]
+            except OSError:
+                try:
+                    os.ftruncate(self._f.fileno(), end)
+                except OSError:
+                    pass   # a torn last line is skipped, with a warning, when the run is resumed
+                raise

@@ -23,13 +23,21 @@ A task that raises in its worker does not stop the others: its exception comes b
 the same command retries exactly the failed tasks. A command whose failures are results of their
 own passes ``failed=``: ObjectNav writes a crashed episode as an error record in
 ``episodes.jsonl`` (retried on resume, ``eval.objectnav.run``).
+
+Ctrl-C (SIGINT to the driver, or to its whole process group from a terminal) stops every
+backend the same way: the tasks in flight are abandoned (pool workers killed, Ray tasks
+cancelled), every task that finished before is saved, and ``KeyboardInterrupt`` goes on to the
+CLI (exit 130, "rerun the same command to resume"); the rerun does only what is missing. A
+``KeyboardInterrupt`` or ``sys.exit()`` raised by a plugin itself is no Ctrl-C: the plugin
+boundary (``common.interrupt.user_code``) makes it a failure of its task.
 """
 from __future__ import annotations
 
 import traceback
 from dataclasses import dataclass
-from typing import Any, Callable, Iterable
+from typing import Any, Callable, Iterable, Iterator
 
+from calnav.common.interrupt import sigint_flag
 from calnav.eval.results_dir import ResultsError
 
 
@@ -82,19 +90,50 @@ def run_tasks(fn: Callable[[Any], Any], tasks: Iterable, run_cfg, *, save: Calla
         raise ValueError(f"run_tasks: total={total} is less than the {len(tasks)} tasks to run")
     backend = make_backend(run_cfg)
     failures: list[tuple[Any, TaskFailed]] = []
-    with tqdm(total=total, initial=total - len(tasks), desc=desc, unit=unit, disable=not progress) as bar:
-        for task, result in backend.map_unordered(_Guarded(fn), tasks):
-            if isinstance(result, TaskFailed) and failed is not None:
-                failed(task, result)
-            elif isinstance(result, TaskFailed):
-                tqdm.write(f"{desc}: a {unit} failed: {result.error}")
-                failures.append((task, result))
-            else:
-                save(task, result)
-            if postfix is not None:
-                bar.set_postfix(postfix(task))
-            bar.update(1)
+
+    def arrived(task, result, bar) -> None:
+        if isinstance(result, TaskFailed) and failed is not None:
+            failed(task, result)
+        elif isinstance(result, TaskFailed):
+            tqdm.write(f"{desc}: a {unit} failed: {result.error}")
+            failures.append((task, result))
+        else:
+            save(task, result)
+        if postfix is not None:
+            bar.set_postfix(postfix(task))
+        bar.update(1)
+
+    # sigint_flag: a real Ctrl-C is told apart from a plugin's own KeyboardInterrupt (common.interrupt)
+    with sigint_flag(), tqdm(total=total, initial=total - len(tasks), desc=desc, unit=unit,
+                             disable=not progress) as bar:
+        results = backend.map_unordered(_Guarded(fn), tasks)
+        try:
+            for task, result in results:
+                arrived(task, result, bar)
+        except KeyboardInterrupt:
+            # Ctrl-C: the backend stops its workers and hands back what finished meanwhile;
+            # each is saved, then the interrupt goes on (the CLI: exit 130, "rerun to resume")
+            for task, result in finished_after_interrupt(results):
+                arrived(task, result, bar)
+            raise
+        finally:
+            results.close()   # an error while saving stops the workers now, not when collected
     return failures
+
+
+def finished_after_interrupt(results: Iterator[tuple[Any, Any]]) -> Iterator[tuple[Any, Any]]:
+    """The results a backend's ``map_unordered`` generator hands back once interrupted: a
+    ``KeyboardInterrupt`` is thrown into it (when the Ctrl-C came while the driver saved a
+    result, it is suspended and has not seen it), it stops its workers and yields the tasks
+    that finished before they stopped. Nothing when the Ctrl-C came inside it: it has yielded
+    those already and ended."""
+    try:
+        item = results.throw(KeyboardInterrupt())
+        while True:
+            yield item
+            item = next(results)
+    except (KeyboardInterrupt, StopIteration):
+        return
 
 
 def raise_failures(failures: list[tuple[Any, TaskFailed]], what: str,

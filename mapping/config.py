@@ -16,6 +16,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
+from calnav.common.ranges import Range, check_ranges
+
 FusionName = Literal["rbu", "averaging", "histogram", "geometric_mean", "glfs"]
 # "auto": the GLFS look-up table for ``glfs``, no weighting for every other strategy.
 WeightingName = Literal["auto", "none", "lut", "distance", "incidence", "sweet_spot"]
@@ -27,10 +29,41 @@ WEIGHTING_NAMES: tuple[str, ...] = WeightingName.__args__  # type: ignore[attr-d
 # V-A smooth before the log-space updates but give no value; 1e-3 is the authors' constant).
 # The one definition: ``mapping.fusion`` imports it from here.
 LAPLACE_MU = 1e-3
+# Largest image side the map takes, pixels (``envs.config.MAX_RESOLUTION_PX``, the sensor's).
+MAX_IMAGE_SIDE_PX = 4096
 
 
 MAX_ALLOC_MB = 65536          # initial_alloc_mb cap, MiB (64 GiB: beyond any machine this runs on)
 MAX_BLOCK_COUNT = 50_000_000  # block_count cap, blocks
+METRES = "metres"
+VOXELS = "voxels"
+
+# Size-like keys of the map (``mapping``), and why their bounds:
+MAPPING_RANGES = {
+    # a voxel of 5 mm to 0.5 m: finer than a depth sensor's noise (Kinect-class: 1-4 mm at 1 m)
+    # gains nothing while each frame's dense block table grows as 1 / voxel^3 (checked against
+    # memory by the preflight); coarser than 0.5 m, a chair or a toilet is one voxel or none
+    "voxel_size_m": Range(0.005, 0.5, METRES),
+    # Open3D blocks of 2^3 to 32^3 voxels: one 32^3 block of K = 18 GLFS channels is already 5 MiB
+    "block_resolution": Range(2, 32, VOXELS),
+    # the TSDF band: at least one voxel (else no zero crossing is stored), at most 32 (the band
+    # then spans rooms: every surface bleeds into the next)
+    "trunc_voxels": Range(1.0, 32.0, VOXELS),
+    # depth range: within 100 m, beyond any indoor sensor (the frame table covers it)
+    "depth_min_m": Range(0.0, 100.0, METRES),
+    "depth_max_m": Range(0.0, 100.0, METRES, lo_open=True),
+    # weighting distances: within a 100 m view, above 0 where they divide
+    "distance_ref_m": Range(0.0, 100.0, METRES, lo_open=True),
+    "sweet_spot_m": Range(0.0, 100.0, METRES),
+    "sweet_spot_halfwidth_m": Range(0.0, 100.0, METRES, lo_open=True),
+    # association in voxels: above 0 (a zero band matches nothing), within 64 (more spans rooms)
+    "sample_spacing_voxels": Range(0.0, 64.0, VOXELS, lo_open=True),
+    "association_band_voxels": Range(0.0, 64.0, VOXELS, lo_open=True),
+    "surface_band_voxels": Range(0.0, 64.0, VOXELS, lo_open=True),
+    # pixel strides within the largest sensor (0 = auto)
+    "pixel_stride": Range(0, MAX_IMAGE_SIDE_PX, "pixels"),
+    "normal_offset_px": Range(0, MAX_IMAGE_SIDE_PX, "pixels"),
+}
 
 
 @dataclass
@@ -68,12 +101,10 @@ class MappingConfig:
             raise ValueError(f"unknown fusion strategy {self.fusion!r}; valid names: {', '.join(FUSION_NAMES)}")
         if self.weighting not in WEIGHTING_NAMES:
             raise ValueError(f"unknown weighting {self.weighting!r}; valid names: {', '.join(WEIGHTING_NAMES)}")
-        positive = ("temperature", "voxel_size_m", "trunc_voxels", "depth_max_m", "distance_ref_m",
-                    "sweet_spot_halfwidth_m", "sample_spacing_voxels", "association_band_voxels",
-                    "surface_band_voxels", "initial_alloc_mb")
-        for name in positive:
+        for name in ("temperature", "initial_alloc_mb"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"mapping.{name} must be > 0, got {getattr(self, name)}")
+        check_ranges(self, "mapping", MAPPING_RANGES)
         if not 0 <= self.depth_min_m < self.depth_max_m:
             raise ValueError(f"need 0 <= mapping.depth_min_m < mapping.depth_max_m, got {self.depth_min_m}, {self.depth_max_m}")
         if self.initial_alloc_mb > MAX_ALLOC_MB:   # a typo such as 1e12 fails here, not as an allocation failure
@@ -81,13 +112,13 @@ class MappingConfig:
         if self.block_count > MAX_BLOCK_COUNT:
             raise ValueError(f"mapping.block_count must be in [0, {MAX_BLOCK_COUNT}] blocks, got {self.block_count}")
         res = self.block_resolution
-        if res < 2 or res & (res - 1):
-            raise ValueError(f"mapping.block_resolution must be a power of two >= 2, got {res}")
-        if self.block_count < 0 or self.pixel_stride < 0 or self.normal_offset_px < 0:
-            raise ValueError("mapping.block_count, pixel_stride and normal_offset_px must be >= 0")
+        if res & (res - 1):
+            raise ValueError(f"mapping.block_resolution must be a power of two in [2, 32], got {res}")
+        if self.block_count < 0:
+            raise ValueError(f"mapping.block_count must be >= 0, got {self.block_count}")
         if not 0 < self.laplace_mu < 1:
             raise ValueError(f"mapping.laplace_mu must be in (0, 1), got {self.laplace_mu}")
         if not 0 < self.min_sample_weight <= 1:
             raise ValueError(f"mapping.min_sample_weight must be in (0, 1], got {self.min_sample_weight}")
-        if self.sweet_spot_m < 0 or self.min_tsdf_weight < 0:
-            raise ValueError("mapping.sweet_spot_m and mapping.min_tsdf_weight must be >= 0")
+        if not self.min_tsdf_weight >= 0:
+            raise ValueError(f"mapping.min_tsdf_weight must be >= 0, got {self.min_tsdf_weight}")

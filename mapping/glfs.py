@@ -41,7 +41,12 @@ class GLFSParams:
         self.g, self.eps = float(self.g), float(self.eps)
         self.distance_edges = tuple(float(e) for e in self.distance_edges)
         self.angle_edges_deg = tuple(float(e) for e in self.angle_edges_deg)
+        if isinstance(self.class_names, (str, bytes)):   # tuple("wall") would be the classes w, a, l, l
+            raise ValueError(f"GLFS class_names must be a list of class names, got the string {self.class_names!r}")
         self.class_names = tuple(str(n) for n in self.class_names)
+        twice = sorted({n for n in self.class_names if self.class_names.count(n) > 1})
+        if twice:
+            raise ValueError(f"GLFS class_names lists {', '.join(map(repr, twice))} more than once")
         self.validate()
 
     @property

@@ -15,7 +15,7 @@ not depend on the working directory:
   - the top, ``eval.cli`` (parsing and dispatch) and ``eval.preflight`` (loads every command's
     configs), may import anything of ``eval``; only ``eval.cli`` imports ``eval.preflight`` and
     nothing imports ``eval.cli``;
-  - the shared modules (``config``, ``results_dir``, ``backends``, ``stats``) import no
+  - the shared modules (``config``, ``results_dir``, ``backends``, ``stats``, ``episodes``) import no
     experiment subpackage and not the top;
   - an experiment subpackage imports the shared modules and only the experiment subpackages
     ``EVAL_ALLOWED`` declares for it: a new cross-import fails until it is declared there;
@@ -154,7 +154,8 @@ def test_find_cycle_finds_one():
 # ------------------------------------------------------------------------------------- eval
 # One node per experiment subpackage (eval/<name>/) and per top-level module (eval/<name>.py).
 EVAL_TOP = {"cli", "preflight"}                              # may import anything of eval
-EVAL_SHARED = {"config", "results_dir", "inputs", "backends", "runner", "stats"}  # import only each other
+EVAL_SHARED = {"config", "results_dir", "inputs", "backends", "runner", "stats",
+               "episodes", "memory"}  # import only each other
 # experiment subpackage -> the experiment subpackages it may import (the shared modules always).
 # Declaring a new edge here must keep the table acyclic (test_eval_dependency_table_is_acyclic).
 EVAL_ALLOWED: dict[str, set[str]] = {

@@ -23,7 +23,8 @@ import re
 from importlib.metadata import entry_points
 from typing import Callable
 
-from calnav.agent.segmenters.base import Segmenter, SegmenterConfig, default_class_names, resolve_device, softmax
+from calnav.agent.segmenters.base import Segmenter, SegmenterConfig, default_class_names, segmenter_device, softmax
+from calnav.common.interrupt import UserCodeExit, user_code
 
 __all__ = ["BUILTIN_SEGMENTERS", "ENTRY_POINT_GROUP", "Segmenter", "SegmenterConfig", "check_segmenter",
            "check_segmenter_spec", "make_segmenter", "segmenter_needs_semantic", "softmax"]
@@ -32,9 +33,7 @@ ENTRY_POINT_GROUP = "calnav.segmenters"
 IMPORT_PATH = re.compile(r"^[A-Za-z_][\w.]*:[A-Za-z_]\w*$")
 
 
-def _ground_truth(name: str, cfg: SegmenterConfig, device: str | None, class_names) -> Segmenter:
-    if (device or cfg.device or "cpu") != "cpu":  # same validation as the networks (imports torch)
-        resolve_device(device or cfg.device)
+def _ground_truth(name: str, cfg: SegmenterConfig, device: str, class_names, key: str) -> Segmenter:
     names = tuple(class_names) if class_names is not None else default_class_names()
     if name == "gt":
         from calnav.agent.segmenters.ground_truth import GroundTruthSegmenter
@@ -45,19 +44,20 @@ def _ground_truth(name: str, cfg: SegmenterConfig, device: str | None, class_nam
     return NoisySegmenter(cfg, names)
 
 
-def _learned(name: str, cfg: SegmenterConfig, device: str | None, class_names) -> Segmenter:
+def _learned(name: str, cfg: SegmenterConfig, device: str, class_names, key: str) -> Segmenter:
     from calnav.agent.segmenters.learned import LearnedSegmenter
 
     return LearnedSegmenter(name, cfg, device)
 
 
 def _adapter(module: str, cls: str) -> Callable[..., Segmenter]:
-    def build(name: str, cfg: SegmenterConfig, device: str | None, class_names) -> Segmenter:
-        return getattr(importlib.import_module(f"calnav.agent.segmenters.{module}"), cls)(name, cfg, device)
+    def build(name: str, cfg: SegmenterConfig, device: str, class_names, key: str) -> Segmenter:
+        return getattr(importlib.import_module(f"calnav.agent.segmenters.{module}"), cls)(name, cfg, device, key=key)
     return build
 
 
-# The built-in registry: name -> builder(name, cfg, device, class_names).
+# The built-in registry: name -> builder(name, cfg, device, class_names, key); device: the
+# validated device string; key: the segmenter section as the command spells it (for messages).
 BUILTIN_SEGMENTERS: dict[str, Callable[..., Segmenter]] = {
     "gt": _ground_truth, "noisy": _ground_truth, "learned_rgb": _learned, "learned_rgbd": _learned,
     "hf": _adapter("hf", "HFSegmenter"), "onnx": _adapter("onnx", "ONNXSegmenter"),
@@ -83,11 +83,14 @@ def check_segmenter_spec(spec: str) -> str:
 def _load_factory(spec: str) -> Callable:
     """The factory of an import path or entry point; ValueError with one line for every failure."""
     try:
-        if IMPORT_PATH.match(spec):
-            module, _, attr = spec.partition(":")
-            factory = getattr(importlib.import_module(module), attr)
-        else:
-            factory = _entry_points()[spec].load()
+        with user_code("its module"):   # importing it runs user code too
+            if IMPORT_PATH.match(spec):
+                module, _, attr = spec.partition(":")
+                factory = getattr(importlib.import_module(module), attr)
+            else:
+                factory = _entry_points()[spec].load()
+    except UserCodeExit as exc:
+        raise ValueError(f"segmenter plugin {spec!r} cannot be loaded: {exc}") from None
     except Exception as exc:  # noqa: BLE001 -- any failure of the user's module is reported in one line
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
         hint = " (install it, or put its folder on PYTHONPATH)" if isinstance(exc, ModuleNotFoundError) else ""
@@ -110,19 +113,22 @@ def segmenter_needs_semantic(spec: str) -> bool:
 
 
 def check_segmenter(spec: str, cfg: SegmenterConfig | None = None, device: str | None = None,
-                    probe_size: tuple[int, int] = (160, 120), goals: tuple[str, ...] = ()) -> tuple[str, ...]:
+                    probe_size: tuple[int, int] = (160, 120), goals: tuple[str, ...] = (),
+                    key: str = "segmenter") -> tuple[str, ...]:
     """Open and validate everything segmenter ``spec`` will need and return its class names:
-    its device; the weight file of a learned one (tensors must fit its network); the class list
-    of the ground-truth ones; an adapter or plugin is built and run on one probe frame of
-    ``probe_size`` (W, H) (import errors, factory errors, wrong output shape or K, non-finite
-    logits); each of ``goals`` must be a class it predicts (ObjectNav). Raises ValueError /
+    its device (``<key>.device`` when set, else ``device``); the weight file of a learned one
+    (tensors must fit its network, its class list calnav's classes); the class list of the
+    ground-truth ones; an adapter or plugin is built (its classes matched to calnav's by name)
+    and run on one probe frame of ``probe_size`` (W, H) (import errors, factory errors, wrong
+    output shape or K, non-finite logits); each of ``goals`` must be a class it predicts
+    (ObjectNav). ``key``: the segmenter section as the running command spells it
+    (``agent.segmenter_config`` / ``segmenter``), named in the errors. Raises ValueError /
     FileNotFoundError in one line: run before a run writes anything or starts workers."""
     from calnav.agent.segmenters.adapter import check_goals, probe
 
     cfg = cfg or SegmenterConfig()
     check_segmenter_spec(spec)
-    if (device or cfg.device or "cpu") != "cpu":
-        resolve_device(device or cfg.device)
+    device = segmenter_device(cfg, device, key)
     if BUILTIN_SEGMENTERS.get(spec) in (_ground_truth, _learned):
         if BUILTIN_SEGMENTERS[spec] is _ground_truth:
             names = default_class_names()
@@ -132,32 +138,39 @@ def check_segmenter(spec: str, cfg: SegmenterConfig | None = None, device: str |
             names = check_weights(cfg.weights or default_weights_path(spec), spec)
         segmenter = type("Checked", (), {"name": spec, "class_names": names})()
     else:
-        segmenter = make_segmenter(spec, cfg, device)
+        segmenter = make_segmenter(spec, cfg, device, key=key)
         names = probe(segmenter, probe_size)
-    check_goals(segmenter, goals)
+    check_goals(segmenter, goals, key)
     return names
 
 
 def make_segmenter(spec: str, cfg: SegmenterConfig | None = None, device: str | None = None,
-                   class_names: tuple[str, ...] | None = None) -> Segmenter:
+                   class_names: tuple[str, ...] | None = None, key: str = "segmenter") -> Segmenter:
     """The segmenter ``spec`` (see the module docstring) configured by ``cfg``.
 
-    device: torch device ("cpu", "cuda", "cuda:N"); None = ``cfg.device`` or cpu. A CUDA
-    device on a machine without CUDA raises ValueError. class_names: classes of the
-    ground-truth based segmenters (default: ``agent/weights/classes.json``, the simulator's
-    list); the others carry theirs (weights file, model, label map).
+    device: torch device ("cpu", "cuda", "cuda:N"; the caller's ``run.device``), used when
+    ``cfg.device`` is not set (``cfg.device`` wins); None = cpu. A device that is not cpu / cuda,
+    or a CUDA device this machine lacks, raises ValueError naming the key. class_names: classes
+    of the ground-truth based segmenters (default: ``agent/weights/classes.json``, the
+    simulator's list); the others carry theirs (weights file, model, label map), matched to
+    calnav's classes by name. key: the segmenter section as the running command spells it
+    (``agent.segmenter_config`` in the ObjectNav commands, ``segmenter`` elsewhere), named in
+    error messages.
     """
     cfg = cfg or SegmenterConfig()
     check_segmenter_spec(spec)
+    dev = segmenter_device(cfg, device, key)
     if spec in BUILTIN_SEGMENTERS:
-        return BUILTIN_SEGMENTERS[spec](spec, cfg, device, class_names)
+        return BUILTIN_SEGMENTERS[spec](spec, cfg, dev, class_names, key)
     from calnav.agent.segmenters.adapter import PluginSegmenter
 
     factory = _load_factory(spec)
-    dev = str(resolve_device(device or cfg.device or "cpu"))
     try:
-        inner = factory(cfg, dev)
+        with user_code("its factory"):   # sys.exit() / its own KeyboardInterrupt -> UserCodeExit; Ctrl-C propagates
+            inner = factory(cfg, dev)
+    except UserCodeExit as exc:
+        raise ValueError(f"segmenter plugin {spec!r}: {exc}") from None
     except Exception as exc:  # noqa: BLE001 -- the user's factory: report it in one line
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
         raise ValueError(f"segmenter plugin {spec!r}: its factory raised {type(exc).__name__}: {first}") from None
-    return PluginSegmenter(spec, inner, cfg, dev)
+    return PluginSegmenter(spec, inner, cfg, dev, key=key)

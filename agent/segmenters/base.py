@@ -8,9 +8,12 @@ A segmenter turns one RGB-D frame into per-pixel class scores:
 ``softmax(logits)`` (below) are the class probabilities. K and the class names
 (``segmenter.class_names``) are data: the learned networks carry them in their weights file,
 the ground-truth based segmenters take them from ``agent/weights/classes.json`` (a copy of the
-simulator's ``envs.semantics.CLASS_NAMES``, checked by a test), and the agent takes class names
-and ids from its segmenter, never from the simulator. (The agent does import ``envs.task`` for
-the action ids, the task's contract.)
+simulator's ``envs.semantics.CLASS_NAMES``, checked by a test). Every segmenter's channels are
+matched to these classes by name (``calnav_class_order``: a plugged-in model or weight file
+listing them in another order gives its logits in calnav's order; duplicates and other names
+are refused), and the agent finds its goal's channel by name: the task's ``objectgoal`` id
+names a goal category (``goal_categories``), never a channel. Nothing here reads the simulator
+(the agent does import ``envs.task`` for the action ids, the task's contract).
 
 Segmenters built from ground truth (``gt``, ``noisy``) additionally need the environment's
 ``semantic`` observation ((H, W) int class ids, -1 = void); ``noisy`` also uses the
@@ -53,11 +56,11 @@ def default_cell_confusions() -> dict[str, list[str]]:
 
 @dataclass
 class SegmenterConfig:
-    """Settings of every segmenter (YAML section ``segmenter``; unused keys are ignored by the
-    segmenters that do not need them)."""
+    """Settings of every segmenter (YAML section ``segmenter``, ``agent.segmenter_config`` in the
+    ObjectNav configs; unused keys are ignored by the segmenters that do not need them)."""
 
     # --- all -------------------------------------------------------------------------------
-    device: str = ""                 # torch device ("cpu", "cuda", "cuda:1"); "" = run.device (else cpu)
+    device: str = ""                 # torch device ("cpu", "cuda", "cuda:1"); "" = run.device (else cpu); set, it wins
     tf32: bool = False               # CUDA: allow TensorFloat-32 convolutions / matmuls (Ampere and later). Off, the
                                      # logits match the CPU's float32 (measured on an H200: max |diff| 9e-6); on,
                                      # they differ by up to 1.4e-2 and 0.03 % of pixels change class, for no speed-up
@@ -99,27 +102,29 @@ class SegmenterConfig:
     hfov_deg: float = 79.0           # camera horizontal field of view (back-projection), degrees
 
     def __post_init__(self) -> None:
+        # errors name the key without its section: the config loader prefixes the section as
+        # the running command spells it (``agent.segmenter_config: ...`` / ``segmenter: ...``)
         if not 0 < self.gt_confidence <= 1:
-            raise ValueError(f"segmenter.gt_confidence must be in (0, 1], got {self.gt_confidence}")
+            raise ValueError(f"gt_confidence must be in (0, 1], got {self.gt_confidence}")
         for key in ("instance_confusion_prob", "base_error", "max_error", "runner_up_share"):
             if not 0 <= getattr(self, key) <= 1:
-                raise ValueError(f"segmenter.{key} must be in [0, 1], got {getattr(self, key)}")
+                raise ValueError(f"{key} must be in [0, 1], got {getattr(self, key)}")
         for key in ("temperature", "error_cell_m", "hfov_deg"):
             if getattr(self, key) <= 0:
-                raise ValueError(f"segmenter.{key} must be > 0, got {getattr(self, key)}")
+                raise ValueError(f"{key} must be > 0, got {getattr(self, key)}")
         if not 0 <= self.confusion_arc_deg <= 360:
-            raise ValueError(f"segmenter.confusion_arc_deg must be in [0, 360], got {self.confusion_arc_deg}")
+            raise ValueError(f"confusion_arc_deg must be in [0, 360], got {self.confusion_arc_deg}")
         if self.threads < 0:
-            raise ValueError(f"segmenter.threads must be >= 0, got {self.threads}")
+            raise ValueError(f"threads must be >= 0, got {self.threads}")
         for key in ("input_mean", "input_std"):
             values = getattr(self, key)
             if values and (len(values) != 3 or not all(math.isfinite(v) for v in values)):
-                raise ValueError(f"segmenter.{key} must be [] or 3 finite numbers (r, g, b), got {values}")
+                raise ValueError(f"{key} must be [] or 3 finite numbers (r, g, b), got {values}")
         if any(v <= 0 for v in self.input_std):
-            raise ValueError(f"segmenter.input_std must be > 0, got {self.input_std}")
+            raise ValueError(f"input_std must be > 0, got {self.input_std}")
         w, h = self.resolution
         if (w, h) != (0, 0) and (w < 16 or h < 16):
-            raise ValueError(f"segmenter.resolution must be (0, 0) or at least 16x16, got {w}x{h}")
+            raise ValueError(f"resolution must be (0, 0) or at least 16x16, got {w}x{h}")
 
 
 def softmax(logits: np.ndarray, temperature: float = 1.0) -> np.ndarray:
@@ -146,25 +151,84 @@ def goal_categories() -> tuple[str, ...]:
         raise FileNotFoundError(f"class list {CLASSES_FILE} is missing") from None
 
 
-def resolve_device(device: str | None):
-    """torch.device for ``device`` ("" / None = cpu); a clear error when CUDA is asked for
-    but unavailable."""
+def class_list(names, source: str, valid: tuple[str, ...] = ()) -> tuple[str, ...]:
+    """``names`` as a tuple of class names, or a one-line ValueError naming ``source`` (and the
+    ``valid`` names, when given): a string (``class_names="wall"`` would read as the classes w,
+    a, l, l), a non-list, a name that is not a string, an empty list, or a name listed twice
+    (two channels of one class: every lookup by name would find only the first)."""
+    if isinstance(names, (str, bytes)):
+        raise ValueError(f"{source}: class_names must be a list of class names, got the string {names!r}")
+    try:
+        names = tuple(names)
+    except TypeError:
+        raise ValueError(f"{source}: class_names must be a list of class names, got {type(names).__name__}") from None
+    bad = [n for n in names if not isinstance(n, str)]
+    if bad:
+        raise ValueError(f"{source}: class_names must be strings, got {bad[0]!r} ({type(bad[0]).__name__})")
+    if not names:
+        raise ValueError(f"{source}: class_names is empty")
+    seen: set[str] = set()
+    twice = list(dict.fromkeys(n for n in names if n in seen or seen.add(n)))
+    if twice:
+        raise ValueError(f"{source}: class_names lists {', '.join(map(repr, twice))} more than once; "
+                         "every output channel needs its own class" + (f"; valid: {', '.join(valid)}" if valid else ""))
+    return names
+
+
+def calnav_class_order(names, source: str, hint: str = "") -> tuple[tuple[str, ...], tuple[int, ...] | None]:
+    """Match a model's output channels to calnav's classes by name: ``names`` (the model's
+    class list in channel order) must be distinct calnav classes (``default_class_names``).
+    Returns (the classes in calnav's order, the channel of each) -- the channel order is None
+    when the model's order is calnav's already. A model that predicts only some of calnav's
+    classes keeps just those. ValueError (one line, ``source`` and ``hint`` in it) names the
+    names that are not calnav classes and the valid ones."""
+    calnav = default_class_names()
+    names = class_list(names, source, calnav)
+    unknown = [n for n in names if n not in calnav]
+    if unknown:
+        shown = ", ".join(map(repr, unknown[:8])) + (f", ... ({len(unknown)} of {len(names)})"
+                                                     if len(unknown) > 8 else "")
+        what = "is not a calnav class" if len(unknown) == 1 else "are not calnav classes"
+        raise ValueError(f"{source}: {shown} {what}; valid: {', '.join(calnav)}{hint}")
+    ordered = tuple(n for n in calnav if n in names)
+    channels = tuple(names.index(n) for n in ordered)
+    return ordered, (None if channels == tuple(range(len(names))) else channels)
+
+
+def resolve_device(device: str | None, key: str = "device"):
+    """torch.device for ``device`` ("" / None = cpu); a one-line error naming ``key`` (the
+    config key that set it as the running command spells it: ``run.device``,
+    ``agent.segmenter_config.device``, ``segmenter.device``) when it is no torch device, not
+    cpu / cuda, or a CUDA device this machine does not have."""
     import torch
 
     name = (device or "cpu").strip()
     try:
         dev = torch.device(name)
-    except RuntimeError as exc:
-        raise ValueError(f"bad torch device {name!r}: {exc}; use 'cpu', 'cuda' or 'cuda:N'") from None
+    except RuntimeError:
+        raise ValueError(f"{key}={name!r} is not a torch device; use 'cpu', 'cuda' or 'cuda:N'") from None
     if dev.type == "cuda":
         if not torch.cuda.is_available():
-            raise ValueError(f"device {name!r} requested but CUDA is not available in this torch build / "
-                             f"machine (torch {torch.__version__}); use device=cpu")
+            raise ValueError(f"{key}={name!r} requested but CUDA is not available in this torch build / "
+                             f"machine (torch {torch.__version__}); use {key}=cpu")
         if dev.index is not None and dev.index >= torch.cuda.device_count():
-            raise ValueError(f"device {name!r} requested but only {torch.cuda.device_count()} CUDA device(s) exist")
+            raise ValueError(f"{key}={name!r} requested but only {torch.cuda.device_count()} CUDA device(s) exist "
+                             f"(cuda:0 to cuda:{torch.cuda.device_count() - 1})")
     elif dev.type != "cpu":
-        raise ValueError(f"unsupported device {name!r}; use 'cpu', 'cuda' or 'cuda:N'")
+        raise ValueError(f"{key}={name!r} is not supported; use 'cpu', 'cuda' or 'cuda:N'")
     return dev
+
+
+def segmenter_device(cfg: "SegmenterConfig", device: str | None, key: str = "segmenter") -> str:
+    """The device a segmenter runs on, validated: its own ``<key>.device`` when set (it wins),
+    else ``device`` (the caller's: ``run.device``), else cpu. ``key``: the segmenter section as
+    the running command spells it (``agent.segmenter_config`` in the ObjectNav commands,
+    ``segmenter`` elsewhere), named in the error. Only a device other than cpu imports torch
+    (the ground-truth segmenters run without it)."""
+    name = (cfg.device or device or "cpu").strip()
+    if name != "cpu":
+        resolve_device(name, f"{key}.device" if cfg.device else "run.device")
+    return name
 
 
 def set_cuda_precision(device, tf32: bool) -> None:

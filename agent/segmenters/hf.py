@@ -18,20 +18,20 @@ from calnav.agent.segmenters.adapter import ModelAdapter
 from calnav.agent.segmenters.base import SegmenterConfig
 
 
-def _load(model_id: str):
+def _load(model_id: str, key: str = "segmenter"):
     try:
         from transformers import AutoImageProcessor, AutoModelForSemanticSegmentation
         from transformers.utils import logging as hf_logging
     except ImportError:
         raise ValueError("segmenter hf needs transformers: pip install 'calnav[hf]'") from None
     if not model_id:
-        raise ValueError("segmenter hf needs segmenter.model: a save_pretrained directory or a hub id")
+        raise ValueError(f"segmenter hf needs {key}.model: a save_pretrained directory or a hub id")
     local = Path(model_id).exists()
     if not local and (model_id.startswith(("/", "./", "../", "~")) or model_id.count("/") > 1):
-        raise FileNotFoundError(f"segmenter.model {model_id} does not exist (a save_pretrained directory, or a hub id "
+        raise FileNotFoundError(f"{key}.model {model_id} does not exist (a save_pretrained directory, or a hub id "
                                 "'org/name' on a machine with a network)")
     if local and not (Path(model_id) / "config.json").is_file():
-        raise FileNotFoundError(f"segmenter.model {model_id} has no config.json: give a directory written by "
+        raise FileNotFoundError(f"{key}.model {model_id} has no config.json: give a directory written by "
                                 "save_pretrained")
     try:
         # quiet in every worker: no weight-loading bar, no note that the PIL backend is used without torchvision
@@ -57,11 +57,11 @@ class HFSegmenter(ModelAdapter):
 
     needs_depth = False
 
-    def __init__(self, name: str, cfg: SegmenterConfig, device: str | None):
-        model, self.processor = _load(cfg.model)
+    def __init__(self, name: str, cfg: SegmenterConfig, device: str | None, key: str = "segmenter"):
+        model, self.processor = _load(cfg.model, key)
         id2label = getattr(model.config, "id2label", None) or {}
         names = tuple(str(id2label[i]) for i in sorted(id2label, key=int)) if id2label else None
-        super().__init__(name, cfg, device, names, k_model=getattr(model.config, "num_labels", None))
+        super().__init__(name, cfg, device, names, k_model=getattr(model.config, "num_labels", None), key=key)
         if cfg.threads > 0:
             torch.set_num_threads(cfg.threads)
         self.model = model.eval().to(self.device)

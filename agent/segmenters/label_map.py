@@ -9,6 +9,10 @@ this file) or a user file:
   header ('#' comment lines first), the calnav class empty for a class that maps to nothing;
 - YAML / JSON: ``{model_class: calnav_class or null, ...}`` in the model's output order.
 
+Each model class is listed once in every format: a key written twice is an error naming it
+(YAML and JSON parsers would silently keep the last, so a model's ``wall`` could become
+``ceiling``).
+
 Combining: the model's logits become probabilities (softmax over the model's K_m classes), the
 probabilities of the model classes mapped to one calnav class are *added* (adding logits would
 be a product of probabilities, an "and" where the model says "or"), and the calnav logits are
@@ -95,12 +99,39 @@ def _read_tsv(path: Path) -> LabelMap:
     return LabelMap(str(path), tuple(names), tuple(targets))
 
 
+class DuplicateClass(ValueError):
+    """A model class written twice in a YAML / JSON label map (both parsers would keep the last
+    silently: a model's ``wall`` quietly becoming ``ceiling``)."""
+
+
+def _unique_pairs(pairs: list[tuple[str, object]]) -> dict:
+    """``json.loads`` object hook: the object as a dict, DuplicateClass for a key given twice."""
+    out: dict = {}
+    for key, value in pairs:
+        if key in out:
+            raise DuplicateClass(f"model class {key!r} is listed twice; give each model class one calnav class")
+        out[key] = value
+    return out
+
+
+def _unique_key_loader():
+    """``common.yaml_keys``' loader raising DuplicateClass (with both lines) for a model class
+    written twice. Built on first use (PyYAML is imported only for YAML maps)."""
+    from calnav.common.yaml_keys import unique_key_loader
+
+    return unique_key_loader(lambda key, first, line: DuplicateClass(
+        f"model class {key!r} is listed twice (lines {first} and {line}); give each model class one calnav class"))
+
+
 def _read_mapping(path: Path) -> LabelMap:
     import yaml
 
     try:
-        data = json.loads(path.read_text(encoding="utf-8")) if path.suffix.lower() == ".json" else \
-            yaml.safe_load(path.read_text(encoding="utf-8"))
+        text = path.read_text(encoding="utf-8")
+        data = json.loads(text, object_pairs_hook=_unique_pairs) if path.suffix.lower() == ".json" else \
+            yaml.load(text, Loader=_unique_key_loader())  # noqa: S506 (a SafeLoader)
+    except DuplicateClass as exc:
+        raise ValueError(f"label map {path}: {exc}") from None
     except (OSError, UnicodeDecodeError, ValueError, yaml.YAMLError) as exc:
         raise ValueError(f"cannot read label map {path}: {str(exc).splitlines()[0]}") from None
     if not isinstance(data, dict) or not all(isinstance(v, (str, type(None))) for v in data.values()):

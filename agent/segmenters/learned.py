@@ -27,8 +27,8 @@ import torch.nn.functional as F
 
 from calnav.common.atomic import atomic_path
 from calnav.common.weights import load_weight_dict
-from calnav.agent.segmenters.base import (WEIGHTS_DIR, BatchSegmenter, SegmenterConfig, check_batch, resolve_device,
-                                          set_cuda_precision)
+from calnav.agent.segmenters.base import (WEIGHTS_DIR, BatchSegmenter, SegmenterConfig, calnav_class_order, check_batch,
+                                          resolve_device, set_cuda_precision)
 from calnav.agent.segmenters.network import NetSpec, SegNet, fuse_batchnorm
 
 WEIGHTS_FORMAT = 1
@@ -61,8 +61,9 @@ def load_weights(path: Path | str, model: str | None = None) -> dict:
 
 def check_weights(path: Path | str, model: str) -> tuple[str, ...]:
     """Validate the weight file ``path`` of ``model`` without keeping the network: readable,
-    for this model, one class name per network output, tensors that fit the network's spec.
-    Returns the class names; FileNotFoundError / ValueError name the file."""
+    for this model, one class name per network output, each a distinct calnav class, tensors
+    that fit the network's spec. Returns the class names in calnav's order (the segmenter's
+    ``class_names``); FileNotFoundError / ValueError name the file."""
     data = load_weights(path, model)
     try:
         spec = NetSpec.from_dict(data["spec"])
@@ -75,7 +76,7 @@ def check_weights(path: Path | str, model: str) -> tuple[str, ...]:
     except (KeyError, TypeError, ValueError, RuntimeError) as exc:  # RuntimeError: tensors of another shape
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise ValueError(f"damaged segmenter weights {path}: {first}") from None
-    return names
+    return calnav_class_order(data["class_names"], f"segmenter weights {path}")[0]
 
 
 def save_weights(net: SegNet, path: Path | str, model: str, class_names, resolution: tuple[int, int],
@@ -119,7 +120,9 @@ class LearnedSegmenter(BatchSegmenter):
         self.weights_path = Path(cfg.weights) if cfg.weights else default_weights_path(name)
         data = load_weights(self.weights_path, name)
         self.meta = dict(data.get("meta", {}))
-        self.class_names = tuple(data["class_names"])
+        # the network's channels matched to calnav's classes by name (None: already calnav's order)
+        self.class_names, self.channels = calnav_class_order(data["class_names"],
+                                                             f"segmenter weights {self.weights_path}")
         self.train_resolution = tuple(int(v) for v in data["resolution"])
         w, h = cfg.resolution
         self.resolution = (int(w), int(h)) if (w, h) != (0, 0) else self.train_resolution
@@ -164,6 +167,8 @@ class LearnedSegmenter(BatchSegmenter):
                 d = F.interpolate(d, size=(nh, nw), mode="nearest")
         x = x.contiguous(memory_format=torch.channels_last)
         logits = self._run(x, d)
+        if self.channels is not None:
+            logits = logits[:, list(self.channels)]
         if logits.shape[-2:] != (h, w):
             logits = F.interpolate(logits, size=(h, w), mode="bilinear", align_corners=False)
         # channels-last logits are already (B, H, W, K) in memory: the permute is free

@@ -20,26 +20,26 @@ import torch
 import torch.nn.functional as F
 
 from calnav.agent.segmenters.adapter import ModelAdapter
-from calnav.agent.segmenters.base import SegmenterConfig
+from calnav.agent.segmenters.base import SegmenterConfig, class_list
 
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)
 
 
-def _session(path: Path, threads: int, device):
+def _session(path: Path, threads: int, device, key: str = "segmenter"):
     try:
         import onnxruntime as ort
     except ImportError:
         raise ValueError("segmenter onnx needs onnxruntime: pip install 'calnav[onnx]'") from None
     if not path.is_file():
-        raise FileNotFoundError(f"segmenter.model {path} is not a file: give the .onnx model file")
+        raise FileNotFoundError(f"{key}.model {path} is not a file: give the .onnx model file")
     options = ort.SessionOptions()
     options.intra_op_num_threads = threads
     providers = ["CPUExecutionProvider"]
     if device.type == "cuda":
         if "CUDAExecutionProvider" not in ort.get_available_providers():
             raise ValueError(f"device {device} asked for, but this onnxruntime has no CUDA provider "
-                             "(pip install onnxruntime-gpu) ; use device=cpu")
+                             f"(pip install onnxruntime-gpu); use {key}.device=cpu")
         providers.insert(0, ("CUDAExecutionProvider", {"device_id": device.index or 0}))
     try:
         return ort.InferenceSession(str(path), options, providers=providers)
@@ -54,19 +54,21 @@ def _static(dim) -> int | None:
 class ONNXSegmenter(ModelAdapter):
     """An ``onnxruntime`` session over ``cfg.model``; see the module docstring."""
 
-    def __init__(self, name: str, cfg: SegmenterConfig, device: str | None):
+    def __init__(self, name: str, cfg: SegmenterConfig, device: str | None, key: str = "segmenter"):
         from calnav.agent.segmenters.base import resolve_device
 
-        dev = resolve_device(device or cfg.device or "cpu")
+        dev = resolve_device(device or cfg.device or "cpu", f"{key}.device")
         self.path = Path(cfg.model)
-        self.session = _session(self.path, max(cfg.threads, 0), dev)
+        self.session = _session(self.path, max(cfg.threads, 0), dev, key)
         meta = self.session.get_modelmeta().custom_metadata_map
         try:
-            names = tuple(json.loads(meta["calnav.class_names"])) if "calnav.class_names" in meta else None
+            names = json.loads(meta["calnav.class_names"]) if "calnav.class_names" in meta else None
             mean = cfg.input_mean or json.loads(meta.get("calnav.input_mean", "null")) or IMAGENET_MEAN
             std = cfg.input_std or json.loads(meta.get("calnav.input_std", "null")) or IMAGENET_STD
         except (TypeError, ValueError) as exc:
             raise ValueError(f"ONNX model {self.path}: bad calnav metadata: {exc}") from None
+        if names is not None:
+            names = class_list(names, f"ONNX model {self.path}: metadata calnav.class_names")
         inputs, output = self.session.get_inputs(), self.session.get_outputs()[0]
         if len(inputs) not in (1, 2) or len(inputs[0].shape) != 4 or len(output.shape) != 4:
             raise ValueError(f"ONNX model {self.path}: expected inputs image (B, 3, H, W) [+ depth (B, 1, H, W)] "
@@ -77,7 +79,7 @@ class ONNXSegmenter(ModelAdapter):
         self.resolution = (w, h) if h and w else (tuple(cfg.resolution) if tuple(cfg.resolution) != (0, 0) else None)
         self.mean = torch.tensor(mean, dtype=torch.float32).view(1, 3, 1, 1) * 255.0
         self.std = torch.tensor(std, dtype=torch.float32).view(1, 3, 1, 1) * 255.0
-        super().__init__(name, cfg, device, names, k_model=_static(output.shape[1]))
+        super().__init__(name, cfg, device, names, k_model=_static(output.shape[1]), key=key)
 
     def model_logits(self, rgb: np.ndarray, depth: np.ndarray | None) -> torch.Tensor:
         x = (torch.from_numpy(rgb).permute(0, 3, 1, 2).float() - self.mean) / self.std

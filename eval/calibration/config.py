@@ -8,7 +8,7 @@ from typing import Any
 
 from calnav.agent.segmenters import check_segmenter_spec
 from calnav.agent.segmenters.base import SegmenterConfig
-from calnav.envs.config import EnvConfig
+from calnav.envs.config import MAX_RESOLUTION_PX, EnvConfig
 from calnav.envs.trajectories import ScanConfig
 from calnav.eval.config import RunConfig, build_dataclass, to_dict
 from calnav.mapping.config import FUSION_NAMES, MappingConfig
@@ -106,8 +106,12 @@ class StudyConfig:
                 raise ValueError(f"study.glfs_variants: name {n!r} must be letters, digits and _ (it names files)")
         if len(set(names)) != len(names):
             raise ValueError(f"study.glfs_variants: names must be unique, got {names}")
-        if self.tau_curve_points < 3 or self.figure_views < 1 or min(self.figure_resolution) < 8:
-            raise ValueError("study.tau_curve_points must be >= 3, figure_views >= 1, figure_resolution >= 8x8")
+        if self.tau_curve_points < 3 or self.figure_views < 1:
+            raise ValueError("study.tau_curve_points must be >= 3 and figure_views >= 1")
+        w, h = self.figure_resolution
+        if not (8 <= w <= MAX_RESOLUTION_PX and 8 <= h <= MAX_RESOLUTION_PX):   # rendered like the sensor's
+            raise ValueError(f"study.figure_resolution must be between 8x8 and {MAX_RESOLUTION_PX}x{MAX_RESOLUTION_PX} "
+                             f"pixels, got {w}x{h}")
         if self.figure_scene < 0 or self.figure_scene >= self.test_scenes:
             raise ValueError(f"study.figure_scene must index a test house, in [0, {self.test_scenes}), "
                              f"got {self.figure_scene}")

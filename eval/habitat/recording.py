@@ -9,6 +9,7 @@ import numpy as np
 
 from calnav.common.habitat_import import import_habitat
 from calnav.envs.measures import StepsAtGoal, TaskState
+from calnav.eval.stats import finite_or_error
 
 habitat = import_habitat()
 
@@ -77,7 +78,7 @@ class RecordingEnv:
         m = self.env.get_metrics()
         ep = self.env.current_episode
         scene = Path(ep.scene_id).name
-        self.on_record({
+        self.on_record(finite_or_error({   # a non-finite metric makes it an error record (eval.stats)
             "index": self.index_of[(scene, ep.episode_id)], "episode_id": f"{scene}:{int(ep.episode_id):03d}",
             "scene": scene, "category": ep.object_category,
             **{ours: float(m[theirs]) for theirs, ours in METRIC_KEYS.items()},
@@ -85,7 +86,7 @@ class RecordingEnv:
             "path_length": self._path, "collisions": self._collisions,
             "steps_at_goal": int(self._at_goal.metric), "stop_reason": "stop" if self._stopped else "max_steps",
             "wall_time_s": round(time.perf_counter() - self._t0, 3), "status": "ok",
-        })
+        }))
         return m
 
 

@@ -16,12 +16,11 @@ def demo_configs(args) -> list:
 
 def main_demo(args, configs) -> None:
     """``configs``: ``demo_configs(args)``, checked by the preflight."""
-    from calnav.envs.episodes import load_split, parse_episode_range
+    from calnav.eval.episodes import episode_indices
     from calnav.eval.objectnav.run import run_objectnav
 
     cfg = configs[0]
-    episodes = load_split(cfg.env.split, cfg.env)
-    indices = list(parse_episode_range(str(args.episodes), len(episodes)))
+    indices = episode_indices(str(args.episodes), cfg.env, cfg.run)
     out = Path(cfg.run.output_dir)
     summary = run_objectnav(cfg, indices, out, force=True, video=1)
     label = f"{cfg.run.agent} ({cfg.agent.segmenter} + {cfg.mapping.fusion})"

@@ -16,7 +16,7 @@ import csv
 import math
 from pathlib import Path
 
-from calnav.eval.stats import METRIC_LABELS
+from calnav.eval.stats import METRIC_LABELS, mean_sem_cell
 
 # Table II column order: SPL first, as in the paper.
 TABLE_METRICS: tuple[str, ...] = ("spl", "success", "softspl", "distance_to_goal")
@@ -53,7 +53,7 @@ def combo_dirname(values: dict[str, str]) -> str:
 
 
 def _cell(s: dict, m: str) -> str:
-    return f"{s[m]:.3f} ({s[m + '_sem']:.3f})"
+    return mean_sem_cell(s, m)
 
 
 def comparison_markdown(keys: list[str], rows: list[tuple[dict[str, str], dict]]) -> str:

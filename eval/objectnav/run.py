@@ -28,7 +28,7 @@ from pathlib import Path
 
 from calnav.eval.config import Config, build_dataclass, load_config, to_dict
 from calnav.eval.results_dir import RECORDS_NAME, AllEpisodesFailed, ResultsDir, writing
-from calnav.eval.stats import failure_modes, format_metrics_table, summarize
+from calnav.eval.stats import failure_modes, finite_or_error, format_metrics_table, summarize
 
 # What --force deletes from a directory that holds another config's results.
 RUN_RESULTS: tuple[str, ...] = (RECORDS_NAME, "summary.json", "plots", "videos", "rerun")
@@ -71,7 +71,7 @@ def run_one_episode(env, agent, index: int, video_dir: Path | None = None, rerun
     extra = {"video": str(video.write())} if video is not None and video.frames else {}
     if recording is not None:
         extra["rerun"] = str(recording.close())
-    return {**extra,
+    return finite_or_error({**extra,   # a non-finite metric makes it an error record (eval.stats)
         "index": index, "episode_id": ep.episode_id, "scene": ep.scene_id, "category": ep.object_category,
         "success": info["success"], "spl": info["spl"], "softspl": info["softspl"],
         "distance_to_goal": info["distance_to_goal"], "geodesic_distance": ep.geodesic_distance,
@@ -79,7 +79,7 @@ def run_one_episode(env, agent, index: int, video_dir: Path | None = None, rerun
         "steps_at_goal": int(info["steps_at_goal"]),
         "stop_reason": "stop" if terminated else "max_steps",
         "wall_time_s": round(time.perf_counter() - t0, 3), "status": "ok",
-    }
+    })
 
 
 @dataclass
@@ -95,34 +95,40 @@ class EpisodeTask:
     rerun_dir: str | None = None
     env_maker: str = ""           # EpisodeJob.env_maker
     env_args: dict = field(default_factory=dict)
+    upto: int | None = None       # the job's episodes lie in 0:upto (the env loads those scenes only)
 
 
-def _make_env(cfg: Config, env_maker: str, env_args: dict):
-    """The job's gym env: calnav's ObjectNav env of ``cfg.env``, or ``env_maker(cfg, **env_args)``."""
+def _make_env(cfg: Config, env_maker: str, env_args: dict, upto: int | None = None):
+    """The job's gym env: calnav's ObjectNav env of ``cfg.env`` holding the split's episodes
+    ``0:upto`` (their scenes only: a worker never generates a scene the run does not need), or
+    ``env_maker(cfg, **env_args)``."""
     import gymnasium as gym
 
     import calnav.envs  # noqa: F401  (registers the env)
+    from calnav.envs.episodes import load_split
 
     if not env_maker:
-        return gym.make("calnav/ObjectNav-v0", split=cfg.env.split, config=cfg.env)
+        episodes = load_split(cfg.env.split, cfg.env, progress=False, upto=upto)
+        return gym.make("calnav/ObjectNav-v0", split=cfg.env.split, config=cfg.env, episodes=episodes)
     import importlib
 
     module, _, function = env_maker.partition(":")
     return getattr(importlib.import_module(module), function)(cfg, **env_args)
 
 
-def _warm_env_agent(cfg_dict: dict, agent_name: str, env_maker: str = "", env_args: dict | None = None):
+def _warm_env_agent(cfg_dict: dict, agent_name: str, env_maker: str = "", env_args: dict | None = None,
+                    upto: int | None = None):
     """This process's env and agent for a config, built once and reused while tasks keep the
     same config (a pool or Ray worker stays warm, as an episode loop would)."""
     from calnav.eval.objectnav.agents import make_agent
 
-    key = json.dumps([cfg_dict, agent_name, env_maker, env_args or {}], sort_keys=True)
+    key = json.dumps([cfg_dict, agent_name, env_maker, env_args or {}, upto], sort_keys=True)
     if _worker_state.get("key") != key:
         if "env" in _worker_state:
             _worker_state["env"].close()
         _worker_state.clear()
         cfg = build_dataclass(Config, cfg_dict)
-        env = _make_env(cfg, env_maker, env_args or {})
+        env = _make_env(cfg, env_maker, env_args or {}, upto)
         _worker_state.update(key=key, env=env, agent=make_agent(agent_name, env, cfg))
     return _worker_state["env"], _worker_state["agent"]
 
@@ -132,7 +138,7 @@ def run_episode_task(task: EpisodeTask) -> dict:
     which hands it back as an error record (``error_record``) so the run keeps going."""
     from calnav.eval.backends import ray_node_id
 
-    env, agent = _warm_env_agent(task.cfg_dict, task.agent, task.env_maker, task.env_args)
+    env, agent = _warm_env_agent(task.cfg_dict, task.agent, task.env_maker, task.env_args, task.upto)
     record = run_one_episode(env, agent, task.index, task.video_dir, task.rerun_dir)
     node = ray_node_id()
     if node is not None:
@@ -231,7 +237,8 @@ def run_jobs(jobs: list[EpisodeJob], force: bool = False, progress: bool = True,
             tasks += feed_order([EpisodeTask(j, cfg_dict, job.cfg.run.agent, i,
                                              str(job.out / "videos") if i in videos else None,
                                              str(job.out / "rerun") if i in recorded else None, job.env_maker,
-                                             job.env_args) for i in job.indices if i not in done], job.cfg)
+                                             job.env_args, max(job.indices) + 1)
+                              for i in job.indices if i not in done], job.cfg)
         total = sum(len(job.indices) for job in jobs)
         name = jobs[0].cfg.run.agent if len(jobs) == 1 else f"{len(jobs)} configs"
 
@@ -274,7 +281,7 @@ def feed_order(tasks: list[EpisodeTask], cfg: Config) -> list[EpisodeTask]:
     others at the end. Order only: each episode's record is the same whatever runs before it."""
     from calnav.envs.episodes import load_split
 
-    episodes = load_split(cfg.env.split, cfg.env)
+    episodes = load_split(cfg.env.split, cfg.env, upto=max(t.index for t in tasks) + 1) if tasks else []
     houses: dict[str, int] = {}
     for t in tasks:
         houses.setdefault(episodes[t.index].scene_id, len(houses))
@@ -308,10 +315,9 @@ def objectnav_configs(args) -> list[Config]:
 
 def _job(args, cfg: Config, out: Path | None) -> EpisodeJob:
     """``cfg``'s job: --episodes resolved on its split, writing to ``out`` (default: run.output_dir)."""
-    from calnav.envs.episodes import load_split, parse_episode_range
+    from calnav.eval.episodes import episode_indices
 
-    episodes = load_split(cfg.env.split, cfg.env)
-    indices = list(parse_episode_range(str(args.episodes), len(episodes)))
+    indices = list(episode_indices(str(args.episodes), cfg.env, cfg.run))
     return EpisodeJob(cfg, indices, Path(out or cfg.run.output_dir), getattr(args, "video", 0), getattr(args, "rerun", 0))
 
 

@@ -152,14 +152,15 @@ def rotated_setup(env_cfg, episodes: list, yaw_deg: float, scene_dir: Path):
     return cfg, [rotate_episode(ep, yaw) for ep in episodes]
 
 
-def make_env(cfg, variant: PoseVariant, work_dir: Path):
-    """The gym env of ``cfg.env``'s split for ``variant`` (rotated houses under work_dir)."""
+def make_env(cfg, variant: PoseVariant, work_dir: Path, upto: int | None = None):
+    """The gym env of ``cfg.env``'s split for ``variant`` (rotated houses under work_dir);
+    ``upto``: the episodes ``0:upto`` are enough (``envs.episodes.load_split``)."""
     import gymnasium as gym
 
     import calnav.envs  # noqa: F401  (registers the env)
     from calnav.envs.episodes import load_split
 
-    env_cfg, episodes = cfg.env, load_split(cfg.env.split, cfg.env, progress=False)
+    env_cfg, episodes = cfg.env, load_split(cfg.env.split, cfg.env, progress=False, upto=upto)
     if variant.house_yaw_deg:
         env_cfg, episodes = rotated_setup(env_cfg, episodes, variant.house_yaw_deg,
                                           work_dir / f"houses_{variant.house_yaw_deg:g}deg")
@@ -172,10 +173,10 @@ STUDY_RESULTS = ("episodes.jsonl", "summary.json", "summary.csv", "summary.png")
 VARIANT_ENV = "calnav.eval.objectnav.start_pose:variant_env"   # the episode runner's env maker for a variant
 
 
-def variant_env(cfg, variant: dict, work_dir: str):
+def variant_env(cfg, variant: dict, work_dir: str, upto: int | None = None):
     """``make_env`` for the episode runner (``eval.objectnav.run``): the variant as a plain dict
     (picklable for any backend)."""
-    return make_env(cfg, PoseVariant(**{**variant, "offset_m": tuple(variant["offset_m"])}), Path(work_dir))
+    return make_env(cfg, PoseVariant(**{**variant, "offset_m": tuple(variant["offset_m"])}), Path(work_dir), upto)
 
 
 def _claim_variant_dir(path: Path, variant: PoseVariant, force: bool) -> None:
@@ -215,7 +216,7 @@ def run_start_pose_study(cfg, indices: list[int], variants: list[PoseVariant], o
     from calnav.eval.objectnav.run import EpisodeJob, run_jobs
     from calnav.eval.results_dir import ResultsDir, writing
 
-    names = [v.name for v in variants]
+    names, upto = [v.name for v in variants], max(indices) + 1
     if len(set(names)) != len(names):
         raise ValueError(f"frame variants need distinct names, got {names}")
     with ExitStack() as stack:
@@ -223,12 +224,12 @@ def run_start_pose_study(cfg, indices: list[int], variants: list[PoseVariant], o
         work = Path(out) if out else Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="calnav_start_pose_")))
         for v in variants:   # write rotated houses once, before the workers start
             if v.house_yaw_deg:
-                rotated_setup(cfg.env, load_split(cfg.env.split, cfg.env, progress=False), v.house_yaw_deg,
+                rotated_setup(cfg.env, load_split(cfg.env.split, cfg.env, progress=False, upto=upto), v.house_yaw_deg,
                               work / f"houses_{v.house_yaw_deg:g}deg")
         for v in variants:   # a variant's directory holds that definition's episodes only
             _claim_variant_dir(work / v.name, v, force)
         jobs = [EpisodeJob(cfg, list(indices), work / v.name, env_maker=VARIANT_ENV,
-                           env_args={"variant": asdict(v), "work_dir": str(work)}) for v in variants]
+                           env_args={"variant": asdict(v), "work_dir": str(work), "upto": upto}) for v in variants]
         summaries = run_jobs(jobs, force=force, progress=progress, plots=False)
         summary = {v.name: {"success": s["success"], "successes": int(round(s["success"] * s["count"])),
                             "spl": s["spl"], "n": s["count"], "success_sem": s["success_sem"],
@@ -276,7 +277,7 @@ def map_stats(agent) -> dict[str, float]:
     from calnav.agent.semantic_map import MapChannels
 
     st, cfg = agent.state, agent.cfg
-    goal = st.semantic[agent.goal_id]
+    goal = st.semantic[agent.goal_channel]
     det = agent.info.detection if agent.info is not None else None
     return {**{f"{c.name.lower()}_cells": int(st.channels[c].sum()) for c in MapChannels},
             "goal_cells": int((goal > 0).sum()), "goal_above_threshold": int((goal >= cfg.goal_threshold).sum()),
@@ -334,11 +335,11 @@ def start_pose_configs(args) -> list:
 def main_start_pose(args, configs) -> None:
     """`calnav start-pose`: the PEANUT agent on ``--episodes`` under each ``--variants`` frame.
     ``configs``: ``start_pose_configs(args)``, checked by the preflight."""
-    from calnav.envs.episodes import load_split, parse_episode_range
+    from calnav.eval.episodes import episode_indices
 
     variants = parse_variants(args.variants)
     cfg = configs[0]
-    indices = list(parse_episode_range(str(args.episodes), len(load_split(cfg.env.split, cfg.env))))
+    indices = episode_indices(str(args.episodes), cfg.env, cfg.run)
     out = Path(args.output)
     summary = run_start_pose_study(cfg, indices, variants, out, force=args.force)
     print("| variant | Success | SPL | N |\n|---|---|---|---|")

@@ -152,8 +152,7 @@ def run_tune(config_path: str | None, overrides: list[str], episodes: str, thres
     up to this many extra thresholds (``edge_extension``) while the best one is on an edge.
 
     Returns (rows, best row); every row holds the tune.csv columns."""
-    from calnav.envs.episodes import load_split, parse_episode_range
-
+    from calnav.eval.episodes import episode_indices
     from calnav.eval.objectnav.run import EpisodeJob, run_jobs
 
     if metric not in TUNE_METRICS:
@@ -178,7 +177,7 @@ def run_tune(config_path: str | None, overrides: list[str], episodes: str, thres
     for t in ts:   # every grid point's config is checked before the output directory is touched
         for a in areas:
             point_config(t, a)
-    indices = parse_episode_range(str(episodes), len(load_split(base.env.split, base.env)))
+    indices = episode_indices(str(episodes), base.env, base.run, progress)
     out = Path(out)
     rows: list[dict] = []
 

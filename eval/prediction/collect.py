@@ -30,6 +30,7 @@ class CollectTask:
     index: int
     steps: int
     every: int
+    upto: int | None = None   # the run's episodes lie in 0:upto (a worker loads those scenes only)
 
 
 def episode_file(out: Path, index: int) -> Path:
@@ -75,7 +76,7 @@ def collect_episode(task: CollectTask) -> dict:
     from calnav.eval.objectnav.run import _warm_env_agent
 
     cfg = build_dataclass(Config, task.cfg_dict)
-    env, agent = _warm_env_agent(task.cfg_dict, "peanut")
+    env, agent = _warm_env_agent(task.cfg_dict, "peanut", upto=task.upto)
     goals = goal_categories()
     spec = PredictorSpec(class_names=tuple(agent.class_names), goal_categories=goals)
     obs, _ = env.reset(options={"episode_index": task.index})
@@ -117,16 +118,16 @@ def main_collect_maps(args, configs) -> None:
     from calnav.common.npz import save_versioned_npz
     from calnav.eval.runner import raise_failures, run_tasks
     from calnav.eval.config import to_dict
-    from calnav.envs.episodes import load_split, parse_episode_range
+    from calnav.eval.episodes import episode_indices
 
     cfg = configs[0]
     if args.steps < 1 or not 1 <= args.every <= args.steps:
         raise ValueError(f"--steps must be >= 1 and --every in [1, --steps], got {args.steps} / {args.every}")
     out = Path(args.output)
-    indices = list(parse_episode_range(str(args.episodes), len(load_split(cfg.env.split, cfg.env))))
+    indices = episode_indices(str(args.episodes), cfg.env, cfg.run)
     with ResultsDir(out, cfg, force=args.force, discard=("episodes",), files=()):
         todo = [i for i in indices if not episode_file(out, i).exists()]
-        tasks = [CollectTask(to_dict(cfg), i, args.steps, args.every) for i in todo]
+        tasks = [CollectTask(to_dict(cfg), i, args.steps, args.every, max(indices) + 1) for i in todo]
 
         def save(task: CollectTask, res: dict) -> None:
             save_versioned_npz(episode_file(out, task.index), {k: res[k] for k in ("inputs", "targets", "steps")},

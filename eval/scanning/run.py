@@ -86,9 +86,31 @@ def markdown(means: list[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def parse_splits(text: str) -> list[str]:
+    """The splits of ``--splits`` ('val,test'), each once, in order; ValueError naming the valid
+    splits when it names none (an empty report is no answer) or an unknown one."""
+    from calnav.envs.scenes import SPLITS
+
+    names = list(dict.fromkeys(s.strip() for s in str(text).split(",") if s.strip()))
+    if not names:
+        raise ValueError(f"--splits {text!r} names no split; give a comma-separated list of: {', '.join(SPLITS)}")
+    unknown = [s for s in names if s not in SPLITS]
+    if unknown:
+        raise ValueError(f"--splits: unknown split {', '.join(map(repr, unknown))}; valid splits: {', '.join(SPLITS)}")
+    return names
+
+
 def scan_houses_configs(args) -> list:
-    """The config ``calnav scan-houses`` runs: the given one with ``env.dataset.style=scanned``."""
-    return [load_config(args.config, [*args.overrides, "env.dataset.style=scanned"])]
+    """The config ``calnav scan-houses`` runs: the given one with ``env.dataset.style=scanned``;
+    ``--splits`` must name splits that hold houses under it."""
+    splits = parse_splits(args.splits)
+    cfg = load_config(args.config, [*args.overrides, "env.dataset.style=scanned"])
+    for split in splits:
+        count = getattr(cfg.env.dataset, f"{split}_scenes")
+        if count < 1:
+            raise ValueError(f"--splits {split}: env.dataset.{split}_scenes is {count}, so the split has no houses "
+                             "to scan")
+    return [cfg]
 
 
 def main_scan_houses(args, configs) -> None:
@@ -98,9 +120,9 @@ def main_scan_houses(args, configs) -> None:
     from calnav.eval.runner import raise_failures, run_tasks
 
     cfg = configs[0]
-    splits = [s for s in str(args.splits).split(",") if s]
+    splits = parse_splits(args.splits)   # none, or an unknown one: refused by scan_houses_configs already
     ids = []
-    for split in splits:   # an unknown split is a one-line error here, before anything is written
+    for split in splits:
         ids += split_scene_ids(split, cfg.env.dataset)
     if args.houses is not None:
         if args.houses < 1:

@@ -39,7 +39,7 @@ import numpy as np
 
 from calnav.agent.segmenters.base import SegmenterConfig
 from calnav.common.atomic import atomic_path
-from calnav.envs.config import EnvConfig
+from calnav.envs.config import MAX_RESOLUTION_PX, EnvConfig
 from calnav.envs.semantics import STRUCTURE_CLASSES as STRUCTURE_NAMES
 from calnav.eval.config import RunConfig
 
@@ -73,8 +73,9 @@ class SegDataConfig:
             if not 0 <= getattr(self, key) <= 1:   # also refuses NaN
                 raise ValueError(f"data.{key} must be in [0, 1], got {getattr(self, key)}")
         w, h = self.resolution
-        if w < 16 or h < 16:
-            raise ValueError(f"data.resolution must be at least 16x16, got {w}x{h}")
+        if not (16 <= w <= MAX_RESOLUTION_PX and 16 <= h <= MAX_RESOLUTION_PX):   # rendered like the sensor's
+            raise ValueError(f"data.resolution must be between 16x16 and {MAX_RESOLUTION_PX}x{MAX_RESOLUTION_PX} "
+                             f"pixels, got {w}x{h}")
 
 
 @dataclass

@@ -32,7 +32,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from calnav.agent.segmenters.base import resolve_device
+from calnav.agent.segmenters.base import resolve_device, segmenter_device
 from calnav.agent.segmenters.learned import LEARNED_MODELS, default_weights_path, save_weights
 from calnav.agent.segmenters.network import NetSpec, SegNet, count_parameters
 from calnav.common.atomic import atomic_path
@@ -177,7 +177,7 @@ def train(cfg: SegmenterExperimentConfig, model: str, output: Path | str, resume
     if model not in LEARNED_MODELS:
         raise ValueError(f"cannot train {model!r}; trainable models: {', '.join(LEARNED_MODELS)}")
     tc, seed = cfg.train, int(cfg.run.seed)
-    device = resolve_device(cfg.segmenter.device or cfg.run.device)
+    device = resolve_device(segmenter_device(cfg.segmenter, cfg.run.device))   # checked, the key named
     if tc.threads > 0:
         torch.set_num_threads(tc.threads)
     output = Path(output)

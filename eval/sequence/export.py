@@ -13,11 +13,11 @@ Default: house ``house_val_0000``, its calibration scan (``configs/calibrate_map
 """
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 
+from calnav.common.atomic import write_json_atomic
 from calnav.mapping.sequences import SEMANTIC_OFFSET
 
 DEFAULT_SCENE = "house_val_0000"
@@ -128,8 +128,8 @@ def write_ground_truth(root, scene_name: str, vertices, triangles, tri_class, cl
     """``<scene>_vh_clean_2.labels.ply`` (densified) and ``label_map.json`` under ``root``."""
     v, t, vc = densify(vertices, triangles, tri_class, max_edge_m)
     path = write_labels_ply(Path(root) / f"{scene_name}_vh_clean_2.labels.ply", v, t, vc)
-    (Path(root) / "label_map.json").write_text(json.dumps({str(i + SEMANTIC_OFFSET): n for i, n in enumerate(class_names)},
-                                                          indent=1))
+    write_json_atomic(Path(root) / "label_map.json", {str(i + SEMANTIC_OFFSET): n for i, n in enumerate(class_names)},
+                      indent=1)
     return path
 
 

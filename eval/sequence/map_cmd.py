@@ -15,7 +15,6 @@ the labelled mesh). Every input is checked before anything is written.
 """
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -134,15 +133,43 @@ def main_map(args, configs: list[MapSequenceConfig]) -> None:
     results_dir.check()   # refused now rather than after the fusion, and nothing written yet
     # every frame is read (and its problems named) while fusing in memory, before anything is written
     res = map_sequence(seq, source, cfg.mapping, progress=True, vmap=vmap, frame_log=frame_log)
+    coords, probs = res.vmap.voxels()
+    labels = check_map(seq, res, cfg, coords, ply, gt)   # an empty or unscorable map is refused, unwritten
     with results_dir:
         for name in MAP_FILES:
             (out / name).unlink(missing_ok=True)
         with writing(out):
-            _write_results(out, cfg, seq, res, names, ply, gt, args, frame_log)
+            _write_results(out, cfg, seq, res, names, ply, gt, args, coords, probs, labels, frame_log)
 
 
-def _write_results(out: Path, cfg, seq, res: MappedSequence, names, ply, gt, args, frame_log=None) -> None:
-    coords, probs = res.vmap.voxels()
+def check_map(seq: Sequence, res: MappedSequence, cfg: MapSequenceConfig, coords: np.ndarray, ply, gt
+              ) -> np.ndarray | None:
+    """The ground-truth label of each voxel ((N,) int, -1 = none within
+    ``sequence.label_distance_m``; None without a labelled mesh), after refusing (ValueError,
+    one line) a map that holds no voxel, or, with a labelled mesh, no labelled voxel: its
+    metrics would be NaN, not numbers, and its files a map of nothing."""
+    from calnav.mapping.ground_truth import nearest_vertex_labels
+
+    m = cfg.mapping
+    if len(coords) == 0:
+        raise ValueError(f"{seq.name}: the map holds no voxels after fusing {res.frames} frames "
+                         f"(mapping.voxel_size_m {m.voxel_size_m:g} m, depth {m.depth_min_m:g}-{m.depth_max_m:g} m): "
+                         "no surface was reconstructed, nothing is written; check mapping.voxel_size_m and "
+                         "mapping.depth_min_m / depth_max_m against the recording's scale and depth")
+    if gt is None:
+        return None
+    labels = nearest_vertex_labels(coords, *gt, cfg.sequence.label_distance_m)
+    if not (labels >= 0).any():
+        raise ValueError(f"{seq.name}: none of the map's {len(coords)} voxels lies within sequence.label_distance_m "
+                         f"({cfg.sequence.label_distance_m:g} m) of a labelled vertex of {ply}: there is nothing to "
+                         "score, nothing is written; check that the mesh is this sequence's (same frame)")
+    return labels
+
+
+def _write_results(out: Path, cfg, seq, res: MappedSequence, names, ply, gt, args, coords: np.ndarray,
+                   probs: np.ndarray, labels: np.ndarray | None, frame_log=None) -> None:
+    from calnav.common.atomic import write_json_atomic
+
     meta = {"sequence": str(seq.root), "layout": seq.layout, "voxel_size_m": cfg.mapping.voxel_size_m,
             "fusion": cfg.mapping.fusion, "frames": res.frames, "skipped_frames": res.skipped}
     write_map(out, coords, probs, names, meta)
@@ -150,9 +177,7 @@ def _write_results(out: Path, cfg, seq, res: MappedSequence, names, ply, gt, arg
                "voxels": int(len(coords)), "segmenter": args.segmenter or "", "logits": args.logits or ""}
     if gt is not None:
         from calnav.eval.calibration.plots import plot_reliability, plot_reliability_per_class
-        from calnav.mapping.ground_truth import nearest_vertex_labels
 
-        labels = nearest_vertex_labels(coords, *gt, cfg.sequence.label_distance_m)
         stats = score(probs, labels, len(names))
         results.update({"labels_ply": str(ply), "labelled_voxels": int((labels >= 0).sum()), "miou": stats.miou(),
                         "ece": stats.ece(), "tl_ece": stats.tl_ece(), "mece": stats.mece(), "brier": stats.brier()})
@@ -164,7 +189,7 @@ def _write_results(out: Path, cfg, seq, res: MappedSequence, names, ply, gt, arg
 
         write_map_recording(out / "map.rrd", frame_log, coords, probs, names, cfg.mapping.voxel_size_m,
                             labels=labels if gt is not None else None, ply=ply, gt=gt)
-    (out / "results.json").write_text(json.dumps(results, indent=1) + "\n")
+    write_json_atomic(out / "results.json", results, indent=1)
     print(f"{seq.name}: {res.frames} frames fused ({len(res.skipped)} skipped: invalid pose) in {res.seconds:.1f} s "
           f"({results['frames_per_s']:.1f} frames/s), {len(coords)} voxels")
     if gt is not None:

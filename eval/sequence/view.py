@@ -12,7 +12,10 @@ import os
 import shlex
 import subprocess
 import sys
+import zipfile
 from pathlib import Path
+
+from calnav.common.rerun_io import check_recording
 
 MAX_LISTED = 50   # recordings of one results directory handed to one viewer
 
@@ -25,12 +28,15 @@ def recordings(path: Path) -> list[Path]:
     if path.is_dir():
         found = sorted(path.glob("*.rrd")) + sorted((path / "rerun").glob("*.rrd"))
         if found:
+            for rrd in found[:MAX_LISTED]:
+                check_recording(rrd)
             return found[:MAX_LISTED]
         if (path / "map.npz").is_file():
             return [npz_recording(path / "map.npz")]
         raise ValueError(f"{path} holds no recording (*.rrd, rerun/*.rrd) and no map.npz; make one with "
                          "calnav objectnav --rerun N or calnav map ... --rerun")
     if path.suffix == ".rrd":
+        check_recording(path)
         return [path]
     if path.suffix == ".npz":
         return [npz_recording(path)]
@@ -47,7 +53,13 @@ def npz_recording(npz: Path) -> Path:
 
     out = npz.with_suffix(".rrd")
     if out.exists() and out.stat().st_mtime >= npz.stat().st_mtime:
+        check_recording(out)
         return out
+    # an .npz is a zip archive: anything else would reach numpy's pickle reader, whose error
+    # advises allow_pickle (never right for a map file)
+    if not zipfile.is_zipfile(npz):
+        raise ValueError(f"{npz} is not a calnav map: not an .npz (zip) archive; make one with calnav map ... "
+                         "--output DIR (DIR/map.npz)")
     arrays, meta = load_versioned_npz(npz, MAP_FORMAT_VERSION, "calnav map file", error=ValueError)
     names = list(meta.get("class_names", []))
     if not names or "centres" not in arrays or "probs" not in arrays or arrays["probs"].shape[1:] != (len(names),):

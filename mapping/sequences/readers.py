@@ -11,6 +11,7 @@ from typing import Iterator, Literal
 import cv2
 import numpy as np
 
+from calnav.common.ranges import Range, check_ranges
 from calnav.mapping import frame_geometry as fg
 
 LayoutName = Literal["scannet", "7scenes"]
@@ -20,6 +21,15 @@ SEVEN_EXPECTED = "frame-NNNNNN.color.png|jpg, frame-NNNNNN.depth.png, frame-NNNN
 SEVEN_FRAME = re.compile(r"^frame-(\d+)\.depth\.png$")
 VOID = -1
 SEMANTIC_OFFSET = 1   # semantic PNGs store class id + 1 (0 = void) in uint16
+
+
+# Size-like keys of a recording's reading (``sequence``), and why their bounds: depth is cut
+# within 100 m (beyond any indoor sensor; 0 = no cut), and a voxel's label comes from a mesh
+# vertex at most 1 m away (farther is another object: real meshes are denser than that).
+SEQUENCE_RANGES = {
+    "depth_trunc_m": Range(0.0, 100.0, "metres"),
+    "label_distance_m": Range(0.0, 1.0, "metres", lo_open=True),
+}
 
 
 @dataclass
@@ -39,12 +49,11 @@ class SequenceConfig:
     def __post_init__(self) -> None:
         if not self.depth_scale > 0:
             raise ValueError(f"sequence.depth_scale must be > 0, got {self.depth_scale}")
-        if self.depth_trunc_m < 0 or self.max_frames < 0:
-            raise ValueError("sequence.depth_trunc_m and sequence.max_frames must be >= 0")
+        check_ranges(self, "sequence", SEQUENCE_RANGES)
+        if self.max_frames < 0:
+            raise ValueError(f"sequence.max_frames must be >= 0, got {self.max_frames}")
         if self.frame_stride < 1:
             raise ValueError(f"sequence.frame_stride must be >= 1, got {self.frame_stride}")
-        if not self.label_distance_m > 0:
-            raise ValueError(f"sequence.label_distance_m must be > 0, got {self.label_distance_m}")
 
 
 @dataclass

@@ -69,7 +69,7 @@ def test_mapped_probabilities_are_the_matrix_product(k_model, seed):
     names = tuple(f"m{i}" for i in range(k_model))
     z = rng.normal(0, 4, (2, k_model, 3, 4)).astype(np.float32)
     lm = LabelMap("t", names, targets)
-    adapter = FixedLogits(z, SegmenterConfig(), names)
+    adapter = FixedLogits(z, SegmenterConfig(), CALNAV[:k_model])   # names of no account: the matrix is set below
     adapter.matrix = torch.from_numpy(mapping_matrix(lm, CALNAV))
     out = adapter.segment_batch(np.zeros((2, 3, 4, 3), np.uint8))
     pm = torch.softmax(torch.from_numpy(z), 1).permute(0, 2, 3, 1).numpy()
@@ -115,6 +115,10 @@ def test_user_files_in_three_formats_agree(tmp_path):
     ("model\tcalnav\n0\ta\tchair\n", ".tsv", "header"),
     ("id\tmodel_class\tcalnav_class\n1\ta\tchair\n", ".tsv", "row 1 must be '0"),
     ("id\tmodel_class\tcalnav_class\n0\ta\tchair\n1\ta\tbed\n", ".tsv", "model class 'a' is listed twice"),
+    # YAML and JSON parsers keep the last of two equal keys: a model's wall would become ceiling
+    ("wall: wall\nfloor: floor\nwall: ceiling\n", ".yaml", r"model class 'wall' is listed twice \(lines 1 and 3\)"),
+    ("{wall: wall, wall: ceiling}\n", ".yaml", "model class 'wall' is listed twice"),
+    ('{"wall": "wall", "floor": "floor", "wall": "ceiling"}', ".json", "model class 'wall' is listed twice"),
     ("- a\n- b\n", ".yaml", "must be a mapping"),
     ("{bad json", ".json", "cannot read label map"),
     ("a: chair\n", ".csv", "unknown format '.csv'"),
@@ -156,3 +160,32 @@ def test_model_class_names_are_compared_stripped(tmp_path):
     z[0, 0] = 5.0
     p = _probs(FixedLogits(z, SegmenterConfig(label_map=str(path)), ("bed ", "sky")), 1, 1)
     assert p[..., CALNAV.index("bed")] > 0.9
+
+
+# ------------------------------------------------------------ a model's own classes, by name
+def test_model_classes_without_a_map_are_matched_to_calnav_by_name():
+    """A model that predicts calnav's classes in another order: its channels are put in calnav's
+    order by name, so its logits are those of the same model in calnav's order."""
+    rng = np.random.default_rng(3)
+    z = rng.normal(0, 2, (1, len(CALNAV), 3, 4)).astype(np.float32)
+    in_order = FixedLogits(z, SegmenterConfig(), CALNAV)
+    backwards = FixedLogits(z[:, ::-1].copy(), SegmenterConfig(), CALNAV[::-1])
+    assert in_order.class_names == backwards.class_names == CALNAV
+    np.testing.assert_array_equal(backwards.segment(np.zeros((3, 4, 3), np.uint8)),
+                                  in_order.segment(np.zeros((3, 4, 3), np.uint8)))
+    some = ("wall", "chair", "floor")   # a model of some calnav classes keeps them, in calnav's order
+    part = FixedLogits(z[:, :3], SegmenterConfig(), some)
+    assert part.class_names == ("chair", "floor", "wall") and part.channels == (1, 2, 0)
+
+
+@pytest.mark.parametrize("names,match", [
+    ((*CALNAV[:-1], "wall"), "class_names lists 'wall' more than once; every output channel needs its own class; "
+                             "valid: chair, bed"),
+    ((*CALNAV, "sky", "person"), "'sky', 'person' are not calnav classes; valid: chair, bed, .*; map the model's "
+                                 r"classes with segmenter.label_map \(ade20k"),
+    ("chair", "class_names must be a list of class names, got the string 'chair'"),
+    ((*CALNAV[:-1], 7), "class_names must be strings, got 7"),
+])
+def test_model_class_lists_that_cannot_be_matched_are_refused(names, match):
+    with pytest.raises(ValueError, match=match):
+        FixedLogits(np.zeros((1, len(names), 1, 1)), SegmenterConfig(), names)

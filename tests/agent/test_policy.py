@@ -63,6 +63,24 @@ def test_agent_finds_goal_in_small_house(small_setup):
     assert info["steps"] < MAX_STEPS, info["steps"]
 
 
+def test_the_goal_channel_is_found_by_name(small_setup):
+    """objectgoal ids index calnav's goal categories; the goal's map channel is where its name
+    sits in the segmenter's classes (here a plugin of every calnav class but bed: plant, id 2,
+    is channel 1; indexing the segmenter's list by the id would give toilet)."""
+    import dataclasses
+
+    from calnav.agent.policy import PeanutAgent
+
+    cfg, env = small_setup
+    cfg = dataclasses.replace(cfg, agent=dataclasses.replace(cfg.agent, segmenter="tests.agent.segmenter_plugins:no_bed"))
+    agent = PeanutAgent(cfg)
+    obs, _ = env.reset(options={"episode_index": 0})
+    agent.reset({**obs, "objectgoal": np.array([2])})
+    assert (agent.goal_name, agent.goal_channel, agent.class_names[agent.goal_channel]) == ("plant", 1, "plant")
+    with pytest.raises(ValueError, match="the goal 'bed' is not among the segmenter's classes"):
+        agent.reset({**obs, "objectgoal": np.array([1])})
+
+
 def test_agent_reads_only_habitat_observations(small_setup):
     """The same actions from Habitat's keys alone (+ semantic for gt) as from the full
     observation: no decision depends on the privileged camera_pose / camera_intrinsics."""

@@ -104,3 +104,22 @@ def test_near_explored_is_a_square_of_the_given_radius():
     e[4, 4] = True
     near = near_explored(e, 2)
     assert near[2:7, 2:7].all() and near.sum() == 25
+
+
+def test_weights_holding_nan_are_refused_naming_the_file(tmp_path):
+    """Predictor weights with a NaN (or inf) tensor load and run but predict NaN everywhere, so the
+    prediction agent would quietly act as the frontier agent: they are refused when loaded, by
+    the checks (the preflight's check_predictor) and by Predictor itself."""
+    from calnav.agent.prediction import Predictor
+
+    net = PredictorNet(SPEC).eval()
+    for bad in (float("nan"), float("inf")):
+        with torch.no_grad():
+            next(net.parameters()).fill_(bad)
+        path = save_predictor(net, tmp_path / "nan.pt", {"command": "test"})
+        message = (rf"^predictor weights {path} hold NaN or inf \(tensor '[\w.]+'\); create them again with: "
+                   rf"calnav train-predictor --data DIR --output {path}$")
+        with pytest.raises(ValueError, match=message):
+            check_predictor(path, CLASSES, GOALS, 0.05)
+        with pytest.raises(ValueError, match=message):
+            Predictor(path)

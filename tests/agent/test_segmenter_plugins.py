@@ -87,6 +87,12 @@ def test_import_path_plugin_gives_the_builtins_logits_and_episodes(tmp_path):
     (f"{PLUGINS}:nan_logits", "returned non-finite logits"),
     (f"{PLUGINS}:no_tv", "predicts no tv_monitor"),
     (f"{PLUGINS}:nyu40_constant", "predicts no plant .*label map nyu40: map a model class to each"),
+    # class lists that cannot be matched to calnav's classes by name
+    (f"{PLUGINS}:duplicate_classes", "class_names lists 'wall' more than once; every output channel needs its own "
+                                     "class; valid: chair, bed"),
+    (f"{PLUGINS}:unknown_classes", "'sky', 'person' are not calnav classes; valid: chair, bed, .*; map the model's "
+                                   "classes with agent.segmenter_config.label_map"),
+    (f"{PLUGINS}:string_classes", "class_names must be a list of class names, got the string 'chair'"),
     ("segformer", "unknown segmenter 'segformer'; valid: gt, noisy, learned_rgb, learned_rgbd, hf, onnx"),
 ])
 def test_bad_plugins_fail_in_one_line_before_anything_is_written(tmp_path, capsys, spec, message):
@@ -96,6 +102,56 @@ def test_bad_plugins_fail_in_one_line_before_anything_is_written(tmp_path, capsy
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1, err
     assert re.search(message, err), err
+    assert not out.exists()
+
+
+def test_a_plugin_in_another_class_order_gives_the_same_episodes(tmp_path):
+    """learned_rgb behind a plugin that lists its classes and channels in reverse: matched to
+    calnav's classes by name, its logits, goal channels and episodes are learned_rgb's (the goal's
+    channel used to be looked up by the task's category id in the plugin's list)."""
+    plugin, builtin = make_segmenter(f"{PLUGINS}:reversed_learned_rgb"), make_segmenter("learned_rgb")
+    assert plugin.class_names == builtin.class_names
+    frame = np.random.default_rng(4).integers(0, 256, (48, 64, 3), dtype=np.uint8)
+    np.testing.assert_array_equal(plugin(frame), builtin(frame))
+    assert _objectnav(tmp_path / "plugin", f"agent.segmenter={PLUGINS}:reversed_learned_rgb") == 0
+    assert _objectnav(tmp_path / "builtin", "agent.segmenter=learned_rgb") == 0
+    a, b = read_records(tmp_path / "plugin"), read_records(tmp_path / "builtin")
+    assert len(a) == 2 and all(r["status"] == "ok" for r in a.values())
+    assert_same_records(a, b, tol=1e-9)
+
+
+def test_a_plugin_cannot_change_the_frame_it_segments():
+    """A plugin that writes into its rgb and depth (in-place preprocessing) gets copies: the
+    caller's frame -- the agent's depth, which the map fuses next -- stays as it was."""
+    rgb = np.random.default_rng(5).integers(0, 256, (48, 64, 3), dtype=np.uint8)
+    depth = np.linspace(0.5, 4.0, 48 * 64, dtype=np.float32).reshape(48, 64)
+    rgb0, depth0 = rgb.copy(), depth.copy()
+    out = make_segmenter(f"{PLUGINS}:mutating_learned_rgbd")(rgb, depth)
+    np.testing.assert_array_equal(rgb, rgb0)
+    np.testing.assert_array_equal(depth, depth0)
+    np.testing.assert_array_equal(out, make_segmenter("learned_rgbd")(rgb0, depth0))
+
+
+@pytest.mark.parametrize("device,message", [
+    ("tpu", "agent.segmenter_config.device='tpu' is not a torch device"),
+    ("meta", "agent.segmenter_config.device='meta' is not supported; use 'cpu', 'cuda' or 'cuda:N'"),
+    ("cuda:99", "agent.segmenter_config.device='cuda:99' requested but (CUDA is not available|only [0-9]+ CUDA)"),
+])
+def test_the_segmenters_own_device_is_checked_before_anything_is_written(tmp_path, capsys, device, message):
+    out = tmp_path / "out"
+    assert _objectnav(out, "agent.segmenter=learned_rgb", f"agent.segmenter_config.device={device}") == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and re.search(message, err), err
+    assert not out.exists()
+
+
+def test_the_calibration_study_needs_every_calnav_class(tmp_path, capsys):
+    """Its maps are scored against labels of every calnav class: a plugin that predicts fewer is
+    refused before the study writes anything (it used to fail once a house was scanned)."""
+    out = tmp_path / "study"
+    assert main(["calibrate-map", "--output", str(out), f"study.segmenters=[{PLUGINS}:no_bed]"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and f"study.segmenters: segmenter {PLUGINS}:no_bed predicts no bed" in err, err
     assert not out.exists()
 
 
@@ -181,9 +237,13 @@ def test_hf_segformer_with_the_ade20k_map(hf_dir, sequence, tmp_path):
 
 def test_hf_errors(hf_dir, tmp_path, capsys):
     for overrides, message in [
-        (["agent.segmenter_config.model=/nonexistent/segformer"], "segmenter.model /nonexistent/segformer does not exist"),
-        ([f"agent.segmenter_config.model={tmp_path}"], "has no config.json"),
-        ([f"agent.segmenter_config.model={hf_dir}"], "segmenter hf predicts no tv_monitor .*with segmenter.label_map"),
+        # the keys as objectnav spells them (agent.segmenter_config.*, not the segmenter section's)
+        (["agent.segmenter_config.model=/nonexistent/segformer"],
+         "agent.segmenter_config.model /nonexistent/segformer does not exist"),
+        ([f"agent.segmenter_config.model={tmp_path}"], "agent.segmenter_config.model .* has no config.json"),
+        # ADE20K's classes without a label map: matched to calnav's by name, most are not calnav's
+        ([f"agent.segmenter_config.model={hf_dir}"], "segmenter hf: 'building', 'sky', .* are not calnav classes; "
+                                                     "valid: chair, .*with agent.segmenter_config.label_map"),
         ([f"agent.segmenter_config.model={hf_dir}", "agent.segmenter_config.label_map=scannet20"],
          "label map .*scannet20.tsv does not list the model's classes 'building'"),
     ]:

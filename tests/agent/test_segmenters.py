@@ -168,6 +168,53 @@ def test_weights_for_the_other_model_are_refused(weight_files):
         make_segmenter("learned_rgb", SegmenterConfig(weights=str(weight_files["learned_rgbd"])))
 
 
+def test_learned_weights_are_matched_to_calnav_classes_by_name(tmp_path, frames):
+    """A weight file naming its network's outputs in another order than calnav's gives that
+    network's logits in calnav's order; one naming a class twice, or one calnav lacks, is
+    refused when it is checked (preflight) and when it is loaded."""
+    torch.manual_seed(1)
+    net = SegNet(NetSpec(num_classes=K)).eval()
+    ordered = save_weights(net, tmp_path / "ordered.pt", "learned_rgb", CLASS_NAMES, RES)
+    backwards = save_weights(net, tmp_path / "backwards.pt", "learned_rgb", CLASS_NAMES[::-1], RES)
+    a = make_segmenter("learned_rgb", SegmenterConfig(weights=str(ordered)))
+    b = make_segmenter("learned_rgb", SegmenterConfig(weights=str(backwards)))
+    assert a.class_names == b.class_names == CLASS_NAMES and a.channels is None
+    np.testing.assert_array_equal(b(frames.rgb[0]), a(frames.rgb[0])[..., ::-1])
+    from calnav.agent.segmenters.learned import check_weights
+
+    for names, match in [((*CLASS_NAMES[:-1], "wall"), "class_names lists 'wall' more than once"),
+                         ((*CLASS_NAMES[:-1], "sky"), "'sky' is not a calnav class; valid: chair, bed")]:
+        path = save_weights(net, tmp_path / "bad.pt", "learned_rgb", names, RES)
+        for load in (lambda: check_weights(path, "learned_rgb"),
+                     lambda: make_segmenter("learned_rgb", SegmenterConfig(weights=str(path)))):
+            with pytest.raises(ValueError, match=f"segmenter weights {path}: {match}"):
+                load()
+
+
+def test_the_segmenters_own_device_wins_and_is_checked(weight_files):
+    """``segmenter.device``, when set, is the device (the run's is the fallback), checked like
+    ``run.device``: an error naming the key for a device that is not cpu / cuda."""
+    seg = make_segmenter("learned_rgb", SegmenterConfig(weights=str(weight_files["learned_rgb"]), device="cpu"), "cuda")
+    assert seg.device.type == "cpu"
+    for name in SEGMENTER_NAMES:
+        cfg = SegmenterConfig(weights=str(weight_files.get(name, "")), device="meta")
+        with pytest.raises(ValueError, match="agent.segmenter_config.device='meta' is not supported"):
+            make_segmenter(name, cfg, "cpu", key="agent.segmenter_config")
+
+
+def test_segmenter_config_errors_name_the_key_as_the_command_spells_it():
+    """The segmenter section is ``agent.segmenter_config`` in ObjectNav configs and ``segmenter``
+    in others: its range errors are prefixed with the section by the config loader, so they must
+    not name a section of their own (they used to say segmenter.threads under objectnav)."""
+    from calnav.eval.config import ConfigError, load_config
+    from calnav.eval.sequence.config import MapSequenceConfig
+
+    with pytest.raises(ConfigError, match=r"^agent.segmenter_config: threads must be >= 0, got -1$"):
+        load_config(None, ["agent.segmenter_config.threads=-1"])
+    with pytest.raises(ConfigError, match=r"^segmenter: gt_confidence must be in \(0, 1\], got 2.0$"):
+        load_config(None, ["segmenter.gt_confidence=2"], cls=MapSequenceConfig)
+
+
 def test_default_weight_location_is_inside_the_package():
     assert default_weights_path("learned_rgb").parent.name == "weights"
     assert default_weights_path("learned_rgb").parent.parent.name == "agent"

@@ -3,6 +3,7 @@ hand-writes one (every rename into place goes through common.atomic)."""
 from __future__ import annotations
 
 import ast
+import re
 import json
 from pathlib import Path
 
@@ -71,3 +72,19 @@ def test_no_hand_written_atomic_writes_outside_common_atomic():
                 found.append(f"{path.relative_to(REPO_ROOT)}:{line}")
     assert (REPO_ROOT / "common" / "atomic.py").exists()
     assert found == [], "rename into place by hand (use common.atomic): " + ", ".join(found)
+
+
+def test_json_is_strict_and_names_the_non_finite_value(tmp_path):
+    """json.dumps writes bare NaN / Infinity (not JSON) by default; calnav's one JSON writer
+    refuses them, naming the file and the place, and leaves the file as it was."""
+    import json
+    import math
+
+    from calnav.common.atomic import json_text, write_json_atomic
+
+    assert json_text({"a": [1.5, None]}, indent=None) == '{"a": [1.5, null]}'
+    path = write_json_atomic(tmp_path / "r.json", {"ok": 1})
+    for bad, place in (({"m": {"ece": math.nan}}, "m.ece is nan"), ({"v": [0.0, -math.inf]}, "v[1] is -inf")):
+        with pytest.raises(ValueError, match=rf"^{path}: {re.escape(place)}, which JSON cannot hold"):
+            write_json_atomic(path, bad)
+    assert json.loads(path.read_text()) == {"ok": 1}

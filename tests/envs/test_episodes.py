@@ -294,3 +294,23 @@ def test_the_parsed_sidecar_replaces_the_json_parse_until_anything_is_off(tmp_pa
     write_json_gz(loose, episodes_to_habitat(eps))
     assert ef.cached_episodes(loose) is not None and sc.sidecar_path(loose) is None
     assert sorted(p.name for p in tmp_path.iterdir()) == ["loose.json.gz", "val"]
+
+
+def test_a_run_generates_only_the_scenes_its_range_needs_on_its_pool():
+    # A fresh dataset key (an unusual distance range), 3 scenes of 2 episodes: the range 0:3 lies
+    # in the first two scenes, so the third is never generated; the pool (2 workers) does it.
+    from calnav.eval.episodes import episode_indices
+
+    cfg = load_config(None, ["env.resolution=64x48", "env.dataset.val_scenes=3", "env.dataset.episodes_per_scene=2",
+                             "env.dataset.min_geodesic_m=1.05", "run.workers=2"])
+    content = split_dir("val", cfg.env) / "content"
+    assert list(episode_indices("1:3", cfg.env, cfg.run, progress=False)) == [1, 2]
+    assert sorted(p.name for p in content.glob("*.json.gz")) == ["house_val_0000.json.gz", "house_val_0001.json.gz"]
+    prefix = load_split("val", cfg.env, progress=False, upto=3)
+    assert len(prefix) == 4 and not (content / "house_val_0002.json.gz").exists()
+    full = load_split("val", cfg.env, progress=False)   # generates the rest; the prefix is its start
+    assert len(full) == 6 and episodes_to_habitat(full[:4]) == episodes_to_habitat(prefix)
+    with pytest.raises(ValueError, match="outside the split, which has episodes 0:6"):
+        episode_indices("0:7", cfg.env, cfg.run, progress=False)
+    with pytest.raises(ValueError, match="empty or reversed"):
+        episode_indices("5:2", cfg.env, cfg.run, progress=False)

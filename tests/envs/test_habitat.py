@@ -185,9 +185,9 @@ def test_bad_input(tmp_path, capsys, setup):
     assert "env.turn_angle_deg is set by the habitat config" in capsys.readouterr().err
     # issue 26: the agent walked backwards with forward_step_size=-1; NaN success distance hung
     assert _run("habitat-benchmark", tmp_path / "c", "habitat.simulator.forward_step_size=-1") == 2
-    assert "env.forward_step_m must be > 0 metres, got -1.0" in capsys.readouterr().err
+    assert "env.forward_step_m must be in [0.01, 2] metres, got -1.0" in capsys.readouterr().err
     assert _run("habitat-benchmark", tmp_path / "d", "habitat.task.measurements.success.success_distance=nan") == 2
-    assert "env.success_distance_m must be > 0 metres, got nan" in capsys.readouterr().err
+    assert "env.success_distance_m must be in (0, 10] metres, got nan" in capsys.readouterr().err
     assert not any((tmp_path / d).exists() for d in "abcd")
 
     from calnav.common.habitat_import import import_habitat

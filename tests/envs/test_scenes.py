@@ -176,3 +176,80 @@ def test_empty_scene_dir_says_no_scenes_found(tmp_path):
     (tmp_path / "val").mkdir()
     with pytest.raises(ValueError, match=f"no scenes found in {tmp_path / 'val'}"):
         split_scene_ids("val", DatasetConfig(scene_dir=str(tmp_path)))
+
+
+# --------------------------------------------------------- a cache file of another scene
+def test_a_house_cache_copied_over_another_is_rebuilt(isolated_cache):
+    """house_val_0001's cache file copied over house_val_0000's: the file names its house, seed
+    and spec, so loading house_val_0000 rebuilds it (warning naming the file) instead of
+    handing out the other house; the rewritten file is house_val_0000's again."""
+    import shutil
+
+    cfg = DatasetConfig(val_scenes=2)
+    own, other = load_scene("house_val_0000", cfg), load_scene("house_val_0001", cfg)
+    path = scene_cache_path("house_val_0000", cfg)
+    shutil.copy(scene_cache_path("house_val_0001", cfg), path)
+    scenes.clear_scene_lru()
+    with pytest.warns(UserWarning, match=rf"scene cache {path} holds another scene \(scene_id 'house_val_0001', "
+                                         r"expected 'house_val_0000'\); rebuilding it"):
+        again = load_scene("house_val_0000", cfg)
+    np.testing.assert_array_equal(again.vertices, own.vertices)
+    assert not np.array_equal(again.vertices, other.vertices) or again.vertices.shape != other.vertices.shape
+    from calnav.envs.scene import Scene
+    assert Scene.load(path).meta["scene_id"] == "house_val_0000"
+
+
+def test_a_scan_cache_of_another_house_or_settings_is_rebuilt(isolated_cache, monkeypatch):
+    """The scan cache carries the house, its seed and the scan settings: another house's scan or
+    a scan made with other settings copied over it is rescanned, never used. (The scanner is
+    replaced by a fast stand-in that stamps the metadata scan_house stamps.)"""
+    import shutil
+
+    from calnav.envs.scanning import scanner
+    from calnav.envs.scanning.config import SCANNER_VERSION, ScanningConfig
+    from calnav.envs.scenes import scanned_cache_path
+
+    scanned = []
+
+    def fake_scan(scene, cfg, seed):
+        scanned.append(scene.name)
+        meta = {**scene.meta, "scan_seed": int(seed), "scanner_version": SCANNER_VERSION,
+                "scanning": cfg.digest_items(), "style": "scanned"}
+        return type(scene)(**{**scene.__dict__, "meta": meta})
+
+    monkeypatch.setattr(scanner, "scan_house", fake_scan)
+    cfg = DatasetConfig(val_scenes=2, style="scanned")
+    noisier = DatasetConfig(val_scenes=2, style="scanned", scanning=ScanningConfig(axial_noise_m=0.01))
+    load_scene("house_val_0000", cfg), load_scene("house_val_0001", cfg), load_scene("house_val_0000", noisier)
+    assert scanned == ["house_val_0000", "house_val_0001", "house_val_0000"]
+    path = scanned_cache_path("house_val_0000", cfg)
+    for foreign, field in ((scanned_cache_path("house_val_0001", cfg), "scene_id"),
+                           (scanned_cache_path("house_val_0000", noisier), "scanning")):
+        shutil.copy(foreign, path)
+        scenes.clear_scene_lru()
+        with pytest.warns(UserWarning, match=rf"scene cache {path} holds another scene \({field} "):
+            assert load_scene("house_val_0000", cfg).meta["scanning"]["axial_noise_m"] == \
+                ScanningConfig().axial_noise_m
+        assert scanned[-1] == "house_val_0000"
+    scenes.clear_scene_lru()
+    load_scene("house_val_0000", cfg)   # the rebuilt file is its own: no rescan
+    assert len(scanned) == 5
+
+
+def test_a_converted_ply_cache_of_another_file_is_converted_again(tmp_path, isolated_cache):
+    """The converted-PLY cache records the PLY (path and stat key) it came from."""
+    import shutil
+
+    d = tmp_path / "scans"
+    d.mkdir()
+    _write_scan(d / "a.ply")
+    _write_scan(d / "b.ply", up_axis="y")
+    (d / "labels.json").write_text(json.dumps(LABEL_MAP))
+    (d / "b.labels.json").write_text(json.dumps({"label_map": LABEL_MAP, "up_axis": "y"}))
+    cfg = DatasetConfig(scene_dir=str(d))
+    load_scene("a", cfg), load_scene("b", cfg)
+    cached = {p.name.split("_")[1]: p for p in (isolated_cache / "scenes").glob("user_*.npz")}
+    shutil.copy(cached["b"], cached["a"])
+    scenes.clear_scene_lru()
+    with pytest.warns(UserWarning, match=r"holds another scene \(converted_from "):
+        assert load_scene("a", cfg).name == "a"

@@ -155,10 +155,10 @@ def test_env_fields_of_view_are_ones_the_map_accepts():
     ("env.hfov_deg=inf", "env.hfov_deg.*expected a finite number"),
     ("env.max_episode_steps=0", r"env.max_episode_steps must be >= 1"),
     ("env.max_episode_steps=-3", r"env.max_episode_steps must be >= 1"),
-    ("env.forward_step_m=-0.25", r"env.forward_step_m must be > 0"),
-    ("env.camera_height_m=-1", r"env.camera_height_m must be > 0"),
+    ("env.forward_step_m=-0.25", r"env.forward_step_m must be in \[0.01, 2\] metres, got -0.25"),
+    ("env.camera_height_m=-1", r"env.camera_height_m must be in \[0.05, 3\] metres, got -1"),
     ("agent.goal_min_area_cells=-5", r"agent.goal_min_area_cells must be >= 1"),
-    ("agent.frontier_size_weight_m=-1", r"agent.frontier_size_weight_m must be >= 0"),
+    ("agent.frontier_size_weight_m=-1", r"agent.frontier_size_weight_m must be in \[0, 200\] metres"),
     ("env.resolution=40000x30000", r"env.resolution must be between 8x8 and 4096x4096 pixels"),
     ("mapping.initial_alloc_mb=1e12", r"mapping.initial_alloc_mb must be in \(0, 65536\] MiB"),
 ])

@@ -137,3 +137,39 @@ def test_without_rerun_the_option_is_a_one_line_error_before_anything_runs(tmp_p
     assert len(err) == 1 and 'pip install -e ".[viz]"' in err[0] and not out.exists()
     assert main(["view", str(tmp_path)]) == 2
     assert "calnav view needs Rerun" in capsys.readouterr().err
+
+
+def test_view_refuses_files_that_are_not_recordings_or_maps(tmp_path, capsys, monkeypatch):
+    from calnav.common import rerun_io
+
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    good = tmp_path / "good.rrd"
+    palette = np.array([[0, 0, 0], [255, 255, 255]], np.uint8)
+    rec = rerun_io.new_recording("test", good, ["a", "b"], palette)
+    rerun_io.log_voxels(rec, "world/map", np.zeros((2, 3), np.float32), np.full((2, 2), 0.5, np.float32), 0.05,
+                        palette, static=True)
+    rec.flush()
+    rec.disconnect()
+    cut = tmp_path / "cut.rrd"   # a recording whose writer was killed: what it holds is viewable
+    cut.write_bytes(good.read_bytes()[:100])
+    for path in (good, cut):
+        assert main(["view", str(path)]) == 0, capsys.readouterr().err
+    capsys.readouterr()
+
+    (tmp_path / "empty.rrd").write_bytes(b"")
+    (tmp_path / "text.rrd").write_text("not a recording\n")
+    (tmp_path / "header.rrd").write_bytes(b"RRF2" + bytes(range(1, 40)))   # the magic, then garbage
+    (tmp_path / "map.npz").write_text("not a zip archive\n")
+    run = tmp_path / "run"
+    (run / "rerun").mkdir(parents=True)
+    (run / "rerun" / "0.rrd").write_text("garbage")
+    cases = {"empty.rrd": "is empty (0 bytes), not a Rerun recording",
+             "text.rrd": "is not a Rerun recording: an .rrd file starts with 'RRF'",
+             "header.rrd": "is not a readable Rerun recording",
+             "map.npz": "is not a calnav map: not an .npz (zip) archive",
+             "run": "0.rrd is not a Rerun recording"}
+    for name, message in cases.items():
+        assert main(["view", str(tmp_path / name)]) == 2, name
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and message in err[0] and "allow_pickle" not in err[0], (name, err)

@@ -86,3 +86,45 @@ def test_pool_workers_share_the_cores():
     got = {r for _, r in LocalBackend(2).map_unordered(thread_settings, [0, 1])}
     share = max(1, cores // 2)
     assert got == {(str(share), str(share), share)}
+
+
+SLOW_TASK_S = 120.0     # a task still in flight at Ctrl-C: waiting for it would fail the time bound
+STOP_BOUND_S = 30.0     # Ctrl-C to KeyboardInterrupt out of run_tasks, pool shut down (2 busy cores)
+
+
+def quick_then_slow(task: tuple[int, str]) -> int:
+    """Task 0 returns at once, task 1 after leaving ``<dir>/1`` behind, the others run for
+    SLOW_TASK_S (still in flight when the driver is interrupted)."""
+    import time
+
+    i, folder = task
+    if i == 1:
+        (Path(folder) / "1").touch()
+    elif i > 1:
+        time.sleep(SLOW_TASK_S)
+    return i
+
+
+def test_ctrl_c_while_saving_keeps_the_results_finished_meanwhile(tmp_path):
+    """A Ctrl-C that reaches the driver while it saves one result (not while it waits for the
+    pool): the workers stop at once, and a task that finished meanwhile is saved too."""
+    import time
+
+    saved: dict = {}
+
+    def save(task, result):
+        saved[task[0]] = result
+        if len(saved) == 1:   # task 0: wait until task 1 has finished in its worker, then Ctrl-C
+            deadline = time.monotonic() + STOP_BOUND_S
+            while not (tmp_path / "1").exists() and time.monotonic() < deadline:
+                time.sleep(0.05)
+            time.sleep(1.0)   # its result reaches the driver's pool thread
+            raise KeyboardInterrupt
+
+    t0 = time.monotonic()
+    with pytest.raises(KeyboardInterrupt):
+        run_tasks(quick_then_slow, [(i, str(tmp_path)) for i in range(4)],
+                  SimpleNamespace(backend="local", ray_address="", workers=2), save=save, desc="t", unit="task",
+                  progress=False)
+    assert time.monotonic() - t0 < STOP_BOUND_S
+    assert saved == {0: 0, 1: 1}

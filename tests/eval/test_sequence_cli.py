@@ -226,3 +226,32 @@ def test_map_per_frame_defects_are_named_and_nothing_is_written(tmp_path, capsys
     last = capsys.readouterr().err.strip().splitlines()[-1]   # after the progress bar: one error line
     assert last.startswith("calnav map: error: ") and message in last, last
     assert not out.exists(), "nothing may be written on bad input"
+
+
+def test_a_map_with_no_voxels_or_nothing_to_score_is_an_error(tmp_path, capsys):
+    """A depth range that holds none of the room fuses no voxel, and a labelled mesh elsewhere
+    labels none: either map's metrics would be NaN (written as bare NaN, exit 0), so the command
+    fails with a one-line error after the fusion (its progress bar before it) and writes
+    nothing; a map that scores writes strict JSON."""
+    from calnav.eval.sequence.export import densify, write_labels_ply
+    from tests.sequence_data import room_mesh
+
+    root = write_scannet(tmp_path / "seq", n=3)
+    base = ["map", str(root), "--layout", "scannet", "--segmenter", "gt"]
+    v, t, c = room_mesh()
+    far = write_labels_ply(tmp_path / "far.ply", *densify(v + 100.0, t, c, 0.1))
+    for extra, message, out in (
+            (["mapping.depth_max_m=0.2"], "calnav map: error: seq: the map holds no voxels after fusing 3 frames "
+             "(mapping.voxel_size_m 0.05 m, depth 0.1-0.2 m): no surface was reconstructed, nothing is written",
+             tmp_path / "near"),
+            (["--labels-ply", str(far)], "calnav map: error: seq: none of the map's ",
+             tmp_path / "far")):
+        assert main([*base, *extra, "--output", str(out)]) == 2
+        last = capsys.readouterr().err.rstrip("\n").split("\n")[-1]
+        assert last.startswith(message), last
+        assert not out.exists()
+    assert f"lies within sequence.label_distance_m (0.05 m) of a labelled vertex of {far}: there is nothing" in last
+    out = tmp_path / "ok"
+    assert main([*base, "--output", str(out)]) == 0
+    results = json.loads((out / "results.json").read_text(), parse_constant=lambda c: pytest.fail(f"bare {c}"))
+    assert results["labelled_voxels"] > 0 and 0 <= results["miou"] <= 1

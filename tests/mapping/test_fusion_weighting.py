@@ -94,7 +94,10 @@ def test_glfs_params_validation(tmp_path):
     for bad, msg in ((dict(tau=np.zeros(K)), "tau"), (dict(g=1.5), "gate g"), (dict(eps=-0.1), "gate eps"),
                      (dict(M=np.ones((K, 4, 3))), "shape"), (dict(M=-np.ones((K, 5, 3))), ">= 0"),
                      (dict(distance_edges=(0, 2, 1, 3, 4, 5)), "increasing"),
-                     (dict(class_names=("a", "b")), "classes")):
+                     (dict(class_names=("a", "b")), "classes"),
+                     # a string is no class list (it would read as one class per letter)
+                     (dict(class_names="wall"), "class_names must be a list of class names, got the string 'wall'"),
+                     (dict(class_names=("a", "b", "a", "c")), "lists 'a' more than once")):
         with pytest.raises(ValueError, match=msg):
             GLFSParams(**{**good, **bad})
     with pytest.raises(ValueError, match="not found"):

@@ -1,0 +1,73 @@
+"""A run's episodes, generated on its worker pool: only the scenes its episode range needs.
+
+Episode indices are positions in the split's scenes concatenated in order (the habitat-lab
+dataset order), so the range ``A:B`` needs the leading scenes up to the one holding ``B - 1``.
+Those not cached yet are generated (and, for ``env.dataset.style=scanned``, scanned first) as
+tasks of ``eval.runner.run_tasks`` on the run's backend, with its progress bar, instead of one
+after another in the driver: a first ``--episodes 0:30`` on a fresh machine generates two
+houses, not thirty.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from calnav.envs.config import EnvConfig
+from calnav.envs.episode_files import ObjectNavEpisode
+
+
+@dataclass(frozen=True)
+class SceneTask:
+    """Generate one scene's episodes (a picklable task)."""
+
+    split: str
+    scene_id: str
+    env_cfg: EnvConfig
+
+
+def generate_scene_task(task: SceneTask) -> tuple[dict, dict]:
+    """Generate ``task``'s scene (in a worker): ``envs.episodes.generate_scene``'s (report,
+    content), which the driver caches: a worker on another Ray node needs no shared disk."""
+    from calnav.envs.episodes import generate_scene
+
+    return generate_scene(task.split, task.scene_id, task.env_cfg)
+
+
+def range_end(spec: str) -> int:
+    """The end (exclusive) of an episode range 'N' or 'A:B', before any scene is generated;
+    malformed or reversed ranges are refused here, with the valid forms."""
+    from calnav.envs.episodes import parse_episode_range
+
+    return parse_episode_range(str(spec), None).stop
+
+
+def prepare_episodes(env_cfg: EnvConfig, run_cfg, upto: int | None, progress: bool = True
+                     ) -> list[ObjectNavEpisode]:
+    """The leading episodes of ``env_cfg.split`` that hold indices ``0:upto`` (every episode
+    when None), generating the scenes they need on ``run_cfg``'s backend first."""
+    from calnav.envs.episodes import check_read_back, scenes_needed, split_prefix, write_scene
+    from calnav.eval.runner import run_tasks
+
+    split, generated = env_cfg.split, set()
+    while True:   # ends: every pass generates scenes not generated before, of finitely many
+        needed, todo = scenes_needed(split, env_cfg, upto)
+        if not todo:
+            return split_prefix(split, env_cfg, needed)
+        check_read_back(split, env_cfg, todo, generated)
+        failures = run_tasks(generate_scene_task, [SceneTask(split, s, env_cfg) for s in todo], run_cfg,
+                             save=lambda task, result: write_scene(split, task.scene_id, env_cfg, *result), desc=f"generating {split} episodes", unit="scene",
+                             progress=progress)
+        if failures:   # deterministic for the config: the scene's own one-line reason, no "rerun to retry"
+            kind, _, message = failures[0][1].error.partition(": ")
+            more = f" ({len(failures) - 1} more scene(s) of {split} failed too)" if len(failures) > 1 else ""
+            raise ValueError((message if kind in ("ValueError", "ConfigError") else failures[0][1].error) + more)
+        generated.update(todo)
+
+
+def episode_indices(spec: str, env_cfg: EnvConfig, run_cfg, progress: bool = True) -> range:
+    """The indices of the episode range ``spec`` ('N' or 'A:B') of ``env_cfg.split``, its
+    scenes generated first (``prepare_episodes``); a range past the split's end is refused with
+    the split's size."""
+    from calnav.envs.episodes import parse_episode_range
+
+    episodes = prepare_episodes(env_cfg, run_cfg, range_end(spec), progress)
+    return parse_episode_range(str(spec), len(episodes))
