@@ -37,6 +37,8 @@ import time
 
 import numpy as np
 
+from calnav.eval.rollout import Hook, rollout
+
 EPISODE = 0
 STEPS = 500
 # the ObjectNav study's settings (docs/objectnav_study.md): what episodes per core-hour is about
@@ -49,6 +51,38 @@ RERUN_EPISODES, QUICK_RERUN_EPISODES = (100, 101, 102), (100,)
 QUICK_STEPS = 60
 EXPLORE_ONLY_THRESHOLD = 1.0
 MIB = float(1 << 20)
+
+
+class TimedAct:
+    """An agent whose ``act`` calls are timed (``act_ms``, ms each)."""
+
+    def __init__(self, agent):
+        self.agent, self.act_ms = agent, []
+
+    def reset(self, obs: dict) -> None:
+        self.agent.reset(obs)
+
+    def act(self, obs: dict) -> int:
+        t = time.perf_counter()
+        action = self.agent.act(obs)
+        self.act_ms.append((time.perf_counter() - t) * 1e3)
+        return action
+
+
+class LoopTimer(Hook):
+    """The loop's wall seconds from the agent's reset to the last step (``wall_s``) and the
+    resident memory after the first ``act`` (``rss0``, MiB: what the loop grows from)."""
+
+    def on_reset(self, env, agent, obs, info) -> None:
+        self.t0, self.rss0, self.wall_s = time.perf_counter(), None, 0.0
+
+    def before_step(self, env, agent, obs, action: int) -> int:
+        if self.rss0 is None:
+            self.rss0 = rss_mb()
+        return action
+
+    def on_end(self, env, agent, result) -> None:
+        self.wall_s = time.perf_counter() - self.t0
 
 
 def rss_mb() -> float:
@@ -105,22 +139,10 @@ def agent_loop(ctx, overrides: tuple[str, ...] = (), predictor_calls: list[float
             predictor_calls.append((time.perf_counter() - t) * 1e3)
             return result
         agent.predictor.probabilities = probabilities
-    obs, _ = env.reset(options={"episode_index": EPISODE})
-    agent.reset(obs)
-    act_ms, rss0 = [], None
-    t0 = time.perf_counter()
-    for i in range(steps):
-        t = time.perf_counter()
-        action = agent.act(obs)
-        act_ms.append((time.perf_counter() - t) * 1e3)
-        if i == 0:
-            rss0 = rss_mb()
-        obs, _, terminated, truncated, _ = env.step(action)
-        if terminated or truncated:
-            break
-    wall = time.perf_counter() - t0
-    n = len(act_ms)
-    return n / wall, float(np.median(act_ms)), rss_mb() - rss0, n
+    timed, loop = TimedAct(agent), LoopTimer()
+    rollout(env, timed, EPISODE, [loop], max_steps=steps)
+    n = len(timed.act_ms)
+    return n / loop.wall_s, float(np.median(timed.act_ms)), rss_mb() - loop.rss0, n
 
 
 def study_figures(ctx) -> dict[str, float]:
@@ -159,13 +181,7 @@ def study_episodes(indices: list[int], steps_cap: int = 0) -> tuple[list[int], l
     steps, walls = [], []
     for index in indices:
         t0 = time.perf_counter()
-        obs, _ = env.reset(options={"episode_index": index})
-        agent.reset(obs)
-        n, done = 0, False
-        while not done:
-            obs, _, terminated, truncated, _ = env.step(agent.act(obs))
-            n, done = n + 1, terminated or truncated
-        steps.append(n)
+        steps.append(rollout(env, agent, index).steps)
         walls.append(time.perf_counter() - t0)
     env.close()
     return steps, walls

@@ -20,7 +20,6 @@ and writes ``comparison.md`` / ``.csv`` / ``.png`` (``eval.objectnav.report``).
 from __future__ import annotations
 
 import json
-import re
 import time
 from contextlib import ExitStack
 from dataclasses import dataclass, field
@@ -40,44 +39,28 @@ VIDEO_AGENTS = ("peanut",)
 
 
 def run_one_episode(env, agent, index: int, video_dir: Path | None = None, rerun_dir: Path | None = None) -> dict:
-    """Run episode ``index`` to the end; returns its result record. With ``video_dir``, one
-    ``render_panel`` per step goes to ``video_dir/<episode_id>.mp4``; with ``rerun_dir``, the
-    episode is recorded to ``rerun_dir/<episode_id>.rrd`` (``agent.recording``). Both are
-    read-only on the agent: the actions, hence the metrics, are the same as without."""
+    """Run episode ``index`` to the end (``eval.rollout``); returns its result record. With
+    ``video_dir``, one ``render_panel`` per step goes to ``video_dir/<episode_id>.mp4``; with
+    ``rerun_dir``, the episode is recorded to ``rerun_dir/<episode_id>.rrd`` (``agent.recording``).
+    Both are read-only hooks: the actions, hence the metrics, are the same as without."""
+    from calnav.eval.objectnav.hooks import RerunHook, VideoHook
+    from calnav.eval.rollout import rollout
+
     t0 = time.perf_counter()
-    obs, info = env.reset(options={"episode_index": index})
-    agent.reset(obs)
-    name = re.sub(r"[^\w.-]", "_", env.unwrapped.episode.episode_id)  # ':' is not portable
-    video = recording = None
-    if video_dir is not None:
-        from calnav.agent.visualize import EpisodeVideo
-
-        video = EpisodeVideo(Path(video_dir) / f"{name}.mp4")
-    if rerun_dir is not None:
-        from calnav.agent.recording import EpisodeRecording
-
-        recording = EpisodeRecording(Path(rerun_dir) / f"{name}.rrd", agent, env.unwrapped.episode.episode_id)
-    terminated = truncated = False
-    while not (terminated or truncated):
-        action = agent.act(obs)
-        if video is not None:
-            from calnav.agent.visualize import render_panel
-
-            video.add(render_panel(agent))
-        obs, _, terminated, truncated, info = env.step(action)
-        if recording is not None:
-            recording.step(agent, action, info)
-    ep = env.unwrapped.episode
-    extra = {"video": str(video.write())} if video is not None and video.frames else {}
+    video = VideoHook(video_dir) if video_dir is not None else None
+    recording = RerunHook(rerun_dir) if rerun_dir is not None else None
+    result = rollout(env, agent, index, [h for h in (video, recording) if h is not None])
+    ep, info = env.unwrapped.episode, result.info
+    extra = {"video": str(video.path)} if video is not None and video.path is not None else {}
     if recording is not None:
-        extra["rerun"] = str(recording.close())
+        extra["rerun"] = str(recording.path)
     return finite_or_error({**extra,   # a non-finite metric makes it an error record (eval.stats)
         "index": index, "episode_id": ep.episode_id, "scene": ep.scene_id, "category": ep.object_category,
         "success": info["success"], "spl": info["spl"], "softspl": info["softspl"],
         "distance_to_goal": info["distance_to_goal"], "geodesic_distance": ep.geodesic_distance,
         "steps": info["steps"], "path_length": info["path_length"], "collisions": info["collisions"],
         "steps_at_goal": int(info["steps_at_goal"]),
-        "stop_reason": "stop" if terminated else "max_steps",
+        "stop_reason": "stop" if result.terminated else "max_steps",
         "wall_time_s": round(time.perf_counter() - t0, 3), "status": "ok",
     })
 

@@ -286,33 +286,51 @@ def map_stats(agent) -> dict[str, float]:
             "mode": agent.info.mode if agent.info is not None else ""}
 
 
+class Lockstep:
+    """Several PeanutAgents driven as one (an ``eval.rollout`` agent): each sees the same frames
+    re-expressed in its variant's gps / compass frame and maps them; the first one's action is
+    sent. ``rows``: one per step and variant, {step, variant, action, **map_stats}."""
+
+    def __init__(self, cfg, env, variants: list[PoseVariant]):
+        from calnav.agent.policy import PeanutAgent
+
+        self.env, self.variants = env, variants
+        self.agents = [PeanutAgent(cfg) for _ in variants]
+        self.rows: list[dict] = []
+
+    def _views(self, obs: dict) -> list[dict]:
+        ep = self.env.episode
+        return [reexpress_obs(obs, v, ep.start_position, ep.start_yaw) for v in self.variants]
+
+    def reset(self, obs: dict) -> None:
+        for agent, view in zip(self.agents, self._views(obs)):
+            agent.reset(view)
+        self.rows = []
+
+    def act(self, obs: dict) -> int:
+        step = len(self.rows) // len(self.agents)
+        actions = [a.act(view) for a, view in zip(self.agents, self._views(obs))]
+        self.rows += [{"step": step, "variant": v.name, "action": act, **map_stats(a)}
+                      for a, v, act in zip(self.agents, self.variants, actions)]
+        return actions[0]
+
+
 def lockstep_map_stats(cfg, index: int, variants: list[PoseVariant], steps: int) -> list[dict]:
-    """Drive episode ``index`` with the first variant's agent; every variant's agent sees the
-    same frames (its own gps / compass frame) and maps them. Returns one row per step and
-    variant: {step, variant, action, **map_stats}. House rotations are not supported here
-    (they change the frames themselves)."""
+    """Drive episode ``index`` with the first variant's agent for up to ``steps`` steps; every
+    variant's agent sees the same frames (its own gps / compass frame) and maps them
+    (``Lockstep``). Returns one row per step and variant: {step, variant, action, **map_stats}.
+    House rotations are not supported here (they change the frames themselves)."""
     import gymnasium as gym
 
     import calnav.envs  # noqa: F401
-    from calnav.agent.policy import PeanutAgent
+    from calnav.eval.rollout import rollout
 
     if any(v.house_yaw_deg for v in variants):
         raise ValueError("lockstep_map_stats compares frames of one house: house_yaw_deg must be 0")
     env = gym.make("calnav/ObjectNav-v0", split=cfg.env.split, config=cfg.env).unwrapped
-    obs, _ = env.reset(options={"episode_index": index})
-    ep = env.episode
-    agents = [PeanutAgent(cfg) for _ in variants]
-    for a, v in zip(agents, variants):
-        a.reset(reexpress_obs(obs, v, ep.start_position, ep.start_yaw))
-    rows = []
-    for step in range(steps):
-        actions = [a.act(reexpress_obs(obs, v, ep.start_position, ep.start_yaw)) for a, v in zip(agents, variants)]
-        rows += [{"step": step, "variant": v.name, "action": act, **map_stats(a)}
-                 for a, v, act in zip(agents, variants, actions)]
-        obs, _, term, trunc, _ = env.step(actions[0])
-        if term or trunc:
-            break
-    return rows
+    lockstep = Lockstep(cfg, env, variants)
+    rollout(env, lockstep, index, max_steps=steps)
+    return lockstep.rows
 
 
 def start_pose_configs(args) -> list:

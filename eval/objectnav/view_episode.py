@@ -114,7 +114,9 @@ def main_view_episode(args, configs) -> None:
 
     import calnav.envs  # noqa: F401
     from calnav.eval.objectnav.agents import make_agent
+    from calnav.eval.objectnav.hooks import PathHook
     from calnav.eval.results_dir import check_output_dir
+    from calnav.eval.rollout import rollout
 
     cfg = configs[0]
     check_output_dir(args.output)
@@ -122,17 +124,10 @@ def main_view_episode(args, configs) -> None:
     n = len(env.unwrapped.episodes)
     if not 0 <= args.episode < n:
         raise ValueError(f"--episode {args.episode} is outside the split, which has episodes 0:{n}")
-    obs, info = env.reset(options={"episode_index": args.episode})
     agent = make_agent(cfg.run.agent, env, cfg)
-    agent.reset(obs)
-    path, frames = [env.unwrapped.position.copy()], [obs]
-    done = False
-    while not done:
-        obs, _, terminated, truncated, info = env.step(agent.act(obs))
-        done = terminated or truncated
-        path.append(env.unwrapped.position.copy())
-        frames.append(obs)
-    top, strip = draw_episode(env, np.array(path), frames, Path(args.output))
+    track = PathHook()
+    info = rollout(env, agent, args.episode, [track]).info
+    top, strip = draw_episode(env, track.path, track.frames, Path(args.output))
     print(f"episode {info['episode_id']}: success {info['success']:.0f}, spl {info['spl']:.3f}, "
           f"steps {info['steps']}")
     print(f"wrote {top} and {strip}")

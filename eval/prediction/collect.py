@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from calnav.eval.results_dir import ResultsDir
+from calnav.eval.rollout import Hook
 
 MAPS_FORMAT = 1
 
@@ -66,42 +67,59 @@ def goal_targets(scene, episode, state_origin: np.ndarray, corner: tuple[int, in
     return out
 
 
+class MapSampler(Hook):
+    """Exploration only (a STOP is sent as a left turn, so the agent keeps mapping the house) and,
+    every ``every`` steps, the agent's map window as the predictor reads it with the goal targets
+    of the episode's house (``inputs`` uint8, ``targets``, ``steps``)."""
+
+    def __init__(self, cfg, spec, goals: tuple[str, ...], every: int):
+        self.cfg, self.spec, self.goals, self.every = cfg, spec, goals, every
+        self.inputs: list[np.ndarray] = []
+        self.targets: list[np.ndarray] = []
+        self.steps: list[int] = []
+
+    def before_step(self, env, agent, obs, action: int) -> int:
+        from calnav.envs.task import Action
+
+        return int(Action.TURN_LEFT) if action == int(Action.STOP) else action
+
+    def after_step(self, env, agent, action: int, obs, info, step: int) -> None:
+        from calnav.agent.prediction import crop_origin, map_input, pool_factor
+        from calnav.agent.semantic_map import MapChannels
+
+        if step % self.every:
+            return
+        cell_m, st = self.cfg.agent.cell_m, agent.state
+        xy, _ = agent.sensors.xy_yaw(obs)
+        rc = st.to_cell(xy, cell_m)
+        maps = {"obstacle": st.obstacles(), "explored": st.channels[MapChannels.EXPLORED],
+                "visited": st.channels[MapChannels.VISITED]}
+        x = map_input(maps, st.semantic, rc, self.spec, cell_m)
+        self.inputs.append(np.round(np.clip(x, 0, 1) * 255).astype(np.uint8))
+        corner = crop_origin(rc, self.spec, pool_factor(self.spec, cell_m))
+        ep, scene = env.unwrapped.episode, env.unwrapped.scene
+        self.targets.append(goal_targets(scene, ep, st.origin, corner, self.spec, cell_m, self.goals))
+        self.steps.append(step)
+
+
 def collect_episode(task: CollectTask) -> dict:
-    """Run one exploring episode on this worker; returns its arrays (see the module docstring)."""
-    from calnav.agent.prediction import PredictorSpec, crop_origin, map_input, pool_factor
+    """Run one exploring episode on this worker (``eval.rollout`` with a ``MapSampler``);
+    returns its arrays (see the module docstring)."""
+    from calnav.agent.prediction import PredictorSpec
     from calnav.agent.segmenters.base import goal_categories
-    from calnav.agent.semantic_map import MapChannels
-    from calnav.envs.task import Action
     from calnav.eval.config import Config, build_dataclass
     from calnav.eval.objectnav.run import _warm_env_agent
+    from calnav.eval.rollout import rollout
 
     cfg = build_dataclass(Config, task.cfg_dict)
     env, agent = _warm_env_agent(task.cfg_dict, "peanut", upto=task.upto)
     goals = goal_categories()
     spec = PredictorSpec(class_names=tuple(agent.class_names), goal_categories=goals)
-    obs, _ = env.reset(options={"episode_index": task.index})
-    agent.reset(obs)
-    ep, scene = env.unwrapped.episode, env.unwrapped.scene
-    inputs, targets, steps = [], [], []
-    for step in range(1, task.steps + 1):
-        action = agent.act(obs)
-        if action == int(Action.STOP):
-            action = int(Action.TURN_LEFT)   # exploration only: keep mapping the house
-        obs, _, terminated, truncated, _ = env.step(action)
-        if step % task.every == 0:
-            st = agent.state
-            xy, _ = agent.sensors.xy_yaw(obs)
-            rc = st.to_cell(xy, cfg.agent.cell_m)
-            maps = {"obstacle": st.obstacles(), "explored": st.channels[MapChannels.EXPLORED],
-                    "visited": st.channels[MapChannels.VISITED]}
-            x = map_input(maps, st.semantic, rc, spec, cfg.agent.cell_m)
-            inputs.append(np.round(np.clip(x, 0, 1) * 255).astype(np.uint8))
-            corner = crop_origin(rc, spec, pool_factor(spec, cfg.agent.cell_m))
-            targets.append(goal_targets(scene, ep, st.origin, corner, spec, cfg.agent.cell_m, goals))
-            steps.append(step)
-        if terminated or truncated:
-            break
-    return {"inputs": np.stack(inputs), "targets": np.stack(targets), "steps": np.array(steps, np.int32),
+    sampler = MapSampler(cfg, spec, goals, task.every)
+    rollout(env, agent, task.index, [sampler], max_steps=task.steps)
+    ep = env.unwrapped.episode
+    return {"inputs": np.stack(sampler.inputs), "targets": np.stack(sampler.targets),
+            "steps": np.array(sampler.steps, np.int32),
             "meta": {"episode_id": ep.episode_id, "scene": ep.scene_id, "spec": spec.to_dict(),
                      "map_type": cfg.agent.map_type, "fusion": cfg.mapping.fusion, "segmenter": cfg.agent.segmenter}}
 
