@@ -1,5 +1,5 @@
 """Start-pose study: is the agent equally good whatever frame its poses come in and whatever
-the house's orientation? (issue 14: the agent maps in the episode-start frame that Habitat's
+the house's orientation? (The agent maps in the episode-start frame that Habitat's
 gps + compass give, so nothing may depend on where that frame's origin and axes fall.)
 
 A ``PoseVariant`` names how the agent's gps + compass are expressed and how the house lies:

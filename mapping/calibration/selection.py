@@ -5,7 +5,7 @@ A checkpoint is scored on the calibration-validation voxels by ``ValidationScore
 training loss, the hard mIoU in calnav's convention, and the hard mECE of the fused map). The
 first score is always the *initial* parameters (before any step); the rules:
 
-- ``val_loss``     keep the lowest validation loss (calnav's rule until issue 16);
+- ``val_loss``     keep the lowest validation loss (calnav's earlier rule: the ``learned`` variant);
 - ``val_miou``     keep the highest validation mIoU (the authors' release);
 - ``constrained``  keep the lowest validation mECE among checkpoints whose validation mIoU is
   at least the initial parameters' minus ``tolerance_points`` mIoU points (the initial

@@ -1,9 +1,8 @@
 """The calnav agent as a ``habitat.Agent`` (``agent/habitat_agent.py``): action names, the
 observation conversion against calnav's env, and a run through ``habitat.Benchmark``.
 
-Needs habitat-lab (``.venv-habitat``) and issue 14 part 1 (PeanutAgent reading only Habitat's
-observation keys: ``agent.sensors``, ``envs.task.HABITAT_KEYS``); without part 1 the module is
-skipped, saying so.
+Needs habitat-lab (``.venv-habitat``) and PeanutAgent reading only Habitat's observation keys
+(``agent.sensors``, ``envs.task.HABITAT_KEYS``); without them the module is skipped, saying so.
 """
 import importlib.util
 
@@ -14,7 +13,7 @@ from tests.conftest import assert_same_records, read_records, require_habitat
 
 require_habitat()
 if importlib.util.find_spec("calnav.agent.sensors") is None:
-    pytest.skip("needs issue 14 part 1 (PeanutAgent reads Habitat's keys: agent.sensors, envs.task.HABITAT_KEYS)",
+    pytest.skip("needs PeanutAgent reading Habitat's keys (agent.sensors, envs.task.HABITAT_KEYS)",
                 allow_module_level=True)
 
 from calnav.envs.task import Action, depth_to_metres  # noqa: E402

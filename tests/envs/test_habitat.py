@@ -183,7 +183,7 @@ def test_bad_input(tmp_path, capsys, setup):
     assert "bad habitat config override" in err and "no_such_key" in err
     assert _run("habitat-benchmark", tmp_path / "b", "env.turn_angle_deg=15") == 2
     assert "env.turn_angle_deg is set by the habitat config" in capsys.readouterr().err
-    # issue 26: the agent walked backwards with forward_step_size=-1; NaN success distance hung
+    # refused: forward_step_size=-1 (the agent would walk backwards), a NaN success distance (would hang)
     assert _run("habitat-benchmark", tmp_path / "c", "habitat.simulator.forward_step_size=-1") == 2
     assert "env.forward_step_m must be in [0.01, 2] metres, got -1.0" in capsys.readouterr().err
     assert _run("habitat-benchmark", tmp_path / "d", "habitat.task.measurements.success.success_distance=nan") == 2

@@ -69,7 +69,7 @@ def test_missing_ray_names_the_install_command(monkeypatch):
 
 
 def test_unreachable_ray_address_fails_before_writing(tmp_path, capsys):
-    """Issue 26: run.ray_address=127.0.0.1:1 retried for ever after writing the results directory."""
+    """An unreachable run.ray_address=127.0.0.1:1 fails before the results directory is written (no retrying for ever)."""
     pytest.importorskip("ray", reason="the ray extra is installed by `make test`")
     import time
 

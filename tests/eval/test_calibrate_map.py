@@ -68,7 +68,7 @@ def test_calibrate_map_writes_results_resumes_and_refuses_another_config(tmp_pat
         import rerun  # noqa: F401  (the viz extra: make test installs it)
     except ImportError:
         assert not (out / "qualitative_learned_rgb.rrd").exists()
-    else:   # the same house in 3D, RBU and GLFS side by side (issue 30)
+    else:   # the same house in 3D, RBU and GLFS side by side
         from calnav.common.rerun_io import read_columns
 
         cols = read_columns(out / "qualitative_learned_rgb.rrd")

@@ -198,7 +198,7 @@ def test_habitat_benchmark_names_the_install_when_habitat_lab_is_missing(tmp_pat
 
 @pytest.mark.parametrize("where", ["file", "under_file"])
 def test_cache_that_is_a_file_is_one_line_before_writing(tmp_path, capsys, monkeypatch, where):
-    """Issue 26: CALNAV_CACHE pointing at a file (or below one) was a traceback."""
+    """CALNAV_CACHE pointing at a file (or below one) is one line, not a traceback."""
     blocker = tmp_path / "cache"
     blocker.write_text("not a directory")
     monkeypatch.setenv("CALNAV_CACHE", str(blocker if where == "file" else blocker / "sub"))
@@ -226,7 +226,7 @@ def test_ctrl_c_is_one_line_that_says_how_to_resume(tmp_path, capsys, monkeypatc
     ["eval-segmenter", "--model", "gt", "--split", "test", "--frames", "1"],
 ])
 def test_output_file_under_a_file_fails_before_any_work(tmp_path, capsys, command):
-    """Issue 26: fit-glfs checked --output only after training ("File exists" under a file)."""
+    """--output under a file, or a directory, fails before any work (not after training with "File exists")."""
     blocker = tmp_path / "blocker"
     blocker.write_text("x")
     assert main([*command, "--output", str(blocker / "out.json")]) == 2
@@ -241,7 +241,7 @@ def test_output_file_under_a_file_fails_before_any_work(tmp_path, capsys, comman
     ["export-sequence", "--scene", "house_val_0000"],
 ])
 def test_output_directory_that_is_a_file_is_one_line(tmp_path, capsys, command):
-    """Issue 26: --output that is a file (or under one) was a NotADirectoryError / FileExistsError traceback."""
+    """--output that is a file (or under one) is one line, not a NotADirectoryError / FileExistsError traceback."""
     blocker = tmp_path / "blocker"
     blocker.write_text("x")
     for out in (blocker, blocker / "sub"):
@@ -257,8 +257,8 @@ def test_output_directory_that_is_a_file_is_one_line(tmp_path, capsys, command):
     ["calibrate-map", "--sequences", "list.txt", "sequences.list=other.txt"],
 ])
 def test_a_shorthand_never_silently_overrides_the_same_key(tmp_path, capsys, argv):
-    """Issue 26: ``--agent`` / ``--workers`` / ``--sequences`` and the key they stand for, both
-    given: one line naming both, nothing written (the shorthand used to win silently)."""
+    """``--agent`` / ``--workers`` / ``--sequences`` and the key they stand for, both given: one
+    line naming both, nothing written (the shorthand never wins silently)."""
     out = tmp_path / "out"
     assert main([*argv, "--output", str(out)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
@@ -267,7 +267,7 @@ def test_a_shorthand_never_silently_overrides_the_same_key(tmp_path, capsys, arg
 
 
 def test_bench_quick_study_speed_figures(tmp_path, monkeypatch):
-    """The issue-29 figures: ms per step and episodes per core-hour from a worker pinned to one
+    """The study-scale speed figures: ms per step and episodes per core-hour from a worker pinned to one
     thread, and the parallel efficiency from two real `calnav objectnav` runs (quick: short)."""
     import calnav.eval.bench.agent as bench_agent
     import calnav.eval.bench.backends as bench_backends

@@ -78,7 +78,7 @@ def test_multirun_cross_product():
                     ["mapping.fusion=averaging", "env.split=val", "x=[1,2]"]]
 
 
-# ------------------------------------------------------------ issue 15: bad input before any work
+# ------------------------------------------------------------ bad input before any work
 def test_yaml_syntax_errors_are_one_line_config_errors(tmp_path):
     bad = tmp_path / "bad.yaml"
     bad.write_text("env:\n  split: [val\n")
@@ -147,7 +147,7 @@ def test_env_fields_of_view_are_ones_the_map_accepts():
 
 
 @pytest.mark.parametrize("override, message", [
-    # issue 26's "wrong results with exit 0": each ran to a table of wrong numbers before
+    # "wrong results with exit 0": unrefused, each would run to a table of wrong numbers
     ("env.success_distance_m=nan", "env.success_distance_m.*expected a finite number"),
     ("agent.frontier_size_weight_m=nan", "agent.frontier_size_weight_m.*expected a finite number"),
     ("mapping.min_tsdf_weight=nan", "mapping.min_tsdf_weight.*expected a finite number"),
@@ -173,13 +173,13 @@ def test_glfs_eta_nan_and_a_zero_grid_are_refused():
 
     with pytest.raises(ConfigError, match="glfs.eta.*expected a finite number"):
         load_config(None, ["glfs.eta=nan"], cls=CalibrateMapConfig)
-    # issue 26: grid_points=0 failed after 60 s of scans and 429 MB written
+    # grid_points=0 is refused up front (not after 60 s of scans and 429 MB written)
     with pytest.raises(ConfigError, match=r"study.grid_points must be >= 2 \(got 0\)"):
         load_config(None, ["study.grid_points=0"], cls=CalibrateMapConfig)
 
 
 def test_binary_or_unreadable_config_names_the_file(tmp_path):
-    """Issue 26: a binary --config gave a codec error without the file name."""
+    """A binary --config names the file (not a bare codec error)."""
     binary = tmp_path / "weights.yaml"
     binary.write_bytes(b"\x89PNG\x00\xff\xfe")
     with pytest.raises(ConfigError, match=rf"config {binary} is not a UTF-8 YAML text file \(byte 0"):

@@ -1,4 +1,4 @@
-"""Rerun recordings (issue 30), read back with Rerun's own chunk reader: an ObjectNav episode
+"""Rerun recordings, read back with Rerun's own chunk reader: an ObjectNav episode
 (`--rerun N`), a recorded sequence's map (`calnav map --rerun`), `calnav view`, and the
 one-line error without the [viz] extra."""
 from __future__ import annotations

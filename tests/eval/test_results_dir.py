@@ -103,7 +103,7 @@ def test_non_object_json_line_is_skipped_and_its_episode_rerun(run_copy, capsys)
 
 
 def test_record_without_its_metrics_is_damaged_and_rerun(run_copy, capsys):
-    """Issue 26: a record {"index": 3} counted as a finished episode (N=4, SPL over 3)."""
+    """A record {"index": 3} is damaged and rerun, not counted as a finished episode (N=4, SPL over 3)."""
     records = run_copy / "episodes.jsonl"
     lines = records.read_text().splitlines()
     lost = json.loads(lines[3])["index"]

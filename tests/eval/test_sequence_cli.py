@@ -89,7 +89,7 @@ def test_precomputed_logits_give_the_segmenters_map(tmp_path):
 
 
 def test_map_owns_its_results_directory(tmp_path, capsys):
-    """Issue 26: a rerun of another config left the earlier map beside the new config.yaml."""
+    """A rerun with another config leaves no earlier map beside the new config.yaml."""
     root = write_scannet(tmp_path / "seq", n=3)
     out = tmp_path / "out"
     base = ["map", str(root), "--layout", "scannet", "--segmenter", "gt", "--output", str(out)]
@@ -168,7 +168,7 @@ def test_bench_sequence_section_figures(tmp_path):
 
 
 def _break(root, logits, defect: str) -> None:
-    """One per-frame defect of issue 26's list, in frame 2 of a 3-frame recording."""
+    """One per-frame defect (the list below), in frame 2 of a 3-frame recording."""
     import cv2
 
     if defect == "truncated jpeg":
@@ -209,7 +209,7 @@ def _break(root, logits, defect: str) -> None:
     ("truncated npy", "cannot read logits"), ("nan ply vertex", "1 vertices have NaN or inf coordinates"),
 ])
 def test_map_per_frame_defects_are_named_and_nothing_is_written(tmp_path, capsys, defect, message):
-    """Issue 26: per-frame problems were tracebacks, unnamed, or found after map.npz was written."""
+    """Per-frame problems are one line naming the frame, found before map.npz is written (no tracebacks)."""
     from calnav.agent.segmenters import make_segmenter
     from calnav.mapping.sequences import Sequence
 

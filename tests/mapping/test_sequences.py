@@ -167,7 +167,7 @@ def test_non_rigid_pose_is_rejected_with_its_frame_number(tmp_path):
 
 
 def test_an_8bit_depth_frame_is_refused_with_its_frame_number(tmp_path):
-    """Issue 26: an 8-bit depth PNG after the first frame was read as millimetres (0-25 cm)."""
+    """An 8-bit depth PNG after the first frame is refused, naming the frame (not read as millimetres, 0-25 cm)."""
     root = write_scannet(tmp_path / "seq", n=3)
     depth = cv2.imread(str(root / "depth" / "2.png"), cv2.IMREAD_UNCHANGED)
     cv2.imwrite(str(root / "depth" / "2.png"), (depth // 256).astype(np.uint8))
@@ -178,7 +178,7 @@ def test_an_8bit_depth_frame_is_refused_with_its_frame_number(tmp_path):
 
 
 def test_class_list_with_a_repeated_name_is_refused(tmp_path):
-    """Issue 26: a classes.json naming a class twice gave mIoU 0.748 instead of 0.957 with exit 0."""
+    """A classes.json naming a class twice is refused (it would give mIoU 0.748 instead of 0.957 with exit 0)."""
     from calnav.mapping.sequences.labels import read_class_list
 
     path = tmp_path / "classes.json"
