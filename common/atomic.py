@@ -13,6 +13,8 @@ never share a temporary file, and it keeps the target's suffix, because some wri
   a NaN or an infinity is a ValueError naming where it is, never the bare ``NaN`` /
   ``Infinity`` that ``json.dumps`` writes by default and other JSON readers reject (a value
   that may be undefined is written as ``null`` by the code that knows it may be).
+- ``undefined_as_null``: NaN as ``null``, for the writers whose NaN means "no data" (metrics
+  of trainers and evaluations).
 - ``atomic_path``: a context manager yielding the temporary path, for writers that need a path
   (``np.savez_compressed``, ``torch.save``, ``gzip.open``); the rename happens only when the
   block finishes without an exception, and the temporary file is removed otherwise.
@@ -117,6 +119,20 @@ def json_text(obj, indent: int | None = 2, what: str = "") -> str:
         place, value = found
         raise ValueError(f"{what + ': ' if what else ''}{place} is {value}, which JSON cannot hold; "
                          "a non-finite number must not reach a JSON file") from None
+
+
+def undefined_as_null(obj):
+    """``obj`` with every NaN float -- a figure undefined for lack of data (an IoU of a class no
+    pixel shows, an AUC without positives) -- as None (JSON ``null``), through dicts, lists and
+    tuples. Only for writers whose NaN means "undefined": an infinity stays, and ``json_text``
+    refuses it."""
+    if isinstance(obj, float) and math.isnan(obj):
+        return None
+    if isinstance(obj, dict):
+        return {k: undefined_as_null(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [undefined_as_null(v) for v in obj]
+    return obj
 
 
 def write_json_atomic(path: str | os.PathLike, obj, indent: int | None = 2) -> Path:

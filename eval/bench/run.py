@@ -6,11 +6,11 @@ chosen by name from ``SECTIONS``; this file owns the table and the flat JSON out
 """
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 from typing import Callable
 
+from calnav.common.atomic import undefined_as_null, write_json_atomic
 from calnav.eval.bench import adapter, agent, backends, env, fusion, scan, segmenter, sequence, start_pose
 from calnav.eval.bench.context import BenchContext
 
@@ -41,7 +41,7 @@ def run_bench(output: str | Path | None, sections: tuple[str, ...] = tuple(SECTI
         results.update({k: float(v) for k, v in part.items()})
     print(format_table(results))
     if output:
-        Path(output).write_text(json.dumps(results, indent=2, sort_keys=True) + "\n")
+        write_json_atomic(output, undefined_as_null(dict(sorted(results.items()))))   # a NaN figure: null
         print(f"wrote {output}")
     return results
 

@@ -20,10 +20,11 @@ rate, mean confidence of wrong and of correct pixels), and with the ``[viz]`` ex
 from __future__ import annotations
 
 import dataclasses
-import json
 from pathlib import Path
 
 import numpy as np
+
+from calnav.common.atomic import undefined_as_null, write_json_atomic
 
 CANDIDATE_VIEWS = 24          # scan poses scored to choose the views shown
 CORRECT_GREY = 0.82           # grey level of correct pixels in the error panel
@@ -167,7 +168,7 @@ def write_qualitative(cfg, out: Path, segmenter_name: str, segmenter, scene_id: 
                "views": [{"pose_index": v["pose_index"], **v["stats"]} for v in views],
                "candidates": views[0]["candidates"]}
     js = out / f"qualitative_{segmenter_name}.json"
-    js.write_text(json.dumps(summary, indent=1))
+    write_json_atomic(js, undefined_as_null(summary), indent=1)
     rrd = write_recording(cfg, out / f"qualitative_{segmenter_name}.rrd", scene, poses, maps,
                           {"RBU": "rbu", "GLFS": "glfs"})
     return [png, js] + ([rrd] if rrd else [])

@@ -16,13 +16,12 @@ The GLFS pick (the paper's claim made a rule): among the GLFS variants whose tes
 from __future__ import annotations
 
 import csv
-import json
 import math
 from pathlib import Path
 
 import numpy as np
 
-from calnav.common.atomic import atomic_path
+from calnav.common.atomic import atomic_path, undefined_as_null, write_json_atomic
 
 COLUMNS = ("segmenter", "strategy", "calibration", "miou", "miou_authors", "ece", "tl_ece", "mece", "brier",
            "pixel_mece", "n_voxels")
@@ -134,7 +133,7 @@ def write_report(out: Path, rows: list[dict], stats_by_segmenter: dict, class_na
     picks = glfs_pick(rows)
     if picks:
         parts += _pick_text(picks)
-        (out / "glfs_pick.json").write_text(json.dumps(picks, indent=1))
+        write_json_atomic(out / "glfs_pick.json", undefined_as_null(picks), indent=1)
         plot_glfs_tradeoff(rows, glfs_histories or {}, out / "glfs_tradeoff.png", SHIP_TOLERANCE_POINTS)
     (out / "results.md").write_text("\n".join(parts))
     plot_calibration_vs_accuracy(rows, out / "calibration_vs_accuracy.png",

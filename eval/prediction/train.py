@@ -13,11 +13,12 @@ those cells, per directory (one per map type) and overall, beside a geometric ba
 """
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 
 import numpy as np
+
+from calnav.common.atomic import undefined_as_null, write_json_atomic
 
 BATCH = 16
 LR = 1e-3            # Adam (PEANUT: 5e-4 on a PSPNet-ResNet50 with batch 8)
@@ -207,7 +208,7 @@ def main_train_predictor(args, configs=()) -> None:
     with writing(out):
         out.parent.mkdir(parents=True, exist_ok=True)
         save_predictor(net, out, meta)
-        out.with_suffix(".json").write_text(json.dumps(meta, indent=1) + "\n")
+        write_json_atomic(out.with_suffix(".json"), undefined_as_null(meta), indent=1)
     v = metrics["val"]
     print("held-out houses: " + ", ".join(f"{g} AUC {v[g]['auc']:.3f} AP {v[g]['ap']:.3f}" for g in spec["goal_categories"]))
     print(f"mean AUC {v['mean_auc']:.3f}, mean AP {v['mean_ap']:.3f} (distance-to-explored baseline: AUC "

@@ -11,12 +11,12 @@ per-class IoU and per-class ECE, mean top-label confidence.
 """
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 
 import numpy as np
 
+from calnav.common.atomic import undefined_as_null, write_json_atomic
 from calnav.eval.results_dir import check_output_file, writing
 from calnav.eval.segmenter.data import EVAL_SEED_OFFSET, SegmenterExperimentConfig, load_or_render
 from calnav.mapping.metrics import CalibrationStats
@@ -93,5 +93,5 @@ def main_eval_segmenter(args, configs: list[SegmenterExperimentConfig]) -> None:
         out = Path(args.output)
         with writing(out):
             out.parent.mkdir(parents=True, exist_ok=True)
-            out.write_text(json.dumps(metrics, indent=1) + "\n")
+            write_json_atomic(out, undefined_as_null(metrics), indent=1)
         print(f"wrote {out}")

@@ -35,7 +35,7 @@ import torch.nn.functional as F
 from calnav.agent.segmenters.base import resolve_device, segmenter_device
 from calnav.agent.segmenters.learned import LEARNED_MODELS, default_weights_path, save_weights
 from calnav.agent.segmenters.network import NetSpec, SegNet, count_parameters
-from calnav.common.atomic import atomic_path
+from calnav.common.atomic import atomic_path, undefined_as_null, write_json_atomic
 from calnav.eval.config import to_dict
 from calnav.eval.results_dir import check_output_file
 from calnav.eval.segmenter.data import (VAL_SEED_OFFSET, SegData, SegmenterExperimentConfig, TrainConfig,
@@ -269,7 +269,7 @@ def train(cfg: SegmenterExperimentConfig, model: str, output: Path | str, resume
     save_weights(net, output, model, CLASS_NAMES, data.resolution, card)
     card["weights_bytes"] = output.stat().st_size
     card["weights_sha256"] = hashlib.sha256(output.read_bytes()).hexdigest()
-    output.with_suffix(".json").write_text(json.dumps(card, indent=1) + "\n")
+    write_json_atomic(output.with_suffix(".json"), undefined_as_null(card), indent=1)
     print(f"wrote {output} ({card['weights_bytes'] / 1e6:.2f} MB) and {output.with_suffix('.json')}", flush=True)
     return card
 

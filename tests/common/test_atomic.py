@@ -88,3 +88,12 @@ def test_json_is_strict_and_names_the_non_finite_value(tmp_path):
         with pytest.raises(ValueError, match=rf"^{path}: {re.escape(place)}, which JSON cannot hold"):
             write_json_atomic(path, bad)
     assert json.loads(path.read_text()) == {"ok": 1}
+
+
+def test_undefined_figures_are_written_as_null_and_infinities_still_refused(tmp_path):
+    from calnav.common.atomic import undefined_as_null, write_json_atomic
+
+    path = write_json_atomic(tmp_path / "m.json", undefined_as_null({"iou": [0.5, float("nan")], "auc": float("nan")}))
+    assert json.loads(path.read_text()) == {"iou": [0.5, None], "auc": None}
+    with pytest.raises(ValueError, match="inf"):
+        write_json_atomic(tmp_path / "bad.json", undefined_as_null({"x": float("inf")}))
