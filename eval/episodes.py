@@ -57,9 +57,13 @@ def prepare_episodes(env_cfg: EnvConfig, run_cfg, upto: int | None, progress: bo
                              save=lambda task, result: write_scene(split, task.scene_id, env_cfg, *result), desc=f"generating {split} episodes", unit="scene",
                              progress=progress)
         if failures:   # deterministic for the config: the scene's own one-line reason, no "rerun to retry"
-            kind, _, message = failures[0][1].error.partition(": ")
+            failure = failures[0][1]
+            kind, _, message = failure.error.partition(": ")
             more = f" ({len(failures) - 1} more scene(s) of {split} failed too)" if len(failures) > 1 else ""
-            raise ValueError((message if kind in ("ValueError", "ConfigError") else failures[0][1].error) + more)
+            if kind in ("ValueError", "ConfigError"):
+                raise ValueError(message + more)
+            raise RuntimeError(f"generating {failures[0][0].scene_id} failed{more}; the worker's traceback:\n"
+                               f"{failure.traceback}")
         generated.update(todo)
 
 

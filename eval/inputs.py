@@ -151,11 +151,12 @@ def input_files(cfg_dict: dict, neutral_keys: tuple[str, ...] = (),
 
 
 def _dir_files(root: Path) -> list[Path]:
-    """The files under ``root`` a loader may read, sorted: every regular file (symlinks
-    followed, as the Hugging Face cache's snapshots are links), hidden ones left out (a
-    download's ``.cache`` / lock files, ``.git``)."""
-    return sorted(p for p in root.rglob("*")
-                  if p.is_file() and not any(part.startswith(".") for part in p.relative_to(root).parts))
+    """The files of ``root`` a loader reads, sorted: its top-level regular files (symlinks
+    followed, as the Hugging Face cache's snapshots are links; ``from_pretrained`` reads
+    ``config.json``, the weights and the processor files there), hidden ones left out (a
+    download's lock files). Subdirectories -- a trainer's ``checkpoint-*`` folders, TensorBoard
+    ``runs/`` -- are not read by the loader and would make every resume look like another model."""
+    return sorted(p for p in root.iterdir() if p.is_file() and not p.name.startswith("."))
 
 
 def fingerprint(found: Path | InputDir) -> dict:

@@ -163,9 +163,24 @@ def available_bytes() -> int | None:
             available = None
     for limit_file, usage_file in CGROUP_FILES:
         limit, usage = _read_int(limit_file), _read_int(usage_file)
+        if usage is not None:   # reclaimable page cache counts in a cgroup's usage, not in what it can give
+            usage = max(0, usage - _inactive_file(usage_file.parent))
         if limit is not None and usage is not None and (available is None or limit - usage < available):
             available = max(0, limit - usage)
     return available
+
+
+def _inactive_file(cgroup_dir: Path) -> int:
+    """Bytes of inactive file cache in the cgroup (``memory.stat``'s ``inactive_file``, v1
+    ``total_inactive_file``), which the kernel reclaims on demand; 0 when unknown."""
+    try:
+        for line in (cgroup_dir / "memory.stat").read_text().splitlines():
+            key, _, value = line.partition(" ")
+            if key in ("inactive_file", "total_inactive_file"):
+                return int(value)
+    except (OSError, ValueError):
+        pass
+    return 0
 
 
 def check_memory(cfg: Any, checks: tuple[str, ...], num_classes: int | None = None,

@@ -106,12 +106,16 @@ def same_episode(a: dict, b: dict) -> bool:
 
 def paired_difference(a: list[dict], b: list[dict], metric: str) -> tuple[float, float, int]:
     """Mean and SEM of ``metric``(b) - ``metric``(a) over the episodes (matched by ``index``)
-    both runs finished (``is_finished``: an episode that crashed, or has a non-finite metric, in either
-    run is left out, for every metric alike), and their count. Pairing removes the
-    episode-difficulty variance both runs share, so this SEM is the one that says whether two
-    configs differ; with fewer than 2 pairs it is NaN (one difference has no spread)."""
-    va = {r["index"]: r for r in a if "index" in r and is_finished(r)}
-    diffs = [float(r[metric]) - float(va[r["index"]][metric]) for r in b if is_finished(r) and r.get("index") in va]
+    both runs hold, scored as ``summarize`` scores them: an error record (a crash, a non-finite
+    metric) is a failure with Success / SPL / SoftSPL 0, so a run that crashes on the hard
+    episodes is not flattered; DistanceToGoal pairs only episodes both runs finished. Returns
+    the mean, the SEM and the number of pairs. Pairing removes the episode-difficulty variance
+    both runs share, so this SEM is the one that says whether two configs differ; with fewer
+    than 2 pairs it is NaN (one difference has no spread)."""
+    keep = is_finished if metric not in FAILURE_SCORED else (lambda r: True)
+    va = {r["index"]: scored(r) for r in a if "index" in r and keep(r)}
+    diffs = [float(s[metric]) - float(va[s["index"]][metric])
+             for s in (scored(r) for r in b if keep(r)) if s.get("index") in va]
     m, sem = mean_sem(diffs)
     return m, (sem if len(diffs) >= 2 else math.nan), len(diffs)
 

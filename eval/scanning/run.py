@@ -142,12 +142,13 @@ def main_scan_houses(args, configs) -> None:
         writer = csv.DictWriter(buf, fieldnames=COLUMNS)
         writer.writeheader()
         writer.writerows({c: r[c] for c in COLUMNS} for r in rows)
-        from calnav.common.atomic import write_json_atomic, write_text_atomic
+        from calnav.common.atomic import undefined_as_null, write_json_atomic, write_text_atomic
 
         with writing(out / "quality.csv"):
             write_text_atomic(out / "quality.csv", buf.getvalue())
             write_text_atomic(out / "quality.md", markdown(means))
-            write_json_atomic(out / "quality.json", {"houses": rows, "splits": means, "real_scan": REAL_SCAN_ROW})
+            write_json_atomic(out / "quality.json",   # a figure a scan has no data for (NaN) is null
+                              undefined_as_null({"houses": rows, "splits": means, "real_scan": REAL_SCAN_ROW}))
     print(markdown(means), end="")
     print(f"results: {out}/quality.csv, {out}/quality.md")
     raise_failures(failures, "house", name=lambda item: item[0])   # after the others' rows are written

@@ -48,6 +48,18 @@ def _quiet_exporter():
                 lg.setLevel(level)
 
 
+def network_class_names(seg) -> list[str]:
+    """The class of each output channel of ``seg.net`` in the network's own order (the graph's
+    metadata names its outputs; ``seg.class_names`` is calnav's order, reached through
+    ``seg.channels`` when the weight file lists the classes in another)."""
+    if seg.channels is None:
+        return list(seg.class_names)
+    names = [""] * seg.net.spec.num_classes
+    for name, channel in zip(seg.class_names, seg.channels):
+        names[channel] = name
+    return names
+
+
 def export(model: str, weights: str, output: Path, atol: float = ATOL) -> dict:
     """Export ``model`` (``learned_rgb`` | ``learned_rgbd``, weights ``weights`` or the shipped
     ones) to ``output``; returns {max_abs_diff, frames, resolution}. ValueError when onnxruntime's
@@ -73,7 +85,7 @@ def export(model: str, weights: str, output: Path, atol: float = ATOL) -> dict:
             torch.onnx.export(net, args, str(raw), input_names=names, output_names=["logits"],
                               dynamic_shapes=shapes, opset_version=18, dynamo=True, verbose=False)
         graph = onnx.load(str(raw))
-        meta = {"calnav.class_names": json.dumps(list(seg.class_names)), "calnav.input_mean": "[0, 0, 0]",
+        meta = {"calnav.class_names": json.dumps(network_class_names(seg)), "calnav.input_mean": "[0, 0, 0]",
                 "calnav.input_std": "[1, 1, 1]", "calnav.source": f"{model} {seg.weights_path.name}"}
         for key, value in meta.items():
             graph.metadata_props.add(key=key, value=value)

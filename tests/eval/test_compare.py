@@ -26,15 +26,18 @@ def test_paired_difference_hand_computed():
     assert n == 3
     assert d == pytest.approx(0.3)
     assert sem == pytest.approx(math.sqrt(0.21) / math.sqrt(3))
-    # an episode that crashed (or has a non-finite metric) in either run pairs for no metric:
-    # success diffs 1 - 1 = 0 and 1 - 0 = 1 over episodes 0 and 1
+    # an episode that crashed (or has a non-finite metric) is a failure, as summarize scores it:
+    # Success / SPL 0 in the pairs (a run that crashes on the hard episodes is not flattered);
+    # DistanceToGoal pairs only the episodes both runs finished
     b_crash = [_rec(0, 1.0, 0.9), _rec(1, 1.0, 0.7), {"index": 2, "status": "error", "category": "bed"}]
     for m in ("success", "spl"):
-        assert paired_difference(a, b_crash, m)[2] == 2
-    d, _, n = paired_difference(a, b_crash, "success")
-    assert (d, n) == (pytest.approx(0.5), 2)
-    b_nan = [_rec(0, 1.0, float("nan")), _rec(1, 1.0, 0.7)]
-    assert paired_difference(a, b_nan, "success")[2] == paired_difference(a, b_nan, "spl")[2] == 1
+        assert paired_difference(a, b_crash, m)[2] == 3
+    d, _, n = paired_difference(a, b_crash, "success")   # 1 - 1, 1 - 0, 0 - 1
+    assert (d, n) == (pytest.approx(0.0), 3)
+    assert paired_difference(a, b_crash, "distance_to_goal")[2] == 2
+    b_nan = [_rec(0, 1.0, float("nan")), _rec(1, 1.0, 0.7)]   # episode 0: an error record, scored 0
+    assert paired_difference(a, b_nan, "success") == (pytest.approx(0.0), pytest.approx(1.0), 2)
+    assert paired_difference(a, b_nan, "distance_to_goal")[2] == 1
 
 
 def test_failure_modes_counts():
@@ -149,9 +152,9 @@ def test_compare_counts_a_duplicated_episode_once(tmp_path, capsys):
 
 
 def test_compare_excludes_crashed_episodes_from_the_pairs(tmp_path, capsys):
-    """A baseline whose only shared episode crashed printed '+1.000 (0.000) ... inf': crashed
-    episodes pair for no metric, and a run left without a pair is refused in one line; one pair
-    left gives its difference with SEM '-' (one difference has no spread), never inf."""
+    """A baseline whose only shared episode crashed printed '+1.000 (0.000) ... inf': a run with
+    no episode finished in both is refused in one line; otherwise a crash pairs as a failure
+    (Success / SPL 0), and the SEM is never inf."""
     cfg = {"agent": {"segmenter": "gt"}, "mapping": {"fusion": "rbu"}}
     crashed = {"index": 0, "status": "error", "error": "RuntimeError: boom"}
     r0 = _run_dir(tmp_path / "a", cfg, [crashed])
@@ -162,10 +165,10 @@ def test_compare_excludes_crashed_episodes_from_the_pairs(tmp_path, capsys):
         main_compare(argparse.Namespace(runs=[r0, r1], keys="", baseline="0", output=str(out)))
     assert not (out / "paired.md").exists()
     r2 = _run_dir(tmp_path / "c", cfg, [crashed, _rec(1, 0.0, 0.0)])
-    r3 = _run_dir(tmp_path / "d", {**cfg, "mapping": {"fusion": "glfs"}}, [_rec(0, 1.0, 1.0), _rec(1, 1.0, 0.5)])
+    r3 = _run_dir(tmp_path / "d", {**cfg, "mapping": {"fusion": "glfs"}}, [_rec(0, 1.0, 1.0), _rec(1, 0.0, 0.0)])
     main_compare(argparse.Namespace(runs=[r2, r3], keys="", baseline="0", output=str(out)))
     row = next(line for line in (out / "paired.md").read_text().splitlines() if line.startswith(f"| {r3} "))
-    assert row.endswith("| +0.500 (-) | +1.000 (-) | - | - | 1 |")
+    assert row.endswith("| +0.500 (0.500) | +0.500 (0.500) | 1.0 | 1.0 | 2 |")   # episode 0: 0 -> 1
     assert "inf" not in capsys.readouterr().out
     failures = (out / "failures.md").read_text().splitlines()
     assert failures[2].startswith(f"| {r2} | 2 |") and "| 1 | 0 |" in failures[2]   # the crash counts as failed

@@ -41,8 +41,10 @@ def test_a_model_directory_replaced_in_place_is_another_run(tmp_path):
     assert sorted(entry["files"]) == ["config.json", "model.safetensors", "preprocessor_config.json"]
     assert saved["agent.segmenter_config.label_map"]["path"].endswith("label_maps/ade20k.tsv")
     (model / ".cache" / "download.lock").write_text("touched")
+    (model / "checkpoint-500").mkdir()
+    (model / "checkpoint-500" / "model.safetensors").write_bytes(b"a trainer's checkpoint")
     with ResultsDir(out, cfg):
-        pass   # hidden files are no input: resumes
+        pass   # hidden files and subfolders (checkpoints, logs) are not what the loader reads: resumes
     refusal = rf"holds results made with other input files: agent.segmenter_config.model \({model}\) changed since"
     for change in (lambda: (model / "model.safetensors").write_bytes(b"weights-2"),
                    lambda: (model / "pytorch_model.bin").write_bytes(b"weights-1"),

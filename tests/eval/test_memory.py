@@ -117,6 +117,9 @@ def test_available_memory_is_the_lower_of_meminfo_and_the_cgroup(tmp_path, monke
     assert memory.available_bytes() == 4 * GIB   # no limit
     limit.write_text(str(3 * GIB))
     assert memory.available_bytes() == 2 * GIB
+    # inactive file cache counts in the cgroup's usage but is reclaimed on demand
+    (tmp_path / "memory.stat").write_text(f"anon 1000\ninactive_file {GIB // 2}\nactive_file 10\n")
+    assert memory.available_bytes() == 2 * GIB + GIB // 2
 
 
 @pytest.mark.parametrize("overrides,keys,estimate", [
