@@ -7,9 +7,11 @@ each run minus a baseline run on the episodes both hold (matched by index), mean
 SEM (``eval.stats.paired_difference``), and ``|diff| / SEM``; and ``failures.md``: per run, how
 many episodes failed by a false STOP, by running out of steps, or by a crash
 (``eval.stats.failure_modes``, step limit from each run's ``env.max_episode_steps``). The pairs
-are the episodes both runs finished (``eval.stats.is_finished``: an episode that crashed, or has a
-non-finite metric, in either run is left out of every metric's pairs and counted in
-``failures.md``); a run with no such pair is refused (no paired difference exists); each episode
+are the episodes both runs hold, scored as summaries score them (``eval.stats.paired_difference``:
+an episode that crashed, or has a non-finite metric, is a failure with Success / SPL / SoftSPL 0;
+DTG pairs finished episodes only; ``failures.md`` counts the crashes); a run with no episode
+finished in both is refused (no paired difference exists), and a run holding other episodes under
+the same indices (``other_episodes``) is listed unpaired; each episode
 counts once (``eval.results_dir.read_records``: the last valid record of an index). Keys under ``mapping.`` are shown
 as ``-`` for ``agent.map_type: ndf`` runs, which do not use the 3D map.
 """
