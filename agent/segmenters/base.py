@@ -31,6 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
+from calnav.common.ranges import Range
+
 WEIGHTS_DIR = Path(__file__).resolve().parents[1] / "weights"
 CLASSES_FILE = WEIGHTS_DIR / "classes.json"
 
@@ -52,6 +54,22 @@ def default_cell_confusions() -> dict[str, list[str]]:
     """Extra wrong classes for the noisy segmenter's world-cell errors only (surfaces too big
     to be mistaken as a whole instance): class -> classes a patch of it can be mistaken for."""
     return {"wall": ["door", "cabinet"], "floor": ["wall"], "ceiling": ["wall"]}
+
+
+MIN_INPUT_SIDE_PX, MAX_INPUT_SIDE_PX = 16, 4096   # a network input below 16 px has no features left after
+                                                # the encoder's downsampling; above 4096 px is no camera's
+SEGMENTER_RANGES: dict[str, Range] = {
+    "gt_confidence": Range(0, 1, lo_open=True),
+    "instance_confusion_prob": Range(0, 1), "base_error": Range(0, 1), "max_error": Range(0, 1),
+    "runner_up_share": Range(0, 1), "grazing_error": Range(0, 1),
+    "error_per_m": Range(0, 1, "per metre"),             # a probability added per metre
+    "temperature": Range(0.01, 100),                     # logits / T: beyond these, one-hot or uniform
+    "error_cell_m": Range(0.01, 10, "metres"),           # cells right or wrong together: a cm to a room
+    "near_m": Range(0, 100, "metres"), "invalid_depth_m": Range(0, 100, "metres"),   # indoor distances
+    "hfov_deg": Range(0, 180, "degrees", lo_open=True, hi_open=True),
+    "confusion_arc_deg": Range(0, 360, "degrees"),
+    "threads": Range(0, 1024, "threads"),                # 0 = leave torch's setting
+}
 
 
 @dataclass
@@ -104,18 +122,8 @@ class SegmenterConfig:
     def __post_init__(self) -> None:
         # errors name the key without its section: the config loader prefixes the section as
         # the running command spells it (``agent.segmenter_config: ...`` / ``segmenter: ...``)
-        if not 0 < self.gt_confidence <= 1:
-            raise ValueError(f"gt_confidence must be in (0, 1], got {self.gt_confidence}")
-        for key in ("instance_confusion_prob", "base_error", "max_error", "runner_up_share"):
-            if not 0 <= getattr(self, key) <= 1:
-                raise ValueError(f"{key} must be in [0, 1], got {getattr(self, key)}")
-        for key in ("temperature", "error_cell_m", "hfov_deg"):
-            if getattr(self, key) <= 0:
-                raise ValueError(f"{key} must be > 0, got {getattr(self, key)}")
-        if not 0 <= self.confusion_arc_deg <= 360:
-            raise ValueError(f"confusion_arc_deg must be in [0, 360], got {self.confusion_arc_deg}")
-        if self.threads < 0:
-            raise ValueError(f"threads must be >= 0, got {self.threads}")
+        for key, rng in SEGMENTER_RANGES.items():
+            rng.check(key, getattr(self, key))   # NaN and inf fail every range
         for key in ("input_mean", "input_std"):
             values = getattr(self, key)
             if values and (len(values) != 3 or not all(math.isfinite(v) for v in values)):
@@ -123,8 +131,9 @@ class SegmenterConfig:
         if any(v <= 0 for v in self.input_std):
             raise ValueError(f"input_std must be > 0, got {self.input_std}")
         w, h = self.resolution
-        if (w, h) != (0, 0) and (w < 16 or h < 16):
-            raise ValueError(f"resolution must be (0, 0) or at least 16x16, got {w}x{h}")
+        if (w, h) != (0, 0) and not (MIN_INPUT_SIDE_PX <= min(w, h) and max(w, h) <= MAX_INPUT_SIDE_PX):
+            raise ValueError(f"resolution must be (0, 0) or between {MIN_INPUT_SIDE_PX}x{MIN_INPUT_SIDE_PX} and "
+                             f"{MAX_INPUT_SIDE_PX}x{MAX_INPUT_SIDE_PX} pixels, got {w}x{h}")
 
 
 def softmax(logits: np.ndarray, temperature: float = 1.0) -> np.ndarray:

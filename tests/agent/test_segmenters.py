@@ -209,7 +209,7 @@ def test_segmenter_config_errors_name_the_key_as_the_command_spells_it():
     from calnav.eval.config import ConfigError, load_config
     from calnav.eval.sequence.config import MapSequenceConfig
 
-    with pytest.raises(ConfigError, match=r"^agent.segmenter_config: threads must be >= 0, got -1$"):
+    with pytest.raises(ConfigError, match=r"^agent.segmenter_config: threads must be in \[0, 1024\] threads, got -1$"):
         load_config(None, ["agent.segmenter_config.threads=-1"])
     with pytest.raises(ConfigError, match=r"^segmenter: gt_confidence must be in \(0, 1\], got 2.0$"):
         load_config(None, ["segmenter.gt_confidence=2"], cls=MapSequenceConfig)
@@ -388,3 +388,12 @@ def test_cuda_precision_follows_the_tf32_key():
         assert torch.backends.cudnn.allow_tf32 and torch.backends.cuda.matmul.allow_tf32
     finally:
         torch.backends.cudnn.allow_tf32, torch.backends.cuda.matmul.allow_tf32 = saved
+
+
+@pytest.mark.parametrize("key,value", [("temperature", float("nan")), ("error_cell_m", float("inf")),
+                                       ("near_m", float("nan")), ("invalid_depth_m", -1.0), ("hfov_deg", 180.0),
+                                       ("error_per_m", float("nan")), ("grazing_error", 1.5)])
+def test_segmenter_keys_refuse_nan_inf_and_values_out_of_range(key, value):
+    # "> 0" comparisons let NaN through: every numeric key has a declared range instead
+    with pytest.raises(ValueError, match=rf"^{key} must be in "):
+        SegmenterConfig(**{key: value})
