@@ -7,7 +7,7 @@ allocates the memory, for what one worker process holds at once:
 
 - the agent's 2D map (``agent.semantic_map.MapState.estimate_bytes``): (map_size_m / cell_m)^2
   cells of 7 + 12 K bytes (peanut agent);
-- the voxel map (``mapping.voxel_map.SemanticVoxelMap.estimate_bytes``): Open3D's hashmap as
+- the voxel map (``mapping.memory.voxel_map_bytes``): Open3D's hashmap as
   allocated up front (``mapping.block_count`` / ``initial_alloc_mb``; it then grows with the
   mapped volume, which no config bounds) and one frame's dense block table over the view
   frustum up to the depth range, which grows as 1 / voxel^3 (the agent's map with ``map_type:
@@ -84,15 +84,15 @@ def _camera_extent(env: Any, depth_max_m: float) -> tuple[float, float, float]:
 
 
 def _voxel_need(mapping: Any, num_classes: int, tsdf: bool, env: Any) -> Need:
-    from calnav.mapping.voxel_map import SemanticVoxelMap
+    from calnav.mapping.memory import voxel_map_bytes
 
     extent = _camera_extent(env, mapping.depth_max_m) if env is not None else None
     budget = f"mapping.block_count={mapping.block_count}" if mapping.block_count else \
         f"mapping.initial_alloc_mb={mapping.initial_alloc_mb:g}"
     keys = (f"mapping.voxel_size_m={mapping.voxel_size_m:g}", f"mapping.block_resolution={mapping.block_resolution}",
             budget)
-    allocation = SemanticVoxelMap.estimate_bytes(num_classes, mapping, tsdf=tsdf)
-    total = SemanticVoxelMap.estimate_bytes(num_classes, mapping, tsdf=tsdf, frame_extent_m=extent)
+    allocation = voxel_map_bytes(num_classes, mapping, tsdf=tsdf)
+    total = voxel_map_bytes(num_classes, mapping, tsdf=tsdf, frame_extent_m=extent)
     advice = (f"use a smaller {budget.split('=')[0]} or mapping.block_resolution" if allocation >= total - allocation
               else "use a larger mapping.voxel_size_m or a shorter depth range (mapping.depth_max_m)")
     return Need("the voxel map (its first allocation" + (" and a frame's block table)" if extent else ")"), keys,

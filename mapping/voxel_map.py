@@ -50,13 +50,6 @@ NORMAL_BASE_WIDTH_PX = 160  # auto depth-normal baseline: 1 pixel per 160 pixels
 WEIGHT_STRICT_OFFSET = 0.5
 NO_VOXELS = (np.zeros((0, 3), np.int32), np.zeros(0, np.int64))   # ``frame_voxels`` of a frame that fused none
 NO_BLOCK_TOUCHED = "No block is touched"  # Open3D's error for a frame that touches no voxel block
-# A frame's dense block table (``frame_geometry.BlockTable``) spans its touched blocks plus one
-# block of padding on each side: up to ceil(extent / block) + 3 cells per axis. Per cell it holds
-# the frame's flag and a scratch mark (bool each) and a buffer index (int64); per voxel of its
-# cells the candidates' stamp (int32, ``_candidates``).
-TABLE_PAD_BLOCKS = 3
-TABLE_CELL_BYTES = 1 + 1 + 8
-TABLE_VOXEL_BYTES = 4
 
 
 @dataclass
@@ -150,28 +143,6 @@ class SemanticVoxelMap:
         # the voxels the last ``integrate`` fused an observation into (their fused values changed):
         # keys (n, 3) int32 and flat buffer indices (n,) int64, valid until the next integrate
         self.frame_voxels: tuple[np.ndarray, np.ndarray] = NO_VOXELS
-
-    @staticmethod
-    def estimate_bytes(num_classes: int, cfg: MappingConfig, tsdf: bool = True,
-                       frame_extent_m: tuple[float, float, float] | None = None) -> int:
-        """Bytes a map of ``cfg`` takes before it grows: Open3D's hashmap as allocated up front
-        (``block_count`` blocks, or ``initial_alloc_mb``'s worth, at least MIN_BLOCKS; it doubles
-        on demand as the mapped volume grows, which no config bounds) plus, when
-        ``frame_extent_m`` (x, y, z) gives the axis-aligned extent in metres that a frame's
-        points can span, that frame's dense block table (TABLE_* above), whose blocks reach
-        the association or truncation band beyond the surface."""
-        channels = (sum(c for _, c in BASE_ATTRS) if tsdf else 0) + \
-            sum(get_strategy(cfg.fusion).channels(num_classes).values()) + 1   # + the observation count
-        res = cfg.block_resolution
-        bytes_per_block = res ** 3 * channels * np.dtype(np.float32).itemsize
-        blocks = cfg.block_count or max(MIN_BLOCKS, int(cfg.initial_alloc_mb * MIB / bytes_per_block))
-        total = blocks * bytes_per_block
-        if frame_extent_m is not None:
-            block_m = cfg.voxel_size_m * res
-            band_m = max(cfg.trunc_voxels, cfg.association_band_voxels) * cfg.voxel_size_m
-            cells = np.prod([np.ceil((extent + 2 * band_m) / block_m) + TABLE_PAD_BLOCKS for extent in frame_extent_m])
-            total += cells * (TABLE_CELL_BYTES + res ** 3 * TABLE_VOXEL_BYTES)
-        return int(total)
 
     def _set_fusion_params(self, params: GLFSParams | None, temperature) -> None:
         """Temperature, GLFS gates and weighting parameters (the LUT from the GLFS params)."""

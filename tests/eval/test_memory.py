@@ -33,12 +33,13 @@ def test_map_state_estimate_is_its_arrays():
 def test_voxel_map_estimate_covers_its_allocation_and_a_frames_table(voxel, tsdf):
     from calnav.envs.task import camera_pose, pinhole_intrinsics
     from calnav.mapping.config import MappingConfig
+    from calnav.mapping.memory import voxel_map_bytes
     from calnav.mapping.voxel_map import SemanticVoxelMap
 
     w, h, hfov, k = 160, 120, 79.0, 4
     vfov = math.degrees(2 * math.atan(math.tan(math.radians(hfov) / 2) * h / w))
     cfg = MappingConfig(voxel_size_m=voxel, initial_alloc_mb=16)
-    allocation = SemanticVoxelMap.estimate_bytes(k, cfg, tsdf=tsdf)
+    allocation = voxel_map_bytes(k, cfg, tsdf=tsdf)
     vm = SemanticVoxelMap(k, cfg, tsdf=tsdf)
     assert vm.memory_bytes(allocated=True) == allocation
     # a frame seeing as far as the map integrates, at several yaws: its table's stamp is the
@@ -53,7 +54,7 @@ def test_voxel_map_estimate_covers_its_allocation_and_a_frames_table(voxel, tsdf
                      logits=np.zeros((h, w, k), np.float32))
         table = max(table, vm._stamp.nbytes)
     extent = memory.frustum_extent_m(hfov, vfov, cfg.depth_max_m)
-    estimate = SemanticVoxelMap.estimate_bytes(k, cfg, tsdf=tsdf, frame_extent_m=extent) - allocation
+    estimate = voxel_map_bytes(k, cfg, tsdf=tsdf, frame_extent_m=extent) - allocation
     assert table <= estimate <= 2.5 * table
 
 
