@@ -43,6 +43,24 @@ def _alive(pid: int) -> bool:
         return f.read().split()[2] != "Z"
 
 
+def _assert_all_die(pids: list[int], within_s: float = 10.0) -> None:
+    """Every worker in ``pids`` is gone within ``within_s`` seconds."""
+    deadline = time.monotonic() + within_s
+    while any(_alive(p) for p in pids) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not any(_alive(p) for p in pids)
+
+
+def _kill_all(driver, out: Path) -> None:
+    """Clean up what a test left: the driver and the workers that wrote their pid to ``out``."""
+    driver.kill()
+    for p in out.iterdir():
+        try:
+            os.kill(int(p.name), signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+
+
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="parent-death signals are Linux's")
 def test_kill_9_of_the_driver_kills_its_workers(tmp_path):
     out = tmp_path / "pids"
@@ -59,17 +77,9 @@ def test_kill_9_of_the_driver_kills_its_workers(tmp_path):
         assert len(pids) == 2 and all(_alive(p) for p in pids)
         driver.send_signal(signal.SIGKILL)
         driver.wait(10)
-        deadline = time.monotonic() + 10
-        while any(_alive(p) for p in pids) and time.monotonic() < deadline:
-            time.sleep(0.1)
-        assert not any(_alive(p) for p in pids)
+        _assert_all_die(pids)
     finally:
-        driver.kill()
-        for p in out.iterdir():
-            try:
-                os.kill(int(p.name), signal.SIGKILL)
-            except ProcessLookupError:
-                pass
+        _kill_all(driver, out)
 
 
 SIGINT_DRIVER = textwrap.dedent("""
@@ -125,14 +135,6 @@ def test_sigint_stops_the_pool_at_once_and_keeps_the_finished(tmp_path, target):
             os.killpg(driver.pid, signal.SIGINT)
         assert driver.wait(STOP_BOUND_S) == 130 and time.monotonic() - t0 < STOP_BOUND_S
         assert saved.read_text() == "0\n"
-        deadline = time.monotonic() + 10
-        while any(_alive(p) for p in pids) and time.monotonic() < deadline:
-            time.sleep(0.1)
-        assert not any(_alive(p) for p in pids)
+        _assert_all_die(pids)
     finally:
-        driver.kill()
-        for p in out.iterdir():
-            try:
-                os.kill(int(p.name), signal.SIGKILL)
-            except ProcessLookupError:
-                pass
+        _kill_all(driver, out)
