@@ -206,6 +206,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--output", default="runs/tune", help="results directory (one subdirectory per grid point)")
     p.add_argument("--force", action="store_true", help="discard results of a different config in --output")
 
+    p = sub.add_parser("study", help="the ObjectNav study of a study config: tune each row's goal threshold, "
+                                     "evaluate on held-out episodes, write manifest.json (resumable)")
+    p.add_argument("study", help="study config (YAML; e.g. configs/study.yaml)")
+    p.add_argument("overrides", nargs="*", help="config overrides of every row, e.g. run.workers=2")
+    p.add_argument("--output", default="runs/study", help="results directory (tune/, eval/, manifest.json)")
+    p.add_argument("--rows", default="", help="comma-separated row names to run (default: every row)")
+    p.add_argument("--force", action="store_true", help="discard results of a different config in --output")
+
     p = sub.add_parser("compare", help="one comparison table (+ paired differences) from finished objectnav runs")
     p.add_argument("runs", nargs="+", help="run directories (each with config.yaml and episodes.jsonl)")
     p.add_argument("--keys", default="", help="comma-separated config keys as columns (default: the keys that differ)")
@@ -269,6 +277,7 @@ COMMANDS: dict[str, Command] = {
     "export-sequence": Command("calnav.eval.sequence.export", "main_export_sequence", "export_sequence_configs",
                                checks=("run",)),   # segments nothing; its --scene is loaded first
     "tune": Command("calnav.eval.objectnav.tune", "main_tune", "tune_configs"),
+    "study": Command("calnav.eval.objectnav.study", "main_study", "study_configs"),
     "compare": Command("calnav.eval.objectnav.compare", "main_compare", None),  # reads finished runs' configs
     "demo": Command("calnav.eval.objectnav.demo", "main_demo", "demo_configs"),
     "view": Command("calnav.eval.sequence.view", "main_view", None),   # reads recordings, no config

@@ -1,0 +1,199 @@
+"""`calnav study CONFIG`: the ObjectNav study (tune each map's goal threshold on one split,
+evaluate on held-out episodes of another), resumable, with a manifest of where every number
+comes from.
+
+The study config (``eval.objectnav.study_config``) lists rows in run order. For each row:
+
+1. a tuned row runs ``calnav tune``'s grid (``run_tune``) on the tuning episodes into
+   ``<output>/tune/<row>/`` (``tune.csv``, ``best.yaml``, a results directory per grid point);
+2. the row is evaluated at its tuned point -- or at the tuned point of the row it names in
+   ``threshold_from`` -- on the evaluation episodes into ``<output>/eval/<row>/``, a results
+   directory like ``calnav objectnav``'s. A row whose evaluation config equals an earlier
+   row's (a transferred threshold that equals the row's own) is not run twice: its manifest
+   entry names the earlier records. A row whose config the tuned point makes invalid (the
+   uncertainty-aware agent's band below a low tuned threshold) is skipped, with the reason.
+
+Every step resumes: an interrupted study is continued by rerunning the same command. After each
+row ``<output>/manifest.json`` is rewritten (atomically): the study file and its sha256, and
+per row the equivalent single commands, the resolved config, the source commit, the sha256 of
+every weight file (``inputs.json``) and episode file it read, the episode seconds it took, its
+summary, and where its records are. ``calnav report`` renders the results pages from it.
+"""
+from __future__ import annotations
+
+import gzip
+import hashlib
+import shlex
+from pathlib import Path
+
+from calnav.common.provenance import git_commit
+from calnav.eval.config import ConfigError, load_config, to_dict
+from calnav.eval.inputs import INPUTS_NAME, sha256_file
+from calnav.eval.objectnav.study_config import StudyConfig, StudyRow, load_study
+from calnav.eval.results_dir import ResultsDir, read_records, strip_neutral
+
+MANIFEST_NAME = "manifest.json"
+MANIFEST_VERSION = 1
+
+
+def episode_files(env_cfg, upto: int) -> dict[str, str]:
+    """{path under the calnav cache: sha256 of its JSON} of the cached episode files holding episodes
+    ``0:upto`` of ``env_cfg.split`` (their scenes' ``content/<scene>.json.gz``)."""
+    from calnav.envs.episodes import scenes_needed, split_dir
+    from calnav.envs.scene import cache_dir
+
+    needed, _ = scenes_needed(env_cfg.split, env_cfg, upto)
+    root = split_dir(env_cfg.split, env_cfg) / "content"
+    files = [root / f"{sid}.json.gz" for sid in needed]
+    # the JSON inside is hashed: gzip's header holds the write time, so a regenerated file of the
+    # same episodes would change a hash of the file itself
+    return {str(f.relative_to(cache_dir())): hashlib.sha256(gzip.decompress(f.read_bytes())).hexdigest()
+            for f in files if f.is_file()}
+
+
+def _episode_seconds(records_path: Path, indices: range) -> tuple[int, float]:
+    """(episodes recorded of ``indices``, the sum of their ``wall_time_s``: worker seconds)."""
+    if not records_path.is_file():
+        return 0, 0.0
+    wanted = set(indices)
+    recs = [r for r in read_records(records_path, quiet=True).records.values() if r.get("index") in wanted]
+    return len(recs), float(sum(float(r.get("wall_time_s") or 0.0) for r in recs))
+
+
+def _read_json(path: Path) -> dict | None:
+    import json
+
+    return json.loads(path.read_text(encoding="utf-8")) if path.is_file() else None
+
+
+def _tune_command(study: StudyConfig, row: StudyRow, extra: list[str], out: Path) -> str:
+    t = study.tune
+    return shlex.join(["calnav", "tune", "--config", study.config, "--episodes", t.episodes,
+                       "--thresholds", ",".join(f"{v:g}" for v in study.grid(row)),
+                       "--min-areas", ",".join(map(str, t.min_areas)), "--extend", str(t.extend),
+                       "--metric", t.metric, "--output", str(out), *study.tune_overrides(row, extra)])
+
+
+def _eval_command(study: StudyConfig, out: Path) -> str:
+    return shlex.join(["calnav", "objectnav", "--config", str(out / "config.yaml"),
+                       "--episodes", study.evaluate.episodes, "--output", str(out)])
+
+
+class Manifest:
+    """``<output>/manifest.json``: the study's provenance, rewritten after every row."""
+
+    def __init__(self, root: ResultsDir, study: StudyConfig, study_path: Path, extra: list[str]):
+        self.root = root
+        self.data = {"version": MANIFEST_VERSION, "study": str(study_path), "study_sha256": sha256_file(study_path),
+                     "overrides": list(extra), "tune": to_dict(study.tune), "evaluate": to_dict(study.evaluate),
+                     "rows": {r.name: {"status": "pending", "overrides": study.row_overrides(r),
+                                       "threshold_from": r.threshold_from} for r in study.rows}}
+
+    def carry(self, previous: dict | None) -> None:
+        """Keep the entries of an earlier invocation (``--rows`` runs some rows only) for rows
+        whose overrides and threshold source are unchanged, when the episodes are the same; a
+        row that runs now replaces its entry."""
+        if not previous or previous.get("version") != MANIFEST_VERSION or \
+                (previous.get("tune"), previous.get("evaluate")) != (self.data["tune"], self.data["evaluate"]):
+            return
+        for name, entry in previous.get("rows", {}).items():
+            now = self.data["rows"].get(name)
+            if now is not None and (entry.get("overrides"), entry.get("threshold_from")) == \
+                    (now["overrides"], now["threshold_from"]):
+                self.data["rows"][name] = entry
+
+    def update(self, name: str, **entry) -> None:
+        """Replace row ``name``'s entry (keeping its overrides and threshold source) and rewrite
+        the manifest."""
+        now = self.data["rows"][name]
+        self.data["rows"][name] = {"overrides": now["overrides"], "threshold_from": now["threshold_from"], **entry}
+        self.root.write_json(MANIFEST_NAME, self.data)
+
+
+def run_study(study_path: str | Path, out: Path, extra: list[str] = (), force: bool = False,
+              progress: bool = True, only: tuple[str, ...] = ()) -> dict:
+    """Run (or resume) the study at ``study_path`` into ``out``; returns the manifest dict.
+    ``extra``: overrides of every row (the command line's); ``only``: run just these rows (and
+    the tuning of the rows they take a threshold from)."""
+    from calnav.eval.episodes import episode_indices
+    from calnav.eval.objectnav.run import EpisodeJob, run_jobs
+    from calnav.eval.objectnav.tune import run_tune
+
+    study_path, out, extra = Path(study_path), Path(out), list(extra)
+    study, _ = load_study(study_path, extra)
+    unknown = [n for n in only if n not in {r.name for r in study.rows}]
+    if unknown:
+        raise ConfigError(f"--rows: no row {unknown[0]!r} in {study_path}; rows: {', '.join(r.name for r in study.rows)}")
+    wanted = set(only) | {study.row(n).threshold_from for n in only if study.row(n).threshold_from} if only else None
+    commit = git_commit()
+    tuned: dict[str, dict] = {}
+    evaluated: dict[str, str] = {}   # resolved evaluation config (result-relevant keys) -> row that ran it
+    with ResultsDir(out, files=(MANIFEST_NAME, "study.yaml")) as root:   # a lock: two studies cannot interleave
+        root.write_text("study.yaml", study_path.read_text(encoding="utf-8"))
+        manifest = Manifest(root, study, study_path, extra)
+        manifest.carry(_read_json(out / MANIFEST_NAME))
+        for row in study.rows:
+            if wanted is not None and row.name not in wanted:
+                continue
+            if not row.threshold_from:
+                tune_dir = out / "tune" / row.name
+                grid_rows, best = run_tune(study.config, study.tune_overrides(row, extra), study.tune.episodes,
+                                           ",".join(f"{v:g}" for v in study.grid(row)),
+                                           ",".join(map(str, study.tune.min_areas)), study.tune.metric, tune_dir,
+                                           force=force, progress=progress, extend=study.tune.extend)
+                tuned[row.name] = {"dir": str(tune_dir.relative_to(out)), "command": _tune_command(study, row, extra, tune_dir),
+                                   "metric": study.tune.metric, "threshold": best["threshold"],
+                                   "min_area": best["min_area"], "grid": grid_rows}
+            if only and row.name not in only:
+                continue
+            source = tuned[row.threshold_from or row.name]
+            t, a = source["threshold"], source["min_area"]
+            entry: dict = {"tune": tuned.get(row.name), "threshold": t, "min_area": a}
+            try:
+                cfg = load_config(study.config, study.eval_overrides(row, t, a, extra))
+            except ConfigError as exc:
+                print(f"study: row {row.name} skipped at goal_threshold={t:g}: {exc}")
+                manifest.update(row.name, status="skipped", reason=str(exc), **entry)
+                continue
+            key = repr(strip_neutral(to_dict(cfg)))
+            eval_dir = out / "eval" / row.name
+            if key in evaluated:   # the same config as an earlier row: its records are this row's
+                same = manifest.data["rows"][evaluated[key]]
+                manifest.update(row.name, **{**{k: v for k, v in same.items() if k not in ("tune", "threshold_from",
+                                                                                             "overrides")},
+                                             **entry, "same_as": evaluated[key]})
+                continue
+            indices = episode_indices(study.evaluate.episodes, cfg.env, cfg.run, progress)
+            if progress:
+                print(f"study: {row.name}: goal_threshold={t:g} goal_min_area_cells={a} -> {eval_dir}")
+            summary = run_jobs([EpisodeJob(cfg, list(indices), eval_dir)], force=force, progress=progress)[0]
+            n, seconds = _episode_seconds(eval_dir / "episodes.jsonl", indices)
+            evaluated[key] = row.name
+            manifest.update(row.name, status="done", dir=str(eval_dir.relative_to(out)),
+                            command=_eval_command(study, eval_dir), config=to_dict(cfg), commit=commit,
+                            inputs=_read_json(eval_dir / INPUTS_NAME) or {},
+                            episode_files=episode_files(cfg.env, indices.stop), episodes=n,
+                            episode_seconds=round(seconds, 3),
+                            summary={k: v for k, v in summary.items() if k != "per_category"}, **entry)
+    return manifest.data
+
+
+def study_configs(args) -> list:
+    """Every config ``calnav study`` runs (checked by the preflight before any row runs)."""
+    return load_study(args.study, list(args.overrides))[1]
+
+
+def main_study(args, configs) -> None:
+    """``configs``: ``study_configs(args)``, checked by the preflight."""
+    out = Path(args.output)
+    only = tuple(s.strip() for s in (args.rows or "").split(",") if s.strip())
+    manifest = run_study(args.study, out, list(args.overrides), force=args.force, only=only)
+    rows = manifest["rows"]
+    width = max(len(n) for n in rows)
+    print(f"{'row'.ljust(width)}  status   threshold  Success        SPL            N")
+    for name, e in rows.items():
+        s = e.get("summary") or {}
+        figures = (f"{e['threshold']:<9g}  {s['success']:.3f} ({s['success_sem']:.3f})  "
+                   f"{s['spl']:.3f} ({s['spl_sem']:.3f})  {s['count']}") if s else e.get("reason", "")
+        print(f"{name.ljust(width)}  {e['status']:<7}  {figures}")
+    print(f"manifest: {out / MANIFEST_NAME}")

@@ -1,0 +1,134 @@
+"""`calnav study`: the study config's checks (one line, before anything is written), and a tiny
+end-to-end study (tune on val, evaluate on test, a transferred threshold, a skipped row) whose
+manifest names every row's command, config, inputs and records, and which resumes."""
+import json
+import textwrap
+
+import pytest
+
+from calnav.eval.cli import main
+from calnav.eval.config import ConfigError, load_config
+from calnav.eval.objectnav.study_config import load_study
+
+SMALL = ["env.resolution=64x48", "env.dataset.val_scenes=1", "env.dataset.test_scenes=1",
+         "env.dataset.episodes_per_scene=2", "env.max_episode_steps=12", "agent.map_resolution=32x24",
+         "agent.map_size_m=16", "mapping.initial_alloc_mb=32", "run.workers=1"]
+
+
+def _study(tmp_path, rows: str, name: str = "study.yaml"):
+    text = textwrap.dedent(f"""\
+        config: objectnav.yaml
+        overrides: {json.dumps(SMALL)}
+        tune:
+          split: val
+          episodes: "0:1"
+          thresholds: [0.5, 0.9]
+          min_areas: [4]
+          extend: 0
+          metric: success
+        evaluate:
+          split: test
+          episodes: "0:1"
+        rows:
+        """) + textwrap.indent(textwrap.dedent(rows), "  ")
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+ROWS = """\
+- name: gt/ndf
+  overrides: [agent.segmenter=gt, agent.map_type=ndf]
+- name: gt/rbu
+  overrides: [agent.segmenter=gt, mapping.fusion=rbu]
+- name: gt/ndf@rbu
+  threshold_from: gt/rbu
+  overrides: [agent.segmenter=gt, agent.map_type=ndf]
+- name: gt/rbu_uncertainty
+  threshold_from: gt/rbu
+  overrides: [agent.segmenter=gt, mapping.fusion=rbu, agent.uncertainty_aware=true, agent.uncertain_low=0.6]
+"""
+
+
+@pytest.mark.parametrize("rows, message", [
+    ("- name: a\n- name: a\n", "row a is listed twice"),
+    ("- name: a\n- name: a/b\n", "nest"),
+    ("- name: a\n  threshold_from: b\n", "threshold_from 'b' names no earlier row"),
+    ("- name: a\n- name: b\n  threshold_from: a\n- name: c\n  threshold_from: b\n", "tunes no threshold of its own"),
+    ("- name: a\n  overrides: [agent.goal_threshold=0.5]\n", "agent.goal_threshold is set by the study itself"),
+    ("- name: a\n  overrides: [env.split=val]\n", "env.split is set by the study itself"),
+    ("- name: ../a\n", "is not a relative path"),
+    ("- name: a\n  overrides: [mapping.fusion=nope]\n", "row a: "),
+    ("- name: a\n  thresholds: [0.5, 1.5]\n", "outside (0, 1]"),
+    ("[]\n", "rows is empty"),
+])
+def test_bad_study_is_refused_in_one_line(tmp_path, rows, message):
+    with pytest.raises(ConfigError) as exc:
+        load_study(_study(tmp_path, rows))
+    assert message in str(exc.value) and "\n" not in str(exc.value)
+
+
+def test_bad_sections_are_refused(tmp_path):
+    text = _study(tmp_path, "- name: a\n").read_text().replace("split: test", "split: val")
+    (tmp_path / "overlap.yaml").write_text(text)
+    with pytest.raises(ConfigError, match="overlap on split val: tune and evaluate on disjoint episodes"):
+        load_study(tmp_path / "overlap.yaml")
+    (tmp_path / "metric.yaml").write_text(_study(tmp_path, "- name: a\n").read_text().replace("metric: success", "metric: dtg"))
+    with pytest.raises(ConfigError, match="valid choices: success, spl, softspl"):
+        load_study(tmp_path / "metric.yaml")
+    (tmp_path / "nan.yaml").write_text(_study(tmp_path, "- name: a\n").read_text().replace("[0.5, 0.9]", "[.nan]"))
+    with pytest.raises(ConfigError, match="tune.thresholds"):
+        load_study(tmp_path / "nan.yaml")
+
+
+def test_study_cli_refuses_before_writing(tmp_path, capsys):
+    out = tmp_path / "out"
+    path = _study(tmp_path, "- name: a\n  overrides: [agent.segmenter=nope]\n")
+    assert main(["study", str(path), "--output", str(out)]) == 2
+    assert "row a" in capsys.readouterr().err
+    assert main(["study", str(_study(tmp_path, ROWS)), "--output", str(out), "--rows", "gt/x"]) == 2
+    assert "no row 'gt/x'" in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_shipped_study_config_loads():
+    study, configs = load_study("configs/study.yaml")
+    assert study.evaluate.split == "test" and study.tune.split == "val"
+    assert len(study.tune.thresholds) >= 4 and min(len(range(*map(int, study.tune.episodes.split(":")))), 300) == 300
+    assert all(c.env.split in ("val", "test") for c in configs)
+
+
+@pytest.mark.e2e
+def test_study_end_to_end(tmp_path, capsys):
+    path, out = _study(tmp_path, ROWS), tmp_path / "out"
+    assert main(["study", str(path), "--output", str(out)]) == 0
+    manifest = json.loads((out / "manifest.json").read_text())
+    rows = manifest["rows"]
+    assert list(rows) == ["gt/ndf", "gt/rbu", "gt/ndf@rbu", "gt/rbu_uncertainty"]
+    for name in ("gt/ndf", "gt/rbu"):
+        e = rows[name]
+        assert e["status"] == "done" and e["tune"]["metric"] == "success"
+        assert [g["threshold"] for g in e["tune"]["grid"]] == [0.5, 0.9]
+        assert (out / e["tune"]["dir"] / "tune.csv").is_file()
+        assert e["command"].startswith("calnav objectnav --config ")
+        cfg = load_config(out / e["dir"] / "config.yaml")   # the evaluation at the tuned point, on test
+        assert cfg.env.split == "test" and cfg.agent.goal_threshold == e["threshold"]
+        assert e["summary"]["count"] == 1 and e["episodes"] == 1 and e["episode_seconds"] > 0
+        assert e["episode_files"] and all(len(v) == 64 for v in e["episode_files"].values())
+        assert e["config"]["agent"]["goal_threshold"] == e["threshold"]
+    assert rows["gt/ndf@rbu"]["threshold"] == rows["gt/rbu"]["threshold"]
+    if rows["gt/ndf@rbu"]["threshold"] == rows["gt/ndf"]["threshold"]:   # the same config: not run twice
+        assert rows["gt/ndf@rbu"]["same_as"] == "gt/ndf"
+    else:
+        assert rows["gt/ndf@rbu"]["status"] == "done"
+    # the uncertainty band [0.6, tuned) is empty at a tuned 0.5, valid at 0.9
+    unc = rows["gt/rbu_uncertainty"]
+    assert unc["status"] == ("skipped" if rows["gt/rbu"]["threshold"] <= 0.6 else "done")
+    assert "row" in capsys.readouterr().out
+
+    # a rerun resumes: nothing runs again, the manifest keeps every row
+    before = (out / rows["gt/rbu"]["dir"] / "episodes.jsonl").read_text()
+    assert main(["study", str(path), "--output", str(out), "--rows", "gt/rbu"]) == 0
+    again = json.loads((out / "manifest.json").read_text())["rows"]
+    assert (out / rows["gt/rbu"]["dir"] / "episodes.jsonl").read_text() == before
+    assert again["gt/ndf"] == rows["gt/ndf"] and again["gt/rbu"]["summary"] == rows["gt/rbu"]["summary"]
