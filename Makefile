@@ -54,10 +54,10 @@ docs: $(STAMP)
 bench: $(STAMP)
 	$(VENV)/bin/calnav bench --output bench.json
 
-# The ObjectNav comparison (docs/objectnav_study.md): tune per segmenter x map, evaluate on a disjoint range
-# (several hours on 2 cores; resumable, rerun to continue).
+# The ObjectNav study (docs/objectnav_study.md): every row of configs/study.yaml tuned on val,
+# evaluated on test; resumable (rerun to continue)
 study: $(STAMP)
-	CALNAV=$(VENV)/bin/calnav eval/objectnav/study.sh
+	$(VENV)/bin/calnav study configs/study.yaml --output docs/objectnav_study/study
 
 clean-cache:
 	rm -rf $${CALNAV_CACHE:-$$HOME/.cache/calnav}

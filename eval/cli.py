@@ -214,6 +214,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--rows", default="", help="comma-separated row names to run (default: every row)")
     p.add_argument("--force", action="store_true", help="discard results of a different config in --output")
 
+    p = sub.add_parser("report", help="a study's results page (results.md, threshold_curves.png) from its manifest "
+                                      "and records")
+    p.add_argument("manifest", help="the manifest.json `calnav study` wrote")
+    p.add_argument("--output", default="", help="directory for results.md (default: the manifest's)")
+
     p = sub.add_parser("compare", help="one comparison table (+ paired differences) from finished objectnav runs")
     p.add_argument("runs", nargs="+", help="run directories (each with config.yaml and episodes.jsonl)")
     p.add_argument("--keys", default="", help="comma-separated config keys as columns (default: the keys that differ)")
@@ -278,6 +283,7 @@ COMMANDS: dict[str, Command] = {
                                checks=("run",)),   # segments nothing; its --scene is loaded first
     "tune": Command("calnav.eval.objectnav.tune", "main_tune", "tune_configs"),
     "study": Command("calnav.eval.objectnav.study", "main_study", "study_configs"),
+    "report": Command("calnav.eval.objectnav.study_report", "main_report", None),  # reads records, no config
     "compare": Command("calnav.eval.objectnav.compare", "main_compare", None),  # reads finished runs' configs
     "demo": Command("calnav.eval.objectnav.demo", "main_demo", "demo_configs"),
     "view": Command("calnav.eval.sequence.view", "main_view", None),   # reads recordings, no config

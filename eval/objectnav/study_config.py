@@ -118,10 +118,20 @@ class StudyConfig:
     tune: TuneSection = field(default_factory=TuneSection)
     evaluate: EvaluateSection = field(default_factory=EvaluateSection)
     rows: list[StudyRow] = field(default_factory=list)
+    # paired differences the report shows, [row, baseline] (row minus baseline on the shared
+    # evaluation episodes); a transferred-threshold row is also paired with its own tuned row
+    pairs: list[tuple[str, str]] = field(default_factory=list)
 
     def __post_init__(self) -> None:
         if not self.rows:
             raise ValueError("rows is empty; list at least one study row")
+        names = [r.name for r in self.rows]
+        for a, b in self.pairs:
+            for n in (a, b):
+                if n not in names:
+                    raise ValueError(f"pairs: {n!r} names no row; rows: {', '.join(names)}")
+            if a == b:
+                raise ValueError(f"pairs: [{a}, {b}] pairs a row with itself")
         seen: dict[str, StudyRow] = {}
         for row in self.rows:
             if row.name in seen:
@@ -151,6 +161,13 @@ class StudyConfig:
 
     def row(self, name: str) -> StudyRow:
         return next(r for r in self.rows if r.name == name)
+
+    def own_tuned(self, row: StudyRow) -> StudyRow | None:
+        """The tuned row with ``row``'s overrides, for a row that takes another's threshold
+        (the transfer question: the Success lost against the condition's own tuned threshold)."""
+        if not row.threshold_from:
+            return None
+        return next((r for r in self.rows if not r.threshold_from and r.overrides == row.overrides), None)
 
     def row_overrides(self, row: StudyRow, extra: list[str] = ()) -> list[str]:
         """Every override of ``row`` but the study's own keys: the study's, the row's, then

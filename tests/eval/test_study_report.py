@@ -1,0 +1,86 @@
+"""`calnav report`: the study's results page from a hand-made manifest and records, with the
+paired differences and verdicts computed by hand; refusals of a missing manifest or records."""
+import json
+
+import pytest
+
+from calnav.eval.cli import main
+from calnav.eval.config import ConfigError
+from calnav.eval.objectnav.study_report import render, transfer_pairs, verdict
+
+
+def _rec(i, success, spl, steps=20):
+    return {"index": i, "episode_id": str(i), "geodesic_distance": 3.0 + i, "category": "chair", "status": "ok",
+            "success": float(success), "spl": float(spl), "softspl": float(spl), "distance_to_goal": 0.0 if success else 2.0,
+            "steps": steps, "collisions": 1, "wall_time_s": 1.5}
+
+
+def _study(tmp_path, rows: dict[str, list[dict]], entries: dict[str, dict], pairs) -> "Path":
+    manifest = {"version": 1, "evaluate": {"split": "test", "episodes": "0:4"},
+                "tune": {"split": "val", "episodes": "0:2", "thresholds": [0.5, 0.9], "metric": "success"},
+                "pairs": pairs, "rows": {}}
+    for name, e in entries.items():
+        if name in rows:
+            d = tmp_path / "eval" / name
+            d.mkdir(parents=True)
+            (d / "episodes.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows[name]))
+            e = {"status": "done", "dir": f"eval/{name}", "episode_seconds": 6.0,
+                 "config": {"env": {"max_episode_steps": 500}}, **e}
+        manifest["rows"][name] = e
+    path = tmp_path / "manifest.json"
+    path.write_text(json.dumps(manifest))
+    return path
+
+
+def test_verdict_claims_only_beyond_two_sem():
+    assert verdict(0.10, 0.05, 600) == "resolved"
+    assert verdict(-0.10, 0.05, 600) == "resolved"
+    assert verdict(0.099, 0.05, 600) == "not resolved at 600 episodes"
+    assert verdict(0.0, 0.0, 10) == "identical on every episode"
+    assert verdict(0.1, float("nan"), 1) == "not resolved at 1 episodes"
+
+
+def test_page_from_hand_made_records(tmp_path):
+    base = [_rec(0, 1, 0.5), _rec(1, 0, 0.0, steps=500), _rec(2, 1, 0.8), _rec(3, 0, 0.0)]
+    better = [_rec(0, 1, 0.6), _rec(1, 1, 0.4), _rec(2, 1, 0.8), _rec(3, 1, 0.5)]
+    entries = {
+        "seg/clean/rbu": {"overrides": ["a=1"], "threshold_from": "", "threshold": 0.9,
+                          "tune": {"grid": [{"threshold": 0.5, "success": 0.5, "success_sem": 0.1},
+                                            {"threshold": 0.9, "success": 0.6, "success_sem": 0.1}],
+                                   "threshold": 0.9}},
+        "seg/clean/glfs": {"overrides": ["a=2"], "threshold_from": "", "threshold": 0.5},
+        "seg/scanned/glfs": {"overrides": ["b=1"], "threshold_from": "", "threshold": 0.5},
+        "seg/scanned/glfs@clean": {"overrides": ["b=1"], "threshold_from": "seg/clean/glfs", "threshold": 0.5},
+        "seg/later": {"overrides": ["c=1"], "threshold_from": "", "status": "pending"},
+        "seg/low": {"overrides": ["d=1"], "threshold_from": "seg/clean/rbu", "status": "skipped", "reason": "band empty"},
+    }
+    rows = {"seg/clean/rbu": base, "seg/clean/glfs": better, "seg/scanned/glfs": better, "seg/scanned/glfs@clean": base}
+    path = _study(tmp_path, rows, entries, [["seg/clean/glfs", "seg/clean/rbu"]])
+    page = render(path)
+    # metrics: rbu Success 2/4 = 0.5, SEM = std([1,0,1,0], ddof=1) / 2 = 0.2887
+    assert "| seg/clean/rbu | 0.9 | 0.500 (0.289) |" in page
+    assert "| seg/scanned/glfs@clean | 0.5 (seg/clean/glfs) | 0.500 (0.289) |" in page
+    # glfs - rbu, Success: diffs [0, 1, 0, 1]: mean 0.5, SEM 0.2887 -> 1.7 SEM, not resolved; SPL: diffs
+    # [0.1, 0.4, 0, 0.5]: mean 0.25, SD sqrt(0.17 / 3) = 0.238, SEM 0.119
+    assert "| seg/clean/glfs | seg/clean/rbu | +0.500 (0.289) | +0.250 (0.119) | 1.7 | not resolved at 4 episodes | 4 |" in page
+    # transfer: the clean-tuned threshold on scanned houses minus the scanned-tuned one: -0.5
+    assert transfer_pairs(json.loads(path.read_text())) == [("seg/scanned/glfs@clean", "seg/scanned/glfs")]
+    assert "| seg/scanned/glfs@clean | seg/scanned/glfs | -0.500 (0.289) |" in page
+    assert "Not run yet: seg/later." in page and "Skipped: seg/low (band empty)." in page
+    # failures: rbu has one episode out of steps (500 of 500) and one false STOP
+    assert "| seg/clean/rbu | 2 | 1 | 1 | 0 |" in page
+    assert "evaluation compute 0.01 worker-hours" in page
+
+    out = tmp_path / "report"
+    assert main(["report", str(path), "--output", str(out)]) == 0
+    assert (out / "results.md").read_text() == page
+    assert (out / "threshold_curves.png").stat().st_size > 0
+
+
+def test_missing_manifest_or_records_is_one_line(tmp_path, capsys):
+    assert main(["report", str(tmp_path / "nope.json")]) == 2
+    assert "manifest" in capsys.readouterr().err
+    path = _study(tmp_path, {}, {"r": {"overrides": [], "threshold_from": "", "status": "done", "dir": "eval/r",
+                                       "threshold": 0.5}}, [])
+    with pytest.raises(ConfigError, match="row r: records .* not found"):
+        render(path)
