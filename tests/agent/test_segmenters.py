@@ -220,8 +220,7 @@ def test_default_weight_location_is_inside_the_package():
     assert default_weights_path("learned_rgb").parent.parent.name == "agent"
 
 
-@pytest.mark.parametrize("stem", ["learned_rgb", "learned_rgbd", "learned_rgb_first_scans", "learned_rgbd_first_scans",
-                                  "learned_rgbd_half_depth"])
+@pytest.mark.parametrize("stem", ["learned_rgb", "learned_rgbd"])
 def test_shipped_weights_match_their_cards_and_load(stem):
     """Every shipped weight file is the one its training card describes (sha256) and loads as
     the model the card names: the README tables cite these files by name."""
