@@ -21,7 +21,7 @@ $(STAMP): pyproject.toml
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
 	$(PY) -m pip show -q torch >/dev/null 2>&1 || $(PY) -m pip install -q "$(TORCH_SPEC)"
-	$(PY) -m pip install -q -e ".[test,ray,hf,onnx,viz]"
+	$(PY) -m pip install -q -e ".[test,ray,hf,onnx,viz,ros]"
 	@touch $(STAMP)
 
 # habitat-lab + calnav's [habitat] extra (numpy 1.26.4, OpenCV < 5); habitat-sim is not needed

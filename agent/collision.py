@@ -1,15 +1,20 @@
 """Collision handling: detect a blocked forward move, mark the cells ahead as obstacles, and
-an escape routine when stuck (repeated blocks, or no progress: the policy's watchdog).
+an escape routine when stuck (repeated blocks, or no progress: ``agent.watchdog``).
 
-``collision_points`` / ``is_collision`` are the pure part (geometry); ``CollisionTracker``
-holds the state (blocks since the last move, the running escape).
+``collision_points`` / ``is_collision`` are the pure part (geometry); ``CollisionMarks`` keeps
+the marks on the map's ``COLLISION`` channel (and which cells were hit more than once);
+``CollisionTracker`` holds the escape's state (blocks since the last move, the running escape).
 """
 from __future__ import annotations
 
 import numpy as np
 
 from calnav.agent.config import AgentConfig
+from calnav.agent.projection import cell_of
+from calnav.agent.semantic_map import MapChannels, MapState
 from calnav.envs.task import Action
+
+HITS_MAX = 255   # the hit counter's ceiling (uint8)
 
 
 def collision_points(xy: np.ndarray, yaw: float, cfg: AgentConfig) -> np.ndarray:
@@ -29,6 +34,28 @@ def collision_points(xy: np.ndarray, yaw: float, cfg: AgentConfig) -> np.ndarray
 def is_collision(prev_xy: np.ndarray, xy: np.ndarray, last_action: int, min_move_m: float) -> bool:
     """A MOVE_FORWARD that travelled less than ``min_move_m`` metres was blocked."""
     return last_action == Action.MOVE_FORWARD and float(np.hypot(*(np.asarray(xy) - prev_xy))) < min_move_m
+
+
+class CollisionMarks:
+    """The obstacle marks of blocked forward moves, on the map's ``COLLISION`` channel, and how
+    often each cell was marked (``hits`` (n, n) uint8, per episode)."""
+
+    def __init__(self, cfg: AgentConfig, map_cells: int):
+        self.cfg = cfg
+        self.hits = np.zeros((map_cells, map_cells), np.uint8)
+
+    def mark(self, state: MapState, xy: np.ndarray, yaw: float) -> None:
+        """A forward move from xy (2,) metres heading ``yaw`` rad was blocked: mark the strip ahead."""
+        cells, inside = cell_of(collision_points(xy, yaw, self.cfg), state.origin, self.cfg.cell_m, state.size)
+        cells = np.unique(cells[inside])
+        state.channels[MapChannels.COLLISION].reshape(-1)[cells] = True
+        hits = self.hits.reshape(-1)
+        hits[cells] = np.minimum(hits[cells], HITS_MAX - 1) + 1
+
+    def forget(self, state: MapState) -> None:
+        """Drop the marks, except cells that more than one blocked forward marked: an obstacle
+        the agent cannot see (a floor hole, a step) that it would walk into again."""
+        state.channels[MapChannels.COLLISION] = self.hits >= 2
 
 
 class CollisionTracker:

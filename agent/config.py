@@ -1,7 +1,8 @@
 """Typed configuration of the PEANUT-like ObjectNav agent (YAML section ``agent``).
 
 Every default carries its unit. Cell = one 2D map cell of ``cell_m`` (5 cm, as PEANUT/SemExp).
-Map type (one key, ``agent.map_type``):
+The parts chosen by name are checked against their registries (``agent.registry``):
+``map_type`` (``MAP_BUILDERS``) and ``exploration`` (``GOAL_SELECTORS``). Map type:
 
 - ``fused``: the 3D voxel map (``mapping.fusion`` strategy, calibrated fusion) projected to the
   ground plane: confidence of class l at a cell = mean fused confidence of the surface voxels in
@@ -12,12 +13,12 @@ Map type (one key, ``agent.map_type``):
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Literal
 
+from calnav.agent.registry import GOAL_SELECTORS, MAP_BUILDERS
 from calnav.agent.segmenters import check_segmenter_spec
 from calnav.common.ranges import Range, check_ranges
-from calnav.agent.segmenters.base import SegmenterConfig
 
 METRES = "metres"
 MAX_IMAGE_SIDE_PX = 4096   # largest mapping image side, pixels (envs.config.MAX_RESOLUTION_PX, the sensor's)
@@ -62,19 +63,16 @@ AGENT_RANGES = {
     "floor_tolerance_m": Range(0.0, 2.0, METRES),
 }
 
-MapType = Literal["fused", "ndf"]
-MAP_TYPES: tuple[str, ...] = MapType.__args__  # type: ignore[attr-defined]
 SemanticPrior = Literal["none", "cooccurrence"]
-Exploration = Literal["frontier", "prediction"]
 
 
 @dataclass
 class AgentConfig:
     # --- perception ---------------------------------------------------------------------------
     segmenter: str = "gt"               # gt | noisy | learned_rgb | learned_rgbd | hf | onnx |
-                                        # package.module:factory | a calnav.segmenters plugin (agent.segmenters)
-    segmenter_config: SegmenterConfig = field(default_factory=SegmenterConfig)  # its settings
-    map_type: MapType = "fused"         # fused (3D calibrated fusion) | ndf (per-frame 2D max baseline)
+                                        # package.module:factory | a calnav.segmenters plugin (agent.segmenters);
+                                        # its settings: the top-level segmenter section (SegmenterConfig)
+    map_type: str = "fused"             # fused (3D calibrated fusion) | ndf (per-frame 2D max baseline): agent.registry.MAP_BUILDERS
     map_resolution: tuple[int, int] = (160, 120)  # mapping resolution WxH (depth/logits subsampled), pixels
     ndf_pixel_threshold: float = 0.5    # ndf: per-pixel confidence needed to project a detection
     # --- 2D map ---------------------------------------------------------------------------------
@@ -94,7 +92,8 @@ class AgentConfig:
     # --- exploration ----------------------------------------------------------------------------
     frontier_min_cells: int = 5         # frontier components smaller than this are ignored, cells
     frontier_size_weight_m: float = 0.02  # utility: -distance + this * frontier cells, metres per cell
-    exploration: Exploration = "frontier"  # frontier (frontier size / distance) | prediction (PEANUT's target prediction)
+    exploration: str = "frontier"       # frontier (frontier size / distance) | prediction (PEANUT's target prediction):
+                                        # agent.registry.GOAL_SELECTORS
     predictor_weights: str = ""         # prediction: weight file of calnav train-predictor; "" = agent/weights/predictor.pt
     prediction_distance_m: float = 5.0  # prediction: value = probability x exp(-geodesic distance / this), metres (PEANUT: 500 cm)
     prediction_replan_seen: bool = True  # prediction: re-choose the goal once its cell is explored (PEANUT: at the next call, every replan_steps)
@@ -130,8 +129,8 @@ class AgentConfig:
 
     def __post_init__(self) -> None:
         check_segmenter_spec(self.segmenter)   # a misspelt name fails here, importing nothing of it
-        if self.map_type not in MAP_TYPES:
-            raise ValueError(f"unknown agent.map_type {self.map_type!r}; valid: {', '.join(MAP_TYPES)}")
+        MAP_BUILDERS.check(self.map_type)      # names only: the builders load when an agent is built
+        GOAL_SELECTORS.check(self.exploration)
         check_ranges(self, "agent", AGENT_RANGES)
         if not self.turn_threshold_deg > 0:
             raise ValueError(f"agent.turn_threshold_deg must be > 0, got {self.turn_threshold_deg}")

@@ -1,14 +1,18 @@
-"""calnav's PEANUT-like agent as a ``habitat.Agent``, for habitat-lab's ``habitat.Benchmark`` /
+"""calnav's agents as ``habitat.Agent`` s, for habitat-lab's ``habitat.Benchmark`` /
 ``habitat.Env`` -- on calnav houses (``CalnavSim-v0``) or on habitat-sim with HM3D.
 
-``HabitatPeanutAgent(cfg)``: cfg is calnav's ``Config`` (``agent.*``: segmenter, map type,
-fusion + GLFS parameters in ``mapping.*``, thresholds -- as ``calnav objectnav``) whose ``env``
-section states the task's sensor facts; build it from the habitat config with
+``HabitatAgent(agent)`` wraps any agent of ``agent.registry.AGENTS`` (``agent.contract.Agent``;
+``calnav habitat-benchmark`` builds it with ``agent.registry.build_agent``, as ``calnav
+objectnav`` does). ``HabitatPeanutAgent(cfg)`` is the PEANUT-like agent so wrapped: cfg is
+calnav's ``Config`` (``agent.*``: segmenter, map type, fusion + GLFS parameters in
+``mapping.*``, thresholds -- as ``calnav objectnav``) whose ``env`` section states the task's
+sensor facts; build it from the habitat config with
 ``envs.habitat_config.env_config_from_habitat(habitat_cfg, cfg.env)`` (which needs no
 simulator). What crosses the boundary, and how:
 
-- ``reset()`` takes no observations in habitat-lab; ``PeanutAgent.reset(obs)`` needs the first
-  ones (goal category, start pose), so it is deferred to the first ``act``;
+- ``reset()`` takes no observations in habitat-lab; a calnav agent's ``reset(obs)`` needs the
+  first ones (``PeanutAgent``: goal category, start pose), so it is deferred to the first ``act``
+  (the oracle's then starts on the episode's scene);
 - observations are passed through: the agent reads Habitat's keys (``envs.task.HABITAT_KEYS``:
   rgb (H, W, 3) uint8, depth (H, W, 1), gps (2,), compass (1,), objectgoal (1,)); only
   ``semantic`` (for the gt / noisy segmenters) changes shape, habitat's (H, W, 1) -> (H, W);
@@ -27,6 +31,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from calnav.agent.contract import Agent
 from calnav.agent.policy import PeanutAgent
 from calnav.common.habitat_import import import_habitat
 from calnav.envs.task import HABITAT_KEYS, SEMANTIC, Action
@@ -50,11 +55,12 @@ def from_habitat_observations(observations) -> dict:
     return obs
 
 
-class HabitatPeanutAgent(habitat.Agent):
-    """``PeanutAgent`` behind habitat-lab's ``Agent`` interface (see the module docstring)."""
+class HabitatAgent(habitat.Agent):
+    """A calnav agent (``agent.contract.Agent``) behind habitat-lab's ``Agent`` interface (see
+    the module docstring); ``agent`` is the wrapped one."""
 
-    def __init__(self, cfg, device: str = "cpu"):
-        self.agent = PeanutAgent(cfg, device)
+    def __init__(self, agent: Agent):
+        self.agent = agent
         self._needs_reset = True
 
     def reset(self) -> None:
@@ -68,3 +74,10 @@ class HabitatPeanutAgent(habitat.Agent):
             self.agent.reset(obs)
             self._needs_reset = False
         return {"action": habitat_action(self.agent.act(obs))}
+
+
+class HabitatPeanutAgent(HabitatAgent):
+    """``PeanutAgent(cfg, device)`` as a ``habitat.Agent``."""
+
+    def __init__(self, cfg, device: str = "cpu"):
+        super().__init__(PeanutAgent(cfg, device))

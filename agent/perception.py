@@ -1,20 +1,26 @@
-"""Perception: subsample the observation to the mapping resolution and segment it (segmenter by name
-from ``agent.segmenters``). It keeps no map: fusing the segmentation into the 3D voxel map and
-projecting it to the 2D map is ``agent.semantic_map``'s job.
+"""The perceive stage: subsample the observation to the mapping resolution and segment it
+(segmenter by name from ``agent.segmenters``). It keeps no map: fusing the segmentation into
+the 3D voxel map and projecting it to the 2D map is the map stage's (``agent.semantic_map``).
 
-It reads ``rgb`` and ``depth`` (de-normalised by ``agent.sensors.SensorModel``) and takes the
-intrinsics from the known sensor; the ``gt`` / ``noisy`` segmenters (simulated sensors, like
-Habitat's semantic sensor) also get ``semantic``, ``instance`` when present, and the
-simulator's ``camera_pose`` when present (``noisy`` anchors its errors in the world with it).
+It reads ``rgb`` and ``depth`` of the ``agent.contract.Observation`` (depth de-normalised by
+``agent.sensors.SensorModel``) and takes the intrinsics from the known sensor; the ``gt`` /
+``noisy`` segmenters (simulated sensors, like Habitat's semantic sensor: ``needs_semantic``)
+also get ``semantic``. Of the privileged part it hands the segmenter only what the segmenter's
+class declares (``agent.contract.handed``): ``noisy`` declares the simulator's ``camera_pose``
+(it anchors its errors in the world with it) and ``instance``; no other segmenter gets either.
 """
 from __future__ import annotations
+
+from typing import Mapping
 
 import numpy as np
 
 from calnav.agent.config import AgentConfig
+from calnav.agent.contract import Privileged, handed
 from calnav.agent.segmenters import make_segmenter
+from calnav.agent.segmenters.base import SegmenterConfig
 from calnav.agent.sensors import SensorModel
-from calnav.envs.task import CAMERA_POSE, RGB, SEMANTIC, require_keys
+from calnav.envs.task import RGB, SEMANTIC, require_keys
 from calnav.mapping.frame import SegmentedFrame
 
 
@@ -33,17 +39,19 @@ def subsample_intrinsics(k: np.ndarray, stride: int) -> np.ndarray:
 
 
 class Perception:
-    """The segmenter, stateless across frames. ``observe(obs) -> SegmentedFrame`` (``mapping.frame``)."""
+    """The segmenter, stateless across frames. ``observe(obs) -> SegmentedFrame`` (``mapping.frame``).
+    ``cfg.segmenter`` names the segmenter, ``segmenter_cfg`` (the ``segmenter`` section) sets it up."""
 
-    def __init__(self, cfg: AgentConfig, sensors: SensorModel, device: str = "cpu"):
+    def __init__(self, cfg: AgentConfig, segmenter_cfg: SegmenterConfig, sensors: SensorModel, device: str = "cpu"):
         self.cfg = cfg
         self.sensors = sensors
-        self.segmenter = make_segmenter(cfg.segmenter, cfg.segmenter_config, device, key="agent.segmenter_config")
+        self.segmenter = make_segmenter(cfg.segmenter, segmenter_cfg, device)
         self.num_classes = self.segmenter.num_classes
         self.class_names: tuple[str, ...] = tuple(self.segmenter.class_names)
 
-    def observe(self, obs: dict) -> SegmentedFrame:
-        """Subsample and segment one observation."""
+    def observe(self, obs: Mapping, privileged: Privileged | None = None) -> SegmentedFrame:
+        """Subsample and segment one observation (``obs``: Habitat's keys); ``privileged``:
+        the observation's privileged part, of which the segmenter gets what it declares."""
         depth = self.sensors.depth_m(obs)
         h, w = depth.shape
         s = subsample_stride(w, h, self.cfg.map_resolution)
@@ -54,9 +62,10 @@ class Perception:
         if self.segmenter.needs_semantic:
             require_keys(obs, [SEMANTIC], f"the {self.segmenter.name!r} segmenter")
             extra["semantic"] = np.ascontiguousarray(np.asarray(obs[SEMANTIC])[::s, ::s])
-            if "instance" in obs:
-                extra["instance"] = np.ascontiguousarray(np.asarray(obs["instance"])[::s, ::s])
-            if CAMERA_POSE in obs:  # the simulated segmenter's input, never the agent's
-                extra["pose"] = np.asarray(obs[CAMERA_POSE], np.float64)
+        given = handed(self.segmenter, privileged)   # the simulated segmenter's input, never the agent's
+        if given.instance is not None:
+            extra["instance"] = np.ascontiguousarray(np.asarray(given.instance)[::s, ::s])
+        if given.camera_pose is not None:
+            extra["pose"] = np.asarray(given.camera_pose, np.float64)
         logits = self.segmenter(rgb, depth, **extra)
         return SegmentedFrame(depth, k, logits, rgb)

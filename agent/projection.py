@@ -117,7 +117,7 @@ def sparse_bin_sums(bins: np.ndarray, weights: np.ndarray, counts: np.ndarray | 
 def project_voxels(coords: np.ndarray, probs: np.ndarray, origin: np.ndarray, cell_m: float,
                    n: int) -> np.ndarray:
     """Ground-plane semantic confidence map of fused voxels: the non-incremental reference
-    that the tests check ``SemanticMapModule``'s incremental projection against.
+    that the tests check ``FusedMapBuilder``'s incremental projection against.
 
     coords (N, 3) world metres, probs (N, K) fused probabilities. Each voxel votes for its
     arg-max class l with confidence probs[l]; the confidence that class l is at a cell is the

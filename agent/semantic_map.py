@@ -1,8 +1,11 @@
-"""The agent's semantic maps: state (``MapState``: the 2D map and, for ``map_type: fused``,
-the episode's 3D ``SemanticVoxelMap``) and the module that updates it (``SemanticMapModule``),
-home-robot style. This file owns fusion (the frame's logits into the voxel map, with the
-strategy ``mapping.fusion`` and its scaling / GLFS parameters / sample weighting from the
-mapping config) and the ground projection; the grid geometry is ``agent.projection``.
+"""The map stage: the agent's semantic maps (``MapState``: the 2D map and, for
+``map_type: fused``, the episode's 3D ``SemanticVoxelMap``) and the builders that update them
+from each segmented frame, home-robot style, one per ``agent.map_type``
+(``agent.registry.MAP_BUILDERS``): ``FusedMapBuilder`` and ``NdfMapBuilder``, on the shared
+geometry of ``MapBuilder``. This file owns the map state and the ground projection; fusion
+itself is ``mapping``'s (``SemanticVoxelMap.integrate`` with the strategy ``mapping.fusion`` and
+its scaling / GLFS parameters / sample weighting from the mapping config), the grid geometry
+is ``agent.projection``.
 
 The 2D map is ``n`` x ``n`` cells of ``cfg.cell_m`` centred (within a voxel) on the start
 position, in the agent's frame (the episode-start frame, ``agent.sensors``); its cell edges
@@ -12,15 +15,17 @@ fused projection cannot alias whatever the start pose (``cell_m`` should be a mu
 layers; ``MapState.semantic`` (K, n, n) float32 is the confidence that class l is at a cell.
 
 Per frame (``update``), with the segmented frame at the mapping resolution
-(``mapping.frame.SegmentedFrame``: depth (h, w) m, logits (h, w, K)):
+(``mapping.frame.SegmentedFrame``: depth (h, w) m, logits (h, w, K)), the geometry
+(``MapBuilder.project_geometry``: obstacles, explored, holes, the agent's footprint) and then
+the semantics, by map type:
 
-- ``fused``: the frame is fused into the 3D voxel map; the voxels it fused an observation into
+- ``fused`` (``FusedMapBuilder``): the frame is fused into the 3D voxel map; the voxels it fused an observation into
   (``SemanticVoxelMap.frame_voxels``: the only ones whose fused value changed) are re-read and
   re-projected: each voxel keeps its
   latest (cell, arg-max class, confidence) in ``agent.votes.VoxelVotes`` and the per-(class, cell) sums and
   counts are updated by difference, so the semantic layer is exactly the mean over all observed
   surface voxels in the cell and the cost per frame does not grow with the house.
-- ``ndf``: per-pixel probabilities softmax(logits / mapping.temperature) (the scalar
+- ``ndf`` (``NdfMapBuilder``): per-pixel probabilities softmax(logits / mapping.temperature) (the scalar
   temperature; no 3D map); pixels with confidence >= ``ndf_pixel_threshold`` are projected;
   semantic = max over time of the per-frame per-cell mean.
 
@@ -32,9 +37,9 @@ each image column (``agent.projection.free_rays``) plus the agent's footprint.
 """
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from enum import IntEnum
-
 from typing import Sequence
 
 import numpy as np
@@ -134,9 +139,10 @@ class MapState:
         return self.channels[MapChannels.EXPLORED][window] & ~pj.dilate(self.obstacles(window), cfg.dilation_cells)
 
 
-class SemanticMapModule:
-    """Stateless update of a ``MapState`` from one segmented frame: fuse (``fused``), project.
-    class_names: the segmenter's classes (K)."""
+class MapBuilder(ABC):
+    """What every map type shares: the map state and one frame's geometry. A map type
+    (``agent.registry.MAP_BUILDERS``) adds the voxel map it keeps (``_new_voxels``) and its
+    semantics (``update``). class_names: the segmenter's classes (K)."""
 
     def __init__(self, cfg: AgentConfig, mapping_cfg: MappingConfig, class_names: Sequence[str],
                  depth_range_m: tuple[float, float] = (0.5, 5.0)):
@@ -145,38 +151,27 @@ class SemanticMapModule:
         self.class_names = tuple(class_names)
         self.num_classes = len(self.class_names)
         self.voxel_size_m = mapping_cfg.voxel_size_m
-        self._voxels: SemanticVoxelMap | None = None   # the one voxel map, emptied for each episode
 
     def new_state(self, start_xy: np.ndarray) -> MapState:
-        """An empty map centred on ``start_xy`` (2,) metres (the agent's frame), with an empty voxel
-        map for ``fused`` (none for ``ndf``). The module keeps one voxel map and empties it here
-        (``SemanticVoxelMap.reset``: the grown allocation is kept, so later episodes skip
-        Open3D's ~1 s hashmap doublings), so the previous state's ``voxels`` are emptied too.
-        The voxel map fuses semantics without the TSDF (``SemanticVoxelMap`` ``tsdf=False``):
-        the projection reads only the semantics of the voxels a frame fused into, so the agent's
-        actions are the same either way (a Rerun recording shows ``observed_voxels``)."""
-        voxels = None
-        if self.cfg.map_type == "fused":
-            if self._voxels is None:
-                self._voxels = SemanticVoxelMap(self.num_classes, self.mapping_cfg, class_names=self.class_names,
-                                                tsdf=False)
-            voxels = self._voxels.reset()
-        return MapState.empty(start_xy, self.cfg, self.num_classes, voxels, lattice_m=self.voxel_size_m)
+        """An empty map centred on ``start_xy`` (2,) metres (the agent's frame), with the map
+        type's voxel map (``_new_voxels``)."""
+        return MapState.empty(start_xy, self.cfg, self.num_classes, self._new_voxels(), lattice_m=self.voxel_size_m)
 
+    def _new_voxels(self) -> SemanticVoxelMap | None:
+        """The episode's empty 3D map, or None (a map type without one)."""
+        return None
+
+    @abstractmethod
     def update(self, state: MapState, frame: SegmentedFrame, pose: np.ndarray) -> None:
-        """Fuse (when ``state.voxels``) and project one frame; pose (4, 4) world-from-camera."""
-        if state.voxels is not None:
-            state.voxels.integrate(frame.depth, frame.k, pose, logits=frame.logits, rgb=frame.rgb)
-            self.project(state, frame.depth, None, frame.k, pose, state.voxels)
-        else:
-            probs = softmax(frame.logits, self.mapping_cfg.temperature)
-            self.project(state, frame.depth, probs, frame.k, pose, None)
+        """Map one frame (its geometry and the map type's semantics); pose (4, 4) world-from-camera."""
 
-    def project(self, state: MapState, depth: np.ndarray, probs: np.ndarray | None, intrinsics: np.ndarray,
-                pose: np.ndarray, vmap: SemanticVoxelMap | None = None) -> None:
-        """Project one frame. depth (h, w) m; probs (h, w, K) per-pixel class probabilities
-        (``ndf``; unused with a voxel map); intrinsics (3, 3) at that size; pose (4, 4)
-        world-from-camera; vmap: the voxel map the frame was already fused into, or None."""
+    def project_geometry(self, state: MapState, depth: np.ndarray, intrinsics: np.ndarray, pose: np.ndarray
+                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """One frame's geometry into ``state``: obstacles, view blockers, explored cells (points
+        and free rays), floor holes and the agent's footprint. depth (h, w) m; intrinsics
+        (3, 3) at that size; pose (4, 4) world-from-camera. Returns (pix (N,) flat pixel index
+        of each back-projected point, cells (N,) its flat map cell, inside (N,) bool: the cell
+        is on the map) for the semantics."""
         cfg, n = self.cfg, state.size
         points, pix = pj.backproject(depth, intrinsics, pose)
         cam_xy = pose[:2, 3]
@@ -194,11 +189,7 @@ class SemanticMapModule:
         if cfg.hole_margin_m > 0:
             self._mark_holes(state, depth, intrinsics, pose, points, pix, cells, inside)
         self._mark_agent(state, cam_xy)
-        if vmap is not None:
-            self._project_fused(state, vmap)
-        else:
-            p = probs.reshape(-1, probs.shape[-1])[pix]
-            self._project_ndf(state, p, cells, inside)
+        return pix, cells, inside
 
     def _mark_holes(self, state: MapState, depth: np.ndarray, intrinsics: np.ndarray, pose: np.ndarray,
                     points: np.ndarray, pix: np.ndarray, cells: np.ndarray, inside: np.ndarray) -> None:
@@ -235,6 +226,34 @@ class SemanticMapModule:
         state.channels[MapChannels.VISITED][r, c] = True
         state.grow_bbox(off[:, 0] * state.size + off[:, 1])
 
+
+class FusedMapBuilder(MapBuilder):
+    """``map_type: fused``: the frame fused into the episode's 3D voxel map, whose changed
+    voxels are re-projected to the 2D map (module docstring)."""
+
+    def __init__(self, cfg: AgentConfig, mapping_cfg: MappingConfig, class_names: Sequence[str],
+                 depth_range_m: tuple[float, float] = (0.5, 5.0)):
+        super().__init__(cfg, mapping_cfg, class_names, depth_range_m)
+        self._voxels: SemanticVoxelMap | None = None   # the one voxel map, emptied for each episode
+
+    def _new_voxels(self) -> SemanticVoxelMap:
+        """The builder keeps one voxel map and empties it for each episode
+        (``SemanticVoxelMap.reset``: the grown allocation is kept, so later episodes skip
+        Open3D's ~1 s hashmap doublings), so the previous state's ``voxels`` are emptied too.
+        It fuses semantics without the TSDF (``SemanticVoxelMap`` ``tsdf=False``): the
+        projection reads only the semantics of the voxels a frame fused into, so the agent's
+        actions are the same either way (a Rerun recording shows ``observed_voxels``)."""
+        if self._voxels is None:
+            self._voxels = SemanticVoxelMap(self.num_classes, self.mapping_cfg, class_names=self.class_names,
+                                            tsdf=False)
+        return self._voxels.reset()
+
+    def update(self, state: MapState, frame: SegmentedFrame, pose: np.ndarray) -> None:
+        """Fuse the frame into ``state.voxels``, then project; pose (4, 4) world-from-camera."""
+        state.voxels.integrate(frame.depth, frame.k, pose, logits=frame.logits, rgb=frame.rgb)
+        self.project_geometry(state, frame.depth, frame.k, pose)
+        self._project_fused(state, state.voxels)
+
     def _project_fused(self, state: MapState, vmap) -> None:
         """Re-project the voxels this frame fused an observation into (``vmap.frame_voxels``: the
         voxels whose fused values changed), in key order as the votes need."""
@@ -247,6 +266,18 @@ class SemanticMapModule:
         cls = probs.argmax(axis=1)
         state.votes.vote(keys, ijk, cls, probs[np.arange(len(cls)), cls], self.voxel_size_m, state.origin,
                          self.cfg.cell_m, state.sums, state.counts, state.semantic)
+
+
+class NdfMapBuilder(MapBuilder):
+    """``map_type: ndf``: no 3D map; each frame's thresholded pixel probabilities projected to
+    the 2D map, max over time (module docstring)."""
+
+    def update(self, state: MapState, frame: SegmentedFrame, pose: np.ndarray) -> None:
+        """Project the frame's probabilities softmax(logits / mapping.temperature); pose (4, 4)
+        world-from-camera."""
+        probs = softmax(frame.logits, self.mapping_cfg.temperature)
+        pix, cells, inside = self.project_geometry(state, frame.depth, frame.k, pose)
+        self._project_ndf(state, probs.reshape(-1, probs.shape[-1])[pix], cells, inside)
 
     def _project_ndf(self, state: MapState, probs: np.ndarray, cells: np.ndarray, inside: np.ndarray) -> None:
         """SemExp-style: thresholded detections, per-frame cell mean, max over time."""

@@ -34,7 +34,8 @@ from calnav.envs.measures import TaskState, objectnav_measurements
 from calnav.envs.motion import apply_action
 from calnav.envs.semantics import GOAL_CATEGORIES, NUM_CLASSES
 from calnav.envs.task import (CAMERA_INTRINSICS, CAMERA_POSE, COMPASS, DEPTH, GPS, OBJECTGOAL, RGB, SEMANTIC, Action,
-                       check_action, normalize_depth_m, num_actions, observation_specs, xy_yaw_to_gps_compass)
+                       SimulatorHandle, check_action, normalize_depth_m, num_actions, observation_specs,
+                       xy_yaw_to_gps_compass)
 
 SLACK_REWARD = -0.01
 SUCCESS_REWARD = 2.5
@@ -190,6 +191,15 @@ class ObjectNavEnv(gym.Env):
         return None
 
     # ---------------------------------------------------------------- helpers
+    def simulator_handle(self) -> SimulatorHandle:
+        """Privileged access for an oracle agent (``envs.task.SimulatorHandle``): the
+        shortest-path follower on this env's navigation grid, from its true pose to the
+        episode's goal field, read afresh at every call (any episode of this env)."""
+        from calnav.envs.oracle import FollowerHandle
+
+        return FollowerHandle(lambda: self.navgrid, lambda: self.config, lambda: (self.position, self.yaw),
+                              lambda: self.goal_field)
+
     def camera_pose(self) -> np.ndarray:
         from calnav.envs.render import camera_pose
 

@@ -10,6 +10,7 @@ trapped where quantised headings cannot thread a doorway; planning over the latt
 from __future__ import annotations
 
 import math
+from typing import Any, Callable
 
 import numpy as np
 
@@ -169,20 +170,50 @@ def scan_trajectory(navgrid, env_cfg: EnvConfig, n_poses: int, seed: int = 0,
     return poses
 
 
+class FollowerHandle:
+    """The simulator's privileged handle (``envs.task.SimulatorHandle``) by the
+    ``ShortestPathFollower``. It reads the simulator through callables, so one class serves
+    calnav's env (``ObjectNavEnv.simulator_handle``) and habitat-lab's ``CalnavSim-v0``:
+    ``navgrid()`` and ``env_config()`` at ``reset`` (a new episode may bring a new scene),
+    ``pose()`` -> (xy (2,) metres, yaw radians) and ``goal_field()`` (the episode's
+    ``GeodesicField``) at every action."""
+
+    def __init__(self, navgrid: Callable[[], Any], env_config: Callable[[], EnvConfig],
+                 pose: Callable[[], tuple[np.ndarray, float]], goal_field: Callable[[], Any]):
+        self._navgrid, self._env_config, self._pose, self._goal_field = navgrid, env_config, pose, goal_field
+        self.follower: ShortestPathFollower | None = None
+
+    @property
+    def max_episode_steps(self) -> int:
+        return int(self._env_config().max_episode_steps)
+
+    def reset(self) -> None:
+        self.follower = ShortestPathFollower(self._navgrid(), self._env_config())
+
+    def shortest_path_action(self) -> Action:
+        if self.follower is None:
+            raise RuntimeError("the simulator handle was not reset for this episode: call reset() first")
+        xy, yaw = self._pose()
+        return self.follower.next_action(xy, yaw, self._goal_field())
+
+
 class OracleAgent:
-    """Runs the ShortestPathFollower inside an ObjectNavEnv (privileged: reads the env's pose
-    and goal field). Interface shared with calnav's agents: reset(obs), act(obs) -> int."""
+    """Runs the ShortestPathFollower inside an ObjectNavEnv through its privileged handle
+    (``simulator_handle``): the env package's own driver, for its tests. calnav's commands run
+    ``agent.oracle.OracleAgent`` (the agent registry's ``oracle``), which takes the same
+    actions. Interface shared with calnav's agents: reset(obs), act(obs) -> int."""
 
     name = "oracle"
 
     def __init__(self, env):
         self.env = env.unwrapped
+        self.handle = self.env.simulator_handle()
 
     def reset(self, obs: dict) -> None:
-        self.follower = ShortestPathFollower(self.env.navgrid, self.env.config)
+        self.handle.reset()
 
     def act(self, obs: dict) -> int:
         e = self.env
         if e.steps >= e.config.max_episode_steps - 1:
             return int(Action.STOP)  # forced STOP on the last step, as PEANUT does
-        return int(self.follower.next_action(e.position, e.yaw, e.goal_field))
+        return int(self.handle.shortest_path_action())

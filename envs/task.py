@@ -19,8 +19,11 @@ habitat-lab's ObjectNav task gives -- plus ``SEMANTIC`` for ground-truth-based s
 - ``objectgoal`` (1,) int64 goal category id.
 
 ``camera_pose`` / ``camera_intrinsics`` (``DEBUG_KEYS``: privileged world-frame pose, Habitat
-gives none) are emitted for debugging and for the simulated ``gt`` / ``noisy`` segmenters; no
-decision of an agent may depend on them.
+gives none) are emitted for debugging and for the simulated ``noisy`` segmenter; no decision of
+an agent may depend on them. The agent package splits them off at its boundary
+(``agent.contract``) and hands them only to the parts that declare them. An oracle's access to
+the simulator itself is the other privileged input: ``SimulatorHandle`` (below), which an env
+provides (``ObjectNavEnv.simulator_handle``) and only an agent declaring it is given.
 
 The start frame: origin at the start position on the floor, +x forward at the start, +y to
 the left, +z up (metres). ``gps_compass_to_xy_yaw`` maps (gps, compass) into it; the camera is
@@ -32,7 +35,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from enum import IntEnum
-from typing import Mapping
+from typing import Mapping, Protocol
 
 import numpy as np
 
@@ -102,6 +105,23 @@ def observation_specs(width: int, height: int, num_goals: int, num_classes: int,
     if semantic:
         specs[SEMANTIC] = ObsSpec((height, width), np.int16, -1, num_classes - 1)
     return specs
+
+
+class SimulatorHandle(Protocol):
+    """Privileged access to the simulator for an oracle agent (never for a real agent's
+    decisions): the shortest-path follower on the simulator's navigation grid, from the agent's
+    true pose to the current episode's goal. An env provides it (``ObjectNavEnv.simulator_handle``;
+    ``calnav habitat-benchmark`` builds one on habitat-lab's ``CalnavSim-v0``)."""
+
+    @property
+    def max_episode_steps(self) -> int:
+        """The env's step limit (actions per episode)."""
+
+    def reset(self) -> None:
+        """A new episode has begun (call after the env's reset): forget the previous plan."""
+
+    def shortest_path_action(self) -> Action:
+        """The follower's next action (STOP once within the success distance)."""
 
 
 def require_keys(obs: Mapping, keys, needed_by: str = "an ObjectNav agent") -> None:

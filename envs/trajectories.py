@@ -21,7 +21,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from calnav.common.ranges import Range, check_ranges
-from calnav.envs.render import camera_pose
 
 
 # Size-like keys of a calibration scan (``scan``), and why their bounds: a hand-held walk moves
@@ -128,6 +127,8 @@ class _Recorder:
     def add(self, xy: np.ndarray, yaw: float, mean_pitch_deg: float | None = None) -> None:
         """One pose (and a pause now and then); the pitch wanders about ``mean_pitch_deg``
         (default ``cfg.pitch_deg``)."""
+        from calnav.envs.render import camera_pose   # here: ScanConfig (a config section) loads without Open3D
+
         cfg, rng = self.cfg, self.rng
         self.pitch = 0.9 * self.pitch + math.sqrt(1 - 0.81) * rng.normal(0, cfg.pitch_std_deg)  # AR(1) wander
         mean = cfg.pitch_deg if mean_pitch_deg is None else mean_pitch_deg

@@ -37,6 +37,8 @@ import sys
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from typing import Any, Callable, Iterable, Iterator
 
+from calnav.common.registry import Registry
+
 RAY_EXTRA_HINT = 'run.backend=ray needs Ray: pip install -e ".[ray]" (make test installs it into .venv)'
 RAY_TASK_RETRIES = 3          # re-runs of a task whose worker process or node died
 # Environment the Ray workers need from the driver (Ray does not forward the driver's environment).
@@ -46,8 +48,7 @@ RAY_CONNECT_TIMEOUT_S = 10.0   # a cluster address that does not answer within t
 
 def check_backend(name: str, address: str = "") -> None:
     """Raise ValueError naming the choices (or the install command) before anything runs."""
-    if name not in BACKENDS:
-        raise ValueError(f"unknown run.backend {name!r}; valid choices: {', '.join(BACKENDS)}")
+    BACKENDS.check(name)
     if name == "ray":
         try:
             import ray  # noqa: F401
@@ -138,19 +139,26 @@ class LocalBackend:
     """This machine's cores: in-process for one worker, a spawn process pool otherwise
     (Open3D's thread pools do not survive fork())."""
 
-    def __init__(self, workers: int = 0):
+    def __init__(self, workers: int = 0, threads: int = 0, in_process: bool = True):
+        """workers: worker processes (0 = all cores; never more than items); threads: threads
+        per worker process (``common.threads``; 0 = cores // workers); in_process: one worker
+        runs in this process. ``in_process=False`` runs even one worker in a fresh spawned
+        process pinned to ``threads`` -- what ``calnav bench`` measures a study's worker on."""
+        if threads < 0:
+            raise ValueError(f"LocalBackend: threads must be >= 0 (0 = cores // workers), got {threads}")
         self.workers = workers or os.cpu_count() or 1
+        self.threads, self.in_process = threads, in_process
 
     def map_unordered(self, fn: Callable[[Any], Any], items: Iterable) -> Iterator[tuple[Any, Any]]:
         items = list(items)
         workers = max(1, min(self.workers, len(items)))
         if not items:
             return
-        if workers == 1:
+        if workers == 1 and self.in_process:
             for item in items:
                 yield item, fn(item)
             return
-        threads = max(1, (os.cpu_count() or 1) // workers)
+        threads = self.threads or max(1, (os.cpu_count() or 1) // workers)
         pool = ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"), initializer=init_worker,
                                    initargs=(threads,))
         pending: dict = {}
@@ -246,16 +254,23 @@ def ray_node_id() -> str | None:
     return ray.get_runtime_context().get_node_id()
 
 
-# run.backend -> constructor from the run config (eval.config.BackendName lists the same names)
-BACKENDS: dict[str, Callable[[Any], "LocalBackend | RayBackend"]] = {
-    "local": lambda run: LocalBackend(run.workers),
-    "ray": lambda run: RayBackend(run.ray_address, run.workers),
-}
-BACKEND_NAMES: tuple[str, ...] = tuple(BACKENDS)
+# run.backend -> the backend's constructor from a ``RunConfig`` (``eval.config.RunConfig`` checks
+# its ``backend`` against these names; this module imports nothing heavy at its top)
+BACKENDS: Registry[Callable[[Any], "LocalBackend | RayBackend"]] = Registry("backend", key="run.backend")
+
+
+@BACKENDS.register("local", "this machine's cores: in-process for 1 worker, else a spawn process pool")
+def local_backend(run) -> LocalBackend:
+    return LocalBackend(run.workers)
+
+
+@BACKENDS.register("ray", "Ray tasks on a local instance or a cluster (run.ray_address)")
+def ray_backend(run) -> RayBackend:
+    return RayBackend(run.ray_address, run.workers)
 
 
 def make_backend(run_cfg) -> LocalBackend | RayBackend:
     """The backend of a ``RunConfig`` (``backend``, ``ray_address``, ``workers``); raises
     ValueError naming the choices, or the install command, before anything runs."""
     check_backend(run_cfg.backend, run_cfg.ray_address)
-    return BACKENDS[run_cfg.backend](run_cfg)
+    return BACKENDS.get(run_cfg.backend)(run_cfg)

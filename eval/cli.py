@@ -7,6 +7,8 @@ import importlib
 import os
 import sys
 from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable
 
 # torch's OpenMP workers spin after each op and starve Open3D's threads on small machines
 # (measured: 400-900 ms instead of 2 ms per segmenter frame on 2 busy cores). Must be set
@@ -14,8 +16,12 @@ from dataclasses import dataclass
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 from calnav.common.interrupt import sigint_flag
-from calnav.eval.config import ConfigError
+from calnav.eval.config import (CALIBRATION_SECTIONS, EPISODE_SECTIONS, MAP_SECTIONS, PREDICTOR_SECTIONS,
+                                SEGMENTER_SECTIONS, ConfigError)
 from calnav.eval.results_dir import ResultsError
+from calnav.eval.sections import QUICK_PRESET
+from calnav.eval.shorthands import Schema, Shorthand, fixed
+from calnav.mapping.registry import LAYOUTS
 
 
 def _add_config_args(p: argparse.ArgumentParser, default_config: str) -> None:
@@ -107,9 +113,11 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("collect-maps", help="training maps for the target predictor: the agent explores train houses, "
                                             "partial maps + ground-truth goal cells every --every steps")
     _add_config_args(p, "configs/objectnav.yaml")
-    p.add_argument("--split", default="train", choices=("train", "val"), help="houses explored (val: held-out maps)")
+    p.add_argument("--split", default=None, choices=("train", "val"),
+                   help="houses explored (val: held-out maps); shorthand for env.split (default train)")
     p.add_argument("--episodes", default="0:200", help="the split's episodes: N or A:B (default 0:200)")
-    p.add_argument("--steps", type=int, default=250, help="steps per episode (default 250)")
+    p.add_argument("--steps", type=int, default=None,
+                   help="steps per episode (default 250); shorthand for env.max_episode_steps=STEPS+1")
     p.add_argument("--every", type=int, default=25, help="a snapshot every this many steps (default 25, PEANUT's)")
     p.add_argument("--output", required=True, help="results directory (episodes/<index>.npz; resumable)")
     p.add_argument("--force", action="store_true", help="discard the maps of a different config in --output")
@@ -120,12 +128,22 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--val-data", nargs="+", default=None, metavar="DIR",
                    help="collect-maps directories of held-out houses (--split val) for the metrics; "
                         "default: --val-fraction of the training houses")
-    p.add_argument("--val-fraction", type=float, default=0.15, help="houses held out when there is no --val-data")
-    p.add_argument("--epochs", type=int, default=12, help="passes over the training maps (default 12)")
-    p.add_argument("--pos-weight", type=float, default=20.0,
-                   help="BCE weight of goal cells, [1, 1000] (default 20; PEANUT's released script 1, its weighted "
-                        "runs inverse frequency): goal cells are ~0.1-1 %% of the unexplored cells")
-    p.add_argument("--seed", type=int, default=0, help="seed of the split, the initialisation and the batches")
+    p.add_argument("--val-fraction", type=float, default=None,
+                   help="houses held out when there is no --val-data; shorthand for predictor_train.val_fraction "
+                        "(default 0.15)")
+    p.add_argument("--epochs", type=int, default=None,
+                   help="passes over the training maps; shorthand for predictor_train.epochs (default 12)")
+    p.add_argument("--pos-weight", type=float, default=None,
+                   help="BCE weight of goal cells, [1, 1000]; shorthand for predictor_train.pos_weight (default 20; "
+                        "PEANUT's released script 1, its weighted runs inverse frequency): goal cells are ~0.1-1 %% "
+                        "of the unexplored cells")
+    p.add_argument("--seed", type=int, default=None,
+                   help="seed of the split, the initialisation and the batches; shorthand for predictor_train.seed "
+                        "(default 0)")
+    p.add_argument("--config", default=None, help="YAML config (default: none, the predictor_train defaults)")
+    p.add_argument("overrides", nargs="*", metavar="KEY=VALUE",
+                   help="dotted config overrides, e.g. predictor_train.lr=5e-4 (before --data, or after "
+                        "another option: --data takes every word that follows it)")
 
     p = sub.add_parser("export-onnx", help="a learned segmenter as an ONNX model for the onnx adapter "
                                            "(checked against torch before it is written)")
@@ -145,17 +163,19 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("calibrate-map", help="the map-calibration study: fusion strategies x calibration methods, "
                                              "results.csv / results.md / plots")
     _add_config_args(p, "configs/calibrate_map.yaml")
-    p.add_argument("--quick", action="store_true", help="small preset (3/1/3 houses, short fits), <= 5 minutes")
+    p.add_argument("--quick", action="store_true",
+                   help="small preset (3/1/3 houses, short fits), <= 5 minutes: sets the study / scan / glfs keys "
+                        "of eval.sections.QUICK_PRESET")
     p.add_argument("--output", default=None, help="results directory (default: run.output_dir)")
     p.add_argument("--force", action="store_true", help="discard results of a different config in --output")
     p.add_argument("--sequences", default=None, metavar="LIST",
                    help="recorded sequences instead of calnav's houses: a list file of '<role> <dir> [layout]' lines "
                         "(role: calib_train | calib_val | test); shorthand for sequences.list=LIST")
 
-    p = sub.add_parser("map", help="fuse a recorded RGB-D sequence (ScanNet / 7-Scenes layout) into a semantic map "
+    p = sub.add_parser("map", help="fuse a recorded RGB-D sequence (ScanNet / 7-Scenes layout, ROS bag) into a semantic map "
                                    "and score it against a labelled mesh")
-    p.add_argument("sequence_dir", help="the recording's directory")
-    p.add_argument("--layout", required=True, choices=("scannet", "7scenes"), help="file layout of the recording")
+    p.add_argument("sequence_dir", help="the recording's directory, or a ROS bag (--layout rosbag)")
+    p.add_argument("--layout", required=True, choices=LAYOUTS.names(), help="file layout of the recording")
     p.add_argument("--segmenter", default=None, metavar="SEGMENTER",
                    help="segmenter run on every frame: gt | noisy | learned_rgb | learned_rgbd | hf | onnx | "
                         "package.module:factory | a calnav.segmenters plugin (segmenter section)")
@@ -177,8 +197,10 @@ def build_parser() -> argparse.ArgumentParser:
                                                "ScanNet layout, with a labelled mesh")
     _add_config_args(p, "configs/calibrate_map.yaml")
     p.add_argument("--scene", default="house_val_0000", help="scene id (default: house_val_0000)")
-    p.add_argument("--frames", type=int, default=0, help="scan length, frames (default: the config's scan.frames)")
-    p.add_argument("--resolution", default="640x480", help="frame size WxH, pixels (default 640x480)")
+    p.add_argument("--frames", type=int, default=None,
+                   help="scan length, frames; shorthand for scan.frames (default: the config's; 0 = the config's)")
+    p.add_argument("--resolution", default=None,
+                   help="frame size WxH, pixels; shorthand for env.resolution (default 640x480)")
     p.add_argument("--max-edge", type=float, default=0.05,
                    help="ground-truth mesh: longest edge after subdivision, metres (default 0.05)")
     p.add_argument("--output", required=True, help="output directory (must be empty unless --force)")
@@ -187,7 +209,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("fit-glfs", help="record calibration scans and train GLFS parameters for one segmenter")
     _add_config_args(p, "configs/calibrate_map.yaml")
     p.add_argument("--segmenter", required=True, metavar="SEGMENTER",
-                   help="segmenter whose observations GLFS is fitted to (any agent.segmenter spec; segmenter section)")
+                   help="segmenter whose observations GLFS is fitted to (any agent.segmenter spec; segmenter "
+                        "section); shorthand for study.segmenters=[SEGMENTER]")
     p.add_argument("--output", required=True, help="GLFS parameter file (.json / .npz) for mapping.glfs_params")
     p.add_argument("--work-dir", default=None, help="where scans are kept (default: run.output_dir)")
     p.add_argument("--variant", default=None,
@@ -232,16 +255,19 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("demo", help="set-up check + a real ObjectNav evaluation on procedural houses")
     p.add_argument("--episodes", type=int, default=5, help="number of val episodes")
-    p.add_argument("--output", default="runs/demo", help="results directory")
+    p.add_argument("--output", default=None, help="results directory; shorthand for run.output_dir (default runs/demo)")
+    p.add_argument("overrides", nargs="*", metavar="KEY=VALUE",
+                   help="dotted config overrides of configs/demo.yaml, e.g. run.workers=2")
     return parser
 
 
 @dataclass(frozen=True)
 class Command:
     """One ``calnav`` command: where it lives (imported on use so ``--help`` stays fast), the
-    function that loads the configs it runs and its main. ``main`` (the CLI) loads the configs
-    once, runs the preflight on them and hands the same objects to the command's main, so the
-    preflight checks exactly the configs that run."""
+    function that loads the configs it runs and its main, the sections of the root config it
+    uses (``eval.config.Config``) and the arguments that set config keys. ``main`` (the CLI)
+    loads the configs once, runs the preflight on them and hands the same objects to the
+    command's main, so the preflight checks exactly the configs that run."""
 
     module: str
     main: str                 # main(args, configs) -> None, in module
@@ -249,6 +275,8 @@ class Command:
                               # None: the command reads no calnav config
     # the preflight's checks (eval.preflight.CHECKS) for what this command uses of its configs
     checks: tuple[str, ...] = ("run", "agent", "study", "mapping")
+    sections: tuple[str, ...] = EPISODE_SECTIONS   # the root config's sections it uses (() with no config)
+    shorthands: tuple[Shorthand, ...] = ()         # its arguments that set config keys (eval.shorthands)
 
     def load(self):
         """(main, configs loader), imported now."""
@@ -258,35 +286,75 @@ class Command:
         module, _, function = self.configs.rpartition(":")
         return main, getattr(importlib.import_module(module or self.module), function)
 
+    def schema(self, name: str) -> Schema:
+        return Schema(name, self.sections, self.shorthands)
 
+
+def _lazy(ref: str) -> Callable[[Any], Any]:
+    """The function ``module:function``, imported when first called (the table stays import-free)."""
+    def call(value: Any) -> Any:
+        module, _, function = ref.partition(":")
+        return getattr(importlib.import_module(module), function)(value)
+    return call
+
+
+def _resolved(path: str) -> str:
+    return str(Path(path).resolve())   # a list file named relative to where calnav was started
+
+
+AGENT = Shorthand("--agent", "run.agent")
 COMMANDS: dict[str, Command] = {
-    "objectnav": Command("calnav.eval.objectnav.run", "main_objectnav", "objectnav_configs"),
-    "start-pose": Command("calnav.eval.objectnav.start_pose", "main_start_pose", "start_pose_configs"),
-    "habitat-benchmark": Command("calnav.eval.habitat.run", "main_habitat_benchmark", "habitat_benchmark_configs"),
-    "view-episode": Command("calnav.eval.objectnav.view_episode", "main_view_episode", "view_episode_configs"),
+    "objectnav": Command("calnav.eval.objectnav.run", "main_objectnav", "objectnav_configs", shorthands=(AGENT,)),
+    "start-pose": Command("calnav.eval.objectnav.start_pose", "main_start_pose", "start_pose_configs",
+                          shorthands=(Shorthand("--workers", "run.workers"),)),
+    "habitat-benchmark": Command("calnav.eval.habitat.run", "main_habitat_benchmark", "habitat_benchmark_configs",
+                                 shorthands=(AGENT,)),
+    "view-episode": Command("calnav.eval.objectnav.view_episode", "main_view_episode", "view_episode_configs",
+                            shorthands=(Shorthand("--agent", "run.agent", default="oracle"),)),  # the shortest path
     "scan-houses": Command("calnav.eval.scanning.run", "main_scan_houses", "scan_houses_configs",
-                           checks=("run",)),   # runs no agent: builds scans (splits checked by it)
+                           checks=("run",),   # runs no agent: builds scans (splits checked by it)
+                           shorthands=(fixed("env.dataset.style", "scanned"),)),
     "check-scene": Command("calnav.eval.scanning.check", "main_check_scene", "check_scene_configs",
-                           checks=("run",)),   # runs no agent: loads scenes, builds navmeshes, draws episodes
-    "bench": Command("calnav.eval.bench.run", "main_bench", None),              # fixed workloads, no config
+                           checks=("run",),   # runs no agent: loads scenes, builds navmeshes, draws episodes
+                           shorthands=(Shorthand("target", "env.dataset.scene_dir",   # a scene file's or directory's
+                                                 convert=_lazy("calnav.eval.scanning.check:target_scene_dir")),)),
+    "bench": Command("calnav.eval.bench.run", "main_bench", None, sections=()),   # fixed workloads, no config
     "train-segmenter": Command("calnav.eval.segmenter.train", "main_train_segmenter",
-                               "calnav.eval.segmenter.data:segmenter_configs"),
+                               "calnav.eval.segmenter.data:segmenter_configs", sections=SEGMENTER_SECTIONS),
     "eval-segmenter": Command("calnav.eval.segmenter.evaluate", "main_eval_segmenter",
-                              "calnav.eval.segmenter.data:segmenter_configs"),
-    "collect-maps": Command("calnav.eval.prediction.collect", "main_collect_maps", "collect_configs"),
-    "train-predictor": Command("calnav.eval.prediction.train", "main_train_predictor", None),  # reads collect-maps output
-    "export-onnx": Command("calnav.eval.segmenter.export_onnx", "main_export_onnx", None),  # reads a weight file
-    "calibrate-map": Command("calnav.eval.calibration.study", "main_calibrate_map", "calibrate_map_configs"),
-    "fit-glfs": Command("calnav.eval.calibration.study", "main_fit_glfs", "fit_glfs_configs"),
-    "map": Command("calnav.eval.sequence.map_cmd", "main_map", "map_configs"),
+                              "calnav.eval.segmenter.data:segmenter_configs", sections=SEGMENTER_SECTIONS),
+    "collect-maps": Command("calnav.eval.prediction.collect", "main_collect_maps", "collect_configs",
+                            shorthands=(Shorthand("--split", "env.split", default="train"),
+                                        Shorthand("--steps", "env.max_episode_steps", convert=lambda n: n + 1,
+                                                  default=250))),   # the rollout's STEPS steps fit the limit
+    "train-predictor": Command("calnav.eval.prediction.train", "main_train_predictor", "train_predictor_configs",
+                               checks=(),   # trains on collect-maps output: the config names no file or service
+                               sections=PREDICTOR_SECTIONS,
+                               shorthands=tuple(Shorthand(f"--{k.replace('_', '-')}", f"predictor_train.{k}")
+                                                for k in ("epochs", "pos_weight", "seed", "val_fraction"))),
+    "export-onnx": Command("calnav.eval.segmenter.export_onnx", "main_export_onnx", None, sections=()),  # a weight file
+    "calibrate-map": Command("calnav.eval.calibration.study", "main_calibrate_map", "calibrate_map_configs",
+                             sections=CALIBRATION_SECTIONS,
+                             shorthands=(Shorthand("--quick", preset=QUICK_PRESET),
+                                         Shorthand("--sequences", "sequences.list", convert=_resolved))),
+    "fit-glfs": Command("calnav.eval.calibration.study", "main_fit_glfs", "fit_glfs_configs",
+                        sections=CALIBRATION_SECTIONS,
+                        shorthands=(Shorthand("--segmenter", "study.segmenters", convert=lambda name: f"[{name}]"),
+                                    fixed("study.strategies", "[glfs]"))),   # it fits GLFS only
+    "map": Command("calnav.eval.sequence.map_cmd", "main_map", "map_configs", sections=MAP_SECTIONS),
     "export-sequence": Command("calnav.eval.sequence.export", "main_export_sequence", "export_sequence_configs",
-                               checks=("run",)),   # segments nothing; its --scene is loaded first
+                               checks=("run",),   # segments nothing; its --scene is loaded first
+                               sections=CALIBRATION_SECTIONS,
+                               shorthands=(Shorthand("--resolution", "env.resolution", default="640x480"),
+                                           Shorthand("--frames", "scan.frames",
+                                                     convert=lambda n: n or None))),   # 0: the config's
     "tune": Command("calnav.eval.objectnav.tune", "main_tune", "tune_configs"),
     "study": Command("calnav.eval.objectnav.study", "main_study", "study_configs"),
-    "report": Command("calnav.eval.objectnav.study_report", "main_report", None),  # reads records, no config
-    "compare": Command("calnav.eval.objectnav.compare", "main_compare", None),  # reads finished runs' configs
-    "demo": Command("calnav.eval.objectnav.demo", "main_demo", "demo_configs"),
-    "view": Command("calnav.eval.sequence.view", "main_view", None),   # reads recordings, no config
+    "report": Command("calnav.eval.objectnav.study_report", "main_report", None, sections=()),  # reads records
+    "compare": Command("calnav.eval.objectnav.compare", "main_compare", None, sections=()),  # reads runs' configs
+    "demo": Command("calnav.eval.objectnav.demo", "main_demo", "demo_configs",
+                    shorthands=(Shorthand("--output", "run.output_dir", default="runs/demo"),)),
+    "view": Command("calnav.eval.sequence.view", "main_view", None, sections=()),   # reads recordings, no config
 }
 
 
@@ -300,7 +368,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     args, _ = parser.parse_known_args(argv)   # the command (and --help / a bad command exit here)
     sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
     rest = argv[argv.index(args.command) + 1:]
-    return sub.choices[args.command].parse_intermixed_args(rest, namespace=argparse.Namespace(command=args.command))
+    # schema: the command's sections and shorthands, for its config loader (eval.shorthands.load_command_config)
+    namespace = argparse.Namespace(command=args.command, schema=COMMANDS[args.command].schema(args.command))
+    return sub.choices[args.command].parse_intermixed_args(rest, namespace=namespace)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,38 +1,43 @@
-"""Typed configuration: dataclasses loaded from YAML, with dotted CLI overrides.
+"""Typed configuration: one root config (``Config``) of every command, loaded from YAML, with
+dotted CLI overrides.
 
 ``load_config("configs/objectnav.yaml", ["env.resolution=160x120", "mapping.fusion=glfs"])``
 returns a ``Config``; an unknown key or a bad value raises ``ConfigError`` naming the key and
 the valid keys / choices. Every section's defaults live in its package's dataclass, so a YAML
-file only states what it changes.
+file only states what it changes. A command uses some of the sections (``sections``; the
+command table ``eval.cli.COMMANDS`` names them per command): those are filled, a file or
+override setting another is refused, the rest stay None. Keys that moved (``MOVED_KEYS``) are
+read at their new place wherever a config is read (a file, an override, a results directory's
+stored ``config.yaml``).
 """
 from __future__ import annotations
 
+import copy
 import dataclasses
 import itertools
-import re
+import sys
 import typing
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import yaml
-from pydantic import ConfigDict, TypeAdapter, ValidationError
 
 from calnav.common.yaml_keys import unique_key_loader
 from calnav.agent.config import AgentConfig
+from calnav.agent.registry import AGENTS
+from calnav.agent.segmenters.base import SegmenterConfig
 from calnav.envs.config import EnvConfig
+from calnav.envs.trajectories import ScanConfig
+from calnav.mapping.calibration.glfs_config import GLFSTrainConfig
 from calnav.mapping.config import MappingConfig
+from calnav.mapping.sequences import SequenceConfig
+from calnav.eval.backends import BACKENDS
+from calnav.eval.validation import WXH_RE, ConfigError, build_dataclass, section_type  # noqa: F401 (re-exported)
+from calnav.eval.sections import (CalibrationStudyConfig, PredictorTrainConfig, SegDataConfig, SequenceSetConfig,
+                                  TrainConfig)
 
 CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs"
-
-
-class ConfigError(ValueError):
-    """A config key or value is invalid; the message names it and the valid choices."""
-
-
-# "WxH" sizes (160x120). YAML 1.1 reads "0x0" / "0x10" as hexadecimal integers (0, 16), so the
-# loader keeps text of this form a string and ``_prepare`` splits it for a size (tuple) field.
-WXH_RE = re.compile(r"^\d+x\d+$")
 
 
 class StrictLoader(unique_key_loader(lambda key, first, line: ConfigError(
@@ -65,22 +70,16 @@ def load_yaml_text(text: str, source: str) -> Any:
         raise ConfigError(f"{source}: {exc}") from None
 
 
-# Names of ``eval.objectnav.agents.AGENTS`` (a test keeps the two in step): the config validates the
-# choice without importing any agent.
-AgentName = Literal["peanut", "oracle"]
-AGENT_NAMES: tuple[str, ...] = AgentName.__args__  # type: ignore[attr-defined]
-# Names of ``eval.backends.BACKENDS`` (a test keeps the two in step).
-BackendName = Literal["local", "ray"]
 
 
 @dataclass
 class RunConfig:
-    """How an experiment runs, and which agent runs it (``eval.objectnav.agents.AGENTS``)."""
+    """How an experiment runs, and which agent runs it (``agent.registry.AGENTS``)."""
 
-    agent: AgentName = "peanut"   # agent that runs the episodes: peanut (semantic map, agent.*) | oracle (shortest path)
+    agent: str = "peanut"         # agent that runs the episodes (agent.registry.AGENTS): peanut (semantic map, agent.*) | oracle (shortest path)
     seed: int = 0                 # master random seed
     workers: int = 0              # parallel worker processes; 0 = all cores (backend ray: 0 = no cap on tasks in flight)
-    backend: BackendName = "local"  # where work items run (eval.backends): local (this machine's cores) | ray
+    backend: str = "local"        # where work items run (eval.backends.BACKENDS): local (this machine's cores) | ray
     ray_address: str = ""         # backend ray: "" = start a local Ray instance; "auto" or "ray://host:port" = join a cluster
     output_dir: str = "runs/latest"  # where results, plots and videos go
     device: str = "cpu"           # torch device for learned models ("cpu", "cuda", "cuda:1")
@@ -88,154 +87,114 @@ class RunConfig:
     def __post_init__(self) -> None:
         if self.workers < 0:
             raise ValueError(f"run.workers must be >= 0 (0 = all cores), got {self.workers}")
+        AGENTS.check(self.agent)   # the name only: the agent loads when it is built
+        BACKENDS.check(self.backend)
 
 
 @dataclass
 class Config:
-    env: EnvConfig = field(default_factory=EnvConfig)
-    mapping: MappingConfig = field(default_factory=MappingConfig)
-    run: RunConfig = field(default_factory=RunConfig)
-    agent: AgentConfig = field(default_factory=AgentConfig)
+    """The root config of every command: one section per package dataclass. A command uses some
+    of them (``load_config``'s ``sections``): those hold their values, the others are None, so a
+    dumped config (``config.yaml``) holds exactly the command's sections."""
+
+    env: EnvConfig | None = None                  # simulator, sensors, houses and episodes (envs.config)
+    mapping: MappingConfig | None = None          # the 3D semantic map and its fusion (mapping.config)
+    run: RunConfig | None = None                  # how the experiment runs (above)
+    agent: AgentConfig | None = None              # the ObjectNav agent (agent.config); agent.segmenter: which segmenter
+    segmenter: SegmenterConfig | None = None      # the segmenter's settings, for every command (agent.segmenters.base)
+    scan: ScanConfig | None = None                # calibration scans of houses (envs.trajectories)
+    study: CalibrationStudyConfig | None = None   # the map-calibration study (eval.sections)
+    glfs: GLFSTrainConfig | None = None           # GLFS training (mapping.calibration.glfs_config)
+    sequences: SequenceSetConfig | None = None    # recorded sequences instead of houses (eval.sections)
+    sequence: SequenceConfig | None = None        # how a recorded sequence is read (mapping.sequences)
+    data: SegDataConfig | None = None             # frames a segmenter trains / is scored on (eval.sections)
+    train: TrainConfig | None = None              # a segmenter's training (eval.sections)
+    predictor_train: PredictorTrainConfig | None = None  # the target predictor's training (eval.sections)
+
+    def __post_init__(self) -> None:
+        if self.study is not None and self.glfs is not None:
+            self.glfs_configs()    # a bad GLFS variant is refused at load time, before anything is written
+
+    @property
+    def sections(self) -> tuple[str, ...]:
+        """The sections this config holds (the command's), in field order."""
+        return tuple(f.name for f in dataclasses.fields(self) if getattr(self, f.name) is not None)
+
+    def glfs_configs(self) -> dict[str, GLFSTrainConfig]:
+        """{variant name: the ``glfs`` section with the variant's overrides} (``study.glfs_variants``)."""
+        base = to_dict(self.glfs)
+        return {v.name: build_dataclass(GLFSTrainConfig, {**base, **v.overrides},
+                                        prefix=f"study.glfs_variants.{v.name}.overrides")
+                for v in self.study.glfs_variants}
 
 
-# ---------------------------------------------------------------- validation (pydantic)
-# The config sections are plain dataclasses owned by their packages (envs, mapping, agent, ...);
-# pydantic validates a nested dict against them (types, Literal choices, finite numbers, then
-# each section's own __post_init__ range checks) and ``_config_error`` turns its first error into
-# calnav's one line naming the key and the valid keys or choices. The validation settings are
-# attached here, once per dataclass, so the packages stay free of pydantic.
-PYDANTIC_CONFIG = ConfigDict(extra="forbid", allow_inf_nan=False, coerce_numbers_to_str=True)
-_ADAPTERS: dict[type, TypeAdapter] = {}
+SECTIONS: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(Config))
+# The sections a kind of command uses (``eval.cli.COMMANDS`` gives each command one of them):
+EPISODE_SECTIONS: tuple[str, ...] = ("env", "mapping", "run", "agent", "segmenter")   # ObjectNav episodes (the default)
+CALIBRATION_SECTIONS: tuple[str, ...] = ("env", "mapping", "run", "segmenter", "scan", "study", "glfs", "sequences",
+                                         "sequence")   # calibrate-map, fit-glfs, export-sequence
+SEGMENTER_SECTIONS: tuple[str, ...] = ("env", "run", "segmenter", "data", "train")   # train- / eval-segmenter
+MAP_SECTIONS: tuple[str, ...] = ("mapping", "run", "segmenter", "sequence")   # calnav map
+PREDICTOR_SECTIONS: tuple[str, ...] = ("predictor_train",)   # train-predictor
 
-# pydantic error type -> what calnav says was expected
-_EXPECTED = {
-    "float_parsing": "a number", "float_type": "a number", "finite_number": "a finite number",
-    "int_parsing": "an integer", "int_type": "an integer", "int_from_float": "an integer",
-    "bool_parsing": "true or false", "bool_type": "true or false",
-    "tuple_type": "a list (or 'WxH')", "list_type": "a list", "dict_type": "a mapping",
-    "string_type": "a string", "dataclass_type": "a mapping", "dataclass_exact_type": "a mapping",
+# ---------------------------------------------------------------- moved keys
+# Keys that moved, old dotted key -> new dotted key (a section or a key). Every config read --
+# a user's file or override (with a one-line note on stderr naming the new key), a results
+# directory's stored config.yaml (``eval.results_dir``, ``calnav compare``) -- sees the new
+# place, so a results directory written before a move resumes and compares as the same config.
+MOVED_KEYS: dict[str, str] = {
+    "agent.segmenter_config": "segmenter",   # the segmenter's settings: one top-level section for every command
 }
+_NOTED: set[tuple[str, str]] = set()   # (source, old key) already noted in this process
+_ABSENT = object()
 
 
-def _with_pydantic_config(cls: type) -> None:
-    """Attach PYDANTIC_CONFIG to ``cls`` and every dataclass its fields hold."""
-    if "__pydantic_config__" in cls.__dict__:
-        return
-    cls.__pydantic_config__ = PYDANTIC_CONFIG
-    for tp in typing.get_type_hints(cls).values():
-        for t in (tp, *typing.get_args(tp)):
-            if dataclasses.is_dataclass(t):
-                _with_pydantic_config(t)
+def _moved_from(dotted: str) -> str | None:
+    """The moved key (``MOVED_KEYS``) that ``dotted`` is or lies under, or None."""
+    return next((old for old in MOVED_KEYS if dotted == old or dotted.startswith(old + ".")), None)
 
 
-def _adapter(cls: type) -> TypeAdapter:
-    if cls not in _ADAPTERS:
-        _with_pydantic_config(cls)
-        _ADAPTERS[cls] = TypeAdapter(cls)
-    return _ADAPTERS[cls]
+def migrate_key(dotted: str) -> str:
+    """``dotted`` at its new place when it is, or lies under, a moved key (``MOVED_KEYS``)."""
+    old = _moved_from(dotted)
+    return dotted if old is None else MOVED_KEYS[old] + dotted[len(old):]
 
 
-def _field_path(cls: type, loc: tuple) -> tuple[list[str], type | None, Any]:
-    """Walk ``loc`` (a pydantic error location) through ``cls``'s fields: (the config key's
-    parts, the dataclass holding the last one, the last one's type). Union member tags and list
-    indices in ``loc`` are not keys."""
-    parts, holder, tp = [], cls, cls
-    for item in loc:
-        if dataclasses.is_dataclass(tp) and isinstance(item, str):
-            hints = typing.get_type_hints(tp)
-            holder = tp
-            parts.append(item)
-            tp = hints.get(item)
-            if tp is None:
-                break
+def _note_moved(source: str, old: str) -> None:
+    """One note on stderr per source and moved key: where the key lives now."""
+    if (source, old) not in _NOTED:
+        _NOTED.add((source, old))
+        print(f"calnav: note: {source}: {old} has moved to {MOVED_KEYS[old]} and is read there; write "
+              f"{MOVED_KEYS[old]}", file=sys.stderr)
+
+
+def _pop_dotted(tree: dict, dotted: str, pop: bool = True) -> Any:
+    """The value at ``dotted`` in ``tree`` (removed unless not ``pop``), or ``_ABSENT``."""
+    *parents, last = dotted.split(".")
+    node = tree
+    for p in parents:
+        node = node.get(p) if isinstance(node, dict) else None
+    if not isinstance(node, dict):
+        return _ABSENT
+    return node.pop(last, _ABSENT) if pop else node.get(last, _ABSENT)
+
+
+def migrate_tree(tree: dict, source: str = "") -> dict:
+    """A copy of ``tree`` (a nested config dict) with every moved key at its new place; one
+    ``source`` (a user's file) gets a note on stderr per moved key, a stored one (``source``
+    "") none. A key written at both places is a ConfigError naming both."""
+    out = copy.deepcopy(tree)
+    for old, new in MOVED_KEYS.items():
+        value = _pop_dotted(out, old)
+        if value is _ABSENT:
             continue
-        if typing.get_origin(tp) is dict:   # a mapping's key
-            parts.append(str(item))
-            tp = typing.get_args(tp)[1]
-            continue
-        if isinstance(item, int):       # a list element
-            args = typing.get_args(tp)
-            tp = args[0] if args else None
-            parts[-1] = f"{parts[-1]}[{item}]" if parts else f"[{item}]"
-            continue
-        members = [a for a in typing.get_args(tp) if a is not type(None)]   # a union member's tag
-        tp = next((a for a in members if getattr(a, "__name__", str(a)) in str(item)), None)
-    return parts, holder, tp
-
-
-def _prepare(cls: type, data: dict, prefix: str) -> dict:
-    """What pydantic's lax mode would read differently from calnav's configs: a ``WxH`` string
-    for a size (2-tuple) field is split, and true / false for a number is refused (pydantic
-    would take it as 1 / 0)."""
-    hints, out = typing.get_type_hints(cls), dict(data)
-    for name, value in data.items():
-        tp, key = hints.get(name), f"{prefix}.{name}" if prefix else name
-        if typing.get_origin(tp) is tuple and isinstance(value, str) and WXH_RE.match(value):
-            out[name] = value.split("x")
-        elif tp in (int, float) and isinstance(value, bool):
-            raise ConfigError(f"bad value for {key}: {value!r}; expected {_EXPECTED[f'{tp.__name__}_type']}")
-        elif typing.get_origin(tp) in (list, tuple) and isinstance(value, (list, tuple)):
-            items = typing.get_args(tp)
-            for i, v in enumerate(value):   # a number list's items: list[float], tuple[int, int], tuple[float, ...]
-                item_tp = items[0] if len(items) == 1 or items[-1] is Ellipsis else items[min(i, len(items) - 1)]
-                if item_tp in (int, float) and isinstance(v, bool):
-                    raise ConfigError(f"bad value for {key}: {value!r}; expected a list of "
-                                      f"{'integers' if item_tp is int else 'numbers'}")
-        elif dataclasses.is_dataclass(tp) and isinstance(value, dict):
-            out[name] = _prepare(tp, value, key)
+        if _pop_dotted(out, new, pop=False) is not _ABSENT:
+            raise ConfigError(f"{source or 'config'}: {old} and {new} are one setting ({old} moved to {new}); "
+                              f"write only {new}")
+        _set_dotted(out, new, value)
+        if source:
+            _note_moved(source, old)
     return out
-
-
-# which of pydantic's errors to report first: an unknown key explains a "missing" one beside it
-_ERROR_ORDER = {"unexpected_keyword_argument": 0, "missing": 2}
-
-
-def _config_error(cls: type, exc: ValidationError, prefix: str) -> ConfigError:
-    """calnav's one-line message for pydantic's first error."""
-    err = min(exc.errors(include_url=False), key=lambda e: _ERROR_ORDER.get(e["type"], 1))
-    cause = err.get("ctx", {}).get("error")
-    if isinstance(cause, ConfigError):   # raised by a nested build_dataclass (a section's variants)
-        return cause
-    parts, holder, tp = _field_path(cls, err["loc"])
-    key = ".".join(p for p in [prefix, *parts] if p)
-    kind, value = err["type"], err.get("input")
-    if kind == "unexpected_keyword_argument":
-        section = ".".join(p for p in [prefix, *parts[:-1]] if p)
-        where = f"under '{section}'" if section else "at the top level"
-        names = ", ".join(f.name for f in dataclasses.fields(holder))
-        return ConfigError(f"unknown config key '{key}'; valid keys {where}: {names}")
-    if kind == "literal_error":
-        choices = ", ".join(map(str, typing.get_args(tp))) if typing.get_origin(tp) is Literal else \
-            err["ctx"]["expected"]
-        return ConfigError(f"bad value for {key}: {value!r}; valid choices: {choices}")
-    if kind == "missing" and isinstance(err["loc"][-1], int):   # a fixed-length tuple given too few items
-        parts, _, tp = _field_path(cls, err["loc"][:-1])
-        key = ".".join(p for p in [prefix, *parts] if p)
-        return ConfigError(f"bad value for {key}: {value!r}; expected {len(typing.get_args(tp))} items")
-    if kind == "missing":
-        return ConfigError(f"missing config key '{key}'")
-    if kind == "value_error":            # a section's own __post_init__ range check
-        return ConfigError(f"{key or cls.__name__}: {err['ctx']['error']}")
-    if kind in ("too_short", "too_long"):
-        return ConfigError(f"bad value for {key}: {value!r}; expected {len(typing.get_args(tp))} items")
-    expected = _EXPECTED.get(kind)
-    if expected is None:
-        return ConfigError(f"bad value for {key}: {value!r}; {err['msg']}")
-    if expected == "a mapping" and dataclasses.is_dataclass(tp):
-        expected = f"a mapping of {tp.__name__} keys"
-    return ConfigError(f"bad value for {key}: {value!r}; expected {expected}")
-
-
-def build_dataclass(cls: type, data: dict, prefix: str = "") -> Any:
-    """Build ``cls`` from a (possibly partial) nested dict, validating every key and value
-    (``prefix``: the dotted key ``data`` sits under, for messages)."""
-    if not isinstance(data, dict):
-        raise ConfigError(f"bad value for {prefix or cls.__name__}: {data!r}; expected a mapping of "
-                          f"{cls.__name__} keys")
-    try:
-        return _adapter(cls).validate_python(_prepare(cls, data, prefix))
-    except ValidationError as exc:
-        raise _config_error(cls, exc, prefix) from None
 
 
 def _yaml_text(value: Any) -> str:
@@ -249,7 +208,7 @@ def _check_sections(cls: type, tree: dict, source: str, prefix: str = "") -> Non
     section it is, not as the first override that would be set under it."""
     hints = typing.get_type_hints(cls)
     for name, value in tree.items():
-        tp = hints.get(name) if isinstance(name, str) else None
+        tp = section_type(hints.get(name)) if isinstance(name, str) else None
         if tp is None or not dataclasses.is_dataclass(tp):
             continue
         key = f"{prefix}.{name}" if prefix else name
@@ -281,9 +240,29 @@ def parse_override(text: str) -> tuple[str, Any]:
     return key.strip(), load_yaml_text(raw, f"override {text!r}")
 
 
+def _who(command: str) -> str:
+    return f"calnav {command}" if command else "this command"
+
+
+def _check_used(names, sections: tuple[str, ...], command: str, source: str) -> None:
+    """Every top-level key of ``names`` is one of ``sections`` (the command's): a section the
+    command does not use, or no section at all, is a one-line ConfigError naming them."""
+    for name in names:
+        if name in sections:
+            continue
+        if name in SECTIONS:
+            raise ConfigError(f"{source} sets the '{name}' section, which {_who(command)} does not use; its sections: "
+                              f"{', '.join(sections)}")
+        raise ConfigError(f"unknown config key '{name}'; valid keys at the top level: {', '.join(sections)}")
+
+
 def load_config(path: str | Path | None = None, overrides: list[str] | tuple[str, ...] = (),
-                cls: type = Config) -> Any:
-    """YAML file (optional) + dotted overrides -> validated config dataclass."""
+                cls: type = Config, sections: tuple[str, ...] = EPISODE_SECTIONS, command: str = "") -> Any:
+    """YAML file (optional) + dotted overrides -> validated config dataclass. For the root
+    ``Config``: moved keys are read at their new place (``MOVED_KEYS``, with a note), only
+    ``sections`` (the command's, ``command`` for messages) may be set, and they are filled
+    with their defaults; ``cls``: another dataclass read the same way (a study's plan file)."""
+    root = cls is Config
     tree: dict = {}
     if path is not None:
         path = Path(path)
@@ -303,22 +282,28 @@ def load_config(path: str | Path | None = None, overrides: list[str] | tuple[str
         loaded = load_yaml_text(text, str(path)) or {}
         if not isinstance(loaded, dict):
             raise ConfigError(f"config file {path} must hold a mapping at the top level")
+        if root:
+            loaded = migrate_tree(loaded, str(path))
+            _check_used(loaded, sections, command, str(path))
         _check_sections(cls, loaded, str(path))   # before an override is set under a null section
         tree = loaded
     for text in overrides:
         key, value = parse_override(text)
+        if root:
+            old = _moved_from(key)
+            if old is not None:
+                _note_moved(f"override {text}", old)
+                key = migrate_key(key)
+            _check_used([key.split(".")[0]], sections, command, f"the override {text}")
         _set_dotted(tree, key, value)
+    if root:
+        for name in sections:   # the command's sections, each at least its defaults
+            value = tree.setdefault(name, {})
+            if not isinstance(value, dict):
+                tp = section_type(typing.get_type_hints(Config)[name])
+                raise ConfigError(f"bad value for {name}: {_yaml_text(value)}; expected a mapping of "
+                                  f"{tp.__name__} keys")
     return build_dataclass(cls, tree)
-
-
-def with_shorthand(overrides: list[str], key: str, value: Any, option: str) -> list[str]:
-    """``overrides`` plus ``key=value`` from a command-line shorthand (``--agent`` for
-    ``run.agent``...). The same key also given as an override is refused rather than silently
-    overridden by the shorthand: one line naming both."""
-    for text in overrides:
-        if text.partition("=")[0].strip() == key:
-            raise ConfigError(f"{option} {value} and the override {text} both set {key}: give one of them")
-    return [*overrides, f"{key}={value}"]
 
 
 def expand_multirun(overrides: list[str]) -> list[list[str]]:
@@ -335,7 +320,8 @@ def expand_multirun(overrides: list[str]) -> list[list[str]]:
 
 
 def to_dict(cfg: Any) -> dict:
-    """Plain nested dict (tuples as lists) for YAML/JSON output."""
+    """Plain nested dict (tuples as lists) for YAML/JSON output; of a root ``Config`` only the
+    sections it holds (the command's)."""
     def conv(v):
         if dataclasses.is_dataclass(v):
             return {f.name: conv(getattr(v, f.name)) for f in dataclasses.fields(v)}
@@ -344,6 +330,8 @@ def to_dict(cfg: Any) -> dict:
         if isinstance(v, dict):
             return {k: conv(x) for k, x in v.items()}
         return v
+    if isinstance(cfg, Config):
+        return {name: conv(getattr(cfg, name)) for name in cfg.sections}
     return conv(cfg)
 
 

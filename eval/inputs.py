@@ -17,8 +17,8 @@ lists every file the config reads, with its sha256:
   a file suffix or a directory part, found from the working directory or, as the loaders also
   look, from the repository root), under its dotted key;
 - the default weight files a config reads without naming them: each learned segmenter it runs
-  (``agent.segmenter``, ``study.segmenters``) when its segmenter section's ``weights`` is empty
-  (``agent.segmenter_config`` or the top-level ``segmenter``), and the target predictor
+  (``agent.segmenter``, ``study.segmenters``) when the ``segmenter`` section's ``weights`` is
+  empty, and the target predictor
   (``agent.exploration: prediction``) when ``agent.predictor_weights`` is empty.
 
 Other directories (a recorded sequence, a scene folder) are not hashed. Hashes are cached per
@@ -139,7 +139,7 @@ def input_files(cfg_dict: dict, neutral_keys: tuple[str, ...] = (),
         if found is not None:
             out[key] = found
     agent, study = cfg_dict.get("agent") or {}, cfg_dict.get("study") or {}
-    seg = agent.get("segmenter_config") or cfg_dict.get("segmenter") or {}   # the section the run reads
+    seg = cfg_dict.get("segmenter") or {}   # the segmenter settings the run reads
     if not seg.get("weights"):
         names = list(segmenters) if segmenters is not None else \
             [agent.get("segmenter")] + list(study.get("segmenters") or [])

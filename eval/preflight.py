@@ -7,14 +7,16 @@ worker.
 ``eval.cli`` runs it for every command: the command registry (``eval.cli.COMMANDS``) names, per
 command, the function that loads the configs the command runs; the CLI loads them once, hands
 them to ``check_configs`` and then to the command's main, so what is checked is exactly what
-runs. Checked per config, by the section it has, with the loaders that own the data:
+runs. Checked per config (``eval.config.Config``), by the sections it holds (the command's) and
+the checks the command declares, with the loaders that own the data:
 
 - ``run``: a known backend, for ``ray`` an importable Ray and a reachable address
   (``eval.backends.check_backend``); a torch device other than cpu must exist;
 - ``agent`` (the episode configs): the segmenter's device and, for a learned one, its weight
-  file (``agent.segmenters.check_segmenter``); a segmenter that reads the ground-truth semantic
-  image only with a semantic sensor (the habitat config's, for habitat-benchmark); ``env.dataset.scene_dir`` when set: a directory
-  holding scenes for the split the episodes come from (``envs.scenes.split_scene_ids``);
+  file (``agent.segmenters.check_segmenter``; its settings: the ``segmenter`` section); a
+  segmenter that reads the ground-truth semantic image only with a semantic sensor (the habitat
+  config's, for habitat-benchmark); ``env.dataset.scene_dir`` when set: a directory holding
+  scenes for the split the episodes come from (``envs.scenes.split_scene_ids``);
 - ``study`` (the calibration study): every ``study.segmenters`` entry (predicting every calnav
   class), and the houses or
   recorded sequences of every role (``eval.calibration.record.role_scene_ids``);
@@ -64,9 +66,8 @@ def check_run_resources(cfg: Any, checks: tuple[str, ...] = CHECKS) -> None:
     if agent is not None:
         from calnav.agent.segmenters.base import goal_categories
 
-        names = check_segmenter(agent.segmenter, agent.segmenter_config, run.device if run else None,
-                                probe_size=tuple(cfg.env.resolution), goals=goal_categories(),
-                                key="agent.segmenter_config")
+        names = check_segmenter(agent.segmenter, cfg.segmenter, run.device if run else None,
+                                probe_size=tuple(cfg.env.resolution), goals=goal_categories())
         if agent.exploration == "prediction" and getattr(run, "agent", "peanut") == "peanut":
             from calnav.agent.prediction import DEFAULT_PREDICTOR, check_predictor
 

@@ -9,11 +9,14 @@
    kernel drops the lock when its holder exits or is killed (kill -9 included), so it never
    stays stuck;
 3. the config check, one meaning everywhere: the saved ``config.yaml`` and ``cfg`` are compared
-   as resolved config dicts without the result-neutral keys (``NEUTRAL_KEYS``), and so are the
-   files the config reads (``eval.inputs``: weights, GLFS parameters, ..., by sha256, saved in
-   ``inputs.json``; a retrained ``agent/weights/<model>.pt`` under an unchanged config is another
-   run); a difference is refused unless ``force``, which deletes the directory's results
-   (``discard``). A directory from before ``inputs.json`` existed is resumed with a warning;
+   as resolved config dicts without the result-neutral keys (``NEUTRAL_KEYS``), the saved one
+   read with moved keys at their new place (``eval.config.MOVED_KEYS``: a directory written
+   before a key moved is the same config), and so are the files the config reads
+   (``eval.inputs``: weights, GLFS parameters, ..., by sha256, saved in ``inputs.json``, whose
+   labels are migrated the same way; a retrained ``agent/weights/<model>.pt`` under an unchanged
+   config is another run); a difference is refused unless ``force``, which deletes the
+   directory's results (``discard``). A directory from before ``inputs.json`` existed is resumed
+   with a warning;
 4. ``config.yaml`` and ``inputs.json`` are (re)written atomically.
 
 ``RecordsFile`` is the per-episode records file (``episodes.jsonl``): one JSON object per line,
@@ -48,7 +51,7 @@ from calnav.eval.stats import METRICS, finite_or_error
 # Dotted config keys that do not change results: a rerun with other values may resume the same
 # directory, and `calnav compare` never makes them columns.
 NEUTRAL_KEYS: tuple[str, ...] = ("run.workers", "run.output_dir", "run.backend", "run.ray_address",
-                                 "agent.segmenter_config.trace", "segmenter.trace")   # (trace: bit-identical logits)
+                                 "segmenter.trace")   # (trace: bit-identical logits)
 LOCK_NAME = ".lock"
 CONFIG_NAME = "config.yaml"
 RECORDS_NAME = "episodes.jsonl"
@@ -229,7 +232,10 @@ class ResultsDir:
         return self._fingerprints
 
     def _holds_other_config(self) -> bool:
-        """Whether the directory's config.yaml (if any) differs from ``cfg`` beyond the neutral keys."""
+        """Whether the directory's config.yaml (if any) differs from ``cfg`` beyond the neutral
+        keys, the saved one read with moved keys at their new place."""
+        from calnav.eval.config import ConfigError, migrate_tree
+
         saved = self.path / CONFIG_NAME
         if not saved.exists():
             return False
@@ -238,8 +244,13 @@ class ResultsDir:
         except (yaml.YAMLError, UnicodeDecodeError) as exc:
             raise ResultsError(f"{saved} is not a readable config ({type(exc).__name__}); remove it or "
                                f"pass another {self.option}") from None
-        return not isinstance(old, dict) or (strip_neutral(old, self.neutral_keys)
-                                             != strip_neutral(self._cfg_dict(), self.neutral_keys))
+        if not isinstance(old, dict):
+            return True
+        try:
+            old = migrate_tree(old)
+        except ConfigError:   # a key at its old and its new place: not a config calnav wrote
+            return True
+        return strip_neutral(old, self.neutral_keys) != strip_neutral(self._cfg_dict(), self.neutral_keys)
 
     def _other_inputs(self) -> list[str]:
         """The labels of the input files that differ from the ones the directory's results were
@@ -254,7 +265,9 @@ class ResultsDir:
             warn(f"{self.path} has no {INPUTS_NAME} (made before calnav fingerprinted its input files): "
                  "resuming it cannot check that its weights and parameter files are unchanged")
             return []
-        return changed_inputs(saved, self._inputs())
+        from calnav.eval.config import migrate_key
+
+        return changed_inputs({migrate_key(k): v for k, v in saved.items()}, self._inputs())
 
     def _refusal(self) -> str | None:
         """Why the directory's results are not this run's (one line), or None."""

@@ -9,19 +9,17 @@ says so (``before_step`` returns the action that is sent). Hooks are called in o
     result = rollout(env, agent, index, hooks=[VideoHook(path)])
     result.info["spl"], result.steps, result.terminated
 
-An agent is anything with ``reset(obs)`` and ``act(obs) -> int`` (``agent.policy.PeanutAgent``,
-the oracle, a composite that drives several agents in lockstep).
+An agent is anything with ``reset(obs)`` and ``act(obs) -> int`` (``agent.contract.Agent``:
+the agents of ``agent.registry.AGENTS``, a composite that drives several agents in lockstep);
+it gets the env's observation as it is and splits off the privileged part itself
+(``agent.contract.split_observation``), so the loop also runs envs with other observations.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Iterable, Protocol
+from typing import Any, Iterable
 
-
-class Agent(Protocol):
-    def reset(self, obs: dict) -> None: ...
-
-    def act(self, obs: dict) -> int: ...
+from calnav.agent.contract import Agent
 
 
 class Hook:

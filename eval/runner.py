@@ -70,15 +70,19 @@ class _Guarded:
 def run_tasks(fn: Callable[[Any], Any], tasks: Iterable, run_cfg, *, save: Callable[[Any, Any], None],
               desc: str, unit: str, total: int | None = None, progress: bool = True,
               postfix: Callable[[Any], dict] | None = None,
-              failed: Callable[[Any, TaskFailed], None] | None = None) -> list[tuple[Any, TaskFailed]]:
+              failed: Callable[[Any, TaskFailed], None] | None = None,
+              backend: Any = None) -> list[tuple[Any, TaskFailed]]:
     """Run ``fn(task)`` for every task on ``run_cfg``'s backend (``run.backend`` / ``run.workers``
     / ``run.ray_address``), calling ``save(task, result)`` in the driver as each result arrives
     (completion order). ``total``: the bar's length when some tasks were already done (resumed);
     default ``len(tasks)``. ``postfix(task)``: running figures shown on the bar after each result (``task``: the one that just finished).
     ``failed(task, TaskFailed)``: saves a failure as it arrives (an episode's error record);
     without it failures are collected. Returns ``[(task, TaskFailed)]`` for the tasks that raised
-    and were not handed to ``failed`` (empty when all succeeded). The only place a backend (and
-    so a worker pool) is made; a command checks ``run`` first (``eval.backends.check_backend``,
+    and were not handed to ``failed`` (empty when all succeeded). ``backend``: an
+    ``eval.backends`` backend to run on instead of ``run_cfg``'s (``run_cfg`` is then unused and
+    may be None), for workers no ``RunConfig`` describes (``calnav bench`` times one fresh worker
+    process pinned to one thread: ``LocalBackend(1, threads=1, in_process=False)``). The only
+    place a worker pool is started; a command checks ``run`` first (``eval.backends.check_backend``,
     which the CLI's preflight runs) so a bad backend fails before its directory is written."""
     from tqdm import tqdm
 
@@ -88,7 +92,7 @@ def run_tasks(fn: Callable[[Any], Any], tasks: Iterable, run_cfg, *, save: Calla
     total = len(tasks) if total is None else total
     if total < len(tasks):
         raise ValueError(f"run_tasks: total={total} is less than the {len(tasks)} tasks to run")
-    backend = make_backend(run_cfg)
+    backend = make_backend(run_cfg) if backend is None else backend
     failures: list[tuple[Any, TaskFailed]] = []
 
     def arrived(task, result, bar) -> None:

@@ -14,16 +14,9 @@ largest house. block_resolution = 4 measured ~40 % less memory per m^2 at the sa
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
 
 from calnav.common.ranges import Range, check_ranges
-
-FusionName = Literal["rbu", "averaging", "histogram", "geometric_mean", "glfs"]
-# "auto": the GLFS look-up table for ``glfs``, no weighting for every other strategy.
-WeightingName = Literal["auto", "none", "lut", "distance", "incidence", "sweet_spot"]
-
-FUSION_NAMES: tuple[str, ...] = FusionName.__args__  # type: ignore[attr-defined]
-WEIGHTING_NAMES: tuple[str, ...] = WeightingName.__args__  # type: ignore[attr-defined]
+from calnav.mapping.registry import FUSIONS, check_weighting
 
 # Laplace smoothing constant mu: p' = (p + mu) / (1 + K mu) before any log (paper Sec. III-B and
 # V-A smooth before the log-space updates but give no value; 1e-3 is the authors' constant).
@@ -31,6 +24,11 @@ WEIGHTING_NAMES: tuple[str, ...] = WeightingName.__args__  # type: ignore[attr-d
 LAPLACE_MU = 1e-3
 # Largest image side the map takes, pixels (``envs.config.MAX_RESOLUTION_PX``, the sensor's).
 MAX_IMAGE_SIDE_PX = 4096
+# The GLFS sample-weight table's bins (``mapping.weighting``'s ``lut``): the authors' distance
+# edges, metres, and incidence-angle edges, degrees. Here, not in ``mapping.weighting`` (torch),
+# so the GLFS training section (``mapping.calibration.glfs_config``) loads without torch.
+DISTANCE_EDGES_M: tuple[float, ...] = (0.0, 1.0, 2.0, 3.0, 4.0, 5.0)
+ANGLE_EDGES_DEG: tuple[float, ...] = (0.0, 30.0, 60.0, 90.0)
 
 
 MAX_ALLOC_MB = 65536          # initial_alloc_mb cap, MiB (64 GiB: beyond any machine this runs on)
@@ -69,8 +67,8 @@ MAPPING_RANGES = {
 @dataclass
 class MappingConfig:
     # --- fusion -----------------------------------------------------------------------------
-    fusion: FusionName = "averaging"  # fusion strategy: rbu | averaging | histogram | geometric_mean | glfs
-    weighting: WeightingName = "auto"  # sample weighting: auto | none | lut | distance | incidence | sweet_spot
+    fusion: str = "averaging"        # fusion strategy (mapping.registry.FUSIONS): rbu | averaging | histogram | geometric_mean | glfs
+    weighting: str = "auto"          # sample weighting (mapping.registry.WEIGHTINGS): auto (glfs: lut, else none) | none | lut | distance | incidence | sweet_spot
     temperature: float = 1.0         # logit temperature for non-glfs strategies (glfs: tau from glfs_params)
     glfs_params: str = ""            # GLFSParams file (.json/.npz) for glfs / lut; "" = identity (tau 1, G = eps = 0, M = 1)
     laplace_mu: float = LAPLACE_MU   # Laplace smoothing p' = (p + mu) / (1 + K mu) before any log
@@ -97,10 +95,8 @@ class MappingConfig:
     min_tsdf_weight: float = 1.0     # read-out / ray casting: minimum TSDF weight (frames)
 
     def __post_init__(self) -> None:
-        if self.fusion not in FUSION_NAMES:
-            raise ValueError(f"unknown fusion strategy {self.fusion!r}; valid names: {', '.join(FUSION_NAMES)}")
-        if self.weighting not in WEIGHTING_NAMES:
-            raise ValueError(f"unknown weighting {self.weighting!r}; valid names: {', '.join(WEIGHTING_NAMES)}")
+        FUSIONS.check(self.fusion)
+        check_weighting(self.weighting)
         for name in ("temperature", "initial_alloc_mb"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"mapping.{name} must be > 0, got {getattr(self, name)}")

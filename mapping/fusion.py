@@ -1,4 +1,4 @@
-"""Semantic fusion strategies (paper Sec. III-B, V-A, V-D), one registry chosen by name.
+"""Semantic fusion strategies (paper Sec. III-B, V-A, V-D), chosen by name (``mapping.registry.FUSIONS``).
 
 Every strategy is two pure torch functions over *accumulators* -- linear sums over the
 observations of one voxel, so fusion is incremental:
@@ -32,6 +32,7 @@ from typing import Callable, Mapping
 import torch
 
 from calnav.mapping.config import LAPLACE_MU  # noqa: F401  (re-exported: the smoothing constant's default)
+from calnav.mapping.registry import FUSIONS
 from calnav.mapping.scaling import as_temperature, scale_logits
 
 ACCUMULATOR_NAMES: tuple[str, ...] = ("A", "B", "W")
@@ -141,25 +142,21 @@ class Strategy:
         return {a: accumulator_channels(a, num_classes) for a in self.accumulators}
 
 
-STRATEGIES: dict[str, Strategy] = {
-    s.name: s for s in (
-        Strategy("rbu", ("A",), _inc_log, _read_rbu),
-        Strategy("averaging", ("B", "W"), _inc_prob, _read_mean),
-        Strategy("histogram", ("B", "W"), _inc_vote, _read_mean, differentiable=False, votes=True),
-        Strategy("geometric_mean", ("A", "W"), _inc_log_w, _read_geometric),
-        Strategy("glfs", ("A", "B", "W"), _inc_glfs, _read_glfs, gated=True),
-    )
-}
+# The strategies, registered by name in ``mapping.registry.FUSIONS`` (lazily: a config names
+# one without importing torch).
+RBU = Strategy("rbu", ("A",), _inc_log, _read_rbu)
+AVERAGING = Strategy("averaging", ("B", "W"), _inc_prob, _read_mean)
+HISTOGRAM = Strategy("histogram", ("B", "W"), _inc_vote, _read_mean, differentiable=False, votes=True)
+GEOMETRIC_MEAN = Strategy("geometric_mean", ("A", "W"), _inc_log_w, _read_geometric)
+GLFS = Strategy("glfs", ("A", "B", "W"), _inc_glfs, _read_glfs, gated=True)
 
 
 def get_strategy(name: str | Strategy) -> Strategy:
-    """The registered strategy ``name``; a ValueError lists the valid names."""
+    """The strategy registered as ``name`` (``mapping.registry.FUSIONS``), or ``name`` itself
+    when it is a ``Strategy``; a ValueError names the valid choices."""
     if isinstance(name, Strategy):
         return name
-    try:
-        return STRATEGIES[name]
-    except (KeyError, TypeError):
-        raise ValueError(f"unknown fusion strategy {name!r}; valid names: {', '.join(STRATEGIES)}") from None
+    return FUSIONS.get(name)
 
 
 def check_gates(strategy: Strategy, g, eps, dtype: torch.dtype = torch.float32,

@@ -1,7 +1,7 @@
 """Sample weighting (paper Sec. V-B, V-D): a weight w_t >= 0 per observation from the predicted
 class, the voxel's distance to the camera and the incidence angle of the viewing ray on the
-surface. One registry, chosen by name; every function is pure torch (the LUT is differentiable
-w.r.t. M, for GLFS training).
+surface, chosen by name (``mapping.registry.WEIGHTINGS``); every function is pure torch (the
+LUT is differentiable w.r.t. M, for GLFS training).
 
 - ``none``: w = 1.
 - ``lut``: the GLFS table, w = max(M, 0)[predicted class, distance bin, angle bin]. Authors'
@@ -19,14 +19,11 @@ The analytic weights are floored at ``min_weight`` so that no observation counts
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable
 
 import torch
 
-from calnav.mapping.config import MappingConfig
-
-DISTANCE_EDGES_M: tuple[float, ...] = (0.0, 1.0, 2.0, 3.0, 4.0, 5.0)  # authors' LUT bins
-ANGLE_EDGES_DEG: tuple[float, ...] = (0.0, 30.0, 60.0, 90.0)
+from calnav.mapping.config import ANGLE_EDGES_DEG, DISTANCE_EDGES_M, MappingConfig  # noqa: F401 (the LUT's bins)
+from calnav.mapping.registry import AUTO_WEIGHTING, WEIGHTINGS, check_weighting
 
 
 @dataclass
@@ -62,7 +59,7 @@ def bin_index(values: torch.Tensor, edges: tuple[float, ...]) -> torch.Tensor:
     return torch.bucketize(values, inner, right=True)
 
 
-def _none(pred, distance_m, angle_deg, params: WeightingParams) -> torch.Tensor:
+def none_weights(pred, distance_m, angle_deg, params: WeightingParams) -> torch.Tensor:
     return torch.ones(distance_m.shape, dtype=distance_m.dtype, device=distance_m.device)
 
 
@@ -85,37 +82,31 @@ def lut_cells(distance_m: torch.Tensor, angle_deg: torch.Tensor, params: Weighti
     return bin_index(distance_m, params.distance_edges) * n_angle + bin_index(angle_deg, params.angle_edges_deg)
 
 
-def _lut(pred, distance_m, angle_deg, params: WeightingParams) -> torch.Tensor:
+def lut_weights(pred, distance_m, angle_deg, params: WeightingParams) -> torch.Tensor:
     m = lut_table(params)
     cell = pred * (m.shape[1] * m.shape[2]) + lut_cells(distance_m, angle_deg, params)
     return m.reshape(-1)[cell]  # one flat gather (cheaper than 3-D advanced indexing)
 
 
-def _distance(pred, distance_m, angle_deg, params: WeightingParams) -> torch.Tensor:
+def distance_weights(pred, distance_m, angle_deg, params: WeightingParams) -> torch.Tensor:
     d = distance_m.clamp_min(params.distance_ref_m)
     return ((params.distance_ref_m / d) ** 2).clamp_min(params.min_weight)
 
 
-def _incidence(pred, distance_m, angle_deg, params: WeightingParams) -> torch.Tensor:
+def incidence_weights(pred, distance_m, angle_deg, params: WeightingParams) -> torch.Tensor:
     return torch.cos(torch.deg2rad(angle_deg)).clamp_min(params.min_weight)
 
 
-def _sweet_spot(pred, distance_m, angle_deg, params: WeightingParams) -> torch.Tensor:
+def sweet_spot_weights(pred, distance_m, angle_deg, params: WeightingParams) -> torch.Tensor:
     x = (distance_m - params.sweet_spot_m) / params.sweet_spot_halfwidth_m
     return (1.0 - x * x).clamp_min(params.min_weight)
 
 
-WEIGHTINGS: dict[str, Callable[..., torch.Tensor]] = {
-    "none": _none, "lut": _lut, "distance": _distance, "incidence": _incidence, "sweet_spot": _sweet_spot,
-}
-
-
 def resolve(name: str, fusion: str) -> str:
-    """A weighting name with ``auto`` resolved: ``lut`` for glfs, ``none`` otherwise."""
-    if name == "auto":
+    """A weighting name with ``auto`` resolved: ``lut`` for glfs, ``none`` otherwise; a
+    ValueError names the valid choices (``auto`` and ``mapping.registry.WEIGHTINGS``)."""
+    if check_weighting(name) == AUTO_WEIGHTING:
         return "lut" if fusion == "glfs" else "none"
-    if name not in WEIGHTINGS:
-        raise ValueError(f"unknown weighting {name!r}; valid names: auto, {', '.join(WEIGHTINGS)}")
     return name
 
 
@@ -129,6 +120,4 @@ def sample_weights(name: str, pred: torch.Tensor, distance_m: torch.Tensor, angl
     """Weights (...) of observations with predicted class ``pred`` (..., int64, argmax of the
     *scaled* logits; only ``lut`` uses it, others accept None), camera distance
     ``distance_m`` (...) metres and incidence angle ``angle_deg`` (...) degrees in [0, 90]."""
-    if name not in WEIGHTINGS:
-        raise ValueError(f"unknown weighting {name!r}; valid names: {', '.join(WEIGHTINGS)}")
-    return WEIGHTINGS[name](pred, distance_m, angle_deg, params or WeightingParams())
+    return WEIGHTINGS.get(name)(pred, distance_m, angle_deg, params or WeightingParams())

@@ -154,8 +154,8 @@ def test_find_cycle_finds_one():
 # ------------------------------------------------------------------------------------- eval
 # One node per experiment subpackage (eval/<name>/) and per top-level module (eval/<name>.py).
 EVAL_TOP = {"cli", "preflight"}                              # may import anything of eval
-EVAL_SHARED = {"config", "results_dir", "inputs", "backends", "runner", "stats",
-               "episodes", "memory", "rollout"}  # import only each other
+EVAL_SHARED = {"config", "validation", "sections", "shorthands", "results_dir", "inputs", "backends", "runner",
+               "stats", "episodes", "memory", "rollout"}  # import only each other
 # experiment subpackage -> the experiment subpackages it may import (the shared modules always).
 # Declaring a new edge here must keep the table acyclic (test_eval_dependency_table_is_acyclic).
 EVAL_ALLOWED: dict[str, set[str]] = {
@@ -168,8 +168,8 @@ EVAL_ALLOWED: dict[str, set[str]] = {
     "prediction": {"objectnav"},  # collect-maps runs the agent on objectnav.run's warm env / agent workers
     "scanning": set(),
     "segmenter": set(),
-    "sequence": {"calibration"},  # export-sequence writes a calibration scan (HouseScan, scene_seed,
-                                  # CalibrateMapConfig); `calnav map` draws calibration.plots' diagrams
+    "sequence": {"calibration"},  # export-sequence writes a calibration scan (HouseScan, scene_seed);
+                                  # `calnav map` draws calibration.plots' diagrams
 }
 
 
@@ -239,7 +239,7 @@ def test_eval_dependency_table_is_acyclic():
 # habitat-lab (numpy 1.26 only, its own venv) is imported by these modules and no others, so
 # `import envs` / `import agent` / the CLI never need it
 HABITAT_MODULES = {"common.habitat_import", "envs.habitat_sim_backend", "envs.habitat_config", "agent.habitat_agent",
-                   "eval.habitat.agents", "eval.habitat.recording", "eval.habitat.run"}
+                   "eval.habitat.recording", "eval.habitat.run"}
 
 
 def test_only_the_habitat_modules_import_habitat(sources):

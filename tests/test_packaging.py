@@ -62,8 +62,8 @@ def test_the_wheel_holds_every_package_and_its_data(installed):
             "for name, c in cli.COMMANDS.items():\n"
             "    c.load()\n"   # every command's module and config loader imports
             "from calnav.eval.config import load_config\n"
-            "load_config('configs/objectnav.yaml'); load_config('calibrate_map.yaml', cls=importlib.import_module("
-            "'calnav.eval.calibration.config').CalibrateMapConfig)\n"
+            "from calnav.eval.config import CALIBRATION_SECTIONS\n"
+            "load_config('configs/objectnav.yaml'); load_config('calibrate_map.yaml', sections=CALIBRATION_SECTIONS)\n"
             "from calnav.agent.segmenters import check_segmenter\n"
             "assert len(check_segmenter('learned_rgb')) == 18 and len(check_segmenter('learned_rgbd')) == 18\n"
             "from calnav.agent.segmenters.label_map import BUILTIN_LABEL_MAPS, read_label_map\n"

@@ -121,8 +121,8 @@ def check_segmenter(spec: str, cfg: SegmenterConfig | None = None, device: str |
     ground-truth ones; an adapter or plugin is built (its classes matched to calnav's by name)
     and run on one probe frame of ``probe_size`` (W, H) (import errors, factory errors, wrong
     output shape or K, non-finite logits); each of ``goals`` must be a class it predicts
-    (ObjectNav). ``key``: the segmenter section as the running command spells it
-    (``agent.segmenter_config`` / ``segmenter``), named in the errors. Raises ValueError /
+    (ObjectNav). ``key``: the segmenter section
+    (``segmenter``), named in the errors. Raises ValueError /
     FileNotFoundError in one line: run before a run writes anything or starts workers."""
     from calnav.agent.segmenters.adapter import check_goals, probe
 
@@ -153,9 +153,8 @@ def make_segmenter(spec: str, cfg: SegmenterConfig | None = None, device: str | 
     or a CUDA device this machine lacks, raises ValueError naming the key. class_names: classes
     of the ground-truth based segmenters (default: ``agent/weights/classes.json``, the
     simulator's list); the others carry theirs (weights file, model, label map), matched to
-    calnav's classes by name. key: the segmenter section as the running command spells it
-    (``agent.segmenter_config`` in the ObjectNav commands, ``segmenter`` elsewhere), named in
-    error messages.
+    calnav's classes by name. key: the segmenter section (``segmenter``), named
+    in error messages.
     """
     cfg = cfg or SegmenterConfig()
     check_segmenter_spec(spec)

@@ -53,8 +53,8 @@ class ModelAdapter(BatchSegmenter):
     """Base of the plugged-in segmenters; see the module docstring. ``model_classes``: the
     model's class names in output order, or None when it does not carry them (the label map's
     order then names them). ``predicted_classes``: the calnav classes some model class maps to
-    (the others only get the rest bucket's share). ``key``: the segmenter section as the running
-    command spells it (``agent.segmenter_config`` / ``segmenter``), named in the errors.
+    (the others only get the rest bucket's share). ``key``: the segmenter section
+    (``segmenter``), named in the errors.
 
     Without a label map the model's classes must be calnav classes, each once; they are matched
     by name: ``class_names`` lists them in calnav's order and the logits' channels follow it

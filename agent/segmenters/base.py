@@ -74,8 +74,8 @@ SEGMENTER_RANGES: dict[str, Range] = {
 
 @dataclass
 class SegmenterConfig:
-    """Settings of every segmenter (YAML section ``segmenter``, ``agent.segmenter_config`` in the
-    ObjectNav configs; unused keys are ignored by the segmenters that do not need them)."""
+    """Settings of every segmenter (YAML section ``segmenter``, for every command; unused keys
+    are ignored by the segmenters that do not need them)."""
 
     # --- all -------------------------------------------------------------------------------
     device: str = ""                 # torch device ("cpu", "cuda", "cuda:1"); "" = run.device (else cpu); set, it wins
@@ -120,8 +120,7 @@ class SegmenterConfig:
     hfov_deg: float = 79.0           # camera horizontal field of view (back-projection), degrees
 
     def __post_init__(self) -> None:
-        # errors name the key without its section: the config loader prefixes the section as
-        # the running command spells it (``agent.segmenter_config: ...`` / ``segmenter: ...``)
+        # errors name the key without its section: the config loader prefixes it (``segmenter: ...``)
         for key, rng in SEGMENTER_RANGES.items():
             rng.check(key, getattr(self, key))   # NaN and inf fail every range
         for key in ("input_mean", "input_std"):
@@ -206,9 +205,8 @@ def calnav_class_order(names, source: str, hint: str = "") -> tuple[tuple[str, .
 
 def resolve_device(device: str | None, key: str = "device"):
     """torch.device for ``device`` ("" / None = cpu); a one-line error naming ``key`` (the
-    config key that set it as the running command spells it: ``run.device``,
-    ``agent.segmenter_config.device``, ``segmenter.device``) when it is no torch device, not
-    cpu / cuda, or a CUDA device this machine does not have."""
+    config key that set it: ``run.device``, ``segmenter.device``) when it is no torch device,
+    not cpu / cuda, or a CUDA device this machine does not have."""
     import torch
 
     name = (device or "cpu").strip()
@@ -230,9 +228,8 @@ def resolve_device(device: str | None, key: str = "device"):
 
 def segmenter_device(cfg: "SegmenterConfig", device: str | None, key: str = "segmenter") -> str:
     """The device a segmenter runs on, validated: its own ``<key>.device`` when set (it wins),
-    else ``device`` (the caller's: ``run.device``), else cpu. ``key``: the segmenter section as
-    the running command spells it (``agent.segmenter_config`` in the ObjectNav commands,
-    ``segmenter`` elsewhere), named in the error. Only a device other than cpu imports torch
+    else ``device`` (the caller's: ``run.device``), else cpu. ``key``: the segmenter section
+    (``segmenter``), named in the error. Only a device other than cpu imports torch
     (the ground-truth segmenters run without it)."""
     name = (cfg.device or device or "cpu").strip()
     if name != "cpu":
@@ -308,6 +305,7 @@ class Segmenter(ABC):
     class_names: tuple[str, ...] = ()
     needs_depth: bool = False       # segment() raises without depth
     needs_semantic: bool = False    # segment() needs the ground-truth semantic image
+    privileged: tuple[str, ...] = ()  # privileged data the agent hands it (agent.contract: camera_pose, instance)
 
     @property
     def num_classes(self) -> int:

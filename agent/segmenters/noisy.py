@@ -76,11 +76,16 @@ def to_uniform(h: np.ndarray) -> np.ndarray:
 
 
 class NoisySegmenter(Segmenter):
-    """segment(rgb, depth, semantic=..., instance=None, pose=None) -> (H, W, K) float32 logits."""
+    """segment(rgb, depth, semantic=..., instance=None, pose=None) -> (H, W, K) float32 logits.
+    Privileged by declaration (``agent.contract``): the agent hands it the simulator's camera
+    pose and the instance image when the observation has them."""
 
     name = "noisy"
     needs_semantic = True
     needs_depth = True
+    # agent.contract's CAMERA_POSE and INSTANCE, spelt out: a segmenter loads without the simulator's
+    # package (envs), which agent.contract imports; a misspelt name fails when the agent hands them
+    privileged = ("camera_pose", "instance")
 
     def __init__(self, cfg: SegmenterConfig, class_names: tuple[str, ...]):
         self.cfg = cfg

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -49,6 +50,7 @@ STUDY_EPISODES = range(101, 113)   # 12 episodes, each run twice (the first pass
 QUICK_STUDY_EPISODES = range(101, 102)
 RERUN_EPISODES, QUICK_RERUN_EPISODES = (100, 101, 102), (100,)
 QUICK_STEPS = 60
+STUDY_WORKER_THREADS = 1   # one core: what each worker of a study with run.workers = the cores has
 EXPLORE_ONLY_THRESHOLD = 1.0
 MIB = float(1 << 20)
 
@@ -131,11 +133,11 @@ def agent_loop(ctx, overrides: tuple[str, ...] = (), predictor_calls: list[float
     env = gym.make("calnav/ObjectNav-v0", split="val", config=cfg.env)
     agent = PeanutAgent(cfg)
     if predictor_calls is not None and agent.predictor is not None:
-        timed = agent.predictor.probabilities
+        network = agent.predictor.probabilities   # its own name: ``timed`` below is the timed agent
 
         def probabilities(*args, **kwargs):
             t = time.perf_counter()
-            result = timed(*args, **kwargs)
+            result = network(*args, **kwargs)
             predictor_calls.append((time.perf_counter() - t) * 1e3)
             return result
         agent.predictor.probabilities = probabilities
@@ -145,18 +147,37 @@ def agent_loop(ctx, overrides: tuple[str, ...] = (), predictor_calls: list[float
     return n / loop.wall_s, float(np.median(timed.act_ms)), rss_mb() - loop.rss0, n
 
 
+@dataclass(frozen=True)
+class StudyPasses:
+    """The runner's task for ``study_figures``: ``val`` episodes ``indices`` in this order (the
+    first pass, then the measured one), each capped at ``steps_cap`` steps when > 0."""
+
+    indices: tuple[int, ...]
+    steps_cap: int = 0
+
+
+def run_study_passes(task: StudyPasses) -> tuple[list[int], list[float]]:
+    """The worker's side of ``study_figures``: ``study_episodes`` of ``task``."""
+    return study_episodes(list(task.indices), task.steps_cap)
+
+
 def study_figures(ctx) -> dict[str, float]:
     """``agent.ms_per_step_*`` and ``objectnav.episodes_per_core_hour`` (module docstring),
-    measured in a spawned worker pinned to one thread, as a study's workers are."""
-    import multiprocessing as mp
-    from concurrent.futures import ProcessPoolExecutor
-
-    from calnav.eval.backends import init_worker
+    measured through the runner in one fresh spawned worker pinned to one thread, as each
+    worker of a study using all cores is (this process has loaded and threaded the libraries
+    for the other sections: it would time something else)."""
+    from calnav.eval.backends import LocalBackend
+    from calnav.eval.runner import run_tasks
 
     indices = list(QUICK_STUDY_EPISODES if ctx.quick else STUDY_EPISODES)
-    steps_cap = QUICK_STEPS if ctx.quick else 0
-    with ProcessPoolExecutor(1, mp_context=mp.get_context("spawn"), initializer=init_worker, initargs=(1,)) as pool:
-        steps, walls = pool.submit(study_episodes, indices * 2, steps_cap).result()
+    task = StudyPasses(tuple(indices * 2), QUICK_STEPS if ctx.quick else 0)
+    results: dict[StudyPasses, tuple[list[int], list[float]]] = {}
+    failures = run_tasks(run_study_passes, [task], None, save=results.__setitem__, desc="bench agent", unit="run",
+                         progress=False, backend=LocalBackend(1, threads=STUDY_WORKER_THREADS, in_process=False))
+    if failures:
+        failed = failures[0][1]
+        raise RuntimeError(f"bench agent: the study worker failed: {failed.error}\n{failed.traceback}")
+    steps, walls = results[task]
     first = 1e3 * sum(walls[:len(indices)]) / sum(steps[:len(indices)])
     steps, walls = steps[len(indices):], walls[len(indices):]   # the second pass is measured
     return {"agent.ms_per_step_learned_rgb_160x120": 1e3 * sum(walls) / sum(steps),

@@ -63,7 +63,12 @@ def run(ctx) -> dict[str, float]:
 
 
 def parallel_efficiency(ctx) -> dict[str, float]:
-    """``backends.parallel_efficiency`` and its two wall times (module docstring)."""
+    """``backends.parallel_efficiency`` and its two wall times (module docstring).
+
+    The commands run as child processes, not as the runner's workers: what is timed is a whole
+    ``calnav objectnav`` as a user starts it (interpreter start-up and imports included, the
+    one-core environment set before them), and the ceiling is W independent processes with no
+    pool and no shared driver. Each command's own workers are started by its runner."""
     import os
     import subprocess
     import sys

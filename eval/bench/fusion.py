@@ -93,8 +93,8 @@ def measure(data: dict[tuple[int, int], BenchFrames], num_classes: int, cfg=None
     import dataclasses
 
     from calnav.mapping.config import MappingConfig
-    from calnav.mapping.fusion import STRATEGIES
     from calnav.mapping.frame_geometry import invert_rigid
+    from calnav.mapping.registry import FUSIONS
     from calnav.mapping.voxel_map import SemanticVoxelMap
 
     out: dict[str, float] = {}
@@ -103,12 +103,12 @@ def measure(data: dict[tuple[int, int], BenchFrames], num_classes: int, cfg=None
         res = f"{w}x{h}"
         k = bf.intrinsics
         base = cfg or MappingConfig()
-        maps = {s: SemanticVoxelMap(num_classes, dataclasses.replace(base, fusion=s)) for s in STRATEGIES}
+        maps = {s: SemanticVoxelMap(num_classes, dataclasses.replace(base, fusion=s)) for s in FUSIONS}
         geometry_map = SemanticVoxelMap(num_classes, base)
         stock = _StockTSDF(base)
         noise = (rng.standard_normal((h, w, num_classes), dtype=np.float32) * LOGIT_NOISE_STD)
         logits = np.empty_like(noise)
-        times: dict[str, list[float]] = {name: [] for name in ["tsdf", "geometry", *STRATEGIES]}
+        times: dict[str, list[float]] = {name: [] for name in ["tsdf", "geometry", *FUSIONS]}
         for t, (depth, rgb, labels, pose) in enumerate(bf.frames):
             np.copyto(logits, noise)
             hit = labels >= 0
@@ -126,7 +126,7 @@ def measure(data: dict[tuple[int, int], BenchFrames], num_classes: int, cfg=None
         paired = {name: np.asarray(v) for name, v in times.items()}  # same frames, same moment
         out[f"fusion.tsdf_only_ms_{res}"] = med["tsdf"]
         out[f"fusion.map_geometry_ms_{res}"] = med["geometry"]
-        for s in STRATEGIES:
+        for s in FUSIONS:
             out[f"fusion.{s}.ms_{res}"] = med[s]
             out[f"fusion.{s}.fps_{res}"] = 1e3 / med[s]
             if i == 0:

@@ -13,6 +13,13 @@ back and fused with the ``gt`` segmenter's logits (default mapping config: avera
   background thread, overlapping fusion), a second pass on a fresh map.
 - ``sequence.read_map_vs_parts``: read_map_ms / (decode + segment + fusion), all means
   (target <= 1: reading a recording costs no more than decoding plus fusing its frames).
+- ``sequence.rosbag_vs_folder``: the same frames as a ROS 2 mcap bag (colour and depth as the
+  folder's JPEG / PNG bytes on image_transport's compressed topics, TF poses, labels) read by
+  the ``rosbag`` layout: ``calnav map``'s time per frame (opening the recording + the pipeline)
+  over the folder's, the fastest of 3 alternating runs each (target <= 1.2);
+  ``sequence.rosbag_raw_vs_folder``: a ROS 1 bag of raw rgb8 / 16UC1 images (no JPEG to
+  decode); ``sequence.rosbag_read_map_ms_640x480``, ``sequence.folder_read_map_ms_640x480``: the
+  per-frame times compared.
 """
 from __future__ import annotations
 
@@ -70,8 +77,43 @@ def measure(root: Path, res: str) -> dict[str, float]:
             "sequence.read_map_vs_parts": per_frame / sum(med.values())}
 
 
+def measure_rosbag(root: Path, res: str, repeats: int = 3) -> dict[str, float]:
+    """The ``rosbag_*`` figures of the ScanNet-layout sequence at ``root`` (see the module docstring)."""
+    from calnav.agent.segmenters import make_segmenter
+    from calnav.eval.sequence.map_cmd import map_sequence
+    from calnav.eval.sequence.source import SegmenterLogits
+    from calnav.mapping.config import MappingConfig
+    from calnav.mapping.sequences import Sequence, SequenceConfig
+    from calnav.mapping.sequences.rosbag_config import RosbagConfig
+    from calnav.mapping.sequences.rosbag_write import BagOptions, scannet_to_bag
+
+    labels = "/camera/semantic/image_raw"
+    cfg = SequenceConfig(rosbag=RosbagConfig(semantic_topic=labels))
+    segmenter = make_segmenter("gt")
+
+    def ms_per_frame(path: Path, layout: str) -> float:
+        t0 = time.perf_counter()
+        seq = Sequence(path, layout, cfg)
+        mapped = map_sequence(seq, SegmenterLogits(segmenter, seq), MappingConfig())
+        return (time.perf_counter() - t0) * 1e3 / max(mapped.frames, 1)
+
+    with tempfile.TemporaryDirectory(prefix="calnav_bench_bag_") as tmp:
+        bags = {"rosbag": scannet_to_bag(root, Path(tmp) / "mcap", BagOptions(
+                    storage="mcap", color="jpeg", depth="compressedDepth", semantic_topic=labels)),
+                "rosbag_raw": scannet_to_bag(root, Path(tmp) / "raw.bag", BagOptions(semantic_topic=labels))}
+        times: dict[str, list[float]] = {"folder": [], **{name: [] for name in bags}}
+        for _ in range(repeats):   # alternating; the fastest run of each is the least disturbed by other work
+            times["folder"].append(ms_per_frame(root, "scannet"))
+            for name, path in bags.items():
+                times[name].append(ms_per_frame(path, "rosbag"))
+    best = {name: float(np.min(v)) for name, v in times.items()}
+    return {f"sequence.rosbag_read_map_ms_{res}": best["rosbag"], f"sequence.folder_read_map_ms_{res}": best["folder"],
+            "sequence.rosbag_vs_folder": best["rosbag"] / best["folder"],
+            "sequence.rosbag_raw_vs_folder": best["rosbag_raw"] / best["folder"]}
+
+
 def run(ctx) -> dict[str, float]:
     w, h = REFERENCE_RES
     with tempfile.TemporaryDirectory(prefix="calnav_bench_seq_") as tmp:
         write_context_sequence(ctx, Path(tmp), w, h)
-        return measure(Path(tmp), f"{w}x{h}")
+        return {**measure(Path(tmp), f"{w}x{h}"), **measure_rosbag(Path(tmp), f"{w}x{h}")}

@@ -22,15 +22,15 @@ import numpy as np
 
 from calnav.common.atomic import atomic_path, write_bytes_atomic
 from calnav.common.prefetch import prefetched
-from calnav.eval.calibration.config import CalibrateMapConfig
+from calnav.eval.config import Config
 from calnav.mapping.calibration.obs_cache import ObsCache
-from calnav.mapping.sequences import LAYOUT_NAMES, Registration, Sequence, SequenceFrame, vertex_ground_truth
+from calnav.mapping.sequences import LAYOUTS, Registration, Sequence, SequenceFrame, vertex_ground_truth
 
 SEGMENT_BATCH = 16   # frames per segmenter forward pass
 ROLES = ("calib_train", "calib_val", "test")
 
 
-def role_scene_ids(cfg: CalibrateMapConfig) -> dict[str, list[str]]:
+def role_scene_ids(cfg: Config) -> dict[str, list[str]]:
     """{role: scene ids}: procedural houses from the ``calib`` / ``test`` splits, the user
     scene folders train / val / test when ``env.dataset.scene_dir`` is set, or the recorded
     sequences of ``sequences.list`` (all of them: the study's house counts do not apply)."""
@@ -56,7 +56,7 @@ def scene_seed(scene_id: str, base: int) -> int:
     return (zlib.crc32(scene_id.encode()) + 7919 * base) % (2 ** 31)
 
 
-def dataset_for(cfg: CalibrateMapConfig):
+def dataset_for(cfg: Config):
     """The dataset config with split sizes large enough for the study's houses."""
     st, ds = cfg.study, cfg.env.dataset
     return dataclasses.replace(ds, calib_scenes=max(ds.calib_scenes, st.calib_train_scenes + st.calib_val_scenes),
@@ -75,7 +75,7 @@ class HouseScan:
     int16 class or -1, poses (B, 4, 4) world-from-camera); ``label(cache)`` labels an ``ObsCache``
     from the house mesh. ``RecordedScan`` is the same for a recording."""
 
-    def __init__(self, cfg: CalibrateMapConfig, scene_id: str, seed: int):
+    def __init__(self, cfg: Config, scene_id: str, seed: int):
         from calnav.envs.navigation import NavGrid
         from calnav.envs.render import Camera, Renderer
         from calnav.envs.scenes import load_scene
@@ -124,8 +124,8 @@ def read_sequence_list(path, default_layout: str = "scannet") -> dict[str, list[
             raise ValueError(f"{path}:{n}: expected '<role> <dir> [layout]' with role one of {', '.join(ROLES)}, "
                              f"got {line.strip()!r}")
         layout = parts[2] if len(parts) == 3 else default_layout
-        if layout not in LAYOUT_NAMES:
-            raise ValueError(f"{path}:{n}: unknown layout {layout!r}; valid layouts: {', '.join(LAYOUT_NAMES)}")
+        if layout not in LAYOUTS:
+            raise ValueError(f"{path}:{n}: {LAYOUTS.unknown(layout)}")
         folder = Path(parts[1]) if Path(parts[1]).is_absolute() else path.parent / parts[1]
         if not folder.is_dir():
             raise ValueError(f"{path}:{n}: sequence directory not found: {folder}")
@@ -187,7 +187,7 @@ def recorded_scan(cfg, scene_id: str) -> RecordedScan | None:
     return None
 
 
-def frame_source(cfg: CalibrateMapConfig, scene_id: str, seed: int):
+def frame_source(cfg: Config, scene_id: str, seed: int):
     """The frames of ``scene_id``: a recorded sequence of ``sequences.list`` when it names one,
     else a calnav house scan."""
     return recorded_scan(cfg, scene_id) or HouseScan(cfg, scene_id, seed)
@@ -198,7 +198,7 @@ def _save_pixels(path: Path, logits: np.ndarray, labels: np.ndarray) -> None:
         np.savez_compressed(tmp, logits=logits.astype(np.float16), labels=labels.astype(np.int16))
 
 
-def record_scene(cfg: CalibrateMapConfig, scene_id: str, segmenters: dict, out_dir: Path, seed: int) -> list[str]:
+def record_scene(cfg: Config, scene_id: str, segmenters: dict, out_dir: Path, seed: int) -> list[str]:
     """Scan ``scene_id`` and write the cache and pixel files of every segmenter in
     ``segmenters`` ({name: Segmenter}) that has none yet. Returns the names recorded."""
     from calnav.mapping.voxel_map import SemanticVoxelMap
@@ -274,7 +274,7 @@ def record_task(task: RecordTask) -> dict[str, bytes]:
     from calnav.agent.segmenters import make_segmenter
     from calnav.eval.config import build_dataclass
 
-    cfg = build_dataclass(CalibrateMapConfig, task.cfg_dict)
+    cfg = build_dataclass(Config, task.cfg_dict)
     segs = {}
     for name in task.segmenters:
         key = (name, cfg.run.device)
@@ -287,7 +287,7 @@ def record_task(task: RecordTask) -> dict[str, bytes]:
                 for p in scene_files(Path(tmp), name, task.scene_id)}
 
 
-def record_houses(cfg: CalibrateMapConfig, scene_seeds: dict[str, int], segmenters: tuple[str, ...],
+def record_houses(cfg: Config, scene_seeds: dict[str, int], segmenters: tuple[str, ...],
                   out_dir: Path, progress: bool = True) -> None:
     """Record every house of ``scene_seeds`` ({scene id: scan seed}) that lacks a segmenter's
     files, as tasks on the ``run.backend`` backend (houses are the slow stage); each house's

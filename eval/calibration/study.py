@@ -31,26 +31,21 @@ import torch
 
 from calnav.common.atomic import atomic_path, write_json_atomic
 from calnav.eval.backends import check_backend
-from calnav.eval.calibration.config import CalibrateMapConfig, GLFSVariant
 from calnav.eval.calibration.record import ROLES, load_role, record_houses, role_scene_ids, scene_seed
-from calnav.eval.config import ConfigError, load_config, with_shorthand
+from calnav.eval.config import Config, ConfigError
 from calnav.eval.results_dir import ResultsDir, check_output_file, writing
+from calnav.eval.sections import GLFSVariant
+from calnav.eval.shorthands import load_command_config
 from calnav.mapping import metrics
 from calnav.mapping.calibration.fit import MapObjective, fit_temperature_2d, fit_temperature_3d, fit_vector_3d
 from calnav.mapping.calibration.flat_obs import FlatObservations
 from calnav.mapping.glfs import GLFSParams
 from calnav.mapping.calibration.glfs_train import GLFSModel, train_glfs
 
-QUICK_OVERRIDES = (   # --quick: a <= 5 minute smoke run of the whole pipeline on 2 cores
-    "study.calib_train_scenes=3", "study.calib_val_scenes=1", "study.test_scenes=3", "scan.frames=200",
-    "study.fit_max_voxels=8000", "study.grid_points=11", "study.refine_iters=5", "study.vector_sweeps=1",
-    "study.vector_refine_iters=3", "study.glfs_max_voxels=20000", "glfs.epochs=4", "glfs.patience=2",
-    "study.tau_curve_points=13",
-)
 VOID = -1   # label of void voxels in the observation caches
 
 
-def methods(cfg: CalibrateMapConfig) -> list[tuple[str, str]]:
+def methods(cfg: Config) -> list[tuple[str, str]]:
     """(strategy, calibration) pairs of the study, in table order."""
     out = []
     for s in cfg.study.strategies:
@@ -89,7 +84,7 @@ class Fits:
         return self.data[f"{calibration}/{strategy}"]["temperature"]
 
 
-def fit_segmenter(cfg: CalibrateMapConfig, out: Path, segmenter: str, ids: dict[str, list[str]],
+def fit_segmenter(cfg: Config, out: Path, segmenter: str, ids: dict[str, list[str]],
                   progress: bool = True) -> Fits:
     from tqdm import tqdm
 
@@ -127,7 +122,7 @@ def fit_segmenter(cfg: CalibrateMapConfig, out: Path, segmenter: str, ids: dict[
     return fits
 
 
-def fit_glfs_variants(cfg: CalibrateMapConfig, out: Path, segmenter: str, ids: dict[str, list[str]], fits: Fits,
+def fit_glfs_variants(cfg: Config, out: Path, segmenter: str, ids: dict[str, list[str]], fits: Fits,
                       caches: list, variants: list[GLFSVariant], progress: bool = True) -> None:
     """Train every GLFS variant without a saved parameter file (train / validation voxels are
     loaded once and shared)."""
@@ -152,7 +147,7 @@ def _stats_arrays(stats: metrics.CalibrationStats) -> dict[str, np.ndarray]:
             "void_pred": stats.void_pred}
 
 
-def score_scene(cfg: CalibrateMapConfig, out: Path, segmenter: str, scene_id: str, fits: Fits) -> Path:
+def score_scene(cfg: Config, out: Path, segmenter: str, scene_id: str, fits: Fits) -> Path:
     """Calibration statistics of every (strategy, calibration) map of one test house (labelled
     voxels), with each map's argmax counts on the void voxels (``void_pred``)."""
     path = out / "scores" / segmenter / f"{scene_id}.npz"
@@ -176,7 +171,7 @@ def score_scene(cfg: CalibrateMapConfig, out: Path, segmenter: str, scene_id: st
     return path
 
 
-def merged_stats(cfg: CalibrateMapConfig, paths: list[Path], num_classes: int
+def merged_stats(cfg: Config, paths: list[Path], num_classes: int
                  ) -> tuple[dict[tuple[str, str], metrics.CalibrationStats], int]:
     """Per-(strategy, calibration) statistics summed over houses, and the number of voxels."""
     out = {m: metrics.CalibrationStats(num_classes) for m in methods(cfg)}
@@ -208,7 +203,7 @@ def _check_roles(ids: dict[str, list[str]], roles=ROLES) -> None:
             raise ValueError(f"no {role} houses (check study.*_scenes and env.dataset.scene_dir)")
 
 
-def run_calibrate_map(cfg: CalibrateMapConfig, out: Path, force: bool = False, progress: bool = True) -> list[dict]:
+def run_calibrate_map(cfg: Config, out: Path, force: bool = False, progress: bool = True) -> list[dict]:
     """Run (or resume) the whole study; returns the result rows (also written to ``out``)."""
     from tqdm import tqdm
 
@@ -252,7 +247,7 @@ def run_calibrate_map(cfg: CalibrateMapConfig, out: Path, force: bool = False, p
     return rows
 
 
-def qualitative(cfg: CalibrateMapConfig, out: Path, segmenter: str, seg, scene_id: str, fits: Fits,
+def qualitative(cfg: Config, out: Path, segmenter: str, seg, scene_id: str, fits: Fits,
                 variant: str) -> None:
     """The RBU-vs-GLFS views of one test house (skipped when already written for ``variant``)."""
     from calnav.eval.calibration.figures import write_qualitative
@@ -264,16 +259,14 @@ def qualitative(cfg: CalibrateMapConfig, out: Path, segmenter: str, seg, scene_i
                       GLFSParams.load(fits.glfs_path(variant)), variant)
 
 
-def calibrate_map_configs(args) -> list[CalibrateMapConfig]:
-    """The config ``calnav calibrate-map`` runs: ``--quick``'s preset under the overrides, and
-    ``--sequences LIST`` as ``sequences.list`` (resolved against the working directory)."""
-    overrides = (list(QUICK_OVERRIDES) if args.quick else []) + list(args.overrides)
-    if getattr(args, "sequences", None):
-        overrides = with_shorthand(overrides, "sequences.list", Path(args.sequences).resolve(), "--sequences")
-    return [load_config(args.config, overrides, cls=CalibrateMapConfig)]
+def calibrate_map_configs(args) -> list[Config]:
+    """The config ``calnav calibrate-map`` runs, with the command's shorthands: ``--quick``'s
+    preset (``eval.sections.QUICK_PRESET``) and ``--sequences LIST`` as ``sequences.list``
+    (resolved against the working directory)."""
+    return [load_command_config(args)]
 
 
-def main_calibrate_map(args, configs: list[CalibrateMapConfig]) -> None:
+def main_calibrate_map(args, configs: list[Config]) -> None:
     """``configs``: ``calibrate_map_configs(args)``, checked by the preflight."""
     cfg = configs[0]
     out = Path(args.output or (cfg.run.output_dir + "_quick" if args.quick else cfg.run.output_dir))
@@ -284,13 +277,13 @@ def main_calibrate_map(args, configs: list[CalibrateMapConfig]) -> None:
     print(f"\nresults: {out / 'results.csv'}, {out / 'results.md'}, plots in {out}")
 
 
-def fit_glfs_configs(args) -> list[CalibrateMapConfig]:
-    """The config ``calnav fit-glfs`` runs: the study's, with only ``--segmenter`` and GLFS."""
-    return [load_config(args.config, [*args.overrides, f"study.segmenters=[{args.segmenter}]", "study.strategies=[glfs]"],
-                        cls=CalibrateMapConfig)]
+def fit_glfs_configs(args) -> list[Config]:
+    """The config ``calnav fit-glfs`` runs: the study's, with only ``--segmenter`` and GLFS (the
+    command's shorthands: ``study.segmenters=[SEGMENTER]``, ``study.strategies=[glfs]``)."""
+    return [load_command_config(args)]
 
 
-def main_fit_glfs(args, configs: list[CalibrateMapConfig]) -> None:
+def main_fit_glfs(args, configs: list[Config]) -> None:
     """Record the calibration-train / -validation scans of one segmenter and train one GLFS
     variant (``--variant``, default the first of ``study.glfs_variants``). ``configs``:
     ``fit_glfs_configs(args)``, checked by the preflight."""

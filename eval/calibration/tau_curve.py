@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from calnav.common.atomic import atomic_path
-from calnav.eval.calibration.config import TAU_CURVE_RANGE
+from calnav.eval.sections import TAU_CURVE_RANGE
 from calnav.mapping.calibration.fit import MapObjective
 from calnav.mapping.calibration.flat_obs import FlatObservations
 

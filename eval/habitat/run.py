@@ -20,8 +20,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from calnav.eval.config import ConfigError, load_config
-from calnav.eval.objectnav.run import RUN_RESULTS, agent_overrides, check_not_all_failed, crashed
+from calnav.eval.config import ConfigError
+from calnav.eval.objectnav.run import RUN_RESULTS, check_not_all_failed, crashed
 from calnav.eval.results_dir import ResultsDir, writing
 from calnav.eval.stats import format_metrics_table, summarize
 
@@ -58,6 +58,22 @@ def _check_habitat_config(out: Path, text: str, force: bool) -> None:
                 target.unlink()
 
 
+def simulator_handle(env, env_cfg):
+    """The privileged handle (``envs.task.SimulatorHandle``) of ``env``, a habitat.Env on
+    ``CalnavSim-v0``: the shortest-path follower on the simulator's navigation grid and pose, to
+    the view points of habitat-lab's current episode; ``env_cfg``: the EnvConfig of the habitat
+    config (``envs.habitat_config.env_config_from_habitat``: step, turns, success distance,
+    step limit). ``agent.registry.build_agent`` hands it only to an agent that declares it."""
+    from calnav.envs.oracle import FollowerHandle
+
+    def goal_field():
+        ep = env.current_episode
+        return env.sim.goal_field([v.agent_state.position for g in ep.goals for v in g.view_points])
+
+    return FollowerHandle(lambda: env.sim.navgrid, lambda: env_cfg, lambda: (env.sim.position, env.sim.yaw),
+                          goal_field)
+
+
 def run_habitat_benchmark(cfg, habitat_cfg, indices: list[int], out: Path, force: bool = False,
                           progress: bool = True, plots: bool = True) -> dict:
     """Run (or resume) ``indices`` of the habitat config's split with agent ``cfg.run.agent``
@@ -67,8 +83,9 @@ def run_habitat_benchmark(cfg, habitat_cfg, indices: list[int], out: Path, force
     import calnav.envs.habitat_sim_backend  # noqa: F401  (registers CalnavSim-v0)
     from omegaconf import OmegaConf
 
+    from calnav.agent.habitat_agent import HabitatAgent, habitat
+    from calnav.agent.registry import build_agent
     from calnav.envs.episodes import load_split
-    from calnav.eval.habitat.agents import habitat, make_habitat_agent
     from calnav.eval.habitat.recording import EnvBenchmark, RecordingEnv, episode_index
 
     habitat_text = OmegaConf.to_yaml(habitat_cfg, resolve=True)
@@ -87,7 +104,7 @@ def run_habitat_benchmark(cfg, habitat_cfg, indices: list[int], out: Path, force
             env = habitat.Env(config=habitat_cfg)
             by_index = {index_of[(Path(e.scene_id).name, e.episode_id)]: e for e in env.episodes}
             env.episodes = [by_index[i] for i in todo]
-            agent = make_habitat_agent(agent_name, env, cfg)
+            agent = HabitatAgent(build_agent(agent_name, cfg, simulator=simulator_handle(env, cfg.env)))
             with records_file:
                 def record(rec: dict) -> None:
                     records_file.append(rec)
@@ -117,7 +134,9 @@ def load_configs(args, overrides: list[str]):
     from calnav.envs.habitat_config import habitat_config
 
     hab, own = split_overrides(list(overrides))
-    cfg = load_config(args.config, agent_overrides(args, own))
+    from calnav.eval.shorthands import load_command_config
+
+    cfg = load_command_config(args, own)   # with the command's shorthands (--agent)
     habitat_cfg, env = habitat_config(cfg.env, hab, config_path=args.habitat_config)
     cfg.env = env
     return cfg, habitat_cfg

@@ -22,7 +22,7 @@ import math
 import statistics
 from pathlib import Path
 
-from calnav.eval.config import ConfigError
+from calnav.eval.config import ConfigError, migrate_tree
 from calnav.eval.results_dir import NEUTRAL_KEYS, read_records
 from calnav.eval.stats import (LINGER_STEPS, METRIC_LABELS, failure_modes, is_finished, paired_difference,
                                same_episode, summarize)
@@ -43,7 +43,9 @@ def flatten(tree: dict, prefix: str = "") -> dict[str, object]:
 
 
 def load_run(path: Path) -> tuple[dict[str, object], list[dict]]:
-    """(flattened config, episode records) of one run directory."""
+    """(flattened config, episode records) of one run directory; its config read with moved
+    keys at their new place (``eval.config.MOVED_KEYS``), so runs of before and after a move
+    compare key by key."""
     import yaml
 
     cfg_path, eps = path / "config.yaml", path / "episodes.jsonl"
@@ -53,7 +55,8 @@ def load_run(path: Path) -> tuple[dict[str, object], list[dict]]:
     records = list(read_records(eps).records.values())  # each episode once (its last record)
     if not records:
         raise ConfigError(f"{path} holds no finished episodes")
-    return flatten(yaml.safe_load(cfg_path.read_text()) or {}), records
+    saved = yaml.safe_load(cfg_path.read_text()) or {}
+    return flatten(migrate_tree(saved) if isinstance(saved, dict) else saved), records
 
 
 def differing_keys(configs: list[dict[str, object]]) -> list[str]:

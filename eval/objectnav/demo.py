@@ -6,12 +6,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from calnav.eval.config import load_config
+from calnav.eval.shorthands import load_command_config
 from calnav.eval.stats import format_metrics_table
 
 def demo_configs(args) -> list:
-    """The config ``calnav demo`` runs: ``configs/demo.yaml`` writing to ``--output``."""
-    return [load_config("configs/demo.yaml", [f"run.output_dir={args.output}"])]
+    """The config ``calnav demo`` runs: ``configs/demo.yaml`` and the overrides, writing to
+    ``--output`` (``run.output_dir``)."""
+    return [load_command_config(args, config="configs/demo.yaml")]
 
 
 def main_demo(args, configs) -> None:

@@ -25,7 +25,7 @@ from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from calnav.eval.config import Config, build_dataclass, load_config, to_dict
+from calnav.eval.config import Config, build_dataclass, to_dict
 from calnav.eval.results_dir import RECORDS_NAME, AllEpisodesFailed, ResultsDir, writing
 from calnav.eval.stats import failure_modes, finite_or_error, format_metrics_table, summarize
 
@@ -102,8 +102,10 @@ def _make_env(cfg: Config, env_maker: str, env_args: dict, upto: int | None = No
 def _warm_env_agent(cfg_dict: dict, agent_name: str, env_maker: str = "", env_args: dict | None = None,
                     upto: int | None = None):
     """This process's env and agent for a config, built once and reused while tasks keep the
-    same config (a pool or Ray worker stays warm, as an episode loop would)."""
-    from calnav.eval.objectnav.agents import make_agent
+    same config (a pool or Ray worker stays warm, as an episode loop would). The agent comes
+    from the agent registry (``agent.registry.build_agent``), handed the env's privileged
+    ``simulator_handle`` only if its class declares it (the oracle)."""
+    from calnav.agent.registry import build_agent
 
     key = json.dumps([cfg_dict, agent_name, env_maker, env_args or {}, upto], sort_keys=True)
     if _worker_state.get("key") != key:
@@ -112,7 +114,8 @@ def _warm_env_agent(cfg_dict: dict, agent_name: str, env_maker: str = "", env_ar
         _worker_state.clear()
         cfg = build_dataclass(Config, cfg_dict)
         env = _make_env(cfg, env_maker, env_args or {}, upto)
-        _worker_state.update(key=key, env=env, agent=make_agent(agent_name, env, cfg))
+        agent = build_agent(agent_name, cfg, simulator=env.unwrapped.simulator_handle())
+        _worker_state.update(key=key, env=env, agent=agent)
     return _worker_state["env"], _worker_state["agent"]
 
 
@@ -272,18 +275,12 @@ def feed_order(tasks: list[EpisodeTask], cfg: Config) -> list[EpisodeTask]:
                                         t.index))
 
 
-def agent_overrides(args, overrides: list[str]) -> list[str]:
-    """``overrides`` plus ``run.agent=NAME`` when ``--agent NAME`` was given (its shorthand)."""
-    from calnav.eval.config import with_shorthand
-
-    agent = getattr(args, "agent", None)
-    return with_shorthand(list(overrides), "run.agent", agent, "--agent") if agent else list(overrides)
-
-
 def objectnav_configs(args) -> list[Config]:
     """Every config ``calnav objectnav`` runs for ``args``: the one, or each multirun combination
-    of comma-separated overrides in order (``--agent NAME`` adds ``run.agent=NAME``)."""
+    of comma-separated overrides in order (with the command's shorthands: ``--agent NAME`` is
+    ``run.agent=NAME``)."""
     from calnav.eval.config import expand_multirun
+    from calnav.eval.shorthands import load_command_config
 
     for option in ("video", "rerun"):
         if getattr(args, option, 0) < 0:
@@ -293,7 +290,7 @@ def objectnav_configs(args) -> list[Config]:
 
         require_rerun("--rerun")
     combos = expand_multirun(list(args.overrides)) if getattr(args, "multirun", False) else [list(args.overrides)]
-    return [load_config(args.config, agent_overrides(args, combo)) for combo in combos]
+    return [load_command_config(args, combo) for combo in combos]
 
 
 def _job(args, cfg: Config, out: Path | None) -> EpisodeJob:

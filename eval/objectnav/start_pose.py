@@ -336,15 +336,12 @@ def lockstep_map_stats(cfg, index: int, variants: list[PoseVariant], steps: int)
 def start_pose_configs(args) -> list:
     """The config ``calnav start-pose`` runs (``--workers N`` as ``run.workers=N`` only when given:
     it never silently replaces the config's)."""
-    from calnav.eval.config import load_config, with_shorthand
+    from calnav.eval.shorthands import load_command_config
 
     parse_variants(args.variants)           # every check before anything runs
     if args.workers is not None and args.workers < 1:
         raise ValueError(f"--workers must be >= 1, got {args.workers}")
-    overrides = list(args.overrides)
-    if args.workers is not None:
-        overrides = with_shorthand(overrides, "run.workers", args.workers, "--workers")
-    cfg = load_config(args.config, overrides)
+    cfg = load_command_config(args)
     if cfg.run.agent != "peanut":
         raise ValueError(f"start-pose runs the peanut agent (its maps live in the start frame), got run.agent={cfg.run.agent}")
     return [cfg]

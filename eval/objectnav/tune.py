@@ -236,7 +236,9 @@ def format_tune_table(rows: list[dict], best: dict) -> str:
 def tune_configs(args) -> list:
     """The config ``calnav tune`` runs: the base every grid point adds its two tuned keys to
     (they name no file, so the preflight checks the base)."""
-    return [load_config(args.config, list(args.overrides))]
+    from calnav.eval.shorthands import load_command_config
+
+    return [load_command_config(args)]
 
 
 def main_tune(args, configs) -> None:

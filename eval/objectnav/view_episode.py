@@ -97,15 +97,11 @@ def draw_episode(env, path_xy: np.ndarray, frames: list[dict], out_dir: Path) ->
 
 def view_episode_configs(args) -> list:
     """The config ``calnav view-episode`` runs: its ``run.agent`` is the agent drawn (``--agent``,
-    else a ``run.agent`` override, else the oracle), so the preflight checks that agent."""
-    from calnav.eval.config import load_config, parse_override, with_shorthand
+    else a ``run.agent`` override, else the oracle: the shorthand's default), so the preflight
+    checks that agent."""
+    from calnav.eval.shorthands import load_command_config
 
-    overrides = list(args.overrides)
-    if args.agent is not None:
-        overrides = with_shorthand(overrides, "run.agent", args.agent, "--agent")
-    elif not any(parse_override(o)[0] == "run.agent" for o in overrides):
-        overrides.append("run.agent=oracle")   # the default drawing: the shortest path
-    return [load_config(args.config, overrides)]
+    return [load_command_config(args)]
 
 
 def main_view_episode(args, configs) -> None:
@@ -113,7 +109,7 @@ def main_view_episode(args, configs) -> None:
     import gymnasium as gym
 
     import calnav.envs  # noqa: F401
-    from calnav.eval.objectnav.agents import make_agent
+    from calnav.agent.registry import build_agent
     from calnav.eval.objectnav.hooks import PathHook
     from calnav.eval.results_dir import check_output_dir
     from calnav.eval.rollout import rollout
@@ -124,7 +120,7 @@ def main_view_episode(args, configs) -> None:
     n = len(env.unwrapped.episodes)
     if not 0 <= args.episode < n:
         raise ValueError(f"--episode {args.episode} is outside the split, which has episodes 0:{n}")
-    agent = make_agent(cfg.run.agent, env, cfg)
+    agent = build_agent(cfg.run.agent, cfg, simulator=env.unwrapped.simulator_handle())
     track = PathHook()
     info = rollout(env, agent, args.episode, [track]).info
     top, strip = draw_episode(env, track.path, track.frames, Path(args.output))

@@ -125,10 +125,11 @@ def collect_episode(task: CollectTask) -> dict:
 
 
 def collect_configs(args) -> list:
-    from calnav.eval.config import load_config
+    """The config ``calnav collect-maps`` runs: ``--split`` / ``--steps`` (their defaults: train,
+    250) as ``env.split`` / ``env.max_episode_steps`` (the command's shorthands)."""
+    from calnav.eval.shorthands import load_command_config
 
-    return [load_config(args.config, [f"env.split={args.split}", f"env.max_episode_steps={args.steps + 1}",
-                                      *args.overrides])]
+    return [load_command_config(args)]
 
 
 def main_collect_maps(args, configs) -> None:
@@ -139,13 +140,14 @@ def main_collect_maps(args, configs) -> None:
     from calnav.eval.episodes import episode_indices
 
     cfg = configs[0]
-    if args.steps < 1 or not 1 <= args.every <= args.steps:
-        raise ValueError(f"--steps must be >= 1 and --every in [1, --steps], got {args.steps} / {args.every}")
+    steps = cfg.env.max_episode_steps - 1   # --steps: its shorthand sets env.max_episode_steps = STEPS + 1
+    if steps < 1 or not 1 <= args.every <= steps:
+        raise ValueError(f"--steps must be >= 1 and --every in [1, --steps], got {steps} / {args.every}")
     out = Path(args.output)
     indices = episode_indices(str(args.episodes), cfg.env, cfg.run)
     with ResultsDir(out, cfg, force=args.force, discard=("episodes",), files=()):
         todo = [i for i in indices if not episode_file(out, i).exists()]
-        tasks = [CollectTask(to_dict(cfg), i, args.steps, args.every, max(indices) + 1) for i in todo]
+        tasks = [CollectTask(to_dict(cfg), i, steps, args.every, max(indices) + 1) for i in todo]
 
         def save(task: CollectTask, res: dict) -> None:
             save_versioned_npz(episode_file(out, task.index), {k: res[k] for k in ("inputs", "targets", "steps")},

@@ -3,25 +3,27 @@
 category, the target restricted to cells the input has not explored (PEANUT:
 ``gt * (1 - explored)``) -- counted on the unexplored cells within ``PredictorSpec.near_m`` (4 m) of the explored
 area, where the agent chooses its goals (the far ones are mostly outside the house: negatives geometry alone predicts) with goal
-cells weighted ``--pos-weight`` (they are ~0.1-1 % of the cells), and augmented by the 8
-rotations / flips of the square (the maps live in an arbitrary start frame). Held-out houses (``--val-data``, or ``--val-fraction`` of the
-houses, by house, so no house is in both) give per-category ROC AUC and average precision over
-those cells, per directory (one per map type) and overall, beside a geometric baseline
-(closer to the explored area = likelier).
+cells weighted ``predictor_train.pos_weight`` (``--pos-weight``; they are ~0.1-1 % of the cells), and augmented by the 8
+rotations / flips of the square (the maps live in an arbitrary start frame). Held-out houses (``--val-data``, or
+``predictor_train.val_fraction`` of the houses, by house, so no house is in both) give per-category ROC AUC and average
+precision over those cells, per directory (one per map type) and overall, beside a geometric baseline
+(closer to the explored area = likelier). The optimisation's settings are the ``predictor_train`` config section
+(``eval.sections.PredictorTrainConfig``; ``--epochs`` / ``--pos-weight`` / ``--seed`` / ``--val-fraction`` are
+shorthands of its keys).
 
     calnav train-predictor --data runs/maps_ndf runs/maps_rbu runs/maps_glfs --output agent/weights/predictor.pt
 """
 from __future__ import annotations
 
 import time
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
 
 from calnav.common.atomic import undefined_as_null, write_json_atomic
+from calnav.eval.sections import PredictorTrainConfig
 
-BATCH = 16
-LR = 1e-3            # Adam (PEANUT: 5e-4 on a PSPNet-ResNet50 with batch 8)
 EXPLORED = 1         # input channel of the explored fraction (agent.prediction.INPUT_CHANNELS)
 
 
@@ -117,21 +119,21 @@ def evaluate(net, episodes: list[dict], goals: tuple[str, ...]) -> dict:
     return out
 
 
-def train(episodes: list[dict], spec_dict: dict, epochs: int, val_fraction: float, seed: int, progress: bool = True,
-          val_episodes: list[dict] | None = None, pos_weight: float = 1.0):
+def train(episodes: list[dict], spec_dict: dict, cfg: PredictorTrainConfig, progress: bool = True,
+          val_episodes: list[dict] | None = None):
     """(net, metrics) -- see the module docstring. ``val_episodes``: held-out maps (other houses);
-    None = hold out ``val_fraction`` of the training houses."""
+    None = hold out ``cfg.val_fraction`` of the training houses."""
     import torch
     import torch.nn.functional as F
     from tqdm import tqdm
 
     from calnav.agent.prediction import PredictorNet, PredictorSpec
 
-    torch.manual_seed(seed)
-    rng = np.random.default_rng(seed)
+    torch.manual_seed(cfg.seed)
+    rng = np.random.default_rng(cfg.seed)
     scenes = sorted({e["scene"] for e in episodes})
     if val_episodes is None:
-        held = set(rng.choice(scenes, size=max(1, int(round(val_fraction * len(scenes)))), replace=False).tolist())
+        held = set(rng.choice(scenes, size=max(1, int(round(cfg.val_fraction * len(scenes)))), replace=False).tolist())
         train_eps = [e for e in episodes if e["scene"] not in held]
         val_eps = [e for e in episodes if e["scene"] in held]
     else:
@@ -145,17 +147,18 @@ def train(episodes: list[dict], spec_dict: dict, epochs: int, val_fraction: floa
     net = PredictorNet(spec)
     x, y = _tensors(train_eps)
     near_cells = int(round(spec.near_m / spec.cell_m))
-    opt = torch.optim.Adam(net.parameters(), lr=LR)
-    weight = torch.full((len(spec.goal_categories), 1, 1), float(pos_weight))
-    steps = epochs * ((len(x) + BATCH - 1) // BATCH)
-    sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=LR, total_steps=steps, pct_start=0.1)
+    batch = cfg.batch_size
+    opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
+    weight = torch.full((len(spec.goal_categories), 1, 1), float(cfg.pos_weight))
+    steps = cfg.epochs * ((len(x) + batch - 1) // batch)
+    sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=cfg.lr, total_steps=steps, pct_start=0.1)
     history = []
-    for epoch in tqdm(range(epochs), desc="train predictor", unit="epoch", disable=not progress):
+    for epoch in tqdm(range(cfg.epochs), desc="train predictor", unit="epoch", disable=not progress):
         net.train()
         order = torch.from_numpy(rng.permutation(len(x)))
         total = 0.0
-        for i in range(0, len(x), BATCH):
-            idx = order[i:i + BATCH]
+        for i in range(0, len(x), batch):
+            idx = order[i:i + batch]
             xb, yb = x[idx], y[idx]
             k, flip = int(rng.integers(4)), bool(rng.integers(2))   # one of the square's 8 symmetries
             xb, yb = torch.rot90(xb, k, (2, 3)), torch.rot90(yb, k, (2, 3))
@@ -181,17 +184,24 @@ def train(episodes: list[dict], spec_dict: dict, epochs: int, val_fraction: floa
     return net, metrics
 
 
-def main_train_predictor(args, configs=()) -> None:
+def train_predictor_configs(args) -> list:
+    """The config ``calnav train-predictor`` runs: its ``predictor_train`` section, with
+    ``--epochs`` / ``--pos-weight`` / ``--seed`` / ``--val-fraction`` (the command's shorthands)."""
+    from calnav.eval.shorthands import load_command_config
+
+    return [load_command_config(args)]
+
+
+def main_train_predictor(args, configs) -> None:
+    """``configs``: ``train_predictor_configs(args)``, checked by the preflight."""
     import sys
 
     from calnav.agent.prediction import DEFAULT_PREDICTOR, save_predictor
     from calnav.eval.results_dir import check_output_file, writing
 
+    cfg = configs[0].predictor_train
     out = Path(args.output or DEFAULT_PREDICTOR)
     check_output_file(out)
-    if args.epochs < 1 or not 0 < args.val_fraction < 1 or not 1 <= args.pos_weight <= 1000:
-        raise ValueError(f"--epochs must be >= 1, --val-fraction in (0, 1) and --pos-weight in [1, 1000], got "
-                         f"{args.epochs} / {args.val_fraction} / {args.pos_weight}")
     episodes, spec = load_maps(args.data)
     val_episodes = None
     if args.val_data:
@@ -199,12 +209,11 @@ def main_train_predictor(args, configs=()) -> None:
         if val_spec != spec:
             raise ValueError("--val-data was collected for another predictor input than --data")
     t0 = time.perf_counter()
-    net, metrics = train(episodes, spec, args.epochs, args.val_fraction, args.seed, val_episodes=val_episodes,
-                         pos_weight=args.pos_weight)
+    net, metrics = train(episodes, spec, cfg, val_episodes=val_episodes)
     wall = time.perf_counter() - t0
-    meta = {"command": "calnav " + " ".join(sys.argv[1:]), "seed": args.seed, "data": list(args.data),
-            "pos_weight": args.pos_weight,
-            "episodes": len(episodes), "epochs": args.epochs, "wall_s": round(wall, 1), **metrics}
+    meta = {"command": "calnav " + " ".join(sys.argv[1:]), "seed": cfg.seed, "data": list(args.data),
+            "pos_weight": cfg.pos_weight, "episodes": len(episodes), "epochs": cfg.epochs,
+            "predictor_train": asdict(cfg), "wall_s": round(wall, 1), **metrics}
     with writing(out):
         out.parent.mkdir(parents=True, exist_ok=True)
         save_predictor(net, out, meta)

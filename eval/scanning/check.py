@@ -18,31 +18,38 @@ import re
 import traceback
 from pathlib import Path
 
-from calnav.eval.config import load_config
+from calnav.eval.shorthands import load_command_config
 
 _PROCEDURAL = re.compile(r"^house_(train|val|test|calib)_\d+$")
 SCENE_SUFFIXES = (".ply", ".npz")
 
 
-def resolve_target(target: str) -> tuple[list[str], list[str]]:
-    """(config overrides, scene ids) of a TARGET: a scene file, a directory of scene files, or
-    a procedural scene id. ValueError naming the three forms otherwise."""
+def resolve_target(target: str) -> tuple[str | None, list[str]]:
+    """(the ``env.dataset.scene_dir`` it names or None, scene ids) of a TARGET: a scene file, a
+    directory of scene files, or a procedural scene id. ValueError naming the three forms
+    otherwise."""
     path = Path(target).expanduser()
     if path.is_file():
         if path.suffix not in SCENE_SUFFIXES:
             raise ValueError(f"{target}: a scene file must be a labelled .ply or a calnav .npz scene")
-        return [f"env.dataset.scene_dir={path.parent}"], [path.stem]
+        return str(path.parent), [path.stem]
     if path.is_dir():
-        return [f"env.dataset.scene_dir={path}"], []   # every scene of the directory
+        return str(path), []   # every scene of the directory
     if _PROCEDURAL.match(target):
-        return [], [target]
+        return None, [target]
     raise ValueError(f"{target!r} is neither a scene file (.ply / .npz), a directory of them, nor a calnav scene "
                      "id such as house_val_0003")
 
 
+def target_scene_dir(target: str) -> str | None:
+    """The ``env.dataset.scene_dir`` a TARGET names (None for a procedural scene id): the
+    command table's shorthand for the target (``eval.cli.COMMANDS``)."""
+    return resolve_target(target)[0]
+
+
 def check_scene_configs(args) -> list:
-    overrides, _ = resolve_target(args.target)
-    return [load_config(args.config, [*args.overrides, *overrides])]
+    """The config ``calnav check-scene`` runs: the target's scene folder as ``env.dataset.scene_dir``."""
+    return [load_command_config(args)]
 
 
 def check_one(scene_id: str, env, episodes: int) -> dict:

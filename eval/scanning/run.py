@@ -18,7 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from calnav.eval.config import load_config, to_dict
+from calnav.eval.config import to_dict
+from calnav.eval.shorthands import load_command_config
 from calnav.eval.results_dir import ResultsDir, writing
 
 # a real labelled ScanNet apartment (_vh_clean_2, kept out of the repository): 153k triangles over
@@ -101,10 +102,10 @@ def parse_splits(text: str) -> list[str]:
 
 
 def scan_houses_configs(args) -> list:
-    """The config ``calnav scan-houses`` runs: the given one with ``env.dataset.style=scanned``;
-    ``--splits`` must name splits that hold houses under it."""
+    """The config ``calnav scan-houses`` runs: the given one with ``env.dataset.style=scanned``
+    (the command's fixed shorthand); ``--splits`` must name splits that hold houses under it."""
     splits = parse_splits(args.splits)
-    cfg = load_config(args.config, [*args.overrides, "env.dataset.style=scanned"])
+    cfg = load_command_config(args)
     for split in splits:
         count = getattr(cfg.env.dataset, f"{split}_scenes")
         if count < 1:

@@ -1,5 +1,6 @@
-"""Frames for training and evaluating segmenters, rendered from a split's procedural houses,
-plus the configuration of ``calnav train-segmenter`` / ``eval-segmenter``.
+"""Frames for training and evaluating segmenters, rendered from a split's procedural houses
+(their ``data`` config section: ``eval.sections.SegDataConfig``), and the config loader of
+``calnav train-segmenter`` / ``eval-segmenter``.
 
 Poses: short random walks, as an exploring ObjectNav agent moves. Each walk starts at a
 uniformly drawn navigable cell with a uniform heading; every step records one frame and then
@@ -31,17 +32,16 @@ from __future__ import annotations
 
 import hashlib
 import json
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Iterator, Literal
+from typing import Iterator
 
 import numpy as np
 
-from calnav.agent.segmenters.base import SegmenterConfig
 from calnav.common.atomic import atomic_path
-from calnav.envs.config import MAX_RESOLUTION_PX, EnvConfig
+from calnav.envs.config import EnvConfig
 from calnav.envs.semantics import STRUCTURE_CLASSES as STRUCTURE_NAMES
-from calnav.eval.config import RunConfig
+from calnav.eval.sections import SegDataConfig
 
 DATA_VERSION = 1                # bump when rendering changes, so stale caches are not reused
 EVAL_SEED_OFFSET = 1000         # eval poses use data.seed + this (never the training poses)
@@ -50,95 +50,12 @@ PITCH_CLIP_SIGMA = 2.0          # pitch jitter is clipped at this many standard 
 MAX_BLOCKED_RETRIES = 12        # a walk whose moves keep failing just records turning frames
 
 
-@dataclass
-class SegDataConfig:
-    """Which frames are rendered (``data`` section)."""
+def segmenter_configs(args) -> list:
+    """The config ``calnav train-segmenter`` / ``eval-segmenter`` runs (its sections:
+    ``eval.config.SEGMENTER_SECTIONS``)."""
+    from calnav.eval.shorthands import load_command_config
 
-    frames: int = 20000              # training frames rendered (eval: --frames)
-    scenes: int = 0                  # houses of the split used; 0 = all (env.dataset.<split>_scenes)
-    resolution: tuple[int, int] = (160, 120)  # rendered frame WxH, pixels (the training resolution)
-    walk_steps: int = 10             # frames per random walk
-    turn_prob: float = 0.4           # probability a walk step turns (else moves forward)
-    pitch_jitter_deg: float = 2.0    # camera pitch std, degrees
-    seed: int = 0                    # pose sampling seed (eval adds EVAL_SEED_OFFSET)
-    min_object_fraction: float = 0.03  # training frames with fewer non-structure (object) pixels than this ...
-    keep_sparse_prob: float = 0.3    # ... are kept with this probability (1 = no rebalancing; eval never rebalances)
-    scanned_fraction: float = 0.5    # share of each house's training frames rendered from its scan, [0, 1]
-                                     # (validation / evaluation frames follow env.dataset.style)
-
-    def __post_init__(self) -> None:
-        if self.frames < 1 or self.walk_steps < 1:
-            raise ValueError("data.frames and data.walk_steps must be >= 1")
-        for key in ("turn_prob", "keep_sparse_prob", "scanned_fraction", "min_object_fraction"):
-            if not 0 <= getattr(self, key) <= 1:   # also refuses NaN
-                raise ValueError(f"data.{key} must be in [0, 1], got {getattr(self, key)}")
-        w, h = self.resolution
-        if not (16 <= w <= MAX_RESOLUTION_PX and 16 <= h <= MAX_RESOLUTION_PX):   # rendered like the sensor's
-            raise ValueError(f"data.resolution must be between 16x16 and {MAX_RESOLUTION_PX}x{MAX_RESOLUTION_PX} "
-                             f"pixels, got {w}x{h}")
-
-
-@dataclass
-class TrainConfig:
-    """Optimisation and augmentation (``train`` section)."""
-
-    net_stem: int = 16               # network: stride-2 stem channels
-    net_stages: tuple[tuple[int, int], ...] = ((32, 2), (64, 3), (128, 4), (160, 2))  # network: (channels, blocks) at strides 4, 8, 16, 32
-    net_decoder_width: int = 64      # network: FPN decoder channels
-    net_depth_ratio: float = 1.0     # network (learned_rgbd): depth-branch width / RGB-branch width, (0, 2]; the
-                                     # shipped weights: 1.0 (345,730 parameters; 0.5, before 2026-11-26: 229,338)
-    epochs: int = 8                  # passes over the training frames
-    batch_size: int = 16             # frames per step
-    lr: float = 5e-3                 # peak learning rate (one-cycle schedule), AdamW
-    weight_decay: float = 1e-4       # AdamW decoupled weight decay
-    warmup_frac: float = 0.1         # fraction of steps spent warming up to the peak lr
-    class_weighting: Literal["none", "inv_log"] = "inv_log"  # CE class weights: (1 / ln(1.02 + frequency)) ** power (ENet)
-    class_weight_power: float = 0.5  # softens the ENet weights (1 = ENet: rare classes ~27x wall; 0.5: ~5x)
-    val_frames: int = 200            # val-split frames scored after every epoch (0 = none)
-    threads: int = 1                 # torch CPU threads; 0 = torch's default. 1: on a shared 2-core machine two
-                                     # OpenMP threads stall at barriers whenever the other core is busy (measured
-                                     # 10-100x slower steps); one thread is as fast as two with OMP_WAIT_POLICY=PASSIVE
-    brightness: float = 0.3          # brightness gain drawn from 1 +- this
-    contrast: float = 0.3            # contrast gain drawn from 1 +- this
-    colour: float = 0.1              # per-channel gain drawn from 1 +- this
-    rgb_noise_std: float = 4.0       # per-image Gaussian rgb noise std drawn from [0, this], uint8 levels
-    depth_noise_std: float = 0.02    # per-image depth noise std drawn from [0, this], metres per metre
-    hflip: bool = True               # mirror half of the batches' images left-right
-    blur_prob: float = 0.25          # probability an image is Gaussian-blurred (scan-like soft colours), [0, 1]
-    blur_sigma_px: float = 1.0       # blur std drawn from [0.3, this] per batch, pixels at the training resolution, [0.3, 5]
-    depth_dropout_prob: float = 0.0  # probability an image's depth is blanked to 0 (invalid), [0, 1]: modality dropout,
-                                     # so the RGB stream learns each class alone where a scan's geometry is damaged
-
-    def __post_init__(self) -> None:
-        if self.epochs < 1 or self.batch_size < 1:
-            raise ValueError("train.epochs and train.batch_size must be >= 1")
-        if not self.lr > 0:   # also refuses NaN
-            raise ValueError(f"train.lr must be > 0, got {self.lr}")
-        for key in ("blur_prob", "depth_dropout_prob"):
-            if not 0 <= getattr(self, key) <= 1:   # also refuses NaN
-                raise ValueError(f"train.{key} must be in [0, 1], got {getattr(self, key)}")
-        if not 0 < self.net_depth_ratio <= 2:   # also refuses NaN
-            raise ValueError(f"train.net_depth_ratio must be in (0, 2], got {self.net_depth_ratio}")
-        if not 0.3 <= self.blur_sigma_px <= 5:
-            raise ValueError(f"train.blur_sigma_px must be in [0.3, 5], got {self.blur_sigma_px}")
-
-
-@dataclass
-class SegmenterExperimentConfig:
-    """``configs/segmenter.yaml``: the sections of a segmenter training / evaluation run."""
-
-    env: EnvConfig = field(default_factory=EnvConfig)
-    run: RunConfig = field(default_factory=RunConfig)
-    segmenter: SegmenterConfig = field(default_factory=SegmenterConfig)
-    data: SegDataConfig = field(default_factory=SegDataConfig)
-    train: TrainConfig = field(default_factory=TrainConfig)
-
-
-def segmenter_configs(args) -> list[SegmenterExperimentConfig]:
-    """The config ``calnav train-segmenter`` / ``eval-segmenter`` runs."""
-    from calnav.eval.config import load_config
-
-    return [load_config(args.config, args.overrides, cls=SegmenterExperimentConfig)]
+    return [load_command_config(args)]
 
 
 @dataclass

@@ -18,13 +18,14 @@ import numpy as np
 
 from calnav.common.atomic import undefined_as_null, write_json_atomic
 from calnav.eval.results_dir import check_output_file, writing
-from calnav.eval.segmenter.data import EVAL_SEED_OFFSET, SegmenterExperimentConfig, load_or_render
+from calnav.eval.config import Config
+from calnav.eval.segmenter.data import EVAL_SEED_OFFSET, load_or_render
 from calnav.mapping.metrics import CalibrationStats
 
 BATCH = 16                     # frames per segment_batch call
 
 
-def evaluate(cfg: SegmenterExperimentConfig, model: str, split: str = "test", frames: int = 500,
+def evaluate(cfg: Config, model: str, split: str = "test", frames: int = 500,
              progress: bool = True) -> dict:
     """Score segmenter ``model`` on ``frames`` frames of ``split``; returns the metrics dict."""
     from tqdm import tqdm
@@ -82,7 +83,7 @@ def format_report(m: dict) -> str:
     return "\n".join(lines)
 
 
-def main_eval_segmenter(args, configs: list[SegmenterExperimentConfig]) -> None:
+def main_eval_segmenter(args, configs: list[Config]) -> None:
     """``configs``: ``eval.segmenter.data.segmenter_configs(args)``, checked by the preflight."""
     cfg = configs[0]
     if args.output:

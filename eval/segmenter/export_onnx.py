@@ -2,7 +2,7 @@
 (``onnxruntime``; the usual way to ship a model to a robot).
 
     calnav export-onnx --model learned_rgb --output learned_rgb.onnx
-    calnav objectnav agent.segmenter=onnx agent.segmenter_config.model=learned_rgb.onnx ...
+    calnav objectnav agent.segmenter=onnx segmenter.model=learned_rgb.onnx ...
 
 The graph holds the network with its BatchNorm folded at the training resolution (fixed H x W,
 dynamic batch): input ``rgb`` (B, 3, H, W) float32 = rgb / 255 (the network normalises

@@ -36,10 +36,10 @@ from calnav.agent.segmenters.base import resolve_device, segmenter_device
 from calnav.agent.segmenters.learned import LEARNED_MODELS, default_weights_path, save_weights
 from calnav.agent.segmenters.network import NetSpec, SegNet, count_parameters
 from calnav.common.atomic import atomic_path, undefined_as_null, write_json_atomic
-from calnav.eval.config import to_dict
+from calnav.eval.config import Config, to_dict
 from calnav.eval.results_dir import check_output_file
-from calnav.eval.segmenter.data import (VAL_SEED_OFFSET, SegData, SegmenterExperimentConfig, TrainConfig,
-                                 load_or_render)
+from calnav.eval.sections import TrainConfig
+from calnav.eval.segmenter.data import VAL_SEED_OFFSET, SegData, load_or_render
 from calnav.mapping.metrics import CalibrationStats
 
 ENET_C = 1.02                 # ENet class weights 1 / ln(c + frequency)
@@ -149,7 +149,7 @@ def score(net: SegNet, data: SegData, device: torch.device, k: int) -> dict[str,
     return {"accuracy": stats.accuracy(), "miou": stats.miou(), "ece": stats.ece(), "mece": stats.mece()}
 
 
-def checkpoint_path(cfg: SegmenterExperimentConfig, model: str) -> Path:
+def checkpoint_path(cfg: Config, model: str) -> Path:
     from calnav.envs.scene import cache_dir
 
     d = to_dict(cfg)
@@ -165,7 +165,7 @@ def _save_atomic(obj, path: Path) -> None:
 
 
 # ----------------------------------------------------------------------------- training
-def train(cfg: SegmenterExperimentConfig, model: str, output: Path | str, resume: bool = False,
+def train(cfg: Config, model: str, output: Path | str, resume: bool = False,
           progress: bool = True, command: str = "", stop_after_epoch: int | None = None) -> dict | None:
     """Train ``model`` under ``cfg``; writes ``output`` (weights) and ``output``.json (card).
     Returns the card (a dict). ``stop_after_epoch``: return None after checkpointing that
@@ -274,7 +274,7 @@ def train(cfg: SegmenterExperimentConfig, model: str, output: Path | str, resume
     return card
 
 
-def main_train_segmenter(args, configs: list[SegmenterExperimentConfig]) -> None:
+def main_train_segmenter(args, configs: list[Config]) -> None:
     """``configs``: ``eval.segmenter.data.segmenter_configs(args)``, checked by the preflight."""
     cfg = configs[0]
     output = Path(args.output) if args.output else default_weights_path(args.model)

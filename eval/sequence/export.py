@@ -135,7 +135,7 @@ def write_ground_truth(root, scene_name: str, vertices, triangles, tri_class, cl
 
 def export_house(cfg, scene_id: str, out: Path, seed: int, max_edge_m: float = DEFAULT_MAX_EDGE_M,
                  progress: bool = True) -> int:
-    """Render ``scene_id``'s calibration scan under ``cfg`` (a ``CalibrateMapConfig``) into
+    """Render ``scene_id``'s calibration scan under ``cfg`` (a ``Config`` with the calibration sections) into
     ``out`` in ScanNet layout; returns the number of frames."""
     from tqdm import tqdm
 
@@ -157,13 +157,10 @@ def export_house(cfg, scene_id: str, out: Path, seed: int, max_edge_m: float = D
 
 def export_sequence_configs(args) -> list:
     """The config ``calnav export-sequence`` runs: ``--resolution`` and ``--frames`` as
-    ``env.resolution`` and ``scan.frames``, under the overrides."""
-    from calnav.eval.calibration.config import CalibrateMapConfig
-    from calnav.eval.config import load_config
+    ``env.resolution`` and ``scan.frames`` (the command's shorthands)."""
+    from calnav.eval.shorthands import load_command_config
 
-    overrides = [f"env.resolution={args.resolution}", *([f"scan.frames={args.frames}"] if args.frames else []),
-                 *args.overrides]
-    return [load_config(args.config, overrides, cls=CalibrateMapConfig)]
+    return [load_command_config(args)]
 
 
 def main_export_sequence(args, configs) -> None:
@@ -181,4 +178,5 @@ def main_export_sequence(args, configs) -> None:
 
     load_scene(args.scene, cfg.env.dataset)   # an unknown scene id fails here, before anything is written
     n = export_house(cfg, args.scene, out, scene_seed(args.scene, cfg.run.seed), args.max_edge)
-    print(f"wrote {n} frames of {args.scene} ({args.resolution}) in ScanNet layout to {out}")
+    w, h = cfg.env.resolution
+    print(f"wrote {n} frames of {args.scene} ({w}x{h}) in ScanNet layout to {out}")

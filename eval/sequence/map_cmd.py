@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from calnav.eval.results_dir import ResultsDir, writing
-from calnav.eval.sequence.config import MapSequenceConfig
+from calnav.eval.config import Config
 from calnav.common.prefetch import prefetched
 from calnav.eval.sequence.source import PrecomputedLogits, SegmenterLogits, fuse_frames, map_frames
 from calnav.mapping.sequences import LogitsDir, Sequence, vertex_ground_truth
@@ -45,7 +45,7 @@ class MappedSequence:
     seconds: float = 0.0
 
 
-def logits_source(seq: Sequence, cfg: MapSequenceConfig, segmenter: str | None, logits: str | None,
+def logits_source(seq: Sequence, cfg: Config, segmenter: str | None, logits: str | None,
                   classes: str | None):
     """The per-frame logits of ``--segmenter`` or ``--logits`` (exactly one)."""
     if bool(segmenter) == bool(logits):
@@ -101,14 +101,14 @@ def write_map(out: Path, coords: np.ndarray, probs: np.ndarray, class_names, met
     PlyData([PlyElement.describe(v, "vertex")]).write(str(out / "map.ply"))
 
 
-def map_configs(args) -> list[MapSequenceConfig]:
-    """The config ``calnav map`` runs."""
-    from calnav.eval.config import load_config
+def map_configs(args) -> list[Config]:
+    """The config ``calnav map`` runs (its sections: ``eval.config.MAP_SECTIONS``)."""
+    from calnav.eval.shorthands import load_command_config
 
-    return [load_config(args.config or DEFAULT_CONFIG, list(args.overrides), cls=MapSequenceConfig)]
+    return [load_command_config(args, config=args.config or DEFAULT_CONFIG)]
 
 
-def main_map(args, configs: list[MapSequenceConfig]) -> None:
+def main_map(args, configs: list[Config]) -> None:
     """``configs``: ``map_configs(args)``, checked by the preflight."""
     cfg = configs[0]
     frame_log = None
@@ -142,7 +142,7 @@ def main_map(args, configs: list[MapSequenceConfig]) -> None:
             _write_results(out, cfg, seq, res, names, ply, gt, args, coords, probs, labels, frame_log)
 
 
-def check_map(seq: Sequence, res: MappedSequence, cfg: MapSequenceConfig, coords: np.ndarray, ply, gt
+def check_map(seq: Sequence, res: MappedSequence, cfg: Config, coords: np.ndarray, ply, gt
               ) -> np.ndarray | None:
     """The ground-truth label of each voxel ((N,) int, -1 = none within
     ``sequence.label_distance_m``; None without a labelled mesh), after refusing (ValueError,
@@ -190,7 +190,7 @@ def _write_results(out: Path, cfg, seq, res: MappedSequence, names, ply, gt, arg
         write_map_recording(out / "map.rrd", frame_log, coords, probs, names, cfg.mapping.voxel_size_m,
                             labels=labels if gt is not None else None, ply=ply, gt=gt)
     write_json_atomic(out / "results.json", results, indent=1)
-    print(f"{seq.name}: {res.frames} frames fused ({len(res.skipped)} skipped: invalid pose) in {res.seconds:.1f} s "
+    print(f"{seq.name}: {res.frames} frames fused ({len(res.skipped)} skipped: {seq.skip_summary()}) in {res.seconds:.1f} s "
           f"({results['frames_per_s']:.1f} frames/s), {len(coords)} voxels")
     if gt is not None:
         print("  ".join(f"{k} {results[k]:.4f}" for k in ("miou", "ece", "tl_ece", "mece", "brier"))

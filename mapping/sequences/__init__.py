@@ -1,4 +1,5 @@
-"""Recorded RGB-D sequences as a stream of posed frames (``SequenceFrame``), one reader per layout:
+"""Recorded RGB-D sequences as a stream of posed frames (``SequenceFrame``), one reader per layout
+(``LAYOUTS``, i.e. ``mapping.registry.LAYOUTS``):
 
 - ``scannet`` (ScanNet's SensReader export): ``color/N.jpg`` (1296x968), ``depth/N.png``
   (uint16, 640x480), ``pose/N.txt`` (4x4 camera-to-world), ``intrinsic/intrinsic_color.txt`` and
@@ -13,6 +14,9 @@
   ``camera-intrinsics.txt`` (3x3, in the sequence folder or its parent; colour and depth share it,
   as in 3DMatch -- 7-Scenes' own colour is not registered to its depth: colours and colour-based
   logits are then off by the sensors' baseline, a few pixels).
+- ``rosbag`` (a ROS 1 ``.bag`` or a ROS 2 bag, read with ``rosbags``): colour, registered depth
+  and CameraInfo topics, poses from TF or a pose topic, frames paired by stamp
+  (``mapping.sequences.rosbag``; keys ``sequence.rosbag``, ``rosbag_config``).
 
 Every reader streams: ``Sequence.frames()`` decodes one frame at a time, so memory does not grow
 with the recording. Frames whose pose is not finite (ScanNet writes rows of ``-inf`` where
@@ -31,11 +35,11 @@ is not used: it assumes the principal points scale with the image size, which Sc
 """
 
 from calnav.mapping.sequences.labels import LogitsDir, read_class_list, vertex_ground_truth
-from calnav.mapping.sequences.readers import (LAYOUT_NAMES, LAYOUTS, SEMANTIC_OFFSET, VOID, LayoutName, Sequence,
-                                       SequenceConfig, SequenceFrame, depth_from_raw, read_7scenes,
-                                       read_intrinsics, read_scannet)
+from calnav.mapping.registry import LAYOUTS
+from calnav.mapping.sequences.readers import (SEMANTIC_OFFSET, VOID, Sequence, SequenceConfig, SequenceFrame,
+                                       depth_from_raw, read_7scenes, read_intrinsics, read_scannet)
 from calnav.mapping.sequences.registration import Registration
 
-__all__ = ["LAYOUTS", "LAYOUT_NAMES", "SEMANTIC_OFFSET", "VOID", "LayoutName", "LogitsDir", "Registration",
-           "Sequence", "SequenceConfig", "SequenceFrame", "depth_from_raw", "read_7scenes", "read_class_list",
-           "read_intrinsics", "read_scannet", "vertex_ground_truth"]
+__all__ = ["LAYOUTS", "SEMANTIC_OFFSET", "VOID", "LogitsDir", "Registration", "Sequence", "SequenceConfig",
+           "SequenceFrame", "depth_from_raw", "read_7scenes", "read_class_list", "read_intrinsics", "read_scannet",
+           "vertex_ground_truth"]

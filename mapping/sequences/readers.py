@@ -1,21 +1,22 @@
 """Sequence readers: ``SequenceConfig``, ``SequenceFrame``, ``Sequence`` (one opened recording,
-``scannet`` or ``7scenes`` layout) and the per-layout generators ``read_scannet`` /
+``scannet`` or ``7scenes`` layout), the per-layout openers ``open_scannet`` / ``open_7scenes``
+(registered by name in ``mapping.registry.LAYOUTS``) and generators ``read_scannet`` /
 ``read_7scenes``. See ``mapping.sequences`` for the layouts and conventions."""
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterator, Literal
+from typing import Callable, Iterator
 
 import cv2
 import numpy as np
 
 from calnav.common.ranges import Range, check_ranges
 from calnav.mapping import frame_geometry as fg
+from calnav.mapping.registry import LAYOUTS
+from calnav.mapping.sequences.rosbag_config import RosbagConfig
 
-LayoutName = Literal["scannet", "7scenes"]
-LAYOUT_NAMES: tuple[str, ...] = LayoutName.__args__  # type: ignore[attr-defined]
 SCANNET_EXPECTED = "color/N.jpg, depth/N.png, pose/N.txt, intrinsic/intrinsic_color.txt, intrinsic/intrinsic_depth.txt"
 SEVEN_EXPECTED = "frame-NNNNNN.color.png|jpg, frame-NNNNNN.depth.png, frame-NNNNNN.pose.txt, camera-intrinsics.txt"
 SEVEN_FRAME = re.compile(r"^frame-(\d+)\.depth\.png$")
@@ -45,6 +46,7 @@ class SequenceConfig:
     label_map: str = ""              # raw PLY label -> class name (.json / .tsv / .csv); "" = <seq>/label_map.json if present, else NYU40 names
     label_property: str = "label"    # integer vertex property of the labelled PLY holding the raw label
     frame_label_map: str = ""        # raw id -> class name table (.tsv/.csv/.json) of ScanNet's label-filt/N.png; "" = label-filt not read
+    rosbag: RosbagConfig = field(default_factory=RosbagConfig)   # the rosbag layout's topics, frames, tolerances
 
     def __post_init__(self) -> None:
         if not self.depth_scale > 0:
@@ -111,15 +113,19 @@ class Sequence:
     valid pose), ``skipped`` those dropped for a non-finite pose; ``frames()`` yields
     ``SequenceFrame`` one at a time. Every pose is checked when the sequence is opened."""
 
+    def __new__(cls, root=None, layout: str = "", cfg: SequenceConfig | None = None):
+        # a layout registered as a Sequence subclass (rosbag) reads its recording itself
+        part = LAYOUTS.get(layout) if cls is Sequence and layout in LAYOUTS else None
+        return super().__new__(part if isinstance(part, type) and issubclass(part, Sequence) else cls)
+
     def __init__(self, root, layout: str, cfg: SequenceConfig | None = None):
         self.root = root = Path(root)
         self.cfg = cfg = cfg or SequenceConfig()
-        if layout not in LAYOUT_NAMES:
-            raise ValueError(f"unknown sequence layout {layout!r}; valid layouts: {', '.join(LAYOUT_NAMES)}")
+        LAYOUTS.check(layout)
         if not root.is_dir():
             raise ValueError(f"sequence directory not found: {root}")
         self.layout = layout
-        ids, self._paths, self.k_color, self.k_depth = (_open_scannet if layout == "scannet" else _open_7scenes)(root)
+        ids, self._paths, self.k_color, self.k_depth = LAYOUTS.get(layout)(root)
         ids = ids[::cfg.frame_stride]
         ids = ids[:cfg.max_frames] if cfg.max_frames else ids
         # every pose is read up front (small text files: ~0.1 ms each), so a non-rigid pose is
@@ -143,6 +149,10 @@ class Sequence:
 
     def __len__(self) -> int:
         return len(self.ids)
+
+    def skip_summary(self) -> str:
+        """Why the ``skipped`` frames were dropped, for a one-line report."""
+        return "invalid pose"
 
     @property
     def has_semantic(self) -> bool:
@@ -232,7 +242,10 @@ def _numeric_stems(folder: Path, suffix: str) -> set[int]:
     return {int(p.stem) for p in folder.glob(f"*{suffix}") if p.stem.isdigit()} if folder.is_dir() else set()
 
 
-def _open_scannet(root: Path):
+def open_scannet(root: Path) -> tuple[list[int], Callable[[int], dict], np.ndarray, np.ndarray]:
+    """The ``scannet`` layout's opener (``mapping.registry.LAYOUTS``): the recording's frame
+    ids, ``paths(id)`` -> {color, depth, pose, semantic, label_raw: Path | None}, and the colour
+    and depth intrinsics K (3, 3); ValueError naming what is missing."""
     found = [d for d in ("color", "depth", "pose") if (root / d).is_dir()]
     if not found:
         hint = " (it looks like the 7scenes layout: pass --layout 7scenes)" if any(root.glob("frame-*.depth.png")) else ""
@@ -267,7 +280,8 @@ def _open_scannet(root: Path):
     return sorted(depth), paths, k_color, k_depth
 
 
-def _open_7scenes(root: Path):
+def open_7scenes(root: Path) -> tuple[list[int], Callable[[int], dict], np.ndarray, np.ndarray]:
+    """The ``7scenes`` layout's opener (as ``open_scannet``; colour and depth share one K)."""
     ids = sorted(int(m.group(1)) for p in root.glob("frame-*.depth.png") if (m := SEVEN_FRAME.match(p.name)))
     if not ids:
         hint = " (it looks like the scannet layout: pass --layout scannet)" if (root / "depth").is_dir() else ""
@@ -299,6 +313,3 @@ def read_scannet(root, cfg: SequenceConfig | None = None) -> Iterator[SequenceFr
 def read_7scenes(root, cfg: SequenceConfig | None = None) -> Iterator[SequenceFrame]:
     """The frames of a 7-Scenes / 3DMatch sequence folder, one at a time."""
     yield from Sequence(root, "7scenes", cfg).frames()
-
-
-LAYOUTS = {"scannet": read_scannet, "7scenes": read_7scenes}   # layout name -> frame generator

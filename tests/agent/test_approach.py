@@ -1,5 +1,5 @@
-"""Finishing the approach: the view region the agent stops in, the watchdog's set-aside rules,
-and collision marks that outlive the reset when the same cells are hit again."""
+"""Finishing the approach: the view region the agent stops in, the watchdog and the deferral's
+set-aside rules, and collision marks that outlive the reset when the same cells are hit again."""
 from __future__ import annotations
 
 import numpy as np
@@ -7,7 +7,8 @@ import pytest
 
 from calnav.agent.approach import nearest_cell, view_region
 from calnav.agent.config import AgentConfig
-from calnav.agent.watchdog import ProgressWatchdog
+from calnav.agent.goal_detection import Deferral
+from calnav.agent.watchdog import LOOP, STUCK, ProgressWatchdog
 
 
 def _goal(n: int = 60) -> np.ndarray:
@@ -45,31 +46,53 @@ def _looping(dog: ProgressWatchdog, steps: int) -> list[str | None]:
 
 def test_watchdog_loop_and_set_aside_rules():
     cfg = AgentConfig(loop_steps=40, stuck_steps=10, stuck_radius_m=0.05)
-    dog = ProgressWatchdog(cfg, 20)
+    deferral = Deferral(cfg, 20)
+    dog = ProgressWatchdog(cfg, deferral)
     events = _looping(dog, 40)
-    assert events[-1] == "loop" and events.count("loop") == 1
+    assert events[-1] == LOOP and events.count(LOOP) == 1
     comp = np.zeros((20, 20), bool)
     comp[5:8, 5:8] = True
-    assert not dog.set_aside(comp, within_reach=True)        # the agent is within reach: never hidden
-    assert dog.hidden() is None
-    assert dog.set_aside(comp, within_reach=False)
-    assert dog.hidden() is not None and dog.hidden()[6, 6]
+    assert not deferral.defer(comp, within_reach=True)        # the agent is within reach: never hidden
+    assert deferral.hidden() is None
+    assert deferral.defer(comp, within_reach=False)
+    assert deferral.hidden() is not None and deferral.hidden()[6, 6]
     # the set-aside lasts loop_steps; the loop check starts afresh when it ends, so it cannot fire
     # on the very step the goal comes back (they used to run in lockstep)
     events = _looping(dog, 40)
-    assert dog.hidden() is None and "loop" not in events
+    assert deferral.hidden() is None and LOOP not in events
     events = _looping(dog, 40)
-    assert events.count("loop") == 1 and events.index("loop") >= 38   # a full window after the end
-    assert not dog.set_aside(comp, within_reach=False)       # never the same component twice in a row
+    assert events.count(LOOP) == 1 and events.index(LOOP) >= 38   # a full window after the end
+    assert not deferral.defer(comp, within_reach=False)       # never the same component twice in a row
     other = np.roll(comp, 8, axis=0)
-    assert dog.set_aside(other, within_reach=False)
+    assert deferral.defer(other, within_reach=False)
+
+
+def test_a_loop_defers_the_component_headed_for_unless_within_reach():
+    """``GoalDetector.defer_heading``: the window's component goes to map cells; it is set aside
+    only when the agent is farther than the reach from every cell of it, and then hidden from
+    detection until the deferral ends."""
+    from calnav.agent.goal_detection import GoalDetector
+
+    cfg = AgentConfig(loop_steps=5, goal_threshold=0.5, goal_min_area_cells=1)
+    detector = GoalDetector(cfg, 30)
+    win = (slice(10, 20), slice(10, 20))
+    comp = np.zeros((10, 10), bool)
+    comp[2:4, 2:4] = True                                   # map cells (12..13, 12..13)
+    assert not detector.defer_heading(comp, win, (12, 16), reach_cells=3.0)   # 3 cells away: within reach
+    conf = comp.astype(np.float32)
+    assert detector.detect(conf, win)[0].found
+    assert detector.defer_heading(comp, win, (12, 17), reach_cells=3.0)       # 4 cells away: deferred
+    assert detector.deferral.hidden()[12, 12] and not detector.detect(conf, win)[0].found
+    for _ in range(cfg.loop_steps):
+        detector.deferral.tick()
+    assert detector.deferral.hidden() is None and detector.detect(conf, win)[0].found
 
 
 def test_watchdog_stuck():
     cfg = AgentConfig(stuck_steps=10, stuck_radius_m=0.3)
-    dog = ProgressWatchdog(cfg, 10)
+    dog = ProgressWatchdog(cfg, Deferral(cfg, 10))
     events = [dog.observe(np.zeros(2), escaping=False) for _ in range(10)]
-    assert events[-1] == "stuck" and events.count("stuck") == 1
+    assert events[-1] == STUCK and events.count(STUCK) == 1
     assert all(dog.observe(np.zeros(2), escaping=True) is None for _ in range(30))
 
 
@@ -77,22 +100,17 @@ def test_collision_marks_hit_twice_outlive_the_reset():
     """A blocked forward marks the strip ahead; when exploration finds nothing reachable, marks
     hit once are forgotten (a doorway may be behind them), marks hit again stay (a floor hole or
     step the agent cannot see and would walk into again)."""
-    from calnav.agent.policy import PeanutAgent
-    from calnav.agent.semantic_map import MapChannels
-    from calnav.eval.config import load_config
+    from calnav.agent.collision import CollisionMarks
+    from calnav.agent.semantic_map import MapChannels, MapState
 
-    cfg = load_config(None, ["env.resolution=64x48", "agent.map_resolution=64x48", "agent.map_size_m=8",
-                             "mapping.initial_alloc_mb=16"])
-    agent = PeanutAgent(cfg)
-    h, w = 48, 64
-    agent.reset({"rgb": np.zeros((h, w, 3), np.uint8), "depth": np.zeros((h, w, 1), np.float32),
-                 "gps": np.zeros(2, np.float32), "compass": np.zeros(1, np.float32), "objectgoal": np.array([0]),
-                 "semantic": np.full((h, w), -1, np.int16)})
-    agent._mark_collision(np.array([0.0, 0.0]), 0.0)             # hit once, facing +x
-    agent._mark_collision(np.array([0.0, 0.0]), np.pi / 2)        # hit once, facing +y
-    agent._mark_collision(np.array([0.0, 0.0]), np.pi / 2)        # ... and again
-    marks = agent.state.channels[MapChannels.COLLISION]
-    ahead_x, ahead_y = agent.state.to_cell((0.3, 0.0), 0.05), agent.state.to_cell((0.0, 0.3), 0.05)
-    assert marks[ahead_x] and marks[ahead_y]
-    agent._forget_collisions()
-    assert not marks[ahead_x] and marks[ahead_y]
+    cfg = AgentConfig(map_size_m=8.0)
+    state = MapState.empty(np.zeros(2), cfg, 3)
+    marks = CollisionMarks(cfg, state.size)
+    marks.mark(state, np.array([0.0, 0.0]), 0.0)             # hit once, facing +x
+    marks.mark(state, np.array([0.0, 0.0]), np.pi / 2)        # hit once, facing +y
+    marks.mark(state, np.array([0.0, 0.0]), np.pi / 2)        # ... and again
+    channel = state.channels[MapChannels.COLLISION]
+    ahead_x, ahead_y = state.to_cell((0.3, 0.0), 0.05), state.to_cell((0.0, 0.3), 0.05)
+    assert channel[ahead_x] and channel[ahead_y]
+    marks.forget(state)
+    assert not channel[ahead_x] and channel[ahead_y]

@@ -8,7 +8,7 @@ from calnav.agent.collision import CollisionTracker, collision_points, is_collis
 from calnav.agent.config import AgentConfig
 from calnav.agent.exploration import choose_frontier, frontier_mask
 from calnav.agent.goal_detection import detect_goal, largest_component
-from calnav.agent.semantic_map import MapChannels, MapState, SemanticMapModule
+from calnav.agent.semantic_map import FusedMapBuilder, MapChannels, MapState, NdfMapBuilder
 from calnav.agent.votes import VoxelVotes
 from calnav.mapping.config import MappingConfig
 from calnav.mapping.frame import SegmentedFrame
@@ -37,7 +37,7 @@ def test_incremental_fused_projection_matches_full_projection():
     """Re-voting voxels by difference equals projecting the final votes from scratch."""
     cfg = AgentConfig(map_size_m=2.0, cell_m=0.5)
     state = MapState.empty(np.zeros(2), cfg, 3)
-    module = SemanticMapModule(cfg, MappingConfig(voxel_size_m=0.05), ("a", "b", "c"))
+    module = FusedMapBuilder(cfg, MappingConfig(voxel_size_m=0.05), ("a", "b", "c"))
     rng = np.random.default_rng(0)
     ijk = rng.integers(-15, 15, (40, 3))
     ijk = np.unique(ijk, axis=0)
@@ -253,7 +253,7 @@ def test_escape_is_bounded():
 def test_map_module_marks_obstacles_and_explored_from_a_wall():
     cfg = AgentConfig(map_size_m=8.0)
     state = MapState.empty(np.zeros(2), cfg, 3)
-    module = SemanticMapModule(cfg, MappingConfig(voxel_size_m=0.05), ("a", "b", "c"))
+    module = NdfMapBuilder(cfg, MappingConfig(voxel_size_m=0.05), ("a", "b", "c"))
     # camera at (0, 0, 0.88) looking along +x; a wall 2 m ahead fills the image
     pose = np.eye(4)
     pose[:3, :3] = np.array([[0, 0, 1], [-1, 0, 0], [0, -1, 0]])
@@ -275,7 +275,7 @@ def test_map_module_marks_obstacles_and_explored_from_a_wall():
 def test_ndf_projection_keeps_max_over_time_of_thresholded_detections():
     cfg = AgentConfig(map_size_m=2.0, cell_m=0.5, ndf_pixel_threshold=0.6)
     state = MapState.empty(np.zeros(2), cfg, 2)
-    module = SemanticMapModule(cfg, MappingConfig(voxel_size_m=0.05), ("a", "b"))
+    module = NdfMapBuilder(cfg, MappingConfig(voxel_size_m=0.05), ("a", "b"))
     cells = np.array([0, 0, 1, 1])
     inside = np.ones(4, bool)
     module._project_ndf(state, np.array([[0.9, 0.1], [0.7, 0.3], [0.55, 0.45], [0.2, 0.8]]), cells, inside)
@@ -309,7 +309,7 @@ def test_holes_block_until_the_floor_is_seen():
     from calnav.envs.task import camera_pose
 
     cfg = AgentConfig(map_size_m=8.0, hole_margin_m=0.3)
-    module = SemanticMapModule(cfg, MappingConfig(voxel_size_m=0.05), ("a", "b", "c"), (0.5, 5.0))
+    module = NdfMapBuilder(cfg, MappingConfig(voxel_size_m=0.05), ("a", "b", "c"), (0.5, 5.0))
     k = np.array([[20.0, 0, 16], [0, 20.0, 12], [0, 0, 1]])
     pose = camera_pose(np.zeros(2), 0.0, 0.88, np.deg2rad(-30.0))
     v, u = np.mgrid[0:24, 0:32]
@@ -317,26 +317,25 @@ def test_holes_block_until_the_floor_is_seen():
     floor = np.where(ray[..., 2] < 0, -0.88 / np.minimum(ray[..., 2], -1e-9), 0.0)
     floor[(floor < 0.5) | (floor > 5.0)] = 0
     floor = floor.astype(np.float32)
-    probs = np.zeros((24, 32, 3), np.float32)
 
     state = MapState.empty(np.zeros(2), cfg, 3)
     holed = floor.copy()
     holed[8:12, 10:20] = 0.0                      # a hole, with floor seen below it in the image
-    module.project(state, holed, probs, k, pose)
+    module.project_geometry(state, holed, k, pose)
     hole = state.channels[MapChannels.HOLE]
     assert hole.any() and (state.obstacles() & hole).sum() == hole.sum()
     r, c = np.argwhere(hole)[0]
-    module.project(state, floor, probs, k, pose)   # the same view, floor everywhere: cleared for good
+    module.project_geometry(state, floor, k, pose)   # the same view, floor everywhere: cleared for good
     assert not state.channels[MapChannels.HOLE][r, c] and state.channels[MapChannels.FLOOR][r, c]
-    module.project(state, holed, probs, k, pose)
+    module.project_geometry(state, holed, k, pose)
     assert not state.channels[MapChannels.HOLE][r, c]
 
     occluded = MapState.empty(np.zeros(2), cfg, 3)  # something closer than 0.5 m fills the bottom: no floor below
     near = floor.copy()
     near[6:, :] = 0.0
-    module.project(occluded, near, probs, k, pose)
+    module.project_geometry(occluded, near, k, pose)
     assert not occluded.channels[MapChannels.HOLE].any()
-    off = SemanticMapModule(AgentConfig(map_size_m=8.0), MappingConfig(voxel_size_m=0.05), ("a", "b", "c"))
+    off = NdfMapBuilder(AgentConfig(map_size_m=8.0), MappingConfig(voxel_size_m=0.05), ("a", "b", "c"))
     fresh = MapState.empty(np.zeros(2), cfg, 3)
-    off.project(fresh, holed, probs, k, pose)
+    off.project_geometry(fresh, holed, k, pose)
     assert not fresh.channels[MapChannels.HOLE].any()

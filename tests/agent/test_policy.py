@@ -10,9 +10,9 @@ NDF_STEPS = 40           # steps of the NDF / uncertainty-aware observation chec
 
 
 def test_agent_config_keys_and_validation():
-    cfg = load_config(None, ["agent.map_type=ndf", "agent.goal_threshold=0.9", "agent.segmenter_config.gt_confidence=0.95"])
+    cfg = load_config(None, ["agent.map_type=ndf", "agent.goal_threshold=0.9", "segmenter.gt_confidence=0.95"])
     assert cfg.agent.map_type == "ndf" and cfg.agent.goal_threshold == 0.9
-    assert cfg.agent.segmenter_config.gt_confidence == 0.95
+    assert cfg.segmenter.gt_confidence == 0.95
     with pytest.raises(ConfigError, match="map_type"):
         load_config(None, ["agent.map_type=voxels"])
     with pytest.raises(ConfigError, match="goal_threshold"):
@@ -25,12 +25,39 @@ def test_agent_config_keys_and_validation():
                               "agent.uncertain_low=0.2"]).agent.uncertain_low == 0.2
 
 
-def test_peanut_is_registered_and_the_default():
-    from calnav.eval.objectnav.agents import AGENTS
-    from calnav.eval.config import AGENT_NAMES, RunConfig
+def test_the_config_names_parts_of_the_registries():
+    """run.agent, agent.map_type and agent.exploration are checked against the agent package's
+    registries when the config loads (one line naming the valid choices), importing no part."""
+    from calnav.agent.registry import AGENTS, GOAL_SELECTORS, MAP_BUILDERS
+    from calnav.eval.config import RunConfig
 
-    assert set(AGENTS) == set(AGENT_NAMES)  # run.agent's choices are exactly the registry's names
-    assert RunConfig().agent == "peanut"
+    assert AGENTS.names() == ("peanut", "oracle") and RunConfig().agent == "peanut"
+    assert MAP_BUILDERS.names() == ("fused", "ndf") and GOAL_SELECTORS.names() == ("frontier", "prediction")
+    with pytest.raises(ConfigError, match=r"^run: unknown agent 'orcale' for run.agent; valid choices: peanut, oracle$"):
+        load_config(None, ["run.agent=orcale"])
+    with pytest.raises(ConfigError, match=r"unknown map type 'voxels' for agent.map_type; valid choices: fused, ndf$"):
+        load_config(None, ["agent.map_type=voxels"])
+    with pytest.raises(ConfigError, match=r"unknown exploration 'random' .*valid choices: frontier, prediction$"):
+        load_config(None, ["agent.exploration=random"])
+
+
+def test_the_agent_is_composed_of_the_registered_parts(small_setup):
+    """agent.map_type and agent.exploration choose the map builder and the goal selector the
+    policy composes."""
+    import dataclasses
+
+    from calnav.agent.goal_selection import FrontierSelector, PredictionSelector
+    from calnav.agent.policy import PeanutAgent
+    from calnav.agent.semantic_map import FusedMapBuilder, NdfMapBuilder
+
+    cfg, _ = small_setup
+    agent = PeanutAgent(cfg)
+    assert type(agent.mapper) is FusedMapBuilder and type(agent.selector) is FrontierSelector
+    assert agent.predictor is None
+    other = PeanutAgent(dataclasses.replace(cfg, agent=dataclasses.replace(cfg.agent, map_type="ndf",
+                                                                             exploration="prediction")))
+    assert type(other.mapper) is NdfMapBuilder and type(other.selector) is PredictionSelector
+    assert other.predictor is other.selector.predictor
 
 
 @pytest.fixture(scope="module")
@@ -182,32 +209,41 @@ def test_agent_escapes_a_trap_it_cannot_see(open_heading_deg):
     assert len(world.moves) >= 10    # then it keeps moving (no loop in place)
 
 
+def _prediction_selector(**overrides):
+    """A PredictionSelector (the shipped predictor) on an empty 16 m map around the origin: the
+    selector, the map state, the whole map as the window, its centre and an all-free map."""
+    import dataclasses
+
+    from calnav.agent.config import AgentConfig
+    from calnav.agent.goal_selection import PredictionSelector
+    from calnav.agent.segmenters.base import default_class_names, goal_categories
+    from calnav.agent.semantic_map import MapState
+
+    cfg = dataclasses.replace(AgentConfig(map_size_m=16, exploration="prediction"), **overrides)
+    classes = default_class_names()
+    selector = PredictionSelector(cfg, classes, tuple(g for g in goal_categories() if g in classes))
+    state = MapState.empty(np.zeros(2), cfg, len(classes))
+    n = state.size
+    selector.reset(n, "chair")
+    return selector, state, (slice(0, n), slice(0, n)), (n // 2, n // 2), np.ones((n, n), bool)
+
+
 @pytest.mark.parametrize("replan_seen", [False, True])
 def test_a_predicted_goal_is_rechosen_once_its_cell_is_seen(replan_seen, monkeypatch):
     """agent.prediction_replan_seen: a long-term goal from the prediction (an unexplored cell)
     is re-chosen as soon as its cell is explored; an unseen one, or a frontier goal (explored by
     definition), is kept until replan_steps."""
-    from calnav.agent.policy import PeanutAgent
     from calnav.agent.semantic_map import MapChannels
 
-    cfg = load_config(None, ["env.resolution=64x48", "agent.map_resolution=64x48", "agent.map_size_m=16",
-                             "mapping.initial_alloc_mb=16", "agent.exploration=prediction",
-                             f"agent.prediction_replan_seen={str(replan_seen).lower()}"])
-    world, agent = TrapWorld(cfg, 0.0), PeanutAgent(cfg)
-    agent.reset(world.obs())
-    agent.act(world.obs())
-    n = agent.state.size
-    agent.window = (slice(0, n), slice(0, n))
-    here = (n // 2, n // 2)
-    free = np.ones((n, n), bool)
+    selector, state, win, here, free = _prediction_selector(prediction_replan_seen=replan_seen)
     calls = []
-    monkeypatch.setattr(agent, "_choose_ltg", lambda rc, free_, current=None: calls.append(rc))   # None: nothing chosen
-    explored = agent.state.channels[MapChannels.EXPLORED]
+    monkeypatch.setattr(selector, "_choose", lambda st, w, rc, free_, current=None: calls.append(rc))   # None: nothing chosen
+    explored = state.channels[MapChannels.EXPLORED]
     for predicted, seen, rechosen in [(True, False, False), (True, True, replan_seen), (False, True, False)]:
         calls.clear()
-        agent.ltg, agent.ltg_age, agent.ltg_predicted = (here[0] + 20, here[1]), 0, predicted
-        explored[agent.ltg] = seen
-        agent._explore(here, 0.0, free, None)
+        selector.goal, selector.age, selector.predicted = (here[0] + 20, here[1]), 0, predicted
+        explored[selector.goal] = seen
+        selector.select(state, win, here, free)
         assert bool(calls) == rechosen, (predicted, seen)
 
 
@@ -218,22 +254,14 @@ def test_a_periodic_rechoice_never_returns_to_the_predicted_goal_just_left(monke
     agent.prediction_no_switch_back=false the agent flips back."""
     import dataclasses
 
-    from calnav.agent.policy import PeanutAgent
-
-    cfg = load_config(None, ["env.resolution=64x48", "agent.map_resolution=64x48", "agent.map_size_m=16",
-                             "mapping.initial_alloc_mb=16", "agent.exploration=prediction"])
-    world, agent = TrapWorld(cfg, 0.0), PeanutAgent(cfg)
-    agent.reset(world.obs())
-    agent.act(world.obs())
-    n = agent.state.size
-    agent.window = (slice(0, n), slice(0, n))
-    here, free = (n // 2, n // 2), np.ones((n, n), bool)
+    selector, state, win, here, free = _prediction_selector()
     a, b, a_moved = (here[0] + 30, here[1]), (here[0] - 30, here[1]), (here[0] + 33, here[1] + 2)
     offers = iter([a, b, a_moved, a])
-    monkeypatch.setattr(agent, "_predicted_ltg", lambda rc, free_: next(offers))
-    assert agent._choose_ltg(here, free) == a and agent._choose_ltg(here, free, current=a) == b
-    assert agent._choose_ltg(here, free, current=b) == b and agent.ltg == b    # A (moved) again: keep B
-    assert agent._choose_ltg(here, free, current=None) == a and agent.ltg == a  # B seen: A is fine
-    agent.cfg = dataclasses.replace(agent.cfg, prediction_no_switch_back=False)
+    monkeypatch.setattr(selector, "_predicted", lambda st, w, rc, free_: next(offers))
+    choose = selector._choose
+    assert choose(state, win, here, free) == a and choose(state, win, here, free, current=a) == b
+    assert choose(state, win, here, free, current=b) == b and selector.goal == b    # A (moved) again: keep B
+    assert choose(state, win, here, free, current=None) == a and selector.goal == a  # B seen: A is fine
+    selector.cfg = dataclasses.replace(selector.cfg, prediction_no_switch_back=False)
     offers = iter([b, a])
-    assert agent._choose_ltg(here, free, current=a) == b and agent._choose_ltg(here, free, current=b) == a   # off: flips
+    assert choose(state, win, here, free, current=a) == b and choose(state, win, here, free, current=b) == a   # off: flips

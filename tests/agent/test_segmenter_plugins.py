@@ -91,13 +91,13 @@ def test_import_path_plugin_gives_the_builtins_logits_and_episodes(tmp_path):
     (f"{PLUGINS}:duplicate_classes", "class_names lists 'wall' more than once; every output channel needs its own "
                                      "class; valid: chair, bed"),
     (f"{PLUGINS}:unknown_classes", "'sky', 'person' are not calnav classes; valid: chair, bed, .*; map the model's "
-                                   "classes with agent.segmenter_config.label_map"),
+                                   "classes with segmenter.label_map"),
     (f"{PLUGINS}:string_classes", "class_names must be a list of class names, got the string 'chair'"),
     ("segformer", "unknown segmenter 'segformer'; valid: gt, noisy, learned_rgb, learned_rgbd, hf, onnx"),
 ])
 def test_bad_plugins_fail_in_one_line_before_anything_is_written(tmp_path, capsys, spec, message):
     out = tmp_path / "out"
-    overrides = [f"agent.segmenter={spec}"] + (["agent.segmenter_config.label_map=nyu40"] if "nyu40" in spec else [])
+    overrides = [f"agent.segmenter={spec}"] + (["segmenter.label_map=nyu40"] if "nyu40" in spec else [])
     assert _objectnav(out, *overrides) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1, err
@@ -133,13 +133,13 @@ def test_a_plugin_cannot_change_the_frame_it_segments():
 
 
 @pytest.mark.parametrize("device,message", [
-    ("tpu", "agent.segmenter_config.device='tpu' is not a torch device"),
-    ("meta", "agent.segmenter_config.device='meta' is not supported; use 'cpu', 'cuda' or 'cuda:N'"),
-    ("cuda:99", "agent.segmenter_config.device='cuda:99' requested but (CUDA is not available|only [0-9]+ CUDA)"),
+    ("tpu", "segmenter.device='tpu' is not a torch device"),
+    ("meta", "segmenter.device='meta' is not supported; use 'cpu', 'cuda' or 'cuda:N'"),
+    ("cuda:99", "segmenter.device='cuda:99' requested but (CUDA is not available|only [0-9]+ CUDA)"),
 ])
 def test_the_segmenters_own_device_is_checked_before_anything_is_written(tmp_path, capsys, device, message):
     out = tmp_path / "out"
-    assert _objectnav(out, "agent.segmenter=learned_rgb", f"agent.segmenter_config.device={device}") == 2
+    assert _objectnav(out, "agent.segmenter=learned_rgb", f"segmenter.device={device}") == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and re.search(message, err), err
     assert not out.exists()
@@ -229,7 +229,7 @@ def test_hf_segformer_with_the_ade20k_map(hf_dir, sequence, tmp_path):
     expect = F.interpolate(p, size=(48, 64), mode="bilinear", align_corners=False)[0].permute(1, 2, 0).numpy()
     np.testing.assert_allclose(np.exp(out), expect, rtol=1e-4, atol=1e-7)
     np.testing.assert_allclose(np.exp(out).sum(-1), 1.0, rtol=1e-4)
-    hf = ["agent.segmenter=hf", f"agent.segmenter_config.model={hf_dir}", "agent.segmenter_config.label_map=ade20k"]
+    hf = ["agent.segmenter=hf", f"segmenter.model={hf_dir}", "segmenter.label_map=ade20k"]
     assert _objectnav(tmp_path / "run", *hf, episodes="0:1") == 0
     assert read_records(tmp_path / "run")[0]["status"] == "ok"
     assert _map(sequence, tmp_path / "map", "hf", f"segmenter.model={hf_dir}", "segmenter.label_map=ade20k") == 0
@@ -237,14 +237,14 @@ def test_hf_segformer_with_the_ade20k_map(hf_dir, sequence, tmp_path):
 
 def test_hf_errors(hf_dir, tmp_path, capsys):
     for overrides, message in [
-        # the keys as objectnav spells them (agent.segmenter_config.*, not the segmenter section's)
-        (["agent.segmenter_config.model=/nonexistent/segformer"],
-         "agent.segmenter_config.model /nonexistent/segformer does not exist"),
-        ([f"agent.segmenter_config.model={tmp_path}"], "agent.segmenter_config.model .* has no config.json"),
+        # the keys of the segmenter section, whichever command runs it
+        (["segmenter.model=/nonexistent/segformer"],
+         "segmenter.model /nonexistent/segformer does not exist"),
+        ([f"segmenter.model={tmp_path}"], "segmenter.model .* has no config.json"),
         # ADE20K's classes without a label map: matched to calnav's by name, most are not calnav's
-        ([f"agent.segmenter_config.model={hf_dir}"], "segmenter hf: 'building', 'sky', .* are not calnav classes; "
-                                                     "valid: chair, .*with agent.segmenter_config.label_map"),
-        ([f"agent.segmenter_config.model={hf_dir}", "agent.segmenter_config.label_map=scannet20"],
+        ([f"segmenter.model={hf_dir}"], "segmenter hf: 'building', 'sky', .* are not calnav classes; "
+                                                     "valid: chair, .*with segmenter.label_map"),
+        ([f"segmenter.model={hf_dir}", "segmenter.label_map=scannet20"],
          "label map .*scannet20.tsv does not list the model's classes 'building'"),
     ]:
         assert _objectnav(tmp_path / "out", "agent.segmenter=hf", *overrides) == 2
@@ -266,7 +266,7 @@ def test_onnx_export_equals_torch(onnx_file, sequence, tmp_path):
         rgb = rng.integers(0, 256, (2, h, w, 3), dtype=np.uint8)
         diff = np.abs(onnx_seg.segment_batch(rgb) - torch_seg.segment_batch(rgb)).max()
         assert diff < 1e-4, (h, w, diff)
-    assert _objectnav(tmp_path / "onnx", "agent.segmenter=onnx", f"agent.segmenter_config.model={onnx_file}") == 0
+    assert _objectnav(tmp_path / "onnx", "agent.segmenter=onnx", f"segmenter.model={onnx_file}") == 0
     assert _objectnav(tmp_path / "torch", "agent.segmenter=learned_rgb") == 0
     assert_same_records(read_records(tmp_path / "onnx"), read_records(tmp_path / "torch"), tol=1e-9)
     assert _map(sequence, tmp_path / "map", "onnx", f"segmenter.model={onnx_file}") == 0
@@ -302,10 +302,10 @@ def test_fit_glfs_and_tune_for_a_plugged_in_segmenter(onnx_file, sequence, tmp_p
                 f"mapping.glfs_params={glfs}") == 0
     out = tmp_path / "tune"
     assert main(["tune", "--episodes", "0:1", "--thresholds", "0.9,0.6", "--min-areas", "3", "--output", str(out),
-                 *SMALL, "agent.segmenter=onnx", f"agent.segmenter_config.model={onnx_file}",
+                 *SMALL, "agent.segmenter=onnx", f"segmenter.model={onnx_file}",
                  "mapping.fusion=glfs", f"mapping.glfs_params={glfs}"]) == 0
     from calnav.eval.config import load_config
 
     best = load_config(out / "best.yaml")   # a complete config for the evaluation run, the model included
     assert (out / "tune.csv").is_file() and best.agent.segmenter == "onnx" and best.agent.goal_threshold in (0.9, 0.6)
-    assert best.agent.segmenter_config.model == str(onnx_file) and best.mapping.glfs_params == str(glfs)
+    assert best.segmenter.model == str(onnx_file) and best.mapping.glfs_params == str(glfs)

@@ -198,21 +198,23 @@ def test_the_segmenters_own_device_wins_and_is_checked(weight_files):
     assert seg.device.type == "cpu"
     for name in SEGMENTER_NAMES:
         cfg = SegmenterConfig(weights=str(weight_files.get(name, "")), device="meta")
-        with pytest.raises(ValueError, match="agent.segmenter_config.device='meta' is not supported"):
-            make_segmenter(name, cfg, "cpu", key="agent.segmenter_config")
+        with pytest.raises(ValueError, match="segmenter.device='meta' is not supported"):
+            make_segmenter(name, cfg, "cpu")
 
 
-def test_segmenter_config_errors_name_the_key_as_the_command_spells_it():
-    """The segmenter section is ``agent.segmenter_config`` in ObjectNav configs and ``segmenter``
-    in others: its range errors are prefixed with the section by the config loader, so they must
-    not name a section of their own (they used to say segmenter.threads under objectnav)."""
-    from calnav.eval.config import ConfigError, load_config
-    from calnav.eval.sequence.config import MapSequenceConfig
+def test_segmenter_config_errors_name_the_one_segmenter_section():
+    """The segmenter's settings are the top-level ``segmenter`` section for every command: its
+    range errors are prefixed with the section by the config loader, so they must not name a
+    section of their own; the section's old place in ObjectNav configs
+    (``agent.segmenter_config``) is read as it, with a note."""
+    from calnav.eval.config import MAP_SECTIONS, ConfigError, load_config
 
-    with pytest.raises(ConfigError, match=r"^agent.segmenter_config: threads must be in \[0, 1024\] threads, got -1$"):
-        load_config(None, ["agent.segmenter_config.threads=-1"])
+    for overrides, kw in ((["segmenter.threads=-1"], {}), (["agent.segmenter_config.threads=-1"], {}),
+                          (["segmenter.threads=-1"], {"sections": MAP_SECTIONS})):
+        with pytest.raises(ConfigError, match=r"^segmenter: threads must be in \[0, 1024\] threads, got -1$"):
+            load_config(None, overrides, **kw)
     with pytest.raises(ConfigError, match=r"^segmenter: gt_confidence must be in \(0, 1\], got 2.0$"):
-        load_config(None, ["segmenter.gt_confidence=2"], cls=MapSequenceConfig)
+        load_config(None, ["segmenter.gt_confidence=2"], sections=MAP_SECTIONS)
 
 
 def test_default_weight_location_is_inside_the_package():

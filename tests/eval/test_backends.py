@@ -8,14 +8,14 @@ import subprocess
 import sys
 import threading
 import time
-import typing
 from pathlib import Path
 
 import pytest
 
+import calnav.eval.backends as backends
 from calnav.eval.backends import BACKENDS, LocalBackend, check_backend
 from calnav.eval.cli import main
-from calnav.eval.config import BackendName, load_config
+from calnav.eval.config import RunConfig, load_config
 from calnav.eval.objectnav.run import EpisodeJob, run_jobs
 
 
@@ -54,9 +54,13 @@ def _metrics(records: list[dict]) -> dict[int, tuple]:
     return {r["index"]: tuple(r[k] for k in METRICS) for r in records}
 
 
-def test_backend_names_match_the_config_choices():
-    assert set(BACKENDS) == set(typing.get_args(BackendName)) == {"local", "ray"}
-    with pytest.raises(ValueError, match="valid choices: local, ray"):
+def test_backends_are_chosen_from_their_registry(monkeypatch):
+    monkeypatch.setitem(sys.modules, "ray", None)  # RayBackend's constructor checks the import: no Ray needed
+    assert isinstance(BACKENDS.get("local")(RunConfig(workers=3)), LocalBackend)
+    assert BACKENDS.get("local")(RunConfig(workers=3)).workers == 3
+    with pytest.raises(ValueError, match=r'pip install -e "\.\[ray\]"'):   # the ray entry builds a RayBackend
+        BACKENDS.get("ray")(RunConfig(backend="ray"))
+    with pytest.raises(ValueError, match="^unknown backend 'slurm' for run.backend; valid choices: local, ray$"):
         check_backend("slurm")
     with pytest.raises(ValueError, match="only used with run.backend=ray"):
         check_backend("local", "auto")
@@ -120,7 +124,7 @@ def test_multirun_submits_every_configuration_at_once(tmp_path, monkeypatch):
             calls.append(sorted({(t.job, t.index) for t in items}))
             yield from super().map_unordered(fn, items)
 
-    monkeypatch.setitem(BACKENDS, "local", lambda run: Recording(1))
+    monkeypatch.setattr(backends, "make_backend", lambda run: Recording(1))
     jobs = [EpisodeJob(load_config(None, [*SMALL, "run.agent=oracle", f"env.max_episode_steps={n}"]), [0, 1],
                        tmp_path / str(n)) for n in (200, 300)]
     summaries = run_jobs(jobs, progress=False, plots=False)
@@ -192,7 +196,7 @@ def test_calibration_houses_recorded_on_ray_match_local_bytes(local_ray, tmp_pat
     bytes hold the same arrays as the local backend's (npz bytes differ only by zip times)."""
     import numpy as np
 
-    from calnav.eval.calibration.config import CalibrateMapConfig
+    from calnav.eval.config import CALIBRATION_SECTIONS
     from calnav.eval.calibration.record import record_houses, scene_files
 
     tiny = ["study.segmenters=[learned_rgb]", "study.calib_train_scenes=1", "study.calib_val_scenes=1",
@@ -200,7 +204,7 @@ def test_calibration_houses_recorded_on_ray_match_local_bytes(local_ray, tmp_pat
     houses = {"house_test_0000": 12}
     files = {}
     for backend in ("local", "ray"):
-        cfg = load_config(None, [*tiny, f"run.backend={backend}", "run.workers=2"], cls=CalibrateMapConfig)
+        cfg = load_config(None, [*tiny, f"run.backend={backend}", "run.workers=2"], sections=CALIBRATION_SECTIONS)
         record_houses(cfg, houses, ("learned_rgb",), tmp_path / backend, progress=False)
         files[backend] = [dict(np.load(p)) for sid in houses
                           for p in scene_files(tmp_path / backend, "learned_rgb", sid)]

@@ -99,21 +99,25 @@ def test_calibrate_map_writes_results_resumes_and_refuses_another_config(tmp_pat
     assert "--force" in capsys.readouterr().err
 
 
-def test_fit_glfs_writes_params_a_map_can_use(tmp_path):
+def test_fit_glfs_writes_params_a_map_can_use(tmp_path, capsys):
     from calnav.agent.segmenters.base import default_class_names
     from calnav.mapping.config import MappingConfig
     from calnav.mapping.glfs import GLFSParams
     from calnav.mapping.voxel_map import SemanticVoxelMap
 
     dest = tmp_path / "glfs_rgb.json"
+    # fit-glfs sets study.segmenters (its --segmenter) and study.strategies ([glfs]) itself
+    tiny = [o for o in TINY if not o.startswith(("study.segmenters=", "study.strategies="))]
     assert main(["fit-glfs", "--segmenter", "learned_rgb", "--output", str(dest), "--work-dir", str(tmp_path / "w"),
-                 "--variant", "authors", *TINY]) == 0
+                 "--variant", "authors", *tiny]) == 0
     params = GLFSParams.load(dest)
     assert params.class_names == default_class_names() and math.isfinite(params.g) and np.all(params.tau > 0)
     vmap = SemanticVoxelMap(18, MappingConfig(fusion="glfs", glfs_params=str(dest)), class_names=default_class_names())
     np.testing.assert_allclose(vmap.glfs_params.tau, params.tau)
     assert params.g == 0.0 and params.eps == 0.0          # the authors' fixed gates
-    assert main(["fit-glfs", "--segmenter", "learned_rgb", "--output", str(dest), "--variant", "nope", *TINY]) == 2
+    capsys.readouterr()
+    assert main(["fit-glfs", "--segmenter", "learned_rgb", "--output", str(dest), "--variant", "nope", *tiny]) == 2
+    assert "unknown GLFS variant 'nope'" in capsys.readouterr().err
 
 
 def test_calibrate_map_bad_config(capsys):

@@ -71,7 +71,7 @@ def test_objectnav_bad_input(tmp_path, capsys):
     assert main(base + ["--episodes", "0:999"]) == 2
     assert "outside the split" in capsys.readouterr().err
     assert main(base + ["--agent", "nope"]) == 2
-    assert "bad value for run.agent: 'nope'; valid choices: peanut, oracle" in capsys.readouterr().err
+    assert "run: unknown agent 'nope' for run.agent; valid choices: peanut, oracle" in capsys.readouterr().err
     assert main(base + ["mapping.fusion=bayes"]) == 2
     assert "mapping.fusion" in capsys.readouterr().err
 

@@ -3,8 +3,9 @@ import os
 
 import pytest
 
-from calnav.eval.config import (CONFIG_DIR, Config, ConfigError, dump_yaml, expand_multirun, load_config,
-                         parse_override)
+from calnav.eval.config import (CALIBRATION_SECTIONS, CONFIG_DIR, MAP_SECTIONS, SEGMENTER_SECTIONS, Config,
+                                ConfigError, dump_yaml, expand_multirun, load_config, parse_override)
+from calnav.mapping.registry import LAYOUTS
 
 
 def test_defaults_and_dotted_overrides():
@@ -18,19 +19,24 @@ def test_defaults_and_dotted_overrides():
 
 
 def test_every_shipped_config_loads():
-    from calnav.eval.calibration.config import CalibrateMapConfig
-    from calnav.eval.segmenter.data import SegmenterExperimentConfig
-    from calnav.eval.sequence.config import MapSequenceConfig
+    from calnav.eval.objectnav.study_config import StudyConfig
 
-    # experiments with their own schema
-    special = {"segmenter.yaml": SegmenterExperimentConfig, "calibrate_map.yaml": CalibrateMapConfig,
-               "map_sequence.yaml": MapSequenceConfig}
+    # the root config's sections of the commands each file is for (the others: the episode commands')
+    sections = {"segmenter.yaml": SEGMENTER_SECTIONS, "calibrate_map.yaml": CALIBRATION_SECTIONS,
+                "map_sequence.yaml": MAP_SECTIONS}
+    # the study file is a plan of runs over root configs (each of its rows' configs is loaded by
+    # tests/eval/test_study.py::test_shipped_study_config_loads)
     # habitat-lab configs (habitat_*.yaml) are hydra configs of habitat-lab's schema: composed
     # by habitat-lab in tests/envs/test_habitat.py
     files = sorted(p for p in CONFIG_DIR.glob("*.yaml") if not p.name.startswith("habitat_"))
     assert files
     for path in files:
-        load_config(path, cls=special.get(path.name, Config))
+        if path.name == "study.yaml":
+            load_config(path, cls=StudyConfig)
+        elif path.name in sections:
+            assert load_config(path, sections=sections[path.name]).sections == sections[path.name]
+        else:
+            load_config(path)
 
 
 def test_unknown_key_names_valid_keys():
@@ -51,6 +57,47 @@ def test_bad_values_name_key_and_choices():
         load_config(None, ["env.resolution=4x4"])
     with pytest.raises(ConfigError, match=r"expected true or false"):
         load_config(None, ["env.enable_look=maybe"])
+
+
+@pytest.mark.parametrize("overrides, cls, message", [
+    (["run.backend=slurm"], Config, "run: unknown backend 'slurm' for run.backend; valid choices: local, ray"),
+    (["mapping.fusion=bayes"], Config, "mapping: unknown fusion strategy 'bayes' for mapping.fusion; valid choices: "
+                                       "rbu, averaging, histogram, geometric_mean, glfs"),
+    (["mapping.weighting=gauss"], Config, "mapping: unknown sample weighting 'gauss' for mapping.weighting; valid "
+                                          "choices: auto, none, lut, distance, incidence, sweet_spot"),
+    (["sequences.layout=sevenscenes"], "calibrate", "sequences: unknown sequence layout 'sevenscenes'; valid choices: "
+                                                    + ", ".join(LAYOUTS)),   # scannet, 7scenes, ...
+    (["study.strategies=[rbu,bayes]"], "calibrate", "study: unknown fusion strategy 'bayes' in study.strategies; "
+                                                    "valid choices: rbu, averaging, histogram, geometric_mean, glfs"),
+])
+def test_parts_chosen_by_name_are_checked_against_their_registry(overrides, cls, message):
+    """A backend, fusion strategy, weighting or sequence layout is a name of its registry
+    (``eval.backends.BACKENDS``, ``mapping.registry``): an unknown one is one line with the
+    valid choices."""
+    with pytest.raises(ConfigError) as exc:
+        if cls == "calibrate":
+            load_config(None, overrides, sections=CALIBRATION_SECTIONS)
+        else:
+            load_config(None, overrides)
+    assert str(exc.value) == message
+
+
+def test_validating_part_names_imports_neither_torch_nor_open3d():
+    """The registries reference their parts lazily and every section's dataclass lives apart
+    from the code that needs torch (the GLFS training section: ``mapping.calibration.glfs_config``)
+    or Open3D (the scan section: ``envs.trajectories`` renders lazily): a config naming a fusion
+    strategy, a weighting and a backend loads without either, and so does the calibration
+    study's (the CLI's start-up stays fast). OpenCV (~25 ms) loads with the ``sequence``
+    section's package, ``mapping.sequences``, whose readers decode frames with it."""
+    import subprocess
+    import sys
+
+    code = ("import sys; from calnav.eval.config import load_config, CALIBRATION_SECTIONS; import calnav.eval.cli; "
+            "load_config(None, ['mapping.fusion=glfs', 'mapping.weighting=lut', 'run.backend=ray']); "
+            "load_config('configs/calibrate_map.yaml', sections=CALIBRATION_SECTIONS); "
+            "print(sorted(m for m in ('torch', 'open3d') if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]"
 
 
 def test_override_syntax_errors():
@@ -124,10 +171,8 @@ def test_segmenter_names_are_checked_at_load_time():
     with pytest.raises(ConfigError, match=r"unknown segmenter 'learnd_rgb'; valid: "
                                           r"gt, noisy, learned_rgb, learned_rgbd, hf, onnx, or a factory"):
         load_config(None, ["agent.segmenter=learnd_rgb"])
-    from calnav.eval.calibration.config import CalibrateMapConfig
-
     with pytest.raises(ConfigError, match=r"unknown segmenter 'learnd_rgb'; valid: gt"):
-        load_config(None, ["study.segmenters=[learnd_rgb]"], cls=CalibrateMapConfig)
+        load_config(None, ["study.segmenters=[learnd_rgb]"], sections=CALIBRATION_SECTIONS)
     # an import path is accepted at load time (imported by the preflight, not here)
     assert load_config(None, ["agent.segmenter=mypkg.seg:make"]).agent.segmenter == "mypkg.seg:make"
 
@@ -169,13 +214,11 @@ def test_non_finite_and_out_of_range_numbers_are_refused(override, message):
 
 
 def test_glfs_eta_nan_and_a_zero_grid_are_refused():
-    from calnav.eval.calibration.config import CalibrateMapConfig
-
     with pytest.raises(ConfigError, match="glfs.eta.*expected a finite number"):
-        load_config(None, ["glfs.eta=nan"], cls=CalibrateMapConfig)
+        load_config(None, ["glfs.eta=nan"], sections=CALIBRATION_SECTIONS)
     # grid_points=0 is refused up front (not after 60 s of scans and 429 MB written)
     with pytest.raises(ConfigError, match=r"study.grid_points must be >= 2 \(got 0\)"):
-        load_config(None, ["study.grid_points=0"], cls=CalibrateMapConfig)
+        load_config(None, ["study.grid_points=0"], sections=CALIBRATION_SECTIONS)
 
 
 def test_binary_or_unreadable_config_names_the_file(tmp_path):
@@ -199,8 +242,6 @@ def test_pydantic_validation_keeps_calnavs_messages():
     """The loader validates with pydantic (docs/configuration.md says why); the messages stay one
     line naming the key and what it takes, and pydantic's lax readings that would be wrong
     numbers are refused."""
-    from calnav.eval.calibration.config import CalibrateMapConfig
-
     with pytest.raises(ConfigError, match=r"bad value for run.seed: True; expected an integer"):
         load_config(None, ["run.seed=true"])               # pydantic alone would read seed 1
     with pytest.raises(ConfigError, match=r"bad value for env.hfov_deg: False; expected a number"):
@@ -212,18 +253,18 @@ def test_pydantic_validation_keeps_calnavs_messages():
     assert load_config(None, ["run.seed=3.0"]).run.seed == 3   # an exact integer
     with pytest.raises(ConfigError, match=r"unknown config key 'study.glfs_variants\[0\].nme'; valid keys under "
                                           r"'study.glfs_variants\[0\]': name, overrides"):
-        load_config(None, ["study.glfs_variants=[{nme: a}]"], cls=CalibrateMapConfig)
+        load_config(None, ["study.glfs_variants=[{nme: a}]"], sections=CALIBRATION_SECTIONS)
     with pytest.raises(ConfigError, match=r"^bad value for study.glfs_variants.a.overrides.eta: 'nan'; expected a finite"):
-        load_config(None, ["study.glfs_variants=[{name: a, overrides: {eta: nan}}]"], cls=CalibrateMapConfig)
+        load_config(None, ["study.glfs_variants=[{name: a, overrides: {eta: nan}}]"], sections=CALIBRATION_SECTIONS)
     with pytest.raises(ConfigError, match=r"bad value for env.resolution: \[1, 2, 3\]; expected 2 items"):
         load_config(None, ["env.resolution=[1,2,3]"])
     assert load_config(None, ["run.output_dir=64x48"]).run.output_dir == "64x48"   # WxH only for sizes
     # review findings: bools inside number lists, too few tuple items, mapping keys in the key path
     with pytest.raises(ConfigError, match=r"bad value for study.authors_miou_exclude: \[True, 2\]; expected a list of integers"):
-        load_config(None, ["study.authors_miou_exclude=[true, 2]"], cls=CalibrateMapConfig)
+        load_config(None, ["study.authors_miou_exclude=[true, 2]"], sections=CALIBRATION_SECTIONS)
     with pytest.raises(ConfigError, match=r"bad value for env.resolution: \[True, 120\]; expected a list of integers"):
         load_config(None, ["env.resolution=[true,120]"])
     with pytest.raises(ConfigError, match=r"bad value for env.resolution: \[160\]; expected 2 items"):
         load_config(None, ["env.resolution=[160]"])
-    with pytest.raises(ConfigError, match=r"bad value for agent.segmenter_config.confusions.a\[0\]: None; expected a string"):
-        load_config(None, ["agent.segmenter_config.confusions={a: [null]}"])
+    with pytest.raises(ConfigError, match=r"bad value for segmenter.confusions.a\[0\]: None; expected a string"):
+        load_config(None, ["segmenter.confusions={a: [null]}"])

@@ -57,29 +57,39 @@ OUT_OF_RANGE = [
     ("calibrate_map", "study.figure_resolution=10000x10000", "study.figure_resolution must be between 8x8"),
     ("calibrate_map", "sequence.label_distance_m=50", "sequence.label_distance_m must be in (0, 1] metres"),
     ("segmenter", "data.resolution=9000x9000", "data.resolution must be between 16x16 and 4096x4096"),
+    ("train_predictor", "predictor_train.epochs=0", "predictor_train.epochs must be in [1, 1000] epochs, got 0"),
+    ("train_predictor", "predictor_train.epochs=100000", "predictor_train.epochs must be in [1, 1000] epochs"),
+    ("train_predictor", "predictor_train.pos_weight=0.5", "predictor_train.pos_weight must be in [1, 1000], got 0.5"),
+    ("train_predictor", "predictor_train.pos_weight=1e6", "predictor_train.pos_weight must be in [1, 1000]"),
+    ("train_predictor", "predictor_train.val_fraction=0", "predictor_train.val_fraction must be in (0, 1), got 0"),
+    ("train_predictor", "predictor_train.val_fraction=1", "predictor_train.val_fraction must be in (0, 1), got 1"),
+    ("train_predictor", "predictor_train.batch_size=0", "predictor_train.batch_size must be in [1, 1024] maps"),
+    ("train_predictor", "predictor_train.batch_size=4096", "predictor_train.batch_size must be in [1, 1024] maps"),
+    ("train_predictor", "predictor_train.lr=0", "predictor_train.lr must be in (0, 1], got 0"),
+    ("train_predictor", "predictor_train.lr=10", "predictor_train.lr must be in (0, 1], got 10"),
 ]
 
 
-def _config_class(name: str) -> type:
-    from calnav.eval.calibration.config import CalibrateMapConfig
-    from calnav.eval.config import Config
-    from calnav.eval.segmenter.data import SegmenterExperimentConfig
-    from calnav.eval.sequence.config import MapSequenceConfig
+def _sections(name: str) -> tuple[str, ...]:
+    """The root config's sections of the commands a shipped config file is for."""
+    from calnav.eval.config import (CALIBRATION_SECTIONS, EPISODE_SECTIONS, MAP_SECTIONS, PREDICTOR_SECTIONS,
+                                    SEGMENTER_SECTIONS)
 
-    return {"objectnav": Config, "calibrate_map": CalibrateMapConfig, "segmenter": SegmenterExperimentConfig,
-            "map_sequence": MapSequenceConfig, "demo": Config}[name]
+    return {"objectnav": EPISODE_SECTIONS, "calibrate_map": CALIBRATION_SECTIONS, "segmenter": SEGMENTER_SECTIONS,
+            "map_sequence": MAP_SECTIONS, "demo": EPISODE_SECTIONS, "train_predictor": PREDICTOR_SECTIONS}[name]
 
 
 @pytest.mark.parametrize("config,override,message", OUT_OF_RANGE, ids=[o for _, o, _ in OUT_OF_RANGE])
 def test_size_keys_refuse_values_too_small_and_too_large(config, override, message):
+    path = None if config == "train_predictor" else CONFIG_DIR / f"{config}.yaml"   # no file: the section's defaults
     with pytest.raises(ConfigError) as err:
-        load_config(CONFIG_DIR / f"{config}.yaml", [override], cls=_config_class(config))
+        load_config(path, [override], sections=_sections(config))
     assert message in str(err.value) and "\n" not in str(err.value)
 
 
 @pytest.mark.parametrize("config", ["objectnav", "calibrate_map", "segmenter", "map_sequence", "demo"])
 def test_the_shipped_configs_lie_in_range(config):
-    load_config(CONFIG_DIR / f"{config}.yaml", [], cls=_config_class(config))
+    load_config(CONFIG_DIR / f"{config}.yaml", [], sections=_sections(config))
 
 
 def test_every_declared_range_names_a_key_of_its_section():
@@ -88,9 +98,11 @@ def test_every_declared_range_names_a_key_of_its_section():
     from calnav.envs.trajectories import SCAN_RANGES, ScanConfig
     from calnav.mapping.config import MAPPING_RANGES, MappingConfig
     from calnav.mapping.sequences.readers import SEQUENCE_RANGES, SequenceConfig
+    from calnav.eval.sections import PREDICTOR_TRAIN_RANGES, PredictorTrainConfig
 
     for table, cls in ((AGENT_RANGES, AgentConfig), (ENV_RANGES, EnvConfig), (DATASET_RANGES, DatasetConfig),
-                       (SCAN_RANGES, ScanConfig), (MAPPING_RANGES, MappingConfig), (SEQUENCE_RANGES, SequenceConfig)):
+                       (SCAN_RANGES, ScanConfig), (MAPPING_RANGES, MappingConfig), (SEQUENCE_RANGES, SequenceConfig),
+                       (PREDICTOR_TRAIN_RANGES, PredictorTrainConfig)):
         names = {f.name for f in dataclasses.fields(cls)}
         assert set(table) <= names, (cls.__name__, set(table) - names)
         defaults = cls()

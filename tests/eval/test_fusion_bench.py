@@ -6,7 +6,7 @@ from calnav.envs.primitives import box_room_scene
 from calnav.eval.bench.fusion import BenchFrames, measure
 from calnav.eval.config import ConfigError, load_config
 from calnav.mapping.config import MappingConfig
-from calnav.mapping.fusion import STRATEGIES
+from calnav.mapping.registry import FUSIONS
 from calnav.mapping.ground_truth import LabelledMesh
 from tests.mapping.test_voxel_map import VIEWS, intrinsics, look_at
 
@@ -28,7 +28,7 @@ def test_measure_reports_every_figure():
     figures = measure({(96, 72): _frames(mesh, 96, 72), (48, 36): _frames(mesh, 48, 36)}, scene.num_classes,
                       MappingConfig(block_count=1500))
     assert all(np.isfinite(v) and v > 0 for v in figures.values())
-    for s in STRATEGIES:
+    for s in FUSIONS:
         for key in (f"fusion.{s}.ms_96x72", f"fusion.{s}.fps_48x36", f"fusion.{s}.ratio_vs_tsdf"):
             assert key in figures
     for key in ("fusion.tsdf_only_ms_96x72", "fusion.glfs_vs_rbu", "fusion.mb_per_m2", "fusion.mb_allocated"):

@@ -30,22 +30,22 @@ def test_a_model_directory_replaced_in_place_is_another_run(tmp_path):
     from calnav.eval.config import load_config
 
     model = _hf_dir(tmp_path / "segformer")
-    cfg = load_config(None, ["agent.segmenter=hf", f"agent.segmenter_config.model={model}",
-                             "agent.segmenter_config.label_map=ade20k"])
+    cfg = load_config(None, ["agent.segmenter=hf", f"segmenter.model={model}",
+                             "segmenter.label_map=ade20k"])
     out = tmp_path / "run"
     with ResultsDir(out, cfg):
         pass
     saved = json.loads((out / "inputs.json").read_text())
-    entry = saved["agent.segmenter_config.model"]
+    entry = saved["segmenter.model"]
     assert entry["path"] == str(model)
     assert sorted(entry["files"]) == ["config.json", "model.safetensors", "preprocessor_config.json"]
-    assert saved["agent.segmenter_config.label_map"]["path"].endswith("label_maps/ade20k.tsv")
+    assert saved["segmenter.label_map"]["path"].endswith("label_maps/ade20k.tsv")
     (model / ".cache" / "download.lock").write_text("touched")
     (model / "checkpoint-500").mkdir()
     (model / "checkpoint-500" / "model.safetensors").write_bytes(b"a trainer's checkpoint")
     with ResultsDir(out, cfg):
         pass   # hidden files and subfolders (checkpoints, logs) are not what the loader reads: resumes
-    refusal = rf"holds results made with other input files: agent.segmenter_config.model \({model}\) changed since"
+    refusal = rf"holds results made with other input files: segmenter.model \({model}\) changed since"
     for change in (lambda: (model / "model.safetensors").write_bytes(b"weights-2"),
                    lambda: (model / "pytorch_model.bin").write_bytes(b"weights-1"),
                    lambda: (model / "model.safetensors").unlink()):
@@ -66,9 +66,9 @@ def test_file_keys_are_inputs_whatever_their_spelling(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     for name in ("pred", "net", "val"):
         Path(name).write_bytes(name.encode())
-    cfg = to_dict(load_config(None, ["agent.segmenter=onnx", "agent.segmenter_config.model=net",
+    cfg = to_dict(load_config(None, ["agent.segmenter=onnx", "segmenter.model=net",
                                      "agent.exploration=prediction", "agent.predictor_weights=pred"]))
     found = input_fingerprints(cfg)
     assert found["agent.predictor_weights"]["path"] == "pred"
-    assert found["agent.segmenter_config.model"]["path"] == "net"
+    assert found["segmenter.model"]["path"] == "net"
     assert not any(entry["path"] == "val" for entry in found.values())

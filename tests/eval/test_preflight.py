@@ -41,9 +41,9 @@ def bad_files(tmp_path) -> dict[str, tuple[list[str], str]]:
     truncated_glfs.write_text(SHIPPED_GLFS.read_text()[:300])
     learned = ["agent.segmenter=learned_rgb"]
     return {
-        "missing weights": (learned + [f"agent.segmenter_config.weights={tmp_path / 'none.pt'}"],
+        "missing weights": (learned + [f"segmenter.weights={tmp_path / 'none.pt'}"],
                             r"segmenter weights not found: .*none.pt.*calnav train-segmenter"),
-        "truncated weights": (learned + [f"agent.segmenter_config.weights={truncated_weights}"],
+        "truncated weights": (learned + [f"segmenter.weights={truncated_weights}"],
                               r"cannot read segmenter weights .*truncated.pt"),
         "missing glfs": (learned + [f"mapping.glfs_params={tmp_path / 'none.json'}"],
                          r"GLFS params file not found: .*none.json"),
@@ -134,6 +134,8 @@ def _argv(command: str, tmp_path) -> list[str]:
         "calibrate-map": ["calibrate-map", "--quick", "--sequences", str(tmp_path / "list.txt")],
         "view": ["view", str(tmp_path)],
         "check-scene": ["check-scene", "house_val_0000", "--output", out],
+        "study": ["study", "configs/study.yaml", "--output", out],
+        "report": ["report", str(tmp_path / "manifest.json")],
     }.get(command, [command, "--output", out])
 
 

@@ -217,11 +217,10 @@ def test_run_whose_episodes_all_crash_exits_nonzero_with_the_first_error(tmp_pat
 def test_config_check_ignores_neutral_keys_and_force_discards(tmp_path):
     """One meaning everywhere (objectnav and calibrate-map configs alike): resolved dicts are
     compared without run.workers / run.output_dir; --force deletes only the ``discard`` names."""
-    from calnav.eval.calibration.config import CalibrateMapConfig
-    from calnav.eval.config import load_config
+    from calnav.eval.config import CALIBRATION_SECTIONS, load_config
 
-    for cls, name in ((None, "objectnav"), (CalibrateMapConfig, "calibrate")):
-        kw = {"cls": cls} if cls else {}
+    for sections, name in ((None, "objectnav"), (CALIBRATION_SECTIONS, "calibrate")):
+        kw = {"sections": sections} if sections else {}
         out = tmp_path / name
         with ResultsDir(out, load_config(None, ["run.workers=1"], **kw), discard=("fits", RECORDS)):
             (out / "fits").mkdir()
@@ -287,7 +286,7 @@ def test_a_changed_input_file_under_the_same_config_is_another_run(tmp_path, cap
 
 
 def test_input_fingerprints_follow_what_the_run_reads(tmp_path, monkeypatch):
-    """The objectnav layout's segmenter section (agent.segmenter_config) decides between a named
+    """The segmenter section (``segmenter``, in every command's config) decides between a named
     and the default weights; a relative shipped path is found from any working directory, as the
     loaders find it; strings that are not paths never match a file; fit-glfs fingerprints only
     its own segmenter; only files both sides list can differ."""
@@ -298,9 +297,9 @@ def test_input_fingerprints_follow_what_the_run_reads(tmp_path, monkeypatch):
     weights.write_bytes(b"x")
     monkeypatch.chdir(tmp_path)
     (tmp_path / "val").write_text("a stray file named like a split")
-    named = input_files(to_dict(load_config(None, ["agent.segmenter=learned_rgb", f"agent.segmenter_config.weights={weights}",
+    named = input_files(to_dict(load_config(None, ["agent.segmenter=learned_rgb", f"segmenter.weights={weights}",
                                                    "mapping.glfs_params=agent/weights/glfs_learned_rgb.json"])))
-    assert set(named) == {"agent.segmenter_config.weights", "mapping.glfs_params"}
+    assert set(named) == {"segmenter.weights", "mapping.glfs_params"}
     assert named["mapping.glfs_params"] == REPO_ROOT / "agent" / "weights" / "glfs_learned_rgb.json"
     default = input_files(to_dict(load_config(None, ["agent.segmenter=learned_rgbd"])))
     assert [p.name for p in default.values()] == ["learned_rgbd.pt"]
@@ -314,7 +313,8 @@ def test_input_fingerprints_follow_what_the_run_reads(tmp_path, monkeypatch):
 
 def test_a_directory_saved_before_the_trace_key_resumes(tmp_path, capsys):
     """segmenter.trace (bit-identical logits) is a neutral key: a config.yaml written before it
-    existed (and without inputs.json) still resumes, with the one warning."""
+    existed -- and before the segmenter section moved out of ``agent`` -- (and without
+    inputs.json) still resumes, with the one warning."""
     import yaml
 
     from calnav.eval.config import dump_yaml, load_config
@@ -323,6 +323,7 @@ def test_a_directory_saved_before_the_trace_key_resumes(tmp_path, capsys):
     out = tmp_path / "old"
     out.mkdir()
     old = yaml.safe_load(dump_yaml(cfg))
+    old["agent"]["segmenter_config"] = old.pop("segmenter")   # where it was
     del old["agent"]["segmenter_config"]["trace"]
     (out / "config.yaml").write_text(yaml.safe_dump(old))
     with ResultsDir(out, cfg):
@@ -331,6 +332,45 @@ def test_a_directory_saved_before_the_trace_key_resumes(tmp_path, capsys):
     with pytest.raises(ResultsError, match=r"use another --work-dir$"):
         ResultsDir(out, load_config(None, ["agent.segmenter=gt", "run.seed=3"]), option="--work-dir",
                    can_force=False).open()
+
+
+def test_a_directory_of_the_old_segmenter_section_resumes_and_compares(tmp_path, capsys):
+    """A results directory whose config.yaml and inputs.json hold the segmenter's settings at
+    their old place (``agent.segmenter_config``, eval.config.MOVED_KEYS) is the same run as
+    the new form: it resumes without --force and without a note (a stored file, not the
+    user's), ``calnav compare`` finds no differing key between it and a new-form run, and a
+    weight file changed under its old label is still another run's."""
+    import yaml
+
+    from calnav.eval.config import dump_yaml, load_config
+    from calnav.eval.stats import METRICS
+
+    weights = tmp_path / "w.pt"
+    weights.write_bytes(b"weights")
+    cfg = load_config(None, ["agent.segmenter=learned_rgb", f"segmenter.weights={weights}", "run.agent=oracle"])
+    new, old = tmp_path / "new", tmp_path / "old"
+    for out in (new, old):
+        with ResultsDir(out, cfg):
+            (out / RECORDS).write_text(json.dumps({"index": 0, "status": "ok", **{m: 1.0 for m in METRICS}}) + "\n")
+    stored = yaml.safe_load((old / "config.yaml").read_text())
+    stored["agent"]["segmenter_config"] = stored.pop("segmenter")
+    (old / "config.yaml").write_text(yaml.safe_dump(stored, sort_keys=False))
+    inputs = json.loads((old / "inputs.json").read_text())
+    inputs["agent.segmenter_config.weights"] = inputs.pop("segmenter.weights")
+    (old / "inputs.json").write_text(json.dumps(inputs))
+    capsys.readouterr()
+    ResultsDir(old, cfg).check()
+    with ResultsDir(old, cfg):
+        pass   # resumed: no refusal, no --force
+    assert capsys.readouterr().err == ""
+    assert yaml.safe_load((old / "config.yaml").read_text()) == yaml.safe_load(dump_yaml(cfg))   # rewritten, new form
+    assert main(["compare", str(old), str(new), "--output", str(tmp_path / "cmp")]) == 0
+    assert "segmenter" not in (tmp_path / "cmp" / "comparison.md").read_text()   # no key differs
+    (old / "config.yaml").write_text(yaml.safe_dump(stored, sort_keys=False))
+    (old / "inputs.json").write_text(json.dumps(inputs))
+    weights.write_bytes(b"retrained")
+    with pytest.raises(ResultsError, match=rf"other input files: segmenter.weights \({weights}\) changed since"):
+        ResultsDir(old, cfg).open()
 
 
 def test_check_finds_a_held_directory_and_another_config_without_writing(tmp_path):

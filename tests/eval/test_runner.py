@@ -88,6 +88,32 @@ def test_pool_workers_share_the_cores():
     assert got == {(str(share), str(share), share)}
 
 
+def settings_and_pid(_) -> tuple[tuple[str, str, int], int]:
+    return thread_settings(_), os.getpid()
+
+
+def test_a_given_backend_runs_one_task_in_a_fresh_pinned_worker():
+    """``run_tasks(..., backend=LocalBackend(1, threads=1, in_process=False))`` (what ``calnav
+    bench`` times a study's worker on): the one task runs in another process, on one thread,
+    and its failures come back as for every run; without ``in_process=False`` one worker is
+    this process, with its own thread budget."""
+    from calnav.eval.backends import LocalBackend
+
+    saved: dict = {}
+    fresh = LocalBackend(1, threads=1, in_process=False)
+    assert run_tasks(settings_and_pid, [0], None, save=saved.__setitem__, desc="t", unit="task", progress=False,
+                     backend=fresh) == []
+    (threads, pid), = saved.values()
+    assert pid != os.getpid() and threads == ("1", "1", 1)
+    in_process = dict(LocalBackend(1, threads=1).map_unordered(settings_and_pid, [0]))
+    assert in_process[0][1] == os.getpid()
+    failures = run_tasks(square_unless_three, [3], None, save=saved.__setitem__, desc="t", unit="task",
+                         progress=False, backend=fresh)
+    assert [(t, f.error) for t, f in failures] == [(3, "ValueError: task 3 is broken")]
+    with pytest.raises(ValueError, match="threads must be >= 0"):
+        LocalBackend(1, threads=-1)
+
+
 SLOW_TASK_S = 120.0     # a task still in flight at Ctrl-C: waiting for it would fail the time bound
 STOP_BOUND_S = 30.0     # Ctrl-C to KeyboardInterrupt out of run_tasks, pool shut down (2 busy cores)
 

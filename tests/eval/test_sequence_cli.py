@@ -26,9 +26,8 @@ def test_export_round_trip_matches_mapping_the_frames_in_memory(tmp_path):
     as the rendered frames fused in memory (gt logits from the semantic frames, which do not
     depend on the lossy JPEG colour; millimetre depth on both sides)."""
     from calnav.agent.segmenters import make_segmenter
-    from calnav.eval.calibration.config import CalibrateMapConfig
     from calnav.eval.calibration.record import HouseScan, scene_seed
-    from calnav.eval.config import load_config
+    from calnav.eval.config import CALIBRATION_SECTIONS, load_config
     from calnav.eval.sequence.export import densify, depth_to_mm
     from calnav.eval.sequence.map_cmd import score
     from calnav.mapping.config import MappingConfig
@@ -44,7 +43,8 @@ def test_export_round_trip_matches_mapping_the_frames_in_memory(tmp_path):
     assert meta["frames"] == 8 and results["frames"] == 8 and results["skipped_frames"] == []
 
     scene_id = "house_val_0000"
-    cfg = load_config("configs/calibrate_map.yaml", ["env.resolution=64x48", "scan.frames=8"], cls=CalibrateMapConfig)
+    cfg = load_config("configs/calibrate_map.yaml", ["env.resolution=64x48", "scan.frames=8"],
+                      sections=CALIBRATION_SECTIONS)
     src = HouseScan(cfg, scene_id, scene_seed(scene_id, cfg.run.seed))
     seg = make_segmenter("gt")
     vmap = SemanticVoxelMap(len(CLASSES), MappingConfig(), class_names=CLASSES)
@@ -145,8 +145,7 @@ def test_calibrate_map_runs_on_recorded_sequences(tmp_path):
                    "test scene0002_00\n")
     out = tmp_path / "cal"
     assert main(["calibrate-map", "--quick", "--sequences", str(lst), "--output", str(out), "study.segmenters=[gt]",
-                 "study.strategies=[rbu,averaging,glfs]", "study.calibrations=[none,temperature_2d,temperature_3d]",
-                 "glfs.epochs=1"]) == 0
+                 "study.strategies=[rbu,averaging,glfs]", "study.calibrations=[none,temperature_2d,temperature_3d]"]) == 0
     rows = list(csv.DictReader((out / "results.csv").open()))
     assert {(r["strategy"], r["calibration"]) for r in rows} >= {("rbu", "none"), ("rbu", "temperature_3d"),
                                                                   ("glfs", "learned")}

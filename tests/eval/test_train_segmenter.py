@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 import torch
 
-from calnav.eval.config import load_config
-from calnav.eval.segmenter.data import SegmenterExperimentConfig, cache_path, load_or_render
+from calnav.eval.config import SEGMENTER_SECTIONS, load_config
+from calnav.eval.segmenter.data import cache_path, load_or_render
 
 TINY = ["data.frames=16", "data.scenes=2", "data.resolution=64x48", "data.walk_steps=4",
         "data.scanned_fraction=0", "train.epochs=4", "train.batch_size=8", "train.val_frames=4", "train.lr=0.01",
@@ -18,7 +18,7 @@ TINY = ["data.frames=16", "data.scenes=2", "data.resolution=64x48", "data.walk_s
 
 @pytest.fixture(scope="module")
 def cfg():
-    return load_config("configs/segmenter.yaml", TINY, cls=SegmenterExperimentConfig)
+    return load_config("configs/segmenter.yaml", TINY, sections=SEGMENTER_SECTIONS)
 
 
 @pytest.fixture(scope="module")
@@ -143,7 +143,7 @@ def test_depth_dropout_blanks_the_chosen_share(cfg):
     0 keeps depth; a value outside [0, 1] or NaN is refused."""
     import dataclasses
 
-    from calnav.eval.segmenter.data import TrainConfig
+    from calnav.eval.sections import TrainConfig
     from calnav.eval.segmenter.train import augment
 
     rgb = torch.full((64, 3, 4, 4), 0.5)
@@ -171,7 +171,7 @@ def test_depth_ratio_sets_the_depth_branch_width_and_survives_a_save():
     default 0.5); the spec round-trips through to_dict / from_dict, a dict saved before the key
     existed loads as 0.5, and a ratio outside (0, 2] or NaN is refused."""
     from calnav.agent.segmenters.network import NetSpec, SegNet
-    from calnav.eval.segmenter.data import TrainConfig
+    from calnav.eval.sections import TrainConfig
 
     wide = SegNet(NetSpec(in_depth=True, depth_ratio=1.0))
     narrow = SegNet(NetSpec(in_depth=True))

@@ -8,9 +8,10 @@ import torch
 from calnav.mapping import metrics
 from calnav.mapping.calibration.fit import MapObjective, fit_temperature_2d, fit_temperature_3d, fit_vector_3d
 from calnav.mapping.calibration.flat_obs import FlatObservations
-from calnav.mapping.fusion import STRATEGIES, fuse, fuse_flat
+from calnav.mapping.fusion import fuse, fuse_flat
 from calnav.mapping.calibration.glfs_train import GLFSModel, GLFSTrainConfig, glfs_loss, class_weights, train_glfs
 from calnav.mapping.calibration.obs_cache import ObsCache
+from calnav.mapping.registry import FUSIONS
 
 K = 5
 
@@ -83,7 +84,7 @@ def test_3d_scaling_refuses_glfs_and_unknown_objectives():
         MapObjective(flat, "rbu", objective="nll")
 
 
-@pytest.mark.parametrize("strategy", sorted(STRATEGIES))
+@pytest.mark.parametrize("strategy", sorted(FUSIONS))
 def test_fuse_flat_matches_padded_fuse(strategy):
     rng = np.random.default_rng(5)
     n, t = 40, 6

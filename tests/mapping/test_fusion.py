@@ -9,10 +9,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from calnav.mapping.config import FUSION_NAMES
-from calnav.mapping.fusion import LAPLACE_MU, STRATEGIES, fuse, get_strategy
+from calnav.mapping.fusion import LAPLACE_MU, Strategy, fuse, get_strategy
+from calnav.mapping.registry import FUSIONS
 
-NAMES = tuple(STRATEGIES)
+NAMES = FUSIONS.names()
 GATES = {"glfs": {"g": 0.4, "eps": 0.3}}
 
 
@@ -20,8 +20,14 @@ def _fuse(logits, name, **kw):
     return fuse(logits, name, **{**GATES.get(name, {}), **kw})
 
 
-def test_registry_matches_config_names():
-    assert set(FUSION_NAMES) == set(STRATEGIES)
+def test_every_registered_name_loads_its_strategy():
+    """Each lazy reference of ``FUSIONS`` resolves to the ``Strategy`` of that name (a reference
+    to a missing or another strategy fails here, not in the first run that names it)."""
+    assert len(NAMES) == 5
+    for name in NAMES:
+        strategy = get_strategy(name)
+        assert isinstance(strategy, Strategy) and strategy.name == name and FUSIONS.get(name) is strategy
+    assert get_strategy(strategy) is strategy   # a Strategy passes through
 
 
 @st.composite
@@ -152,9 +158,10 @@ def test_differentiable_wrt_temperature_weights_and_gates():
 
 def test_bad_input_raises_clear_errors():
     z = _random_logits(n=3, t=2, k=4).float()
-    with pytest.raises(ValueError, match="valid names: rbu, averaging"):
+    with pytest.raises(ValueError, match="^unknown fusion strategy 'bayes' for mapping.fusion; valid choices: rbu, "
+                                         "averaging, histogram, geometric_mean, glfs$"):
         fuse(z, "bayes")
-    with pytest.raises(ValueError, match="valid names"):
+    with pytest.raises(ValueError, match="valid choices"):
         get_strategy("max")
     with pytest.raises(ValueError, match="needs both gates"):
         fuse(z, "glfs")
@@ -178,7 +185,7 @@ def test_bad_input_raises_clear_errors():
         fuse(torch.full_like(z, float("nan")), "averaging")
 
 
-@pytest.mark.parametrize("name", list(STRATEGIES))
+@pytest.mark.parametrize("name", NAMES)
 @pytest.mark.parametrize("half", [torch.float16, torch.bfloat16])
 def test_half_precision_logits_fuse_in_float32(name, half):
     """fp16 / bf16 logits (as the observation caches store them) fuse like the float32 tensor

@@ -3,24 +3,39 @@ import numpy as np
 import pytest
 import torch
 
-from calnav.mapping.config import WEIGHTING_NAMES, MappingConfig
+from calnav.mapping.config import MappingConfig
 from calnav.mapping.glfs import GLFSParams
+from calnav.mapping.registry import WEIGHTINGS, weighting_choices
 from calnav.mapping.scaling import as_temperature
-from calnav.mapping.weighting import WEIGHTINGS, WeightingParams, bin_index, resolve, sample_weights
+from calnav.mapping.weighting import (ANGLE_EDGES_DEG, DISTANCE_EDGES_M, WeightingParams, bin_index, resolve,
+                                      sample_weights)
 
 K = 4
+CHOICES = "auto, none, lut, distance, incidence, sweet_spot"
 
 
-def test_registry_matches_config_names():
-    assert set(WEIGHTING_NAMES) == set(WEIGHTINGS) | {"auto"}
+def test_every_registered_weighting_loads_and_weighs():
+    """Each lazy reference of ``WEIGHTINGS`` resolves to a weight function: one finite weight in
+    (0, 1] per observation (a reference to a missing function fails here)."""
+    params = WeightingParams(lut=torch.ones(K, len(DISTANCE_EDGES_M) - 1, len(ANGLE_EDGES_DEG) - 1))
+    pred, d, a = torch.tensor([0, 3]), torch.tensor([0.5, 4.0]), torch.tensor([10.0, 80.0])
+    for name in WEIGHTINGS:
+        w = sample_weights(name, pred, d, a, params)
+        assert w.shape == (2,) and bool(((w > 0) & (w <= 1)).all()), name
+    assert weighting_choices() == ("auto", *WEIGHTINGS.names())
+
+
+def test_auto_resolves_and_unknown_names_list_the_choices():
     assert resolve("auto", "glfs") == "lut" and resolve("auto", "rbu") == "none"
-    with pytest.raises(ValueError, match="valid names: auto, none, lut"):
+    assert resolve("incidence", "glfs") == "incidence"
+    one_line = f"^unknown sample weighting 'gaussian' for mapping.weighting; valid choices: {CHOICES}$"
+    with pytest.raises(ValueError, match=one_line):
         resolve("gaussian", "rbu")
-    with pytest.raises(ValueError, match="valid names"):
-        sample_weights("gaussian", torch.zeros(1, dtype=torch.long), torch.ones(1), torch.ones(1))
-    with pytest.raises(ValueError, match="unknown weighting"):
+    with pytest.raises(ValueError, match=one_line):
         MappingConfig(weighting="gaussian")
-    with pytest.raises(ValueError, match="unknown fusion"):
+    with pytest.raises(ValueError, match="valid choices: none, lut"):   # "auto" is no weight function
+        sample_weights("auto", torch.zeros(1, dtype=torch.long), torch.ones(1), torch.ones(1))
+    with pytest.raises(ValueError, match="^unknown fusion strategy 'bayes' for mapping.fusion; valid choices: rbu"):
         MappingConfig(fusion="bayes")
 
 

@@ -9,7 +9,8 @@ from hypothesis import strategies as st
 
 from calnav.mapping import frame_geometry as fg
 from calnav.mapping import semantic_kernels as kernels
-from calnav.mapping.fusion import STRATEGIES, ObservationTerms
+from calnav.mapping.fusion import ObservationTerms, get_strategy
+from calnav.mapping.registry import FUSIONS
 from calnav.mapping.scaling import scale_logits
 from calnav.mapping.weighting import WeightingParams, lut_cells, sample_weights
 
@@ -90,13 +91,13 @@ def ref_candidates(pts, depth, far, shift_m, shift, dims, in_frame, res3, origin
 
 
 # ----------------------------------------------------------------------------- tests
-@pytest.mark.parametrize("name", list(STRATEGIES))
+@pytest.mark.parametrize("name", FUSIONS.names())
 @pytest.mark.parametrize("lut", [False, True])
 @settings(max_examples=25, deadline=None)
 @given(seed=SEEDS, n=st.integers(0, 60))
 def test_accumulate_adds_the_torch_increments_bit_for_bit(name, lut, seed, n):
     rng = np.random.default_rng(seed)
-    strategy = STRATEGIES[name]
+    strategy = get_strategy(name)
     channels = strategy.channels(K)
     slices, start = {}, 0
     for a, c in channels.items():

@@ -157,6 +157,17 @@ def test_readers_name_what_is_missing(tmp_path):
         Sequence(root, "scannet")
 
 
+def test_layouts_are_chosen_from_their_registry(tmp_path):
+    """Every ``LAYOUTS`` name loads its opener from the readers, and an unknown layout is one
+    line naming the valid choices (before the directory is looked at)."""
+    from calnav.mapping.sequences import LAYOUTS, readers
+
+    assert LAYOUTS.get("scannet") is readers.open_scannet and LAYOUTS.get("7scenes") is readers.open_7scenes
+    assert all(callable(LAYOUTS.get(name)) for name in LAYOUTS)
+    with pytest.raises(ValueError, match=f"^unknown sequence layout 'scanet'; valid choices: {', '.join(LAYOUTS)}$"):
+        Sequence(tmp_path / "nowhere", "scanet")
+
+
 def test_non_rigid_pose_is_rejected_with_its_frame_number(tmp_path):
     root = write_scannet(tmp_path / "seq", n=3)
     p = np.loadtxt(root / "pose" / "1.txt")

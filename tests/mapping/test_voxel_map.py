@@ -7,9 +7,10 @@ import torch
 
 from calnav.envs.primitives import box_room_scene
 from calnav.mapping.config import MappingConfig
-from calnav.mapping.fusion import STRATEGIES, fuse
+from calnav.mapping.fusion import fuse
 from calnav.mapping.glfs import GLFSParams
 from calnav.mapping.ground_truth import LabelledMesh
+from calnav.mapping.registry import FUSIONS
 from calnav.mapping.calibration.obs_cache import ObsCache
 from calnav.mapping.voxel_map import SemanticVoxelMap
 from calnav.mapping.weighting import WeightingParams, sample_weights
@@ -81,7 +82,7 @@ def build(scene, frames, logits_fn, **cfg):
     return m
 
 
-@pytest.mark.parametrize("fusion", list(STRATEGIES))
+@pytest.mark.parametrize("fusion", FUSIONS.names())
 def test_perfect_logits_label_the_box_room(room, fusion):
     scene, mesh, _, frames = room
     m = build(scene, frames, lambda lab: onehot_logits(lab, scene.num_classes), fusion=fusion)
@@ -245,9 +246,9 @@ def test_bad_input(room):
         args = dict(depth=depth, intrinsics=k, pose=pose, logits=good) | change
         with pytest.raises(ValueError, match=msg):
             m.integrate(**args)
-    with pytest.raises(ValueError, match="valid names"):
+    with pytest.raises(ValueError, match="valid choices"):
         SemanticVoxelMap(kk, MappingConfig(fusion="bayes"))
-    with pytest.raises(ValueError, match="valid names"):
+    with pytest.raises(ValueError, match="valid choices"):
         SemanticVoxelMap(kk, MappingConfig(weighting="gauss"))
     with pytest.raises(ValueError, match="other classes"):
         SemanticVoxelMap(kk, MappingConfig(fusion="glfs"), class_names=scene.class_names,

@@ -1,0 +1,38 @@
+"""``OracleAgent`` (``run.agent=oracle``): the shortest path to the goal, for validating
+episodes, geodesics and metrics. It is privileged by declaration (``privileged = (SIMULATOR,)``,
+``agent.contract``): ``agent.registry.build_agent`` hands it the env's ``SimulatorHandle``
+(``envs.task``: the simulator's shortest-path follower on its true pose), and it reads nothing
+of the observations. Like PEANUT, it calls STOP on the episode's last step.
+"""
+from __future__ import annotations
+
+from typing import Any, Mapping
+
+from calnav.agent.contract import SIMULATOR
+from calnav.envs.task import Action, SimulatorHandle
+
+
+class OracleAgent:
+    """``OracleAgent(simulator)``; ``reset(obs)`` / ``act(obs) -> int`` (``agent.contract.Agent``)."""
+
+    name = "oracle"
+    privileged = (SIMULATOR,)
+
+    def __init__(self, simulator: SimulatorHandle):
+        self.simulator = simulator
+        self.steps = 0
+
+    @classmethod
+    def from_config(cls, cfg: Any, simulator: SimulatorHandle) -> "OracleAgent":
+        """The registry's builder (``agent.registry.build_agent``); the config sets nothing here."""
+        return cls(simulator)
+
+    def reset(self, obs: Mapping) -> None:
+        self.simulator.reset()
+        self.steps = 0
+
+    def act(self, obs: Mapping) -> int:
+        self.steps += 1   # this action is the episode's steps-th
+        if self.steps >= self.simulator.max_episode_steps:
+            return int(Action.STOP)  # forced STOP on the last step, as PEANUT does
+        return int(self.simulator.shortest_path_action())

@@ -1,0 +1,59 @@
+"""The agent's parts chosen by a config key, one ``Registry`` each (``common.registry``):
+
+| registry | config key | parts |
+|---|---|---|
+| ``MAP_BUILDERS`` | ``agent.map_type`` | ``fused``, ``ndf`` (``agent.semantic_map``) |
+| ``GOAL_SELECTORS`` | ``agent.exploration`` | ``frontier``, ``prediction`` (``agent.goal_selection``) |
+| ``AGENTS`` | ``run.agent`` | ``peanut`` (``agent.policy``), ``oracle`` (``agent.oracle``) |
+
+Every part is a lazy ``"module:attribute"`` reference, so this module imports nothing heavy:
+the configs check a name against it (``REGISTRY.check``) before torch, Open3D or a simulator
+loads. ``AGENTS`` is the one agent registry of ``calnav objectnav``, ``calnav view-episode``,
+``calnav collect-maps`` and ``calnav habitat-benchmark`` (which wraps the agent as a
+``habitat.Agent``: ``agent.habitat_agent.HabitatAgent``); an agent is built by ``build_agent``.
+"""
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+from calnav.common.registry import Registry
+
+if TYPE_CHECKING:
+    from calnav.agent.contract import Agent
+    from calnav.envs.task import SimulatorHandle
+
+# A map builder: ``cls(agent_cfg, mapping_cfg, class_names, depth_range_m)`` with ``new_state(start_xy)``
+# and ``update(state, frame, pose)`` (``agent.semantic_map.MapBuilder``).
+MAP_BUILDERS: Registry[type] = Registry("map type", key="agent.map_type")
+MAP_BUILDERS.add("fused", "calnav.agent.semantic_map:FusedMapBuilder",
+                 "3D calibrated fusion (mapping.fusion) projected to the ground plane")
+MAP_BUILDERS.add("ndf", "calnav.agent.semantic_map:NdfMapBuilder",
+                 "SemExp / PEANUT baseline: per-frame 2D projection, max over time")
+
+# A goal selector: ``cls(agent_cfg, class_names, goal_names)`` (``agent.goal_selection.FrontierSelector``).
+GOAL_SELECTORS: Registry[type] = Registry("exploration", key="agent.exploration")
+GOAL_SELECTORS.add("frontier", "calnav.agent.goal_selection:FrontierSelector",
+                   "the frontier of best size / distance utility")
+GOAL_SELECTORS.add("prediction", "calnav.agent.goal_selection:PredictionSelector",
+                   "PEANUT's target prediction, frontiers when it offers nothing")
+
+# An agent class: ``cls.from_config(cfg)`` (``cfg``: the run's Config), or
+# ``cls.from_config(cfg, simulator=...)`` for a class declaring ``privileged = (SIMULATOR,)``.
+AGENTS: Registry[type] = Registry("agent", key="run.agent")
+AGENTS.add("peanut", "calnav.agent.policy:PeanutAgent", "the PEANUT-like semantic-map agent (agent.*)")
+AGENTS.add("oracle", "calnav.agent.oracle:OracleAgent", "the shortest-path follower (privileged: the simulator)")
+
+
+def build_agent(name: str, cfg: Any, simulator: "SimulatorHandle | None" = None) -> "Agent":
+    """Agent ``name`` configured by ``cfg`` (a Config). ``simulator``: the env's privileged
+    handle (``envs.task.SimulatorHandle``), handed only to an agent class that declares
+    ``SIMULATOR`` (``agent.contract``); such an agent without one is a one-line ValueError."""
+    from calnav.agent.contract import SIMULATOR, declared_privileged
+
+    cls = AGENTS.get(name)
+    if SIMULATOR not in declared_privileged(cls):
+        return cls.from_config(cfg)
+    if simulator is None:
+        raise ValueError(f"agent {name!r} needs the simulator's privileged handle (envs.task.SimulatorHandle), "
+                         "which this env does not provide")
+    return cls.from_config(cfg, simulator=simulator)
