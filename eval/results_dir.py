@@ -19,13 +19,8 @@
    with a warning;
 4. ``config.yaml`` and ``inputs.json`` are (re)written atomically.
 
-``RecordsFile`` is the per-episode records file (``episodes.jsonl``): one JSON object per line,
-keyed by ``index``, appended and flushed per record. ``read_records`` keeps the last valid
-record of each index, skips (with a warning naming the file and line) lines that are not JSON
-objects with an integer ``index`` (a torn last line of a killed run, a stray ``5``), and
-counts duplicates. ``RecordsFile.resume`` also drops the records to retry (crashed episodes)
-and rewrites the file atomically whenever it dropped anything, so the file never holds two
-records of one index.
+``eval.records`` owns the per-episode records file (``episodes.jsonl``, ``RecordsFile``,
+``read_records``) and the errors and warnings of both.
 
 Every problem with the directory (a file where a directory or a file is expected, a read-only
 file system, a held lock) is a ``ResultsError`` with a one-line message (``calnav`` exits 2).
@@ -36,17 +31,15 @@ import fcntl
 import json
 import os
 import shutil
-import sys
-from contextlib import contextmanager
-from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Iterable, Iterator
+from typing import Iterable
 
 import yaml
 
 from calnav.common.atomic import json_text, write_text_atomic
 from calnav.eval.inputs import INPUTS_NAME, changed_inputs, input_fingerprints, read_saved_inputs
-from calnav.eval.stats import METRICS, finite_or_error
+from calnav.eval.records import (RECORD_KEY, RECORDS_NAME, AllEpisodesFailed, RecordsFile, RecordsRead,  # noqa: F401
+                                 ResultsError, read_records, warn, writing)   # (re-exported: the results API)
 
 # Dotted config keys that do not change results: a rerun with other values may resume the same
 # directory, and `calnav compare` never makes them columns.
@@ -54,21 +47,6 @@ NEUTRAL_KEYS: tuple[str, ...] = ("run.workers", "run.output_dir", "run.backend",
                                  "segmenter.trace")   # (trace: bit-identical logits)
 LOCK_NAME = ".lock"
 CONFIG_NAME = "config.yaml"
-RECORDS_NAME = "episodes.jsonl"
-RECORD_KEY = "index"  # the field that identifies an episode's record
-
-
-class ResultsError(Exception):
-    """A results directory cannot be used, or a run produced no usable result (one line)."""
-
-
-class AllEpisodesFailed(ResultsError):
-    """Every episode of a run crashed: its numbers would be a table of zeros."""
-
-
-def warn(message: str) -> None:
-    """One warning line on stderr (kept out of stdout, which holds the results table)."""
-    print(f"calnav: warning: {message}", file=sys.stderr)
 
 
 def check_output_dir(path: Path | str, option: str = "--output") -> Path:
@@ -99,16 +77,6 @@ def check_output_file(path: Path | str, option: str = "--output") -> Path:
     if not os.access(parent, os.W_OK | os.X_OK):
         raise ResultsError(f"{option} {path}: {parent} is not writable")
     return path
-
-
-@contextmanager
-def writing(what: Path | str) -> Iterator[None]:
-    """Turn an OSError (read-only file system, no permission, a directory in the way) while
-    writing ``what`` into a one-line ResultsError naming it."""
-    try:
-        yield
-    except OSError as exc:
-        raise ResultsError(f"cannot write {what}: {exc.strerror or exc}") from exc
 
 
 def strip_neutral(cfg_dict: dict, neutral_keys: Iterable[str] = NEUTRAL_KEYS) -> dict:
@@ -313,127 +281,3 @@ class ResultsDir:
 
     def records(self, name: str = RECORDS_NAME) -> "RecordsFile":
         return RecordsFile(self.path / name)
-
-
-# ----------------------------------------------------------------------------- records
-@dataclass
-class RecordsRead:
-    """What ``read_records`` found: the last valid record per index (in file order of their
-    first appearance), the number of duplicate records dropped, the damaged line numbers."""
-
-    records: dict[int, dict] = field(default_factory=dict)
-    duplicates: int = 0
-    damaged: list[int] = field(default_factory=list)
-    clean_end: bool = True  # the file ends with a newline (appends start on a fresh line)
-
-
-def _parse(line: str) -> tuple[dict | None, str]:
-    try:
-        rec = json.loads(line)
-    except json.JSONDecodeError as exc:
-        return None, f"not JSON: {exc.msg}"
-    if not isinstance(rec, dict):
-        return None, f"a JSON {type(rec).__name__}, not an object"
-    if not isinstance(rec.get(RECORD_KEY), int) or isinstance(rec.get(RECORD_KEY), bool):
-        return None, f"no integer {RECORD_KEY!r}"
-    if rec.get("status", "ok") == "ok":   # a finished episode carries every metric (a crash record: its error)
-        missing = [m for m in METRICS if not isinstance(rec.get(m), (int, float)) or isinstance(rec.get(m), bool)]
-        if missing:
-            return None, f"episode {rec[RECORD_KEY]} has no number for {', '.join(missing)}; it runs again"
-    # a NaN / infinite metric (a file written before records were checked): an error record,
-    # counted as failed and retried on resume like a crash (eval.stats.finite_or_error)
-    return finite_or_error(rec), ""
-
-
-def read_records(path: str | os.PathLike, quiet: bool = False) -> RecordsRead:
-    """The records of ``path`` (missing file: none). Damaged lines are skipped and duplicates
-    dropped (the last valid record of an index wins), each with a warning unless ``quiet``."""
-    path = Path(path)
-    out = RecordsRead()
-    if not path.exists():
-        return out
-    if path.is_dir():
-        raise ResultsError(f"{path} is a directory, not a records file")
-    try:
-        text = path.read_text(errors="replace")
-    except OSError as exc:
-        raise ResultsError(f"cannot read {path}: {exc.strerror or exc}") from None
-    out.clean_end = not text or text.endswith("\n")
-    dup_indices = []
-    for lineno, line in enumerate(text.splitlines(), start=1):
-        if not line.strip():
-            continue
-        rec, why = _parse(line)
-        if rec is None:
-            out.damaged.append(lineno)
-            if not quiet:
-                warn(f"{path}:{lineno}: skipped a damaged record ({why})")
-            continue
-        i = rec[RECORD_KEY]
-        if i in out.records:
-            out.duplicates += 1
-            dup_indices.append(i)
-        out.records[i] = rec
-    if out.duplicates and not quiet:
-        shown = ", ".join(str(i) for i in sorted(set(dup_indices)))
-        warn(f"{path}: {out.duplicates} duplicate record(s) of episode(s) {shown}; each episode counts once "
-             "(its last valid record)")
-    return out
-
-
-class RecordsFile:
-    """The append-only records file of one run (see the module docstring)."""
-
-    def __init__(self, path: str | os.PathLike):
-        self.path = Path(path)
-        self._f = None
-
-    def resume(self, retry: Callable[[dict], bool] = lambda r: False,
-               indices: Iterable[int] | None = None) -> RecordsRead:
-        """Read the records, drop those of ``indices`` (default: all) for which ``retry`` is true,
-        and rewrite the file atomically if anything was dropped (damaged lines, duplicates,
-        retried records, a torn end). Returns what was kept."""
-        read = read_records(self.path)
-        scope = None if indices is None else set(indices)
-        kept = {i: r for i, r in read.records.items() if not ((scope is None or i in scope) and retry(r))}
-        if len(kept) < len(read.records) or read.damaged or read.duplicates or not read.clean_end:
-            with writing(self.path):
-                write_text_atomic(self.path, "".join(json_text(r, None, what=str(self.path)) + "\n"
-                                                     for r in kept.values()))
-        read.records = kept
-        return read
-
-    def __enter__(self) -> "RecordsFile":
-        with writing(self.path):
-            # unbuffered: each record goes to the file in ``append`` itself, so a failed append
-            # (disk full) leaves nothing in a buffer for ``close`` to fail on a second time
-            self._f = open(self.path, "ab", buffering=0)
-        return self
-
-    def __exit__(self, exc_type, exc, tb) -> None:
-        if self._f is None:
-            return
-        f, self._f = self._f, None
-        try:
-            f.close()
-        except OSError as err:
-            if exc_type is None:
-                raise ResultsError(f"cannot write {self.path}: {err.strerror or err}") from err
-            # else the error already on its way out is the one to report: not masked by this one
-
-    def append(self, record: dict) -> None:
-        """Append one record (one JSON line), written through to the file before it returns, so
-        a killed run loses only the episodes in flight. A write that fails part-way (disk full)
-        is cut off again, so the file keeps ending with whole records; ResultsError (one line)."""
-        data = memoryview((json_text(record, None, str(self.path)) + "\n").encode())   # strict: no NaN
-        with writing(self.path):
-            end = os.fstat(self._f.fileno()).st_size
-            try:
-                while data:   # an unbuffered write may write only part (a nearly full disk)
-                    data = data[self._f.write(data):]
-            except OSError:
-                try:
-                    os.ftruncate(self._f.fileno(), end)
-                except OSError:
-                    pass   # a torn last line is skipped, with a warning, when the run is resumed
-                raise

@@ -25,7 +25,7 @@ def test_every_shipped_config_loads():
     sections = {"segmenter.yaml": SEGMENTER_SECTIONS, "calibrate_map.yaml": CALIBRATION_SECTIONS,
                 "map_sequence.yaml": MAP_SECTIONS}
     # the study file is a plan of runs over root configs (each of its rows' configs is loaded by
-    # tests/eval/test_study.py::test_shipped_study_config_loads)
+    # tests/eval/objectnav/test_study.py::test_shipped_study_config_loads)
     # habitat-lab configs (habitat_*.yaml) are hydra configs of habitat-lab's schema: composed
     # by habitat-lab in tests/envs/test_habitat.py
     files = sorted(p for p in CONFIG_DIR.glob("*.yaml") if not p.name.startswith("habitat_"))

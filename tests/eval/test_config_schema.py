@@ -31,7 +31,7 @@ def _argv(command: str, tmp_path) -> list[str]:
     }.get(command, [command, "--output", OUT])]
 
 
-# the commands whose loader reads a config (study's reads a plan file: tests/eval/test_study.py)
+# the commands whose loader reads a config (study's reads a plan file: tests/eval/objectnav/test_study.py)
 LOADED = sorted(name for name, c in COMMANDS.items() if c.configs is not None and name != "study")
 
 

@@ -1,7 +1,7 @@
 """A disk that fills while ``episodes.jsonl`` is appended: one ResultsError line (exit 2), not an
 OSError from the records file's close masking it, and the records written before stay whole.
 
-The disk is simulated under the file object (``results_dir``'s ``open``): its raw writes stop at
+The disk is simulated under the file object (``eval.records``'s ``open``): its raw writes stop at
 a byte quota, the last one part-way, then fail with ENOSPC, as a full file system's do; the
 buffered and text layers above are Python's own, whatever mode the file is opened in. Where a
 user namespace is allowed (``unshare -rm``, no root), a real tiny tmpfs fills up as well."""
@@ -19,10 +19,10 @@ from pathlib import Path
 
 import pytest
 
-from calnav.eval import results_dir
+from calnav.eval import records
 from calnav.eval.cli import main
-from calnav.eval.results_dir import RECORDS_NAME as RECORDS
-from calnav.eval.results_dir import RecordsFile, ResultsError
+from calnav.eval.records import RECORDS_NAME as RECORDS
+from calnav.eval.records import RecordsFile, ResultsError
 from tests.conftest import read_records
 
 UNLIMITED = 1 << 62   # bytes
@@ -54,7 +54,7 @@ def full_disk_open(file, mode="r", buffering=-1, encoding=None, errors=None, new
 
 @pytest.fixture
 def full_disk(monkeypatch):
-    monkeypatch.setattr(results_dir, "open", full_disk_open, raising=False)
+    monkeypatch.setattr(records, "open", full_disk_open, raising=False)
     monkeypatch.setattr(FullDisk, "quota", UNLIMITED)   # until a test sets it
     return FullDisk
 
