@@ -37,7 +37,7 @@ class ScanningConfig:
     camera_height_m: float = 1.3        # scanner height above the floor, metres
     pitch_deg: float = -25.0            # mean camera pitch, degrees (negative looks down)
     pitch_std_deg: float = 10.0         # slow pitch wander while scanning, degrees (std)
-    up_turn_prob: float = 0.5           # chance that a stop ends with one more turn looking up (ceilings, upper walls; 0 = the first scans, no ceiling), probability
+    up_turn_prob: float = 0.5           # chance that a stop ends with one more turn looking up (ceilings, upper walls; 0 = never: ceilings stay unscanned), probability
     up_pitch_deg: float = 30.0          # mean camera pitch of those turns, degrees (positive looks up)
     step_m: float = 0.15                # walking distance per frame, metres
     max_turn_deg: float = 30.0          # heading change per frame, degrees

@@ -8,7 +8,8 @@
   row's threshold, the row minus its condition's own tuned row (the threshold-transfer
   question), each with its paired SEM, ``|d| / SEM`` and the verdict: "resolved" at 2 SEM or
   more, else "not resolved at N episodes" -- no direction is claimed inside 2 SEM;
-- the failure breakdown per row (``eval.objectnav.compare.failures_markdown``);
+- the failure breakdown per row (``failure_kind``: false STOP, stopped short, out of steps
+  searching or stuck, crashed) and the median collisions;
 - the tuning grids: Success vs goal threshold on the tuning episodes, one curve per tuned row
   (``threshold_curves.png``, +-1 SEM), with the chosen point marked;
 - the rows not run yet, by name.
@@ -24,7 +25,7 @@ from pathlib import Path
 
 from calnav.eval.config import ConfigError
 from calnav.eval.results_dir import read_records
-from calnav.eval.stats import METRIC_LABELS, mean_sem_cell, paired_difference, summarize
+from calnav.eval.stats import METRIC_LABELS, finite_or_error, is_finished, mean_sem_cell, paired_difference, summarize
 
 RESOLVED_SEM = 2.0     # a difference is claimed only at this many paired SEMs or more
 TABLE_METRICS: tuple[str, ...] = ("success", "spl", "softspl", "distance_to_goal")
@@ -120,12 +121,48 @@ def paired_markdown(pairs: list[tuple[str, str]], records: dict[str, list[dict]]
     return "\n".join(lines)
 
 
-def failures_table(manifest: dict, records: dict[str, list[dict]]) -> str:
-    from calnav.eval.objectnav.compare import failures_markdown, flatten
+STOPPED_SHORT_M = 1.0        # a failed STOP within this distance of a view point found the object but stopped short, metres
+STUCK_PATH_SHARE = 0.25      # out of steps having walked less than this share of what its forward steps allow: stuck
+FAILURES: tuple[tuple[str, str], ...] = (
+    ("false_stop", "False STOP"), ("stopped_short", f"Stopped short (< {STOPPED_SHORT_M:g} m)"),
+    ("searching", "Out of steps, searching"), ("stuck", "Out of steps, stuck"), ("crashed", "Crashed"))
 
-    names = list(records)
-    loaded = [(flatten(manifest["rows"][n].get("config", {})), records[n]) for n in names]
-    return failures_markdown(names, loaded)
+
+def failure_kind(record: dict, max_steps: int, forward_step_m: float) -> str | None:
+    """How an episode failed (None: it succeeded), each failure in exactly one kind:
+    ``crashed`` (an error record); STOP called before the step limit away from the goal --
+    ``stopped_short`` within STOPPED_SHORT_M of a view point (DistanceToGoal), else
+    ``false_stop``; at the step limit -- ``stuck`` when its path is below STUCK_PATH_SHARE of
+    ``steps * forward_step_m`` (blocked or turning in place), else ``searching``."""
+    r = finite_or_error(record)
+    if r.get("status", "ok") != "ok":
+        return "crashed"
+    if r.get("success"):
+        return None
+    if r.get("steps", 0) < max_steps:
+        return "stopped_short" if r["distance_to_goal"] <= STOPPED_SHORT_M else "false_stop"
+    walked = float(r.get("path_length", 0.0)) / max(1e-9, r["steps"] * forward_step_m)
+    return "stuck" if walked < STUCK_PATH_SHARE else "searching"
+
+
+def failures_table(manifest: dict, records: dict[str, list[dict]]) -> str:
+    """Per row: episodes failed, by kind (``failure_kind``), and the median collisions."""
+    import statistics
+
+    from calnav.envs.config import EnvConfig
+
+    default = EnvConfig()
+    lines = ["| Row | Failed | " + " | ".join(label for _, label in FAILURES) + " | Median collisions | N |",
+             "|" + "---|" * (len(FAILURES) + 4)]
+    for name, recs in records.items():
+        env = manifest["rows"][name].get("config", {}).get("env", {})
+        kinds = [failure_kind(r, int(env.get("max_episode_steps", default.max_episode_steps)),
+                              float(env.get("forward_step_m", default.forward_step_m))) for r in recs]
+        hits = [r["collisions"] for r in recs if is_finished(r) and "collisions" in r]
+        median = f"{statistics.median(hits):g}" if hits else "-"
+        lines.append(f"| {name} | {sum(k is not None for k in kinds)} | "
+                     + " | ".join(str(kinds.count(k)) for k, _ in FAILURES) + f" | {median} | {len(recs)} |")
+    return "\n".join(lines)
 
 
 def plot_curves(manifest: dict, path: Path) -> Path | None:

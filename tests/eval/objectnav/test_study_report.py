@@ -6,7 +6,7 @@ import pytest
 
 from calnav.eval.cli import main
 from calnav.eval.config import ConfigError
-from calnav.eval.objectnav.study_report import render, transfer_pairs, verdict
+from calnav.eval.objectnav.study_report import failure_kind, render, transfer_pairs, verdict
 
 
 def _rec(i, success, spl, steps=20):
@@ -67,8 +67,9 @@ def test_page_from_hand_made_records(tmp_path):
     assert transfer_pairs(json.loads(path.read_text())) == [("seg/scanned/glfs@clean", "seg/scanned/glfs")]
     assert "| seg/scanned/glfs@clean | seg/scanned/glfs | -0.500 (0.289) |" in page
     assert "Not run yet: seg/later." in page and "Skipped: seg/low (band empty)." in page
-    # failures: rbu has one episode out of steps (500 of 500) and one false STOP
-    assert "| seg/clean/rbu | 2 | 1 | 1 | 0 |" in page
+    # failures: rbu has one false STOP (2 m from the goal) and one episode out of steps (500 of
+    # 500) that walked nowhere: stuck
+    assert "| seg/clean/rbu | 2 | 1 | 0 | 0 | 1 | 0 | 1 | 4 |" in page
     assert "evaluation compute 0.01 worker-hours" in page
 
     out = tmp_path / "report"
@@ -84,3 +85,15 @@ def test_missing_manifest_or_records_is_one_line(tmp_path, capsys):
                                        "threshold": 0.5}}, [])
     with pytest.raises(ConfigError, match="row r: records .* not found"):
         render(path)
+
+
+def test_failure_kinds():
+    ok = {"status": "ok", "success": 0.0, "spl": 0.0, "softspl": 0.1, "steps": 40, "path_length": 5.0}
+    assert failure_kind({**ok, "success": 1.0, "distance_to_goal": 0.0}, 500, 0.25) is None
+    assert failure_kind({**ok, "distance_to_goal": 1.0}, 500, 0.25) == "stopped_short"     # at the 1 m edge
+    assert failure_kind({**ok, "distance_to_goal": 1.01}, 500, 0.25) == "false_stop"
+    # 500 steps could walk 125 m: 31.25 m is exactly a quarter (searching), below it stuck
+    assert failure_kind({**ok, "distance_to_goal": 4.0, "steps": 500, "path_length": 31.25}, 500, 0.25) == "searching"
+    assert failure_kind({**ok, "distance_to_goal": 4.0, "steps": 500, "path_length": 31.0}, 500, 0.25) == "stuck"
+    assert failure_kind({"status": "error", "error": "boom"}, 500, 0.25) == "crashed"
+    assert failure_kind({**ok, "distance_to_goal": float("nan")}, 500, 0.25) == "crashed"   # a non-finite metric
