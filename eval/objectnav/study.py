@@ -108,6 +108,9 @@ class Manifest:
         the manifest."""
         now = self.data["rows"][name]
         self.data["rows"][name] = {"overrides": now["overrides"], "threshold_from": now["threshold_from"], **entry}
+        self.write()
+
+    def write(self) -> None:
         self.root.write_json(MANIFEST_NAME, self.data)
 
 
@@ -133,6 +136,7 @@ def run_study(study_path: str | Path, out: Path, extra: list[str] = (), force: b
         root.write_text("study.yaml", study_path.read_text(encoding="utf-8"))
         manifest = Manifest(root, study, study_path, extra)
         manifest.carry(_read_json(out / MANIFEST_NAME))
+        manifest.write()   # the plan, before any row runs: a study cut short says what is pending
         for row in study.rows:
             if wanted is not None and row.name not in wanted:
                 continue
@@ -145,6 +149,9 @@ def run_study(study_path: str | Path, out: Path, extra: list[str] = (), force: b
                 tuned[row.name] = {"dir": str(tune_dir.relative_to(out)), "command": _tune_command(study, row, extra, tune_dir),
                                    "metric": study.tune.metric, "threshold": best["threshold"],
                                    "min_area": best["min_area"], "grid": grid_rows}
+                if manifest.data["rows"][row.name].get("status") != "done":   # tuned, not evaluated yet
+                    manifest.update(row.name, status="tuned", tune=tuned[row.name], threshold=best["threshold"],
+                                    min_area=best["min_area"])
             if only and row.name not in only:
                 continue
             source = tuned[row.threshold_from or row.name]

@@ -200,6 +200,7 @@ def render(manifest_path: Path) -> str:
     records = row_records(manifest_path.parent, manifest)
     ev, tune = manifest["evaluate"], manifest["tune"]
     pending = [n for n, e in manifest["rows"].items() if e.get("status") == "pending"]
+    tuned = [(n, e["threshold"]) for n, e in manifest["rows"].items() if e.get("status") == "tuned"]
     skipped = [(n, e.get("reason", "")) for n, e in manifest["rows"].items() if e.get("status") == "skipped"]
     seconds = sum(float(e.get("episode_seconds", 0)) for e in manifest["rows"].values() if e.get("status") == "done")
     parts = [f"Evaluation: {ev['split']} episodes {ev['episodes']}, every row on the same episodes (paired). "
@@ -216,6 +217,8 @@ def render(manifest_path: Path) -> str:
     parts += ["Failures:", "", failures_table(manifest, records), ""]
     if skipped:
         parts += ["Skipped: " + "; ".join(f"{n} ({r})" for n, r in skipped) + ".", ""]
+    if tuned:
+        parts += ["Tuned, not evaluated yet: " + ", ".join(f"{n} (threshold {t:g})" for n, t in tuned) + ".", ""]
     if pending:
         parts += ["Not run yet: " + ", ".join(pending) + ".", ""]
     return "\n".join(parts)

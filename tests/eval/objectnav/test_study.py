@@ -101,6 +101,8 @@ def test_shipped_study_config_loads():
 @pytest.mark.e2e
 def test_study_end_to_end(tmp_path, capsys):
     path, out = _study(tmp_path, ROWS), tmp_path / "out"
+    assert main(["study", str(path), "--output", str(out), "--rows", "nope"]) == 2   # refused: nothing written
+    assert not out.exists()
     assert main(["study", str(path), "--output", str(out)]) == 0
     manifest = json.loads((out / "manifest.json").read_text())
     rows = manifest["rows"]
@@ -132,3 +134,26 @@ def test_study_end_to_end(tmp_path, capsys):
     again = json.loads((out / "manifest.json").read_text())["rows"]
     assert (out / rows["gt/rbu"]["dir"] / "episodes.jsonl").read_text() == before
     assert again["gt/ndf"] == rows["gt/ndf"] and again["gt/rbu"]["summary"] == rows["gt/rbu"]["summary"]
+
+
+@pytest.mark.e2e
+def test_manifest_says_what_is_pending_and_tuned_when_cut_short(tmp_path, monkeypatch):
+    """The plan is written before any row runs, and a tuned row is recorded as tuned before its
+    evaluation: a study stopped between the two (here: the evaluation fails) says where it is."""
+    import calnav.eval.episodes as episodes
+    from calnav.eval.objectnav.study import run_study
+
+    real = episodes.episode_indices
+
+    def evaluation_fails(spec, env_cfg, run_cfg, progress=True):
+        if env_cfg.split == "test":
+            raise RuntimeError("cut short")
+        return real(spec, env_cfg, run_cfg, progress)
+
+    monkeypatch.setattr(episodes, "episode_indices", evaluation_fails)
+    out = tmp_path / "out"
+    with pytest.raises(RuntimeError, match="cut short"):
+        run_study(_study(tmp_path, ROWS), out, progress=False)
+    rows = json.loads((out / "manifest.json").read_text())["rows"]
+    assert rows["gt/ndf"]["status"] == "tuned" and rows["gt/ndf"]["threshold"] in (0.5, 0.9)
+    assert [rows[n]["status"] for n in ("gt/rbu", "gt/ndf@rbu", "gt/rbu_uncertainty")] == ["pending"] * 3

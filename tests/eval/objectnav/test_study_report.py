@@ -52,6 +52,7 @@ def test_page_from_hand_made_records(tmp_path):
         "seg/scanned/glfs": {"overrides": ["b=1"], "threshold_from": "", "threshold": 0.5},
         "seg/scanned/glfs@clean": {"overrides": ["b=1"], "threshold_from": "seg/clean/glfs", "threshold": 0.5},
         "seg/later": {"overrides": ["c=1"], "threshold_from": "", "status": "pending"},
+        "seg/tuned": {"overrides": ["e=1"], "threshold_from": "", "status": "tuned", "threshold": 0.7},
         "seg/low": {"overrides": ["d=1"], "threshold_from": "seg/clean/rbu", "status": "skipped", "reason": "band empty"},
     }
     rows = {"seg/clean/rbu": base, "seg/clean/glfs": better, "seg/scanned/glfs": better, "seg/scanned/glfs@clean": base}
@@ -66,7 +67,7 @@ def test_page_from_hand_made_records(tmp_path):
     # transfer: the clean-tuned threshold on scanned houses minus the scanned-tuned one: -0.5
     assert transfer_pairs(json.loads(path.read_text())) == [("seg/scanned/glfs@clean", "seg/scanned/glfs")]
     assert "| seg/scanned/glfs@clean | seg/scanned/glfs | -0.500 (0.289) |" in page
-    assert "Not run yet: seg/later." in page and "Skipped: seg/low (band empty)." in page
+    assert "Not run yet: seg/later." in page and "Tuned, not evaluated yet: seg/tuned (threshold 0.7)." in page and "Skipped: seg/low (band empty)." in page
     # failures: rbu has one false STOP (2 m from the goal) and one episode out of steps (500 of
     # 500) that walked nowhere: stuck
     assert "| seg/clean/rbu | 2 | 1 | 0 | 0 | 1 | 0 | 1 | 4 |" in page
