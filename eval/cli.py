@@ -193,6 +193,21 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("overrides", nargs="*", metavar="KEY=VALUE",
                    help="dotted config overrides, e.g. mapping.fusion=glfs sequence.frame_stride=2")
 
+    p = sub.add_parser("replay", help="what the ObjectNav agent would do on a recording (ROS bag, ScanNet / 7-Scenes "
+                                      "layout), open loop: per-frame actions, detections, goals, STOPs; the map")
+    p.add_argument("recording", help="a ROS bag (--layout rosbag, the default) or a recording's directory")
+    p.add_argument("--goal", required=True, help="the goal category searched (name or id: chair, bed, plant, ...)")
+    p.add_argument("--layout", default="rosbag", choices=LAYOUTS.names(), help="file layout of the recording")
+    p.add_argument("--segmenter", default=None, metavar="SEGMENTER",
+                   help="shorthand for agent.segmenter (default learned_rgb: a recording has no ground-truth labels)")
+    p.add_argument("--config", default=None, help="YAML config of the agent (default: configs/objectnav.yaml)")
+    p.add_argument("--output", required=True, help="results directory")
+    p.add_argument("--force", action="store_true", help="replace the results of another config in --output")
+    p.add_argument("--rerun", action="store_true",
+                   help="also write <output>/replay.rrd (Rerun: frames, camera, maps, goals; needs the [viz] extra)")
+    p.add_argument("overrides", nargs="*", metavar="KEY=VALUE",
+                   help="dotted config overrides, e.g. agent.goal_threshold=0.9 sequence.frame_stride=2")
+
     p = sub.add_parser("export-sequence", help="write calnav's own frames (a house's calibration scan) in "
                                                "ScanNet layout, with a labelled mesh")
     _add_config_args(p, "configs/calibrate_map.yaml")
@@ -342,6 +357,11 @@ COMMANDS: dict[str, Command] = {
                         shorthands=(Shorthand("--segmenter", "study.segmenters", convert=lambda name: f"[{name}]"),
                                     fixed("study.strategies", "[glfs]"))),   # it fits GLFS only
     "map": Command("calnav.eval.sequence.map_cmd", "main_map", "map_configs", sections=MAP_SECTIONS),
+    "replay": Command("calnav.eval.sequence.replay", "main_replay", "replay_configs",
+                      checks=("run", "agent", "mapping"),   # the agent's segmenter and files; no study
+                      sections=(*EPISODE_SECTIONS, "sequence"),
+                      shorthands=(Shorthand("--segmenter", "agent.segmenter", default="learned_rgb"),
+                                  fixed("env.normalize_depth", "false"))),   # the recording's depth is metres
     "export-sequence": Command("calnav.eval.sequence.export", "main_export_sequence", "export_sequence_configs",
                                checks=("run",),   # segments nothing; its --scene is loaded first
                                sections=CALIBRATION_SECTIONS,

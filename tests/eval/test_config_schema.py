@@ -28,6 +28,7 @@ def _argv(command: str, tmp_path) -> list[str]:
         "train-predictor": ["train-predictor", "--data", tmp_path, "--output", f"{OUT}/p.pt"],
         "fit-glfs": ["fit-glfs", "--segmenter", "gt", "--output", f"{OUT}/g.json", "--work-dir", OUT],
         "map": ["map", tmp_path, "--layout", "scannet", "--segmenter", "gt", "--output", OUT],
+        "replay": ["replay", tmp_path / "x.bag", "--goal", "chair", "--output", OUT],
     }.get(command, [command, "--output", OUT])]
 
 
@@ -127,6 +128,8 @@ def _conflicts() -> list[tuple[str, str, str, list[str], str]]:
         ("export-sequence", "--resolution", "env.resolution", ["--resolution", "64x48"], "env.resolution=32x24"),
         ("export-sequence", "--frames", "scan.frames", ["--frames", "3"], "scan.frames=2"),
         ("demo", "--output", "run.output_dir", [], "run.output_dir=elsewhere"),   # _argv gives --output
+        ("replay", "--segmenter", "agent.segmenter", ["--segmenter", "gt"], "agent.segmenter=noisy"),
+        ("replay", "", "env.normalize_depth", [], "env.normalize_depth=true"),
     ]
     cases += [("calibrate-map", "--quick", key, ["--quick"], f"{key}={value + 1}") for key, value in QUICK_PRESET]
     return cases

@@ -124,6 +124,7 @@ def _argv(command: str, tmp_path) -> list[str]:
     out = str(tmp_path / "out")
     return {
         "map": ["map", str(tmp_path), "--layout", "scannet", "--segmenter", "gt", "--output", out],
+        "replay": ["replay", str(tmp_path / "x.bag"), "--goal", "chair", "--output", out],
         "fit-glfs": ["fit-glfs", "--segmenter", "gt", "--output", str(tmp_path / "g.json")],
         "train-segmenter": ["train-segmenter", "--model", "learned_rgb"],
         "eval-segmenter": ["eval-segmenter", "--model", "gt"],

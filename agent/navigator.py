@@ -1,0 +1,284 @@
+"""The ObjectNav agent as a library: ``Navigator``, the one entry point a robot program imports.
+
+    from calnav.eval.config import load_config
+    from calnav.agent.navigator import Navigator
+
+    nav = Navigator(load_config("configs/objectnav.yaml", ["agent.segmenter=learned_rgb"]))
+    nav.reset("chair")
+    while True:
+        decision = nav.act(rgb, depth, pose=camera_pose)   # or gps=..., compass=...
+        if decision.action == Action.STOP:
+            break
+        robot.do(decision.action)   # or drive to decision.short_term_goal / long_term_goal
+
+The agent is the one ``calnav objectnav`` runs: ``agent.registry.build_agent(cfg.run.agent,
+cfg)`` builds it from the same config (sections env, mapping, run, agent, segmenter: the keys of
+``configs/objectnav.yaml``) and every decision is its ``reset(obs)`` / ``act(obs)`` on a Habitat
+observation, the calls ``eval.rollout`` makes for each episode. The Navigator only builds that
+observation from the robot's inputs (the goal's id, gps and compass from a pose) and reads the
+agent's step back in metres (``Decision``); the map is read and saved with ``map`` / ``save_map``
+(``agent.navigator_map.AgentMap``).
+
+Inputs of ``act`` (shapes, units): ``rgb`` (H, W, 3) uint8; ``depth`` (H, W) or (H, W, 1)
+float32 at the same size, metres (0 = invalid), or Habitat's normalised [0, 1] depth when
+``env.normalize_depth`` is true; (H, W) must be ``env.resolution`` and the camera a pinhole of
+``env.hfov_deg`` with its principal point at the image centre, level (no pitch, no roll), at
+``env.camera_height_m`` above the floor -- the agent's sensor model (``agent.sensors``).
+
+The pose, one of:
+
+- ``gps`` (2,) (forward, right) metres and ``compass`` (1,) radians, counter-clockwise: Habitat's
+  EpisodicGPS / EpisodicCompass sensors, relative to the episode's first step;
+- ``pose``: a (4, 4) world-from-camera transform (OpenCV camera axes: x right, y down, z
+  forward; any fixed world frame with +z up, e.g. a ROS ``map`` / ``odom`` frame), or (3,)
+  (x, y, yaw) of the camera in such a frame (metres; yaw radians counter-clockwise from +x).
+  It is turned into gps / compass relative to the pose given at the first ``act`` after
+  ``reset`` (``StartFrame``, Habitat's own computation, ``envs.task.xy_yaw_to_gps_compass``).
+  A (4, 4) pose tilted more than ``LEVEL_TOLERANCE_DEG`` from level is refused.
+
+Outputs are in the episode-start frame (``envs.task``): origin at the camera's position at the
+first step, on the floor; +x forward at that step, +y to its left, +z up; metres.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from calnav.agent.navigator_map import AgentMap
+from calnav.envs.task import (COMPASS, DEPTH, GPS, OBJECTGOAL, RGB, SEMANTIC, Action, gps_compass_to_xy_yaw,
+                              xy_yaw_to_gps_compass, yaw_to_habitat_quaternion)
+
+# The agent maps with a level camera: a floor point 5 m away (env.max_depth_m's default) seen by a
+# camera tilted 2 degrees lands 0.17 m off the floor, still under agent.obstacle_min_height_m
+# (0.25 m); tilted more, far floor would become obstacles.
+LEVEL_TOLERANCE_DEG = 2.0
+
+
+def planar_pose(pose: Any) -> tuple[np.ndarray, float]:
+    """(x, y) (2,) float64 metres and yaw (rad, counter-clockwise from +x) of a camera ``pose``:
+    a (4, 4) world-from-camera transform (OpenCV camera axes, world +z up) or (3,) (x, y, yaw).
+    ValueError (one line) for another shape, a non-finite value or a camera tilted more than
+    ``LEVEL_TOLERANCE_DEG`` (pitch: the optical axis out of the horizontal; roll: the image's x
+    axis out of it)."""
+    p = np.asarray(pose, np.float64)
+    if p.shape not in ((3,), (4, 4)):
+        raise ValueError(f"pose must be a (4, 4) world-from-camera transform or (x, y, yaw); got shape {p.shape}")
+    if not np.isfinite(p).all():
+        raise ValueError(f"pose is not finite: {p.tolist()}")
+    if p.shape == (3,):
+        return p[:2].copy(), float(p[2])
+    forward, right = p[:3, 2], p[:3, 0]
+    pitch = math.degrees(math.asin(float(np.clip(forward[2] / max(np.linalg.norm(forward), 1e-12), -1, 1))))
+    roll = math.degrees(math.asin(float(np.clip(right[2] / max(np.linalg.norm(right), 1e-12), -1, 1))))
+    if max(abs(pitch), abs(roll)) > LEVEL_TOLERANCE_DEG:
+        raise ValueError(f"the camera is pitched {pitch:.1f} and rolled {roll:.1f} degrees from level (at most "
+                         f"{LEVEL_TOLERANCE_DEG:g}): the agent maps with a level camera at env.camera_height_m; give "
+                         "a pose whose +z is up, or the level pose (x, y, yaw)")
+    return p[:2, 3].copy(), math.atan2(forward[1], forward[0])
+
+
+@dataclass(frozen=True)
+class StartFrame:
+    """The episode-start frame of a first pose: ``xy`` (2,) metres and ``yaw`` rad in the
+    world frame. ``gps_compass`` gives Habitat's sensors of a later pose relative to it."""
+
+    xy: np.ndarray
+    yaw: float
+
+    def gps_compass(self, xy: np.ndarray, yaw: float) -> tuple[np.ndarray, np.ndarray]:
+        """gps (2,) float32 (forward, right) metres and compass (1,) float32 rad of a camera at
+        world ``xy`` heading ``yaw``: the env's and habitat-lab's computation (``envs.task``)."""
+        return xy_yaw_to_gps_compass(xy, yaw, self.xy, yaw_to_habitat_quaternion(self.yaw))
+
+    def world(self, point) -> tuple[float, float]:
+        """The world (x, y) metres of a start-frame ``point`` (x forward, y left at the start;
+        a ``Decision``'s goals and position), e.g. to send a waypoint in the pose's frame."""
+        c, s = math.cos(self.yaw), math.sin(self.yaw)
+        x, y = float(point[0]), float(point[1])
+        return float(self.xy[0] + c * x - s * y), float(self.xy[1] + s * x + c * y)
+
+
+@dataclass(frozen=True)
+class GoalSighting:
+    """The goal component the agent heads for on its map: ``accepted`` (it passed
+    ``agent.goal_threshold``; False: a candidate in [agent.uncertain_low, goal_threshold) it
+    goes to verify), its highest map confidence ``peak`` in [0, 1], ``area_m2`` and its centre
+    (x, y) metres."""
+
+    accepted: bool
+    peak: float
+    area_m2: float
+    centre: tuple[float, float]
+
+
+@dataclass(frozen=True)
+class Decision:
+    """One step of the agent. ``action``: Habitat's discrete action (``envs.task.Action``: STOP,
+    MOVE_FORWARD, TURN_LEFT, TURN_RIGHT); ``mode``: why ('spin': the opening turn, 'explore',
+    'goal': heading for a detected goal, 'verify', 'untrap': escaping, 'stop': the step limit);
+    ``step``: 1 at the first ``act`` after ``reset``. In the episode-start frame (module
+    docstring), metres: ``position`` (x, y) and ``yaw`` (rad) of the agent as it read them;
+    ``long_term_goal`` (x, y): the frontier / predicted goal it explores toward, or the goal
+    cell nearest it when heading for a detection (None when it has none); ``short_term_goal``
+    (x, y): the point its planner steers to now, ``agent.ring_cells`` away (None when it turns
+    in place); ``goal``: the goal component it heads for, or None."""
+
+    action: Action
+    mode: str
+    step: int
+    position: tuple[float, float]
+    yaw: float
+    long_term_goal: tuple[float, float] | None
+    short_term_goal: tuple[float, float] | None
+    goal: GoalSighting | None
+
+
+class Navigator:
+    """The agent of ``cfg`` (an ``eval.config.Config`` with the sections env, mapping, run, agent,
+    segmenter: ``eval.config.load_config(path, overrides)``) as a library (module docstring).
+    ``reset(goal)`` starts a search; ``act(rgb, depth, pose=... | gps=..., compass=...)`` returns
+    a ``Decision``; ``map()`` / ``save_map(path)`` read and save the map at any time."""
+
+    def __init__(self, cfg: Any):
+        from calnav.agent.registry import build_agent
+
+        self.cfg = cfg
+        self.agent = build_agent(cfg.run.agent, cfg)   # as calnav objectnav's workers build it
+        if not hasattr(self.agent, "state"):
+            raise ValueError(f"agent {cfg.run.agent!r} keeps no map for a Navigator to read; use run.agent=peanut")
+        self._goal_id: int | None = None
+        self._start: StartFrame | None = None
+        self._started = False
+
+    @property
+    def goal(self) -> str | None:
+        """The goal category searched since the last ``reset`` (None before one)."""
+        return None if self._goal_id is None else self.agent.goal_categories[self._goal_id]
+
+    @property
+    def needs_semantic(self) -> bool:
+        """Whether ``act`` needs ``semantic=``: the segmenter reads a simulator's semantic sensor
+        (``gt``, ``noisy``)."""
+        return bool(self.agent.perception.segmenter.needs_semantic)
+
+    @property
+    def goal_names(self) -> tuple[str, ...]:
+        """The goal categories ``reset`` accepts: calnav's ObjectNav goals that the segmenter sees."""
+        return self.agent.goal_names()
+
+    def goal_id(self, goal: str | int) -> int:
+        """The task's ``objectgoal`` id of ``goal`` (a name of ``goal_names``, or its id in
+        ``agent.segmenters.base.goal_categories()``); ValueError naming the valid goals."""
+        names, categories = self.goal_names, self.agent.goal_categories
+        if isinstance(goal, (int, np.integer)) and not isinstance(goal, (bool, np.bool_)):
+            if 0 <= int(goal) < len(categories) and categories[int(goal)] in names:
+                return int(goal)
+        elif isinstance(goal, str) and goal in names:
+            return categories.index(goal)
+        valid = ", ".join(f"{n} ({categories.index(n)})" for n in names)
+        raise ValueError(f"unknown goal {goal!r}; valid: {valid}")
+
+    def reset(self, goal: str | int) -> None:
+        """Start a new search for ``goal`` (name or id): the next ``act`` is the episode's first
+        step (its pose defines the start frame; the map starts empty)."""
+        self._goal_id = self.goal_id(goal)
+        self._start, self._started = None, False
+
+    def act(self, rgb: np.ndarray, depth: np.ndarray, *, gps=None, compass=None, pose=None,
+            semantic: np.ndarray | None = None) -> Decision:
+        """The agent's step on one frame (module docstring for the inputs). ``semantic``: (H, W)
+        int class ids, -1 void, for the ``gt`` / ``noisy`` segmenters (a simulator's semantic
+        sensor). The first call after ``reset`` resets the agent on this observation."""
+        if self._goal_id is None:
+            raise ValueError("call reset(goal) before act()")
+        gps, compass = self._gps_compass(gps, compass, pose)
+        rgb, depth = np.asarray(rgb), np.asarray(depth)
+        if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
+            raise ValueError(f"rgb must be (H, W, 3) uint8; got {rgb.dtype} of shape {rgb.shape}")
+        if depth.shape[:2] != rgb.shape[:2] or depth.ndim not in (2, 3) or depth.shape[2:] not in ((), (1,)):
+            raise ValueError(f"depth must be (H, W) or (H, W, 1) at the rgb's size {rgb.shape[1]}x{rgb.shape[0]}; "
+                             f"got shape {depth.shape}")
+        obs = {RGB: rgb, DEPTH: depth, GPS: gps, COMPASS: compass, OBJECTGOAL: np.array([self._goal_id], np.int64)}
+        if semantic is not None:
+            obs[SEMANTIC] = semantic
+        if not self._started:   # as eval.rollout: reset on the first observation, then act on it
+            self.agent.reset(obs)
+            self._started = True
+        action = self.agent.act(obs)
+        return self._decision(action, obs)
+
+    def _gps_compass(self, gps, compass, pose) -> tuple[np.ndarray, np.ndarray]:
+        if pose is not None:
+            if gps is not None or compass is not None:
+                raise ValueError("give either pose or gps and compass, not both")
+            xy, yaw = planar_pose(pose)
+            if self._start is None:
+                self._start = StartFrame(xy, yaw)
+            return self._start.gps_compass(xy, yaw)
+        if gps is None or compass is None:
+            raise ValueError("act() needs the agent's pose: pose=(4, 4) or (x, y, yaw), or gps=(2,) and compass=(1,)")
+        gps, compass = np.asarray(gps, np.float32), np.asarray(compass, np.float32).reshape(1)
+        if gps.shape != (2,) or not np.isfinite(gps).all() or not np.isfinite(compass).all():
+            raise ValueError(f"gps must be 2 finite numbers (forward, right) and compass one; got {gps.tolist()}, "
+                             f"{compass.tolist()}")
+        return gps, compass
+
+    # ------------------------------------------------------------------ reading the step
+    def _decision(self, action: int, obs: dict) -> Decision:
+        agent, cell_m = self.agent, self.agent.cfg.cell_m
+        xy, yaw = gps_compass_to_xy_yaw(obs[GPS], obs[COMPASS])
+        info, state = agent.info, agent.state
+        ltg = stg = goal = None
+        if info is not None:
+            # the step's cells are in its planning window's coordinates, or the map's without one
+            off = (info.window[0].start, info.window[1].start) if info.window is not None else (0, 0)
+
+            def point(rc) -> tuple[float, float]:
+                x, y = state.to_world(rc[0] + off[0], rc[1] + off[1], cell_m)
+                return float(x), float(y)
+
+            ltg = point(info.long_term_goal) if info.long_term_goal is not None else None
+            if info.plan is not None and info.plan.short_term_goal is not None:
+                stg = point(info.plan.short_term_goal)
+            det = info.detection
+            if det is not None and det.area > 0:
+                centre = point(np.argwhere(det.mask).mean(axis=0))
+                goal = GoalSighting(info.mode != "verify", float(det.peak), det.area * cell_m ** 2, centre)
+        mode = info.mode if info is not None else ""
+        return Decision(Action(int(action)), mode, int(agent.steps), (float(xy[0]), float(xy[1])), float(yaw),
+                        ltg, stg, goal)
+
+    @property
+    def start_frame(self) -> StartFrame | None:
+        """The episode-start frame in the world of the poses given to ``act`` (None before the
+        first ``act`` after ``reset``, or when the pose is given as gps / compass)."""
+        return self._start
+
+    @property
+    def frame(self):
+        """The last frame the agent mapped (``mapping.frame.SegmentedFrame`` at
+        ``agent.map_resolution``: depth (h, w) m, logits (h, w, K), rgb), or None."""
+        return self.agent.frame
+
+    @property
+    def class_names(self) -> tuple[str, ...]:
+        """The map's classes (the segmenter's), K."""
+        return tuple(self.agent.class_names)
+
+    # ------------------------------------------------------------------ the map
+    def map(self) -> AgentMap:
+        """A copy of the explored part of the 2D map and of the 3D voxel map
+        (``agent.navigator_map.AgentMap``); ValueError before the first ``act``."""
+        if not self._started or self.agent.state is None:
+            raise ValueError("the agent has no map yet: call reset(goal) and act() first")
+        agent = self.agent
+        return AgentMap.of_state(agent.state, agent.cfg.cell_m, agent.class_names, self.cfg.mapping.voxel_size_m,
+                                 agent.goal_name, agent.steps, agent.cfg.map_type)
+
+    def save_map(self, path: str | Path) -> Path:
+        """``map()`` written to ``path`` (``AgentMap.save``: a ``calnav map`` map file plus the 2D map)."""
+        return self.map().save(path)
