@@ -195,7 +195,10 @@ def load_study(path: str | Path, extra: list[str] = ()) -> tuple[StudyConfig, li
     is not known yet); the preflight gets one tuning config per row, as the grid's points differ
     only in keys that name no file. ``extra``: overrides of every row from the command line. Raises
     ConfigError (one line) for any bad key, value, row or row config."""
-    study = load_config(path, [], cls=StudyConfig)
+    try:
+        study = load_config(path, [], cls=StudyConfig)
+    except ConfigError as exc:   # a check of the whole study is named by the file, not the class
+        raise ConfigError(f"{path}: {str(exc).removeprefix(f'{StudyConfig.__name__}: ')}") from None
     base = study.config
     configs: list[Config] = []
     for row in study.rows:
