@@ -106,9 +106,10 @@ def paired_markdown(pairs: list[tuple[str, str]], records: dict[str, list[dict]]
     heads = ["Row", "minus"] + [f"d{METRIC_LABELS[m]} (SEM)" for m in PAIRED_METRICS] + \
             ["abs dSuccess / SEM", "Success verdict", "N paired"]
     lines = ["| " + " | ".join(heads) + " |", "|" + "---|" * len(heads)]
-    for a, b in pairs:
-        if a not in records or b not in records:
-            continue
+    ready = [(a, b) for a, b in pairs if a in records and b in records]
+    if not ready:
+        return "None yet: no pair has both rows evaluated."
+    for a, b in ready:
         cells = [a, b]
         first = None
         for m in PAIRED_METRICS:

@@ -67,6 +67,7 @@ def test_page_from_hand_made_records(tmp_path):
     # transfer: the clean-tuned threshold on scanned houses minus the scanned-tuned one: -0.5
     assert transfer_pairs(json.loads(path.read_text())) == [("seg/scanned/glfs@clean", "seg/scanned/glfs")]
     assert "| seg/scanned/glfs@clean | seg/scanned/glfs | -0.500 (0.289) |" in page
+    assert "None yet" not in page
     assert "Not run yet: seg/later." in page and "Tuned, not evaluated yet: seg/tuned (threshold 0.7)." in page and "Skipped: seg/low (band empty)." in page
     # failures: rbu has one false STOP (2 m from the goal) and one episode out of steps (500 of
     # 500) that walked nowhere: stuck
@@ -77,6 +78,13 @@ def test_page_from_hand_made_records(tmp_path):
     assert main(["report", str(path), "--output", str(out)]) == 0
     assert (out / "results.md").read_text() == page
     assert (out / "threshold_curves.png").stat().st_size > 0
+
+
+def test_a_study_with_one_row_says_no_pair_is_ready(tmp_path):
+    entries = {"a": {"overrides": ["x=1"], "threshold_from": "", "threshold": 0.5},
+               "b": {"overrides": ["x=2"], "threshold_from": "", "status": "pending"}}
+    page = render(_study(tmp_path, {"a": [_rec(0, 1, 0.5), _rec(1, 0, 0.0)]}, entries, [["b", "a"]]))
+    assert "None yet: no pair has both rows evaluated." in page and "Not run yet: b." in page
 
 
 def test_missing_manifest_or_records_is_one_line(tmp_path, capsys):
@@ -98,3 +106,13 @@ def test_failure_kinds():
     assert failure_kind({**ok, "distance_to_goal": 4.0, "steps": 500, "path_length": 31.0}, 500, 0.25) == "stuck"
     assert failure_kind({"status": "error", "error": "boom"}, 500, 0.25) == "crashed"
     assert failure_kind({**ok, "distance_to_goal": float("nan")}, 500, 0.25) == "crashed"   # a non-finite metric
+
+
+def test_committed_results_page_is_what_report_renders():
+    """docs/objectnav_study/study/results.md is `calnav report`'s rendering of the committed
+    manifest and records, byte for byte: no number on the page is typed by hand."""
+    from pathlib import Path
+
+    study = Path(__file__).resolve().parents[3] / "docs" / "objectnav_study" / "study"
+    assert (study / "manifest.json").is_file() and (study / "results.md").is_file()
+    assert (study / "results.md").read_text(encoding="utf-8") == render(study / "manifest.json")
