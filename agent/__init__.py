@@ -17,7 +17,7 @@ per stage, one file per stage:
 | collisions | ``collision.py`` | blocked-move detection, obstacle marks ahead, the escape (every heading in turn until one moves; started by blocks or by the watchdog) |
 | watchdog | ``watchdog.py`` | no progress, going round in circles |
 | policy | ``policy.py`` | ``PeanutAgent``: reset / act composing the stages, forced STOP at the step limit |
-| library | ``navigator.py``, ``navigator_map.py`` | ``Navigator``: the agent as a library (goal by name, pose -> gps / compass, decisions and maps in metres); ``AgentMap``: its map, read and saved |
+| library | ``navigator.py``, ``navigator_map.py`` | ``Navigator``: the agent as a library and as every command runs it (goal by name, pose -> gps / compass, decisions and maps in metres; ``EpisodeAgent``: it in the episode loop); ``AgentMap``: its map, read and saved |
 | oracle | ``oracle.py`` | ``OracleAgent``: the shortest-path follower through the env's privileged handle |
 | visualisation | ``visualize.py`` | per-step panel (RGB, segmentation, top-down map) and episode video |
 """

@@ -1,18 +1,18 @@
 """calnav's agents as ``habitat.Agent`` s, for habitat-lab's ``habitat.Benchmark`` /
 ``habitat.Env`` -- on calnav houses (``CalnavSim-v0``) or on habitat-sim with HM3D.
 
-``HabitatAgent(agent)`` wraps any agent of ``agent.registry.AGENTS`` (``agent.contract.Agent``;
-``calnav habitat-benchmark`` builds it with ``agent.registry.build_agent``, as ``calnav
-objectnav`` does). ``HabitatPeanutAgent(cfg)`` is the PEANUT-like agent so wrapped: cfg is
+``HabitatAgent(navigator)`` wraps the agent as a library (``agent.navigator.Navigator``, of any
+agent of ``agent.registry.AGENTS``; ``calnav habitat-benchmark`` builds it as ``calnav objectnav``
+does). ``HabitatPeanutAgent(cfg)`` is the PEANUT-like agent so wrapped: cfg is
 calnav's ``Config`` (``agent.*``: segmenter, map type, fusion + GLFS parameters in
 ``mapping.*``, thresholds -- as ``calnav objectnav``) whose ``env`` section states the task's
 sensor facts; build it from the habitat config with
 ``envs.habitat_config.env_config_from_habitat(habitat_cfg, cfg.env)`` (which needs no
 simulator). What crosses the boundary, and how:
 
-- ``reset()`` takes no observations in habitat-lab; a calnav agent's ``reset(obs)`` needs the
-  first ones (``PeanutAgent``: goal category, start pose), so it is deferred to the first ``act``
-  (the oracle's then starts on the episode's scene);
+- ``reset()`` takes no observations in habitat-lab: it is the Navigator's ``reset()``, which
+  takes the goal category and the start pose from the first observations (the oracle then
+  starts on the episode's scene);
 - observations are passed through: the agent reads Habitat's keys (``envs.task.HABITAT_KEYS``:
   rgb (H, W, 3) uint8, depth (H, W, 1), gps (2,), compass (1,), objectgoal (1,)); only
   ``semantic`` (for the gt / noisy segmenters) changes shape, habitat's (H, W, 1) -> (H, W);
@@ -31,8 +31,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from calnav.agent.contract import Agent
-from calnav.agent.policy import PeanutAgent
+from calnav.agent.navigator import Navigator
 from calnav.common.habitat_import import import_habitat
 from calnav.envs.task import HABITAT_KEYS, SEMANTIC, Action
 
@@ -56,28 +55,28 @@ def from_habitat_observations(observations) -> dict:
 
 
 class HabitatAgent(habitat.Agent):
-    """A calnav agent (``agent.contract.Agent``) behind habitat-lab's ``Agent`` interface (see
-    the module docstring); ``agent`` is the wrapped one."""
+    """A ``Navigator`` behind habitat-lab's ``Agent`` interface (see the module docstring);
+    ``navigator`` is the wrapped one, ``agent`` its registry agent."""
 
-    def __init__(self, agent: Agent):
-        self.agent = agent
-        self._needs_reset = True
+    def __init__(self, navigator: Navigator):
+        self.navigator = navigator
+        self.navigator.reset()
+
+    @property
+    def agent(self):
+        return self.navigator.agent
 
     def reset(self) -> None:
-        """Start a new episode; the agent's own reset waits for the first observations."""
-        self._needs_reset = True
+        """Start a new episode: goal and start pose come with the first observations."""
+        self.navigator.reset()
 
     def act(self, observations) -> dict:
         """habitat-lab's action dict ``{"action": name}`` for these observations."""
-        obs = from_habitat_observations(observations)
-        if self._needs_reset:
-            self.agent.reset(obs)
-            self._needs_reset = False
-        return {"action": habitat_action(self.agent.act(obs))}
+        return {"action": habitat_action(self.navigator.observe(from_habitat_observations(observations)).action)}
 
 
 class HabitatPeanutAgent(HabitatAgent):
-    """``PeanutAgent(cfg, device)`` as a ``habitat.Agent``."""
+    """The PEANUT-like agent of ``cfg`` (``run.agent=peanut`` on ``run.device``) as a ``habitat.Agent``."""
 
-    def __init__(self, cfg, device: str = "cpu"):
-        super().__init__(PeanutAgent(cfg, device))
+    def __init__(self, cfg):
+        super().__init__(Navigator(cfg, agent="peanut"))

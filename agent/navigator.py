@@ -11,13 +11,16 @@
             break
         robot.do(decision.action)   # or drive to decision.short_term_goal / long_term_goal
 
-The agent is the one ``calnav objectnav`` runs: ``agent.registry.build_agent(cfg.run.agent,
-cfg)`` builds it from the same config (sections env, mapping, run, agent, segmenter: the keys of
-``configs/objectnav.yaml``) and every decision is its ``reset(obs)`` / ``act(obs)`` on a Habitat
-observation, the calls ``eval.rollout`` makes for each episode. The Navigator only builds that
-observation from the robot's inputs (the goal's id, gps and compass from a pose) and reads the
-agent's step back in metres (``Decision``); the map is read and saved with ``map`` / ``save_map``
-(``agent.navigator_map.AgentMap``).
+The Navigator is how every calnav command runs the agent: ``calnav objectnav`` (its workers
+drive a Navigator through the episode loop, ``eval.rollout``, as an ``EpisodeAgent``),
+``calnav habitat-benchmark`` (``agent.habitat_agent.HabitatAgent`` wraps one), ``calnav
+view-episode``, ``calnav collect-maps`` and ``calnav replay``. It builds the agent of
+``cfg.run.agent`` with ``agent.registry.build_agent`` from the same config (sections env, mapping,
+run, agent, segmenter: the keys of ``configs/objectnav.yaml``); every step is ``observe(obs)`` on a
+Habitat observation (rgb, depth, gps, compass, objectgoal; ``semantic`` and the privileged keys
+when an env gives them), which ``act`` builds from a robot's inputs (the goal's id, gps and
+compass from a pose). It reads the agent's step back in metres (``Decision``); the map is read and
+saved with ``map`` / ``save_map`` (``agent.navigator_map.AgentMap``).
 
 Inputs of ``act`` (shapes, units): ``rgb`` (H, W, 3) uint8; ``depth`` (H, W) or (H, W, 1)
 float32 at the same size, metres (0 = invalid), or Habitat's normalised [0, 1] depth when
@@ -44,11 +47,12 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Mapping
 
 import numpy as np
 
 from calnav.agent.navigator_map import AgentMap
+from calnav.agent.segmenters.base import goal_categories
 from calnav.envs.task import (COMPASS, DEPTH, GPS, OBJECTGOAL, RGB, SEMANTIC, Action, gps_compass_to_xy_yaw,
                               xy_yaw_to_gps_compass, yaw_to_habitat_quaternion)
 
@@ -141,39 +145,44 @@ class Navigator:
     """The agent of ``cfg`` (an ``eval.config.Config`` with the sections env, mapping, run, agent,
     segmenter: ``eval.config.load_config(path, overrides)``) as a library (module docstring).
     ``reset(goal)`` starts a search; ``act(rgb, depth, pose=... | gps=..., compass=...)`` returns
-    a ``Decision``; ``map()`` / ``save_map(path)`` read and save the map at any time."""
+    a ``Decision``; ``map()`` / ``save_map(path)`` read and save the map at any time. ``agent``:
+    the ``run.agent`` name (default ``cfg.run.agent``); ``simulator``: an env's privileged handle
+    (``envs.task.SimulatorHandle``), for an agent that declares it (the oracle)."""
 
-    def __init__(self, cfg: Any):
+    def __init__(self, cfg: Any, *, agent: str | None = None, simulator=None):
         from calnav.agent.registry import build_agent
 
         self.cfg = cfg
-        self.agent = build_agent(cfg.run.agent, cfg)   # as calnav objectnav's workers build it
-        if not hasattr(self.agent, "state"):
-            raise ValueError(f"agent {cfg.run.agent!r} keeps no map for a Navigator to read; use run.agent=peanut")
-        self._goal_id: int | None = None
+        self.agent_name = agent or cfg.run.agent
+        self.agent = build_agent(self.agent_name, cfg, simulator=simulator)
+        self.goal_categories = goal_categories()   # what objectgoal ids index (the task's contract)
+        self._goal_id: int | None = None           # reset's goal; None: the first observation's
         self._start: StartFrame | None = None
-        self._started = False
+        self._reset = self._started = False
+        self._steps = 0
 
     @property
     def goal(self) -> str | None:
-        """The goal category searched since the last ``reset`` (None before one)."""
-        return None if self._goal_id is None else self.agent.goal_categories[self._goal_id]
+        """The goal category searched since the last ``reset`` (None before one, or before the
+        first observation when ``reset`` left it to the observations)."""
+        return None if self._goal_id is None else self.goal_categories[self._goal_id]
 
     @property
     def needs_semantic(self) -> bool:
         """Whether ``act`` needs ``semantic=``: the segmenter reads a simulator's semantic sensor
         (``gt``, ``noisy``)."""
-        return bool(self.agent.perception.segmenter.needs_semantic)
+        perception = getattr(self.agent, "perception", None)   # the oracle perceives nothing
+        return bool(perception is not None and perception.segmenter.needs_semantic)
 
     @property
     def goal_names(self) -> tuple[str, ...]:
-        """The goal categories ``reset`` accepts: calnav's ObjectNav goals that the segmenter sees."""
+        """The goal categories ``reset`` accepts: calnav's ObjectNav goals that the agent can find."""
         return self.agent.goal_names()
 
     def goal_id(self, goal: str | int) -> int:
         """The task's ``objectgoal`` id of ``goal`` (a name of ``goal_names``, or its id in
         ``agent.segmenters.base.goal_categories()``); ValueError naming the valid goals."""
-        names, categories = self.goal_names, self.agent.goal_categories
+        names, categories = self.goal_names, self.goal_categories
         if isinstance(goal, (int, np.integer)) and not isinstance(goal, (bool, np.bool_)):
             if 0 <= int(goal) < len(categories) and categories[int(goal)] in names:
                 return int(goal)
@@ -182,33 +191,55 @@ class Navigator:
         valid = ", ".join(f"{n} ({categories.index(n)})" for n in names)
         raise ValueError(f"unknown goal {goal!r}; valid: {valid}")
 
-    def reset(self, goal: str | int) -> None:
-        """Start a new search for ``goal`` (name or id): the next ``act`` is the episode's first
-        step (its pose defines the start frame; the map starts empty)."""
-        self._goal_id = self.goal_id(goal)
-        self._start, self._started = None, False
+    def reset(self, goal: str | int | None = None) -> None:
+        """Start a new search for ``goal`` (name or id; None: the ``objectgoal`` of the first
+        observation, Habitat's way): the next ``act`` / ``observe`` is the episode's first step
+        (its pose defines the start frame; the map starts empty)."""
+        self._goal_id = None if goal is None else self.goal_id(goal)
+        self._start, self._reset, self._started, self._steps = None, True, False, 0
 
     def act(self, rgb: np.ndarray, depth: np.ndarray, *, gps=None, compass=None, pose=None,
             semantic: np.ndarray | None = None) -> Decision:
         """The agent's step on one frame (module docstring for the inputs). ``semantic``: (H, W)
         int class ids, -1 void, for the ``gt`` / ``noisy`` segmenters (a simulator's semantic
-        sensor). The first call after ``reset`` resets the agent on this observation."""
+        sensor). The Habitat observation these make goes to ``observe``."""
         if self._goal_id is None:
             raise ValueError("call reset(goal) before act()")
         gps, compass = self._gps_compass(gps, compass, pose)
-        rgb, depth = np.asarray(rgb), np.asarray(depth)
+        obs = {RGB: rgb, DEPTH: depth, GPS: gps, COMPASS: compass, OBJECTGOAL: np.array([self._goal_id], np.int64)}
+        if semantic is not None:
+            obs[SEMANTIC] = semantic
+        return self.observe(obs)
+
+    def begin(self, obs: Mapping) -> None:
+        """Start the episode on its first observation now (``observe`` does it on the first call
+        after ``reset``): the agent resets on it, as the episode loop resets an agent."""
+        if not self._reset:
+            raise ValueError("call reset() before the episode's first observation")
+        goal = int(np.asarray(obs[OBJECTGOAL]).reshape(-1)[0]) if OBJECTGOAL in obs else self._goal_id
+        if goal is None:
+            raise ValueError("no goal: give reset(goal) or an observation with objectgoal")
+        if self._goal_id is not None and goal != self._goal_id:
+            raise ValueError(f"the observation's objectgoal {goal} is not reset's goal {self._goal_id}")
+        self._goal_id = self.goal_id(goal)
+        self.agent.reset(obs if OBJECTGOAL in obs else {**obs, OBJECTGOAL: np.array([goal], np.int64)})
+        self._started = True
+
+    def observe(self, obs: Mapping) -> Decision:
+        """The agent's step on a Habitat observation ``obs`` (``envs.task.HABITAT_KEYS``: rgb (H, W, 3)
+        uint8, depth (H, W, 1) or (H, W), gps (2,), compass (1,), objectgoal (1,); ``semantic`` and
+        the privileged keys an env adds go to the parts that declare them, ``agent.contract``).
+        The first call after ``reset`` starts the episode on it (``begin``)."""
+        rgb, depth = np.asarray(obs[RGB]), np.asarray(obs[DEPTH])
         if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
             raise ValueError(f"rgb must be (H, W, 3) uint8; got {rgb.dtype} of shape {rgb.shape}")
         if depth.shape[:2] != rgb.shape[:2] or depth.ndim not in (2, 3) or depth.shape[2:] not in ((), (1,)):
             raise ValueError(f"depth must be (H, W) or (H, W, 1) at the rgb's size {rgb.shape[1]}x{rgb.shape[0]}; "
                              f"got shape {depth.shape}")
-        obs = {RGB: rgb, DEPTH: depth, GPS: gps, COMPASS: compass, OBJECTGOAL: np.array([self._goal_id], np.int64)}
-        if semantic is not None:
-            obs[SEMANTIC] = semantic
-        if not self._started:   # as eval.rollout: reset on the first observation, then act on it
-            self.agent.reset(obs)
-            self._started = True
+        if not self._started:
+            self.begin(obs)
         action = self.agent.act(obs)
+        self._steps += 1
         return self._decision(action, obs)
 
     def _gps_compass(self, gps, compass, pose) -> tuple[np.ndarray, np.ndarray]:
@@ -229,11 +260,11 @@ class Navigator:
 
     # ------------------------------------------------------------------ reading the step
     def _decision(self, action: int, obs: dict) -> Decision:
-        agent, cell_m = self.agent, self.agent.cfg.cell_m
         xy, yaw = gps_compass_to_xy_yaw(obs[GPS], obs[COMPASS])
-        info, state = agent.info, agent.state
+        info = getattr(self.agent, "info", None)   # a map-less agent (the oracle) tells only its action
         ltg = stg = goal = None
         if info is not None:
+            state, cell_m = self.agent.state, self.agent.cfg.cell_m
             # the step's cells are in its planning window's coordinates, or the map's without one
             off = (info.window[0].start, info.window[1].start) if info.window is not None else (0, 0)
 
@@ -249,7 +280,7 @@ class Navigator:
                 centre = point(np.argwhere(det.mask).mean(axis=0))
                 goal = GoalSighting(info.mode != "verify", float(det.peak), det.area * cell_m ** 2, centre)
         mode = info.mode if info is not None else ""
-        return Decision(Action(int(action)), mode, int(agent.steps), (float(xy[0]), float(xy[1])), float(yaw),
+        return Decision(Action(int(action)), mode, self._steps, (float(xy[0]), float(xy[1])), float(yaw),
                         ltg, stg, goal)
 
     @property
@@ -262,17 +293,19 @@ class Navigator:
     def frame(self):
         """The last frame the agent mapped (``mapping.frame.SegmentedFrame`` at
         ``agent.map_resolution``: depth (h, w) m, logits (h, w, K), rgb), or None."""
-        return self.agent.frame
+        return getattr(self.agent, "frame", None)
 
     @property
     def class_names(self) -> tuple[str, ...]:
-        """The map's classes (the segmenter's), K."""
-        return tuple(self.agent.class_names)
+        """The map's classes (the segmenter's), K; none for a map-less agent."""
+        return tuple(getattr(self.agent, "class_names", ()))
 
     # ------------------------------------------------------------------ the map
     def map(self) -> AgentMap:
         """A copy of the explored part of the 2D map and of the 3D voxel map
         (``agent.navigator_map.AgentMap``); ValueError before the first ``act``."""
+        if not hasattr(self.agent, "state"):
+            raise ValueError(f"agent {self.agent_name!r} keeps no map; run.agent=peanut does")
         if not self._started or self.agent.state is None:
             raise ValueError("the agent has no map yet: call reset(goal) and act() first")
         agent = self.agent
@@ -282,3 +315,26 @@ class Navigator:
     def save_map(self, path: str | Path) -> Path:
         """``map()`` written to ``path`` (``AgentMap.save``: a ``calnav map`` map file plus the 2D map)."""
         return self.map().save(path)
+
+
+class EpisodeAgent:
+    """A Navigator as the episode loop's agent (``agent.contract.Agent``, ``eval.rollout``):
+    ``reset(obs)`` starts a search for ``obs``'s objectgoal on it, ``act(obs)`` is
+    ``navigator.observe(obs).action``. This is how ``calnav objectnav`` runs the agent. The
+    loop's hooks (video, Rerun, map collection) draw the agent's internals (``PeanutAgent``:
+    state, info, frame), so an attribute this class lacks is read from ``navigator.agent``."""
+
+    def __init__(self, navigator: Navigator):
+        self.navigator = navigator
+
+    def reset(self, obs: Mapping) -> None:
+        self.navigator.reset()
+        self.navigator.begin(obs)
+
+    def act(self, obs: Mapping) -> int:
+        return int(self.navigator.observe(obs).action)
+
+    def __getattr__(self, name: str):
+        if name == "navigator":   # not set yet (unpickling): no recursion
+            raise AttributeError(name)
+        return getattr(self.navigator.agent, name)

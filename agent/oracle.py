@@ -27,6 +27,12 @@ class OracleAgent:
         """The registry's builder (``agent.registry.build_agent``); the config sets nothing here."""
         return cls(simulator)
 
+    def goal_names(self) -> tuple[str, ...]:
+        """The goal categories it can be asked for: every ObjectNav goal (it reads the scene)."""
+        from calnav.agent.segmenters.base import goal_categories
+
+        return goal_categories()
+
     def reset(self, obs: Mapping) -> None:
         self.simulator.reset()
         self.steps = 0

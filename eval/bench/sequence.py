@@ -16,7 +16,7 @@ back and fused with the ``gt`` segmenter's logits (default mapping config: avera
 - ``sequence.rosbag_vs_folder``: the same frames as a ROS 2 mcap bag (colour and depth as the
   folder's JPEG / PNG bytes on image_transport's compressed topics, TF poses, labels) read by
   the ``rosbag`` layout: ``calnav map``'s time per frame (opening the recording + the pipeline)
-  over the folder's, the fastest of 3 alternating runs each (target <= 1.2);
+  over the folder's, the fastest of 5 alternating runs each (target <= 1.2);
   ``sequence.rosbag_raw_vs_folder``: a ROS 1 bag of raw rgb8 / 16UC1 images (no JPEG to
   decode); ``sequence.rosbag_read_map_ms_640x480``, ``sequence.folder_read_map_ms_640x480``: the
   per-frame times compared.
@@ -77,7 +77,7 @@ def measure(root: Path, res: str) -> dict[str, float]:
             "sequence.read_map_vs_parts": per_frame / sum(med.values())}
 
 
-def measure_rosbag(root: Path, res: str, repeats: int = 3) -> dict[str, float]:
+def measure_rosbag(root: Path, res: str, repeats: int = 5) -> dict[str, float]:
     """The ``rosbag_*`` figures of the ScanNet-layout sequence at ``root`` (see the module docstring)."""
     from calnav.agent.segmenters import make_segmenter
     from calnav.eval.sequence.map_cmd import map_sequence

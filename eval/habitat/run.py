@@ -84,7 +84,7 @@ def run_habitat_benchmark(cfg, habitat_cfg, indices: list[int], out: Path, force
     from omegaconf import OmegaConf
 
     from calnav.agent.habitat_agent import HabitatAgent, habitat
-    from calnav.agent.registry import build_agent
+    from calnav.agent.navigator import Navigator
     from calnav.envs.episodes import load_split
     from calnav.eval.habitat.recording import EnvBenchmark, RecordingEnv, episode_index
 
@@ -104,7 +104,7 @@ def run_habitat_benchmark(cfg, habitat_cfg, indices: list[int], out: Path, force
             env = habitat.Env(config=habitat_cfg)
             by_index = {index_of[(Path(e.scene_id).name, e.episode_id)]: e for e in env.episodes}
             env.episodes = [by_index[i] for i in todo]
-            agent = HabitatAgent(build_agent(agent_name, cfg, simulator=simulator_handle(env, cfg.env)))
+            agent = HabitatAgent(Navigator(cfg, agent=agent_name, simulator=simulator_handle(env, cfg.env)))
             with records_file:
                 def record(rec: dict) -> None:
                     records_file.append(rec)

@@ -102,10 +102,11 @@ def _make_env(cfg: Config, env_maker: str, env_args: dict, upto: int | None = No
 def _warm_env_agent(cfg_dict: dict, agent_name: str, env_maker: str = "", env_args: dict | None = None,
                     upto: int | None = None):
     """This process's env and agent for a config, built once and reused while tasks keep the
-    same config (a pool or Ray worker stays warm, as an episode loop would). The agent comes
-    from the agent registry (``agent.registry.build_agent``), handed the env's privileged
-    ``simulator_handle`` only if its class declares it (the oracle)."""
-    from calnav.agent.registry import build_agent
+    same config (a pool or Ray worker stays warm, as an episode loop would). The agent is the
+    library's ``agent.navigator.Navigator`` (registry agent ``agent_name``, handed the env's
+    privileged ``simulator_handle`` only if its class declares it: the oracle), run by the
+    episode loop as an ``EpisodeAgent``."""
+    from calnav.agent.navigator import EpisodeAgent, Navigator
 
     key = json.dumps([cfg_dict, agent_name, env_maker, env_args or {}, upto], sort_keys=True)
     if _worker_state.get("key") != key:
@@ -114,7 +115,7 @@ def _warm_env_agent(cfg_dict: dict, agent_name: str, env_maker: str = "", env_ar
         _worker_state.clear()
         cfg = build_dataclass(Config, cfg_dict)
         env = _make_env(cfg, env_maker, env_args or {}, upto)
-        agent = build_agent(agent_name, cfg, simulator=env.unwrapped.simulator_handle())
+        agent = EpisodeAgent(Navigator(cfg, agent=agent_name, simulator=env.unwrapped.simulator_handle()))
         _worker_state.update(key=key, env=env, agent=agent)
     return _worker_state["env"], _worker_state["agent"]
 

@@ -53,7 +53,9 @@ class BagOptions:
     depth_frame: str = OPTICAL_FRAME  # the depth images' header.frame_id
 
 
-def _writer(path: Path, storage: str):
+def open_writer(path: Path, storage: str):
+    """A rosbags writer of ``path`` for ``storage`` ("ros1", "sqlite3", "mcap"; not yet opened), its
+    typestore and whether it is ROS 1: what ``BagWriter`` takes."""
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
     if storage == "ros1":
@@ -69,8 +71,9 @@ def _writer(path: Path, storage: str):
     return Writer(path, version=9, storage_plugin=plugin), get_typestore(Stores.ROS2_HUMBLE), False
 
 
-class _Bag:
-    """Message construction and writing for one bag (ROS 1 or ROS 2 types)."""
+class BagWriter:
+    """Message construction and writing for one bag (ROS 1 or ROS 2 types): ``BagWriter(*open_writer(path,
+    storage))`` once the writer is opened; ``write(topic, msgtype, log_ns, msg)``."""
 
     def __init__(self, writer, ts, ros1: bool):
         self.writer, self.ts, self.ros1, self.conns = writer, ts, ros1, {}
@@ -131,7 +134,7 @@ class _Bag:
                                                             covariance=np.zeros(36)))
 
 
-def _mount() -> np.ndarray:
+def mount_matrix() -> np.ndarray:
     """base_link -> optical frame (4, 4): the mounting times the optical rotation."""
     m = np.eye(4)
     m[:3, :3] = Rotation.from_quat(MOUNT[1]).as_matrix()
@@ -150,11 +153,11 @@ def scannet_to_bag(folder, bag, options: BagOptions | None = None) -> Path:
     folder, bag = Path(folder), Path(bag)
     seq = Sequence(folder, "scannet")
     all_ids = sorted(int(p.stem) for p in (folder / "depth").glob("*.png"))
-    writer, ts, ros1 = _writer(bag, opt.storage)
+    writer, ts, ros1 = open_writer(bag, opt.storage)
     writer.open()
-    b = _Bag(writer, ts, ros1)
+    b = BagWriter(writer, ts, ros1)
     period = int(round(opt.period_s * NS))
-    unmount = np.linalg.inv(_mount())   # optical frame -> base_link
+    unmount = np.linalg.inv(mount_matrix())   # optical frame -> base_link
     top = opt.topics
     sem_dir = folder / "semantic"
     try:
@@ -190,7 +193,7 @@ def scannet_to_bag(folder, bag, options: BagOptions | None = None) -> Path:
     return bag
 
 
-def _write_color(b: _Bag, opt: BagOptions, topic: str, stamp: int, log: int, path: Path) -> None:
+def _write_color(b: BagWriter, opt: BagOptions, topic: str, stamp: int, log: int, path: Path) -> None:
     import cv2
 
     if opt.color == "jpeg":
@@ -201,7 +204,7 @@ def _write_color(b: _Bag, opt: BagOptions, topic: str, stamp: int, log: int, pat
         b.write(topic, "sensor_msgs/msg/Image", log, b.image(stamp, OPTICAL_FRAME, "rgb8", rgb))
 
 
-def _write_depth(b: _Bag, opt: BagOptions, topic: str, stamp: int, log: int, path: Path) -> None:
+def _write_depth(b: BagWriter, opt: BagOptions, topic: str, stamp: int, log: int, path: Path) -> None:
     import cv2
 
     if opt.depth == "compressedDepth":   # ConfigHeader {int32 format = 0 (INV_DEPTH); float32 depthParam[2] = 0}

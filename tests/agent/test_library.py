@@ -66,16 +66,19 @@ def library_episode(setup):
 
 def test_an_episode_through_the_library_takes_calnav_objectnavs_actions(setup, library_episode):
     """calnav objectnav's episode (``eval.objectnav.run.run_one_episode``, the rollout loop, on the
-    agent of ``build_agent``) and the same episode driven by the Navigator: the same actions
-    step by step, hence the same record; the same with the pose given as the 4x4 camera pose
-    instead of gps / compass."""
-    from calnav.agent.registry import build_agent
-    from calnav.eval.objectnav.run import run_one_episode
+    agent its workers build: a Navigator run as an ``EpisodeAgent``) and the same episode driven
+    through the robot's entry point, ``Navigator.act``: the same actions step by step, hence the
+    same record; the same with the pose given as the 4x4 camera pose instead of gps / compass."""
+    from dataclasses import asdict
+
+    from calnav.agent.navigator import EpisodeAgent, Navigator
+    from calnav.eval.objectnav.run import _warm_env_agent, run_one_episode
 
     cfg, env, index = setup
     _, decisions, _, info = library_episode
-    agent, actions = build_agent("peanut", cfg), []
-    act = agent.act
+    _, agent = _warm_env_agent(asdict(cfg), "peanut")   # what a worker of calnav objectnav builds
+    assert isinstance(agent, EpisodeAgent) and isinstance(agent.navigator, Navigator)
+    actions, act = [], agent.act
     agent.act = lambda obs: actions.append(act(obs)) or actions[-1]   # what objectnav's loop sends, step by step
     record = run_one_episode(env, agent, index)
     for name, got in decisions.items():

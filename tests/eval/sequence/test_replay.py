@@ -31,10 +31,10 @@ def write_episode_bag(frames: list[dict], path):
     from calnav.mapping.sequences.rosbag_config import ROSBAG_PRESETS
     from calnav.mapping.sequences.rosbag_tf import NS
 
-    writer, store, ros1 = rw._writer(path, "ros1")
+    writer, store, ros1 = rw.open_writer(path, "ros1")
     writer.open()
-    bag, topics = rw._Bag(writer, store, ros1), ROSBAG_PRESETS.get("realsense")
-    unmount, period, t0 = np.linalg.inv(rw._mount()), int(0.15 * NS), rw.START_NS
+    bag, topics = rw.BagWriter(writer, store, ros1), ROSBAG_PRESETS.get("realsense")
+    unmount, period, t0 = np.linalg.inv(rw.mount_matrix()), int(0.15 * NS), rw.START_NS
     h, w = frames[0]["depth"].shape[:2]
     try:
         bag.tf("/tf_static", t0, [bag.transform(t0, "base_link", "camera_link", *rw.MOUNT),
