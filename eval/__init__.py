@@ -1,7 +1,7 @@
 """Experiments and the ``calnav`` command line.
 
-At the top: ``cli.py`` (argument parsing, the command registry ``COMMANDS`` and dispatch: it
-loads each command's configs once) and ``preflight.py`` (the file checks ``cli`` runs on those
+At the top: ``cli.py`` (the command registry ``COMMANDS`` and dispatch: it loads each
+command's configs once), ``parser.py`` (every command's arguments) and ``preflight.py`` (the file checks ``cli`` runs on those
 configs before the command; it sits above the experiments). Shared by every experiment: ``config.py`` (the typed YAML loader with dotted
 overrides), ``results_dir.py`` (results directories, records), ``backends.py`` (process / Ray
 execution) and ``stats.py`` (means, SEMs, paired differences). One package per experiment:

@@ -112,12 +112,26 @@ def paired_difference(a: list[dict], b: list[dict], metric: str) -> tuple[float,
     the mean, the SEM and the number of pairs. Pairing removes the episode-difficulty variance
     both runs share, so this SEM is the one that says whether two configs differ; with fewer
     than 2 pairs it is NaN (one difference has no spread)."""
+    return contrast([(a, -1.0), (b, 1.0)], metric)
+
+
+def contrast(runs: list[tuple[list[dict], float]], metric: str) -> tuple[float, float, int]:
+    """Mean and SEM over episodes of sum_k w_k * ``metric``(run_k), each run's records with its
+    weight ``w_k``, over the episodes (matched by ``index``) every run holds, scored as
+    ``paired_difference`` scores them (two runs weighted -1, +1 are that difference; four
+    weighted +1, -1, -1, +1 are a difference of differences). Returns the mean, the SEM (NaN
+    with fewer than 2 episodes) and the number of episodes."""
     keep = is_finished if metric not in FAILURE_SCORED else (lambda r: True)
-    va = {r["index"]: scored(r) for r in a if "index" in r and keep(r)}
-    diffs = [float(s[metric]) - float(va[s["index"]][metric])
-             for s in (scored(r) for r in b if keep(r)) if s.get("index") in va]
-    m, sem = mean_sem(diffs)
-    return m, (sem if len(diffs) >= 2 else math.nan), len(diffs)
+    scores = [{r["index"]: scored(r) for r in recs if "index" in r and keep(r)} for recs, _ in runs]
+    shared = [i for i in scores[-1] if all(i in s for s in scores)] if scores else []
+    values = []
+    for i in shared:
+        total = 0.0
+        for s, (_, w) in zip(scores, runs):
+            total += w * float(s[i][metric])
+        values.append(total)
+    m, sem = mean_sem(values)
+    return m, (sem if len(values) >= 2 else math.nan), len(values)
 
 
 LINGER_STEPS = 20   # an episode "lingered" when it stood at the goal, in view, longer than this without STOP

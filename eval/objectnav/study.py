@@ -86,7 +86,7 @@ class Manifest:
         self.root = root
         self.data = {"version": MANIFEST_VERSION, "study": str(study_path), "study_sha256": sha256_file(study_path),
                      "overrides": list(extra), "tune": to_dict(study.tune), "evaluate": to_dict(study.evaluate),
-                     "pairs": [list(p) for p in study.pairs],
+                     "pairs": [list(p) for p in study.pairs], "questions": [to_dict(q) for q in study.questions],
                      "rows": {r.name: {"status": "pending", "overrides": study.row_overrides(r),
                                        "threshold_from": r.threshold_from} for r in study.rows}}
 

@@ -13,6 +13,7 @@ every row's tuning and evaluation config -- so a bad study is one line before an
 """
 from __future__ import annotations
 
+import math
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -108,6 +109,33 @@ class StudyRow:
 
 
 @dataclass
+class StudyQuestion:
+    """A question the study answers, as a contrast of rows: the per-episode sum of each row's
+    metric times its weight, over the evaluation episodes all rows share (two rows weighted
+    1, -1: their paired difference; four weighted 1, -1, -1, 1: a difference of differences,
+    e.g. whether one map loses less than another when its threshold is transferred). The
+    report's conclusions say, per question, "resolved" at 2 SEM or more, else not resolved."""
+
+    ask: str                                  # the question, as the conclusions print it
+    rows: list[str] = field(default_factory=list)        # rows of the contrast (names of rows)
+    weights: list[float] = field(default_factory=list)   # one per row, summing to 0 ([] with 2 rows = [1, -1])
+
+    def __post_init__(self) -> None:
+        if not self.ask.strip():
+            raise ValueError("questions: ask is empty; say what the contrast answers")
+        if len(self.rows) < 2:
+            raise ValueError(f"question {self.ask!r}: rows names {len(self.rows)} row(s); a contrast needs 2 or more")
+        if not self.weights and len(self.rows) == 2:
+            self.weights = [1.0, -1.0]
+        if len(self.weights) != len(self.rows):
+            raise ValueError(f"question {self.ask!r}: {len(self.weights)} weights for {len(self.rows)} rows; give one "
+                             "weight per row")
+        if not all(math.isfinite(w) and w != 0 for w in self.weights) or abs(sum(self.weights)) > 1e-9:
+            raise ValueError(f"question {self.ask!r}: weights {self.weights} must be finite, non-zero and sum to 0 "
+                             "(a comparison of rows)")
+
+
+@dataclass
 class StudyConfig:
     """A whole study: the base config, what every row shares, the tuning and evaluation
     episodes, and the rows in the order they run (the ones answering the main question first,
@@ -121,11 +149,18 @@ class StudyConfig:
     # paired differences the report shows, [row, baseline] (row minus baseline on the shared
     # evaluation episodes); a transferred-threshold row is also paired with its own tuned row
     pairs: list[tuple[str, str]] = field(default_factory=list)
+    questions: list[StudyQuestion] = field(default_factory=list)   # the report's conclusions, in order
 
     def __post_init__(self) -> None:
         if not self.rows:
             raise ValueError("rows is empty; list at least one study row")
         names = [r.name for r in self.rows]
+        for q in self.questions:
+            unknown = [n for n in q.rows if n not in names]
+            if unknown:
+                raise ValueError(f"question {q.ask!r}: {unknown[0]!r} names no row; rows: {', '.join(names)}")
+            if len(set(q.rows)) != len(q.rows):
+                raise ValueError(f"question {q.ask!r} names a row twice")
         for a, b in self.pairs:
             for n in (a, b):
                 if n not in names:

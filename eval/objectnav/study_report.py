@@ -25,7 +25,8 @@ from pathlib import Path
 
 from calnav.eval.config import ConfigError
 from calnav.eval.results_dir import read_records
-from calnav.eval.stats import METRIC_LABELS, finite_or_error, is_finished, mean_sem_cell, paired_difference, summarize
+from calnav.eval.stats import (METRIC_LABELS, contrast, finite_or_error, is_finished, mean_sem_cell, paired_difference,
+                               summarize)
 
 RESOLVED_SEM = 2.0     # a difference is claimed only at this many paired SEMs or more
 TABLE_METRICS: tuple[str, ...] = ("success", "spl", "softspl", "distance_to_goal")
@@ -122,6 +123,78 @@ def paired_markdown(pairs: list[tuple[str, str]], records: dict[str, list[dict]]
     return "\n".join(lines)
 
 
+def conclusions_markdown(manifest: dict, records: dict[str, list[dict]]) -> str:
+    """The study's questions (``StudyQuestion``), each answered by its contrast of rows' Success
+    and SPL over the episodes its rows share, with the verdict on Success; a question whose rows
+    have not all run says which it waits for."""
+    questions = manifest.get("questions") or []
+    if not questions:
+        return "The study file asks no questions."
+    heads = ["Question", "Contrast"] + [f"{METRIC_LABELS[m]} (SEM)" for m in PAIRED_METRICS] + \
+            ["abs / SEM", "Success verdict", "N"]
+    lines = ["| " + " | ".join(heads) + " |", "|" + "---|" * len(heads)]
+    for q in questions:
+        terms = " ".join(f"{'+' if w > 0 else '-'} {'' if abs(w) == 1 else f'{abs(w):g} '}{n}"
+                         for n, w in zip(q["rows"], q["weights"])).removeprefix("+ ")
+        waiting = [n for n in q["rows"] if n not in records]
+        if waiting:
+            lines.append(f"| {q['ask']} | {terms} | waiting for {', '.join(waiting)} |" + " |" * (len(heads) - 3))
+            continue
+        runs = [(records[n], float(w)) for n, w in zip(q["rows"], q["weights"])]
+        cells, first = [q["ask"], terms], None
+        for m in PAIRED_METRICS:
+            d, sem, n = contrast(runs, m)
+            first = first or (d, sem, n)
+            cells.append(f"{d:+.3f} ({sem:.3f})" if math.isfinite(sem) else f"{d:+.3f} (-)")
+        d, sem, n = first
+        cells += [f"{abs(d) / sem:.1f}" if math.isfinite(sem) and sem > 0 else "-", verdict(d, sem, n), str(n)]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def _records_cost(path: Path) -> tuple[int, float]:
+    """(finished episodes, their summed wall_time_s) of a records file (0, 0 when absent)."""
+    if not path.is_file():
+        return 0, 0.0
+    recs = read_records(path, quiet=True).records.values()
+    return len(recs), sum(float(r.get("wall_time_s") or 0.0) for r in recs)
+
+
+def compute_markdown(root: Path, manifest: dict) -> str:
+    """Episodes run and worker-hours (the records' wall_time_s: one worker per core) for tuning
+    and evaluation, and the episodes the plan still needs (a tuned row's grid before any
+    extension, each evaluation not shared with an earlier row) with the worker-hours they take at
+    the mean cost per episode so far."""
+    tune_n = tune_s = eval_n = eval_s = 0.0
+    left = 0
+    a, _, b = str(manifest["tune"]["episodes"]).partition(":")
+    per_tune = (int(b) - int(a)) if b else int(a)
+    n_eval = len(_eval_range(manifest))
+    grid = len(manifest["tune"]["thresholds"]) * len(manifest["tune"].get("min_areas", [4]))
+    for name, e in manifest["rows"].items():
+        if not e.get("threshold_from"):
+            n = s = 0
+            for f in sorted((root / "tune" / name).glob("*/episodes.jsonl")):
+                fn, fs = _records_cost(f)
+                n, s = n + fn, s + fs
+            tune_n, tune_s = tune_n + n, tune_s + s
+            if e.get("status") == "pending":
+                left += max(0, grid * per_tune - n)
+        if e.get("status") == "done" and not e.get("same_as"):
+            n, s = _records_cost(root / e["dir"] / "episodes.jsonl")
+            eval_n, eval_s = eval_n + n, eval_s + s
+        elif e.get("status") in ("pending", "tuned"):
+            n, _ = _records_cost(root / "eval" / name / "episodes.jsonl")
+            left += max(0, n_eval - n)
+    done_n, done_s = tune_n + eval_n, tune_s + eval_s
+    per_ep = done_s / done_n if done_n else float("nan")
+    return (f"Compute so far: {int(tune_n)} tuning episodes ({tune_s / 3600:.1f} worker-hours) and {int(eval_n)} "
+            f"evaluation episodes ({eval_s / 3600:.1f} worker-hours), {per_ep:.2f} s per episode on one core; "
+            f"on the 2-core development machine (2 workers) that is about {done_s / 7200:.1f} hours of wall time. "
+            f"The plan still needs about {left} episodes ({left * per_ep / 3600:.1f} worker-hours, about "
+            f"{left * per_ep / 7200:.1f} hours on 2 cores), counting each tuning grid before any extension.")
+
+
 STOPPED_SHORT_M = 1.0        # a failed STOP within this distance of a view point found the object but stopped short, metres
 STUCK_PATH_SHARE = 0.25      # out of steps having walked less than this share of what its forward steps allow: stuck
 FAILURES: tuple[tuple[str, str], ...] = (
@@ -208,6 +281,8 @@ def render(manifest_path: Path) -> str:
              f"Goal thresholds tuned on {tune['split']} {tune['episodes']} by {tune['metric']} "
              f"(grid {', '.join(f'{t:g}' for t in tune['thresholds'])}). Mean (SEM) over episodes; "
              f"evaluation compute {seconds / 3600:.2f} worker-hours.", "", metrics_markdown(manifest, records), ""]
+    parts += ["Conclusions: each question's contrast of rows on the episodes they share; a direction is claimed "
+              f"only at {RESOLVED_SEM:g} SEM or more:", "", conclusions_markdown(manifest, records), ""]
     pairs = [tuple(p) for p in manifest.get("pairs", [])]
     parts += ["Paired differences (row minus the other, on the episodes both hold); a difference is claimed "
               f"only at {RESOLVED_SEM:g} SEM or more:", "", paired_markdown(pairs, records), ""]
@@ -216,6 +291,7 @@ def render(manifest_path: Path) -> str:
         parts += ["Threshold transfer: each row at another condition's tuned threshold minus the same row at its "
                   "own tuned threshold:", "", paired_markdown(transfer, records), ""]
     parts += ["Failures:", "", failures_table(manifest, records), ""]
+    parts += [compute_markdown(manifest_path.parent, manifest), ""]
     if skipped:
         parts += ["Skipped: " + "; ".join(f"{n} ({r})" for n, r in skipped) + ".", ""]
     if tuned:
@@ -225,12 +301,54 @@ def render(manifest_path: Path) -> str:
     return "\n".join(parts)
 
 
+PAGE_BEGIN, PAGE_END = "<!-- calnav report -->", "<!-- /calnav report -->"
+
+
+def headline(manifest_path: Path, page: Path, results: Path) -> str:
+    """The headline a page embeds (README, the study page): the metrics table and the
+    conclusions of the manifest at ``manifest_path``, with the command and a link to the full
+    ``results`` page (relative to ``page``)."""
+    import os
+
+    manifest = load_manifest(manifest_path)
+    records = row_records(manifest_path.parent, manifest)
+    ev, tune = manifest["evaluate"], manifest["tune"]
+    done, total = len(records), len(manifest["rows"])
+    link = Path(os.path.relpath(results.resolve(), page.resolve().parent)).as_posix()
+    return "\n".join([
+        f"Rendered by `calnav report {manifest_path.as_posix()}` from the study's committed records: "
+        f"{done} of {total} rows evaluated on {ev['split']} episodes {ev['episodes']} (paired), each at the goal "
+        f"threshold tuned on {tune['split']} {tune['episodes']}; mean (SEM). Everything else -- paired "
+        f"differences, threshold transfer, failures, the threshold curves, compute -- is in [the results page]({link}).",
+        "", metrics_markdown(manifest, records), "", conclusions_markdown(manifest, records)])
+
+
+def embed(page_text: str, block: str, page: Path) -> str:
+    """``page_text`` with its ``PAGE_BEGIN`` ... ``PAGE_END`` block replaced by ``block``; a
+    page without exactly one such block is a one-line ConfigError."""
+    if page_text.count(PAGE_BEGIN) != 1 or page_text.count(PAGE_END) != 1 or \
+            page_text.index(PAGE_BEGIN) > page_text.index(PAGE_END):
+        raise ConfigError(f"--page {page}: needs one '{PAGE_BEGIN}' line and one '{PAGE_END}' line after it, "
+                          "where the headline goes")
+    head, rest = page_text.split(PAGE_BEGIN)
+    return f"{head}{PAGE_BEGIN}\n{block}\n{PAGE_END}{rest.split(PAGE_END, 1)[1]}"
+
+
 def main_report(args, configs=()) -> None:
     manifest_path = Path(args.manifest)
     out = Path(args.output) if args.output else manifest_path.parent
     text = render(manifest_path)
+    pages = {}
+    for name in getattr(args, "page", []):   # every page checked before anything is written
+        page = Path(name)
+        if not page.is_file():
+            raise ConfigError(f"--page {page}: no such file; give a Markdown file holding a '{PAGE_BEGIN}' block")
+        pages[page] = embed(page.read_text(encoding="utf-8"), headline(manifest_path, page, out / RESULTS_NAME), page)
     out.mkdir(parents=True, exist_ok=True)
     (out / RESULTS_NAME).write_text(text, encoding="utf-8")
     figure = plot_curves(load_manifest(manifest_path), out / CURVES_NAME)
+    for page, page_text in pages.items():
+        page.write_text(page_text, encoding="utf-8")
     print(text)
-    print(f"report: {out / RESULTS_NAME}" + (f", {figure}" if figure else ""))
+    print(f"report: {out / RESULTS_NAME}" + (f", {figure}" if figure else "")
+          + "".join(f", {page}" for page in pages))

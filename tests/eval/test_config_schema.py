@@ -87,7 +87,7 @@ def _section(name: str) -> type:
 
 def _parser_options(command: str) -> set[str]:
     """The options ``calnav COMMAND`` takes."""
-    from calnav.eval.cli import build_parser
+    from calnav.eval.parser import build_parser
 
     parser = build_parser()
     sub = next(a for a in parser._actions if a.__class__.__name__ == "_SubParsersAction")

@@ -15,7 +15,7 @@ SMALL = ["env.resolution=64x48", "env.dataset.val_scenes=1", "env.dataset.test_s
          "agent.map_size_m=16", "mapping.initial_alloc_mb=32", "run.workers=1"]
 
 
-def _study(tmp_path, rows: str, name: str = "study.yaml"):
+def _study(tmp_path, rows: str, name: str = "study.yaml", tail: str = ""):
     text = textwrap.dedent(f"""\
         config: objectnav.yaml
         overrides: {json.dumps(SMALL)}
@@ -30,7 +30,7 @@ def _study(tmp_path, rows: str, name: str = "study.yaml"):
           split: test
           episodes: "0:1"
         rows:
-        """) + textwrap.indent(textwrap.dedent(rows), "  ")
+        """) + textwrap.indent(textwrap.dedent(rows), "  ") + textwrap.dedent(tail)
     path = tmp_path / name
     path.write_text(text)
     return path
@@ -68,6 +68,27 @@ def test_bad_study_is_refused_in_one_line(tmp_path, rows, message):
     assert message in str(exc.value) and "\n" not in str(exc.value)
 
 
+@pytest.mark.parametrize("tail, message", [
+    ("questions:\n- ask: a?\n  rows: [a]\n", "a contrast needs 2 or more"),
+    ("questions:\n- ask: a?\n  rows: [a, nope]\n", "'nope' names no row"),
+    ("questions:\n- ask: a?\n  rows: [a, b]\n  weights: [1, 1]\n", "sum to 0"),
+    ("questions:\n- ask: a?\n  rows: [a, b]\n  weights: [1, 0, -1]\n", "3 weights for 2 rows"),
+    ("questions:\n- ask: a?\n  rows: [a, b]\n  weights: [.nan, 1]\n", "finite"),
+    ("questions:\n- ask: ' '\n  rows: [a, b]\n", "ask is empty"),
+    ("questions:\n- ask: a?\n  rows: [a, a]\n", "names a row twice"),
+])
+def test_bad_question_is_refused_in_one_line(tmp_path, tail, message):
+    with pytest.raises(ConfigError) as exc:
+        load_study(_study(tmp_path, "- name: a\n- name: b\n", tail=tail))
+    assert message in str(exc.value) and "\n" not in str(exc.value)
+
+
+def test_a_question_of_two_rows_is_their_difference(tmp_path):
+    study, _ = load_study(_study(tmp_path, "- name: a\n- name: b\n",
+                                 tail="questions:\n- ask: a or b?\n  rows: [a, b]\n"))
+    assert study.questions[0].weights == [1.0, -1.0]
+
+
 def test_bad_sections_are_refused(tmp_path):
     text = _study(tmp_path, "- name: a\n").read_text().replace("split: test", "split: val")
     (tmp_path / "overlap.yaml").write_text(text)
@@ -100,7 +121,8 @@ def test_shipped_study_config_loads():
 
 @pytest.mark.e2e
 def test_study_end_to_end(tmp_path, capsys):
-    path, out = _study(tmp_path, ROWS), tmp_path / "out"
+    question = "questions:\n- ask: ndf or rbu?\n  rows: [gt/ndf, gt/rbu]\n"
+    path, out = _study(tmp_path, ROWS, tail=question), tmp_path / "out"
     assert main(["study", str(path), "--output", str(out), "--rows", "nope"]) == 2   # refused: nothing written
     assert not out.exists()
     assert main(["study", str(path), "--output", str(out)]) == 0
@@ -127,6 +149,9 @@ def test_study_end_to_end(tmp_path, capsys):
     unc = rows["gt/rbu_uncertainty"]
     assert unc["status"] == ("skipped" if rows["gt/rbu"]["threshold"] <= 0.6 else "done")
     assert "row" in capsys.readouterr().out
+    assert manifest["questions"] == [{"ask": "ndf or rbu?", "rows": ["gt/ndf", "gt/rbu"], "weights": [1.0, -1.0]}]
+    assert main(["report", str(out / "manifest.json")]) == 0
+    assert "| ndf or rbu? | gt/ndf - gt/rbu | " in (out / "results.md").read_text()
 
     # a rerun resumes: nothing runs again, the manifest keeps every row
     before = (out / rows["gt/rbu"]["dir"] / "episodes.jsonl").read_text()

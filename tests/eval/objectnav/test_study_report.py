@@ -6,7 +6,9 @@ import pytest
 
 from calnav.eval.cli import main
 from calnav.eval.config import ConfigError
-from calnav.eval.objectnav.study_report import failure_kind, render, transfer_pairs, verdict
+from calnav.eval.objectnav.study_report import (PAGE_BEGIN, PAGE_END, compute_markdown, embed, failure_kind, headline,
+                                                render, transfer_pairs, verdict)
+from calnav.eval.stats import contrast
 
 
 def _rec(i, success, spl, steps=20):
@@ -108,6 +110,70 @@ def test_failure_kinds():
     assert failure_kind({**ok, "distance_to_goal": float("nan")}, 500, 0.25) == "crashed"   # a non-finite metric
 
 
+def test_contrast_by_hand():
+    """A difference of differences, episode by episode: (a - b) - (c - d) on the 3 episodes all
+    four runs hold (episode 3 is missing from d): [1-0-(0-0), 1-1-(1-0), 0-0-(0-1)] = [1, -1, 1],
+    mean 1/3, SD sqrt(((2/3)^2 + (4/3)^2 + (2/3)^2) / 2) = 1.1547, SEM 0.6667."""
+    run = lambda *s: [_rec(i, v, v / 2) for i, v in enumerate(s)]
+    a, b, c, d = run(1, 1, 0, 1), run(0, 1, 0, 1), run(0, 1, 0, 0), run(0, 0, 1)
+    m, sem, n = contrast([(a, 1), (b, -1), (c, -1), (d, 1)], "success")
+    assert n == 3 and m == pytest.approx(1 / 3) and sem == pytest.approx(2 / 3)
+    m, sem, n = contrast([(a, 1), (b, -1), (c, -1), (d, 1)], "spl")   # every SPL is half the Success
+    assert m == pytest.approx(1 / 6) and sem == pytest.approx(1 / 3)
+
+
+def _questions(tmp_path, questions):
+    base = [_rec(0, 1, 0.5), _rec(1, 0, 0.0), _rec(2, 1, 0.8), _rec(3, 0, 0.0)]
+    better = [_rec(0, 1, 0.6), _rec(1, 1, 0.4), _rec(2, 1, 0.8), _rec(3, 1, 0.5)]
+    entries = {"r": {"overrides": ["a=1"], "threshold_from": "", "threshold": 0.9},
+               "g": {"overrides": ["a=2"], "threshold_from": "", "threshold": 0.5},
+               "p": {"overrides": ["a=3"], "threshold_from": "", "status": "pending"}}
+    path = _study(tmp_path, {"r": base, "g": better}, entries, [])
+    manifest = json.loads(path.read_text())
+    manifest["questions"] = questions
+    path.write_text(json.dumps(manifest))
+    return path
+
+
+def test_conclusions_answer_each_question_or_say_what_it_waits_for(tmp_path):
+    page = render(_questions(tmp_path, [{"ask": "g better?", "rows": ["g", "r"], "weights": [1.0, -1.0]},
+                                        {"ask": "p better?", "rows": ["p", "r"], "weights": [1.0, -1.0]}]))
+    # g - r as in test_page_from_hand_made_records: Success +0.5 (0.289), 1.7 SEM
+    assert "| g better? | g - r | +0.500 (0.289) | +0.250 (0.119) | 1.7 | not resolved at 4 episodes | 4 |" in page
+    assert "| p better? | p - r | waiting for p |" in page
+    page = render(_questions(tmp_path / "none", []))
+    assert "The study file asks no questions." in page
+
+
+def test_compute_counts_records_and_the_plan_left(tmp_path):
+    """2 rows evaluated (4 episodes each, 1.5 s), one tuning dir of 2 episodes, a pending row:
+    its grid (2 thresholds x 2 tuning episodes) and its 4 evaluation episodes are left."""
+    path = _questions(tmp_path, [])
+    tune = tmp_path / "tune" / "r" / "0.5_4"
+    tune.mkdir(parents=True)
+    (tune / "episodes.jsonl").write_text("".join(json.dumps(_rec(i, 1, 0.5)) + "\n" for i in range(2)))
+    text = compute_markdown(tmp_path, json.loads(path.read_text()))
+    assert text.startswith("Compute so far: 2 tuning episodes (0.0 worker-hours) and 8 evaluation episodes (0.0 "
+                           "worker-hours), 1.50 s per episode on one core;")
+    assert "The plan still needs about 8 episodes" in text
+
+
+def test_report_embeds_the_headline_in_pages_and_refuses_a_page_without_its_block(tmp_path, capsys):
+    path = _questions(tmp_path, [{"ask": "g better?", "rows": ["g", "r"], "weights": [1.0, -1.0]}])
+    page = tmp_path / "README.md"
+    page.write_text(f"# title\n\n{PAGE_BEGIN}\nstale text\n{PAGE_END}\n\nafter\n")
+    bad = tmp_path / "other.md"
+    bad.write_text("no block\n")
+    assert main(["report", str(path), "--page", str(page), "--page", str(bad)]) == 2
+    assert "--page" in capsys.readouterr().err and not (tmp_path / "results.md").exists()   # nothing written
+    assert "stale text" in page.read_text()
+    assert main(["report", str(path), "--page", str(page)]) == 0
+    text = page.read_text()
+    assert text.startswith("# title\n\n" + PAGE_BEGIN + "\n") and text.endswith(PAGE_END + "\n\nafter\n")
+    assert "stale text" not in text and "| g better? | g - r |" in text and "[the results page](results.md)" in text
+    assert embed(text, "x", page) == f"# title\n\n{PAGE_BEGIN}\nx\n{PAGE_END}\n\nafter\n"
+
+
 def test_committed_results_page_is_what_report_renders():
     """docs/objectnav_study/study/results.md is `calnav report`'s rendering of the committed
     manifest and records, byte for byte: no number on the page is typed by hand."""
@@ -116,3 +182,16 @@ def test_committed_results_page_is_what_report_renders():
     study = Path(__file__).resolve().parents[3] / "docs" / "objectnav_study" / "study"
     assert (study / "manifest.json").is_file() and (study / "results.md").is_file()
     assert (study / "results.md").read_text(encoding="utf-8") == render(study / "manifest.json")
+
+
+def test_readme_and_study_page_headlines_are_what_report_renders():
+    """README.md's and docs/objectnav_study.md's study blocks are `calnav report --page`'s
+    rendering of the committed manifest and records."""
+    from pathlib import Path
+
+    repo = Path(__file__).resolve().parents[3]
+    manifest = repo / "docs" / "objectnav_study" / "study" / "manifest.json"
+    for page in (repo / "README.md", repo / "docs" / "objectnav_study.md"):
+        text = page.read_text(encoding="utf-8")
+        block = headline(manifest.relative_to(repo), page, manifest.parent / "results.md")
+        assert embed(text, block, page) == text, f"{page.name}: rerun calnav report --page"
