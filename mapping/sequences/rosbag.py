@@ -29,7 +29,7 @@ from calnav.mapping.sequences.rosbag_camera import Camera, camera_from_info
 from calnav.mapping.sequences.rosbag_tf import NS, PoseTrack, TfTree, frame_name, rigid
 
 TF_TOPIC, TF_STATIC_TOPIC = "/tf", "/tf_static"
-TF_TYPE = "tf2_msgs/msg/TFMessage"
+TF_TYPES = ("tf2_msgs/msg/TFMessage", "tf/msg/tfMessage")   # ROS 2 / ROS 1 tf2, and ROS 1 bags of the tf era
 INFO_TYPE = "sensor_msgs/msg/CameraInfo"
 POSE_TYPES = ("nav_msgs/msg/Odometry", "geometry_msgs/msg/PoseStamped", "geometry_msgs/msg/PoseWithCovarianceStamped")
 PRESET_KEYS = ("color_topic", "depth_topic", "color_info_topic", "depth_info_topic")   # the topics a preset names
@@ -151,7 +151,7 @@ class RosbagSequence(Sequence):
         wanted = set(streams) | {info_color, info_depth, pose_topic} | \
             ({TF_TOPIC, TF_STATIC_TOPIC} if self._rc.pose_source == "tf" else set())
         conns = [c for c in reader.connections if c.topic in wanted and
-                 (c.topic not in tf_items or c.msgtype == TF_TYPE)]
+                 (c.topic not in tf_items or c.msgtype in TF_TYPES)]
         topic = ""
         try:
             for conn, log_ns, raw in reader.messages(connections=conns):

@@ -51,6 +51,8 @@ class BagOptions:
     tf_child: str = "base_link"       # the moving TF frame (map -> tf_child); the mounting hangs from base_link
     depth_encoding: str = ""          # the raw depth images' stated encoding; "" = the depth option's
     depth_frame: str = OPTICAL_FRAME  # the depth images' header.frame_id
+    tf_type: Literal["tf2_msgs/msg/TFMessage", "tf/msg/tfMessage"] = "tf2_msgs/msg/TFMessage"   # ROS 1 bags of
+                                      # the tf era (e.g. TUM RGB-D) record tf/tfMessage, the same fields
 
 
 def open_writer(path: Path, storage: str):
@@ -62,8 +64,9 @@ def open_writer(path: Path, storage: str):
         from rosbags.rosbag1 import Writer
 
         ts = get_typestore(Stores.ROS1_NOETIC)
-        # rosbags' ROS 1 store has no tf2_msgs: its one-field definition, as ROS 1 ships it
-        ts.register(get_types_from_msg("geometry_msgs/TransformStamped[] transforms", "tf2_msgs/msg/TFMessage"))
+        # rosbags' ROS 1 store has no tf2_msgs (nor the older tf): their one-field definition, as ROS 1 ships it
+        for name in ("tf2_msgs/msg/TFMessage", "tf/msg/tfMessage"):
+            ts.register(get_types_from_msg("geometry_msgs/TransformStamped[] transforms", name))
         return Writer(path), ts, True
     from rosbags.rosbag2 import StoragePlugin, Writer
 
@@ -119,8 +122,8 @@ class BagWriter:
         return g["geometry_msgs/msg/TransformStamped"](header=self.header(stamp, parent), child_frame_id=child,
                                                        transform=tr)
 
-    def tf(self, topic: str, log_ns: int, transforms: list) -> None:
-        self.write(topic, "tf2_msgs/msg/TFMessage", log_ns, self.t["tf2_msgs/msg/TFMessage"](transforms=transforms))
+    def tf(self, topic: str, log_ns: int, transforms: list, msgtype: str = "tf2_msgs/msg/TFMessage") -> None:
+        self.write(topic, msgtype, log_ns, self.t[msgtype](transforms=transforms))
 
     def odometry(self, stamp: int, t, q):
         g = self.t
@@ -162,7 +165,8 @@ def scannet_to_bag(folder, bag, options: BagOptions | None = None) -> Path:
     sem_dir = folder / "semantic"
     try:
         b.tf("/tf_static", START_NS, [b.transform(START_NS, "base_link", "camera_link", *MOUNT),
-                                      b.transform(START_NS, "camera_link", OPTICAL_FRAME, (0.0, 0.0, 0.0), OPTICAL_QUAT)])
+                                      b.transform(START_NS, "camera_link", OPTICAL_FRAME, (0.0, 0.0, 0.0), OPTICAL_QUAT)],
+             opt.tf_type)
         for info_topic, k, size in ((top.color_info, seq.k_color, seq.color_size), (top.depth_info, seq.k_depth, seq.depth_size)):
             b.write(info_topic, "sensor_msgs/msg/CameraInfo", START_NS,
                     b.camera_info(START_NS, OPTICAL_FRAME, k, size, opt.distortion))
@@ -173,7 +177,7 @@ def scannet_to_bag(folder, bag, options: BagOptions | None = None) -> Path:
                 if opt.pose == "tf":
                     base = pose @ unmount
                     b.tf("/tf", stamp, [b.transform(stamp, "map", opt.tf_child, base[:3, 3],
-                                                    Rotation.from_matrix(base[:3, :3]).as_quat())])
+                                                    Rotation.from_matrix(base[:3, :3]).as_quat())], opt.tf_type)
                 else:
                     b.write(opt.pose_topic, "nav_msgs/msg/Odometry", stamp,
                             b.odometry(stamp, pose[:3, 3], Rotation.from_matrix(pose[:3, :3]).as_quat()))

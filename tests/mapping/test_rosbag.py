@@ -52,6 +52,13 @@ def test_a_bag_reads_back_the_folders_frames(seq_dir, storage, color, depth):
     seq.close()
 
 
+def test_a_ros1_bag_of_the_tf_era_is_read(seq_dir):
+    """ROS 1 bags recorded before tf2 (e.g. the TUM RGB-D benchmark's) carry /tf as
+    tf/tfMessage, the same fields as tf2_msgs/TFMessage: the same frames and poses."""
+    path = bag(seq_dir, "tf_era", tf_type="tf/msg/tfMessage")
+    _same_frames(Sequence(seq_dir, "scannet"), Sequence(path, "rosbag", bag_config()))
+
+
 @pytest.mark.parametrize("storage, suffix", [("sqlite3", ".db3"), ("mcap", ".mcap")])
 def test_a_ros2_storage_file_is_read_without_its_directory(seq_dir, storage, suffix):
     bare = next(bag(seq_dir, f"bare_{storage}", storage=storage).glob(f"*{suffix}"))
