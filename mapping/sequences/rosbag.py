@@ -287,11 +287,11 @@ class RosbagSequence(Sequence):
             try:
                 out[topic] = self._decode_one(stream, msg)
             except ValueError as exc:
-                raise ValueError(f"frame {index}: {topic} message {ordinal}: {exc}") from None
+                raise ValueError(f"{self.root}: frame {index}: {topic} message {ordinal}: {exc}") from None
             cam = self.camera_color if topic != self._depth else self.camera_depth
             shape = out[topic].shape[1::-1]
             if shape != cam.size:
-                raise ValueError(f"frame {index}: {topic} image is {shape[0]}x{shape[1]}, the topic's first is "
+                raise ValueError(f"{self.root}: frame {index}: {topic} image is {shape[0]}x{shape[1]}, the topic's first is "
                                  f"{cam.size[0]}x{cam.size[1]}")
             out[topic] = cam.undistort(out[topic], nearest=topic != self._color)
         sem = out.get(self._semantic) if self._semantic is not None else None

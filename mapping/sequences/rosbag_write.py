@@ -8,7 +8,7 @@ holding the folder's JPEG bytes), depth (raw ``16UC1`` millimetres, raw ``32FC1`
 ``compressedDepth`` = 12-byte header + the folder's PNG), CameraInfo of both, optional labels
 (``16UC1`` class id + 1), and TF: ``map -> base_link`` on ``/tf`` at the frame stamps (the
 camera pose times the inverse of the mounting), ``base_link -> camera_link -> <optical frame>``
-on ``/tf_static``; or a ``nav_msgs/Odometry`` pose topic of the camera itself.
+on ``/tf_static``; or a ``nav_msgs/Odometry`` / ``geometry_msgs/PoseStamped`` pose topic of the camera itself.
 """
 from __future__ import annotations
 
@@ -45,7 +45,7 @@ class BagOptions:
     extra_color: bool = False         # colour at twice the frame rate: an image between frames, with no depth near it
     extra_depth: bool = False         # depth at twice the frame rate: an image between frames
     drop_poses: tuple[int, ...] = ()  # frames whose TF sample (or odometry) is not written
-    pose: Literal["tf", "odometry"] = "tf"
+    pose: Literal["tf", "odometry", "pose_stamped"] = "tf"   # TF, or the camera's pose on pose_topic
     pose_topic: str = "/odom"
     distortion: tuple[float, ...] = ()   # CameraInfo D written (plumb_bob); the images are written as they are
     tf_child: str = "base_link"       # the moving TF frame (map -> tf_child); the mounting hangs from base_link
@@ -125,10 +125,17 @@ class BagWriter:
     def tf(self, topic: str, log_ns: int, transforms: list, msgtype: str = "tf2_msgs/msg/TFMessage") -> None:
         self.write(topic, msgtype, log_ns, self.t[msgtype](transforms=transforms))
 
+    def pose(self, t, q):
+        g = self.t
+        return g["geometry_msgs/msg/Pose"](position=g["geometry_msgs/msg/Point"](x=t[0], y=t[1], z=t[2]),
+                                           orientation=g["geometry_msgs/msg/Quaternion"](x=q[0], y=q[1], z=q[2], w=q[3]))
+
+    def pose_stamped(self, stamp: int, t, q):
+        return self.t["geometry_msgs/msg/PoseStamped"](header=self.header(stamp, "map"), pose=self.pose(t, q))
+
     def odometry(self, stamp: int, t, q):
         g = self.t
-        pose = g["geometry_msgs/msg/Pose"](position=g["geometry_msgs/msg/Point"](x=t[0], y=t[1], z=t[2]),
-                                           orientation=g["geometry_msgs/msg/Quaternion"](x=q[0], y=q[1], z=q[2], w=q[3]))
+        pose = self.pose(t, q)
         zero = g["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0)
         return g["nav_msgs/msg/Odometry"](
             header=self.header(stamp, "map"), child_frame_id=OPTICAL_FRAME,
@@ -178,9 +185,12 @@ def scannet_to_bag(folder, bag, options: BagOptions | None = None) -> Path:
                     base = pose @ unmount
                     b.tf("/tf", stamp, [b.transform(stamp, "map", opt.tf_child, base[:3, 3],
                                                     Rotation.from_matrix(base[:3, :3]).as_quat())], opt.tf_type)
-                else:
+                elif opt.pose == "odometry":
                     b.write(opt.pose_topic, "nav_msgs/msg/Odometry", stamp,
                             b.odometry(stamp, pose[:3, 3], Rotation.from_matrix(pose[:3, :3]).as_quat()))
+                else:
+                    b.write(opt.pose_topic, "geometry_msgs/msg/PoseStamped", stamp,
+                            b.pose_stamped(stamp, pose[:3, 3], Rotation.from_matrix(pose[:3, :3]).as_quat()))
             log = stamp + LATENCY_NS
             _write_color(b, opt, top.color, stamp, log, folder / "color" / f"{i}.jpg")
             _write_depth(b, opt, top.depth, stamp, log, folder / "depth" / f"{i}.png")

@@ -89,8 +89,11 @@ def test_sync_tolerance_decides_the_pairing(seq_dir):
     assert wide.ids == list(range(2 * FRAMES)) and wide.skipped == []
 
 
-def test_poses_from_an_odometry_topic_and_the_camera_extrinsic(seq_dir):
-    path = bag(seq_dir, "odom", storage="sqlite3", pose="odometry")
+@pytest.mark.parametrize("storage, pose", [("sqlite3", "odometry"), ("ros1", "pose_stamped"), ("mcap", "pose_stamped")])
+def test_poses_from_a_pose_topic_and_the_camera_extrinsic(seq_dir, storage, pose):
+    """nav_msgs/Odometry or geometry_msgs/PoseStamped of the camera: the folder's frames, the
+    dropped pose skipped; camera_extrinsic moves the camera along its own axes."""
+    path = bag(seq_dir, f"{pose}_{storage}", storage=storage, pose=pose)
     ref = Sequence(seq_dir, "scannet")
     seq = Sequence(path, "rosbag", bag_config(pose_source="topic", pose_topic="/odom"))
     assert seq.skipped == [DROPPED]

@@ -184,6 +184,13 @@ def test_bad_inputs_are_one_line_and_nothing_is_written(episode, tmp_path, capsy
              "env.resolution=640x480", out)
     _refused(["replay", str(bag), "--goal", goal, "--segmenter", "gt", *AGENT], capsys,
              f"agent.segmenter=gt reads ground-truth semantic frames, which {bag} does not hold", out)
+    truncated = tmp_path / "truncated.bag"   # a ROS 1 bag's index is at its end
+    truncated.write_bytes(bag.read_bytes()[: int(bag.stat().st_size * 0.9)])
+    _refused(["replay", str(truncated), "--goal", goal, "--segmenter", "gt", *AGENT, *BAG_KEYS], capsys,
+             f"{truncated} is not a readable ROS bag", out)
+    _refused(["replay", str(bag), "--goal", goal, "--segmenter", "gt", *AGENT, *BAG_KEYS,
+              "sequence.rosbag.depth_topic=/nope"], capsys,
+             f"{bag} has no depth image topic /nope (sequence.rosbag.depth_topic", out)
     handheld = write_scannet(tmp_path / "handheld")   # looking 19 degrees down, as a scan does
     _refused(["replay", str(handheld), "--layout", "scannet", "--goal", "chair", "--segmenter", "gt", *AGENT],
              capsys, "frame 0: the camera is pitched -19.3 and rolled 0.0 degrees from level (at most 2)", out)
