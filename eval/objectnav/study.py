@@ -27,10 +27,10 @@ import shlex
 from pathlib import Path
 
 from calnav.common.provenance import git_commit
-from calnav.eval.config import ConfigError, load_config, to_dict
+from calnav.eval.config import ConfigError, load_config, parse_override, to_dict
 from calnav.eval.inputs import INPUTS_NAME, sha256_file
 from calnav.eval.objectnav.study_config import StudyConfig, StudyRow, load_study
-from calnav.eval.results_dir import ResultsDir, read_records, strip_neutral
+from calnav.eval.results_dir import NEUTRAL_KEYS, ResultsDir, read_records, strip_neutral
 
 MANIFEST_NAME = "manifest.json"
 MANIFEST_VERSION = 1
@@ -69,7 +69,7 @@ def _read_json(path: Path) -> dict | None:
 def _tune_command(study: StudyConfig, row: StudyRow, extra: list[str], out: Path) -> str:
     t = study.tune
     return shlex.join(["calnav", "tune", "--config", study.config, "--episodes", t.episodes,
-                       "--thresholds", ",".join(f"{v:g}" for v in study.grid(row)),
+                       "--thresholds", ",".join(repr(v) for v in study.grid(row)),
                        "--min-areas", ",".join(map(str, t.min_areas)), "--extend", str(t.extend),
                        "--metric", t.metric, "--output", str(out), *study.tune_overrides(row, extra)])
 
@@ -79,35 +79,47 @@ def _eval_command(study: StudyConfig, out: Path) -> str:
                        "--episodes", study.evaluate.episodes, "--output", str(out)])
 
 
+def _relevant(overrides: list[str]) -> list[str]:
+    """The overrides that can change a result: all but those of the result-neutral keys
+    (``eval.results_dir.NEUTRAL_KEYS``: workers, backend, output directory, ...)."""
+    return [o for o in overrides if parse_override(o)[0] not in NEUTRAL_KEYS]
+
+
 class Manifest:
     """``<output>/manifest.json``: the study's provenance, rewritten after every row."""
 
     def __init__(self, root: ResultsDir, study: StudyConfig, study_path: Path, extra: list[str]):
         self.root = root
         self.data = {"version": MANIFEST_VERSION, "study": str(study_path), "study_sha256": sha256_file(study_path),
-                     "overrides": list(extra), "tune": to_dict(study.tune), "evaluate": to_dict(study.evaluate),
+                     "config": study.config, "overrides": list(extra), "tune": to_dict(study.tune), "evaluate": to_dict(study.evaluate),
                      "pairs": [list(p) for p in study.pairs], "questions": [to_dict(q) for q in study.questions],
                      "rows": {r.name: {"status": "pending", "overrides": study.row_overrides(r),
-                                       "threshold_from": r.threshold_from} for r in study.rows}}
+                                       "threshold_from": r.threshold_from, "thresholds": r.thresholds}
+                              for r in study.rows}}
 
     def carry(self, previous: dict | None) -> None:
         """Keep the entries of an earlier invocation (``--rows`` runs some rows only) for rows
-        whose overrides and threshold source are unchanged, when the episodes are the same; a
-        row that runs now replaces its entry."""
+        whose overrides, threshold source and grid are unchanged, when the episodes, the base
+        config and the command line's result-relevant overrides are the same; a row that runs now
+        replaces its entry."""
         if not previous or previous.get("version") != MANIFEST_VERSION or \
-                (previous.get("tune"), previous.get("evaluate")) != (self.data["tune"], self.data["evaluate"]):
+                (previous.get("tune"), previous.get("evaluate")) != (self.data["tune"], self.data["evaluate"]) or \
+                previous.get("config", self.data["config"]) != self.data["config"] or \
+                _relevant(previous.get("overrides", [])) != _relevant(self.data["overrides"]):
             return
         for name, entry in previous.get("rows", {}).items():
             now = self.data["rows"].get(name)
-            if now is not None and (entry.get("overrides"), entry.get("threshold_from")) == \
-                    (now["overrides"], now["threshold_from"]):
+            if now is not None and (entry.get("overrides"), entry.get("threshold_from"),
+                                    entry.get("thresholds", now["thresholds"])) == \
+                    (now["overrides"], now["threshold_from"], now["thresholds"]):
                 self.data["rows"][name] = entry
 
     def update(self, name: str, **entry) -> None:
         """Replace row ``name``'s entry (keeping its overrides and threshold source) and rewrite
         the manifest."""
         now = self.data["rows"][name]
-        self.data["rows"][name] = {"overrides": now["overrides"], "threshold_from": now["threshold_from"], **entry}
+        self.data["rows"][name] = {"overrides": now["overrides"], "threshold_from": now["threshold_from"],
+                                   "thresholds": now["thresholds"], **entry}
         self.write()
 
     def write(self) -> None:
@@ -143,7 +155,7 @@ def run_study(study_path: str | Path, out: Path, extra: list[str] = (), force: b
             if not row.threshold_from:
                 tune_dir = out / "tune" / row.name
                 grid_rows, best = run_tune(study.config, study.tune_overrides(row, extra), study.tune.episodes,
-                                           ",".join(f"{v:g}" for v in study.grid(row)),
+                                           ",".join(repr(v) for v in study.grid(row)),
                                            ",".join(map(str, study.tune.min_areas)), study.tune.metric, tune_dir,
                                            force=force, progress=progress, extend=study.tune.extend)
                 tuned[row.name] = {"dir": str(tune_dir.relative_to(out)), "command": _tune_command(study, row, extra, tune_dir),
@@ -167,9 +179,8 @@ def run_study(study_path: str | Path, out: Path, extra: list[str] = (), force: b
             eval_dir = out / "eval" / row.name
             if key in evaluated:   # the same config as an earlier row: its records are this row's
                 same = manifest.data["rows"][evaluated[key]]
-                manifest.update(row.name, **{**{k: v for k, v in same.items() if k not in ("tune", "threshold_from",
-                                                                                             "overrides")},
-                                             **entry, "same_as": evaluated[key]})
+                shared = {k: v for k, v in same.items() if k not in ("tune", "threshold_from", "overrides", "thresholds")}
+                manifest.update(row.name, **{**shared, **entry, "same_as": evaluated[key]})
                 continue
             indices = episode_indices(study.evaluate.episodes, cfg.env, cfg.run, progress)
             if progress:

@@ -221,7 +221,7 @@ class StudyConfig:
         """Overrides of ``row``'s evaluation at goal threshold ``threshold`` and smallest goal
         component ``min_area`` (map cells)."""
         return [*self.row_overrides(row, extra), f"run.agent={STUDY_AGENT}", f"env.split={self.evaluate.split}",
-                f"agent.goal_threshold={threshold:g}", f"agent.goal_min_area_cells={min_area}"]
+                f"agent.goal_threshold={threshold!r}", f"agent.goal_min_area_cells={min_area}"]
 
 
 def load_study(path: str | Path, extra: list[str] = ()) -> tuple[StudyConfig, list[Config]]:
@@ -239,7 +239,7 @@ def load_study(path: str | Path, extra: list[str] = ()) -> tuple[StudyConfig, li
     for row in study.rows:
         try:
             if not row.threshold_from:   # every grid point loads; one per row is preflighted (the tuned
-                points = [load_config(base, [*study.tune_overrides(row, extra), f"agent.goal_threshold={t:g}",
+                points = [load_config(base, [*study.tune_overrides(row, extra), f"agent.goal_threshold={t!r}",
                                              f"agent.goal_min_area_cells={a}"])   # keys name no file)
                           for t in study.grid(row) for a in study.tune.min_areas]
                 configs.append(points[0])

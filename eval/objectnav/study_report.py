@@ -26,7 +26,7 @@ from pathlib import Path
 from calnav.eval.config import ConfigError
 from calnav.eval.results_dir import read_records
 from calnav.eval.stats import (METRIC_LABELS, contrast, finite_or_error, is_finished, mean_sem_cell, paired_difference,
-                               summarize)
+                               same_episode, summarize)
 
 RESOLVED_SEM = 2.0     # a difference is claimed only at this many paired SEMs or more
 TABLE_METRICS: tuple[str, ...] = ("success", "spl", "softspl", "distance_to_goal")
@@ -111,6 +111,7 @@ def paired_markdown(pairs: list[tuple[str, str]], records: dict[str, list[dict]]
     if not ready:
         return "None yet: no pair has both rows evaluated."
     for a, b in ready:
+        check_same_episodes([a, b], records)
         cells = [a, b]
         first = None
         for m in PAIRED_METRICS:
@@ -118,7 +119,7 @@ def paired_markdown(pairs: list[tuple[str, str]], records: dict[str, list[dict]]
             first = first or (d, sem, n)
             cells.append(f"{d:+.3f} ({sem:.3f})" if math.isfinite(sem) else f"{d:+.3f} (-)")
         d, sem, n = first
-        cells += [f"{abs(d) / sem:.1f}" if math.isfinite(sem) and sem > 0 else "-", verdict(d, sem, n), str(n)]
+        cells += [_ratio(d, sem), verdict(d, sem, n), str(n)]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
@@ -140,6 +141,7 @@ def conclusions_markdown(manifest: dict, records: dict[str, list[dict]]) -> str:
         if waiting:
             lines.append(f"| {q['ask']} | {terms} | waiting for {', '.join(waiting)} |" + " |" * (len(heads) - 3))
             continue
+        check_same_episodes(q["rows"], records)
         runs = [(records[n], float(w)) for n, w in zip(q["rows"], q["weights"])]
         cells, first = [q["ask"], terms], None
         for m in PAIRED_METRICS:
@@ -147,7 +149,7 @@ def conclusions_markdown(manifest: dict, records: dict[str, list[dict]]) -> str:
             first = first or (d, sem, n)
             cells.append(f"{d:+.3f} ({sem:.3f})" if math.isfinite(sem) else f"{d:+.3f} (-)")
         d, sem, n = first
-        cells += [f"{abs(d) / sem:.1f}" if math.isfinite(sem) and sem > 0 else "-", verdict(d, sem, n), str(n)]
+        cells += [_ratio(d, sem), verdict(d, sem, n), str(n)]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
@@ -193,6 +195,29 @@ def compute_markdown(root: Path, manifest: dict) -> str:
             f"on the 2-core development machine (2 workers) that is about {done_s / 7200:.1f} hours of wall time. "
             f"The plan still needs about {left} episodes ({left * per_ep / 3600:.1f} worker-hours, about "
             f"{left * per_ep / 7200:.1f} hours on 2 cores), counting each tuning grid before any extension.")
+
+
+def _ratio(d: float, sem: float) -> str:
+    """|d| / SEM, rounded down to 2 decimals: 1.996 must not read as the 2.0 that resolves."""
+    return f"{math.floor(100 * abs(d) / sem) / 100:.2f}" if math.isfinite(sem) and sem > 0 else "-"
+
+
+def check_same_episodes(names: list[str], records: dict[str, list[dict]]) -> None:
+    """Refuse (ConfigError) a paired comparison of rows that share no episode index, or whose
+    records at a shared index are different episodes (``eval.stats.same_episode``: another
+    house style reuses the indices): any number printed for it would be made up."""
+    first = {r["index"]: r for r in records[names[0]] if "index" in r}
+    for name in names[1:]:
+        other = {r["index"]: r for r in records[name] if "index" in r}
+        shared = first.keys() & other.keys()
+        if not shared:
+            raise ConfigError(f"rows {names[0]} and {name} share no evaluation episode; a paired comparison needs "
+                              "the same episodes")
+        bad = next((i for i in sorted(shared) if not same_episode(first[i], other[i])), None)
+        if bad is not None:
+            raise ConfigError(f"rows {names[0]} and {name} hold different episodes at index {bad} "
+                              f"({first[bad].get('episode_id')} vs {other[bad].get('episode_id')}); a paired "
+                              "comparison needs the same episodes (the same house style and dataset)")
 
 
 STOPPED_SHORT_M = 1.0        # a failed STOP within this distance of a view point found the object but stopped short, metres
@@ -254,7 +279,8 @@ def plot_curves(manifest: dict, path: Path) -> Path | None:
         for n, t in tuned.items():
             if n.rsplit("/", 1)[0] != group:
                 continue
-            grid = sorted(t["grid"], key=lambda r: r["threshold"])
+            grid = sorted((r for r in t["grid"] if r.get("min_area") == t.get("min_area")),
+                          key=lambda r: r["threshold"])   # the chosen min_area's curve
             line = ax.errorbar([r["threshold"] for r in grid], [r["success"] for r in grid],
                                yerr=[r["success_sem"] for r in grid], marker=".", capsize=3, label=n.rsplit("/", 1)[1])
             best = next(r for r in grid if r["threshold"] == t["threshold"])
@@ -276,7 +302,8 @@ def render(manifest_path: Path) -> str:
     pending = [n for n, e in manifest["rows"].items() if e.get("status") == "pending"]
     tuned = [(n, e["threshold"]) for n, e in manifest["rows"].items() if e.get("status") == "tuned"]
     skipped = [(n, e.get("reason", "")) for n, e in manifest["rows"].items() if e.get("status") == "skipped"]
-    seconds = sum(float(e.get("episode_seconds", 0)) for e in manifest["rows"].values() if e.get("status") == "done")
+    seconds = sum(float(e.get("episode_seconds", 0)) for e in manifest["rows"].values()   # a same_as row ran nothing
+                  if e.get("status") == "done" and not e.get("same_as"))
     parts = [f"Evaluation: {ev['split']} episodes {ev['episodes']}, every row on the same episodes (paired). "
              f"Goal thresholds tuned on {tune['split']} {tune['episodes']} by {tune['metric']} "
              f"(grid {', '.join(f'{t:g}' for t in tune['thresholds'])}). Mean (SEM) over episodes; "

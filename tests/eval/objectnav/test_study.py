@@ -89,6 +89,30 @@ def test_a_question_of_two_rows_is_their_difference(tmp_path):
     assert study.questions[0].weights == [1.0, -1.0]
 
 
+def test_a_resumed_manifest_keeps_only_rows_of_the_same_inputs(tmp_path):
+    """Earlier row entries are kept when the episodes, the base config, the command line's
+    result-relevant overrides and the row's overrides and grid are the same; run.workers is
+    neutral; another step limit on the command line, or another grid, makes the rows pending."""
+    from calnav.eval.objectnav.study import Manifest
+
+    path = _study(tmp_path, "- name: a\n- name: b\n  thresholds: [0.3, 0.6]\n")
+    study, _ = load_study(path)
+
+    def carried(extra_then, extra_now, grid_now=None):
+        then = Manifest(None, study, path, extra_then).data
+        for e in then["rows"].values():
+            e["status"] = "done"
+        now = Manifest(None, study, path, extra_now)
+        if grid_now is not None:
+            now.data["rows"]["b"]["thresholds"] = grid_now
+        now.carry(then)
+        return {n: e["status"] for n, e in now.data["rows"].items()}
+
+    assert carried(["run.workers=2"], ["run.workers=4"]) == {"a": "done", "b": "done"}
+    assert carried(["env.max_episode_steps=200"], []) == {"a": "pending", "b": "pending"}
+    assert carried([], [], grid_now=[0.3, 0.9]) == {"a": "done", "b": "pending"}
+
+
 def test_bad_sections_are_refused(tmp_path):
     text = _study(tmp_path, "- name: a\n").read_text().replace("split: test", "split: val")
     (tmp_path / "overlap.yaml").write_text(text)

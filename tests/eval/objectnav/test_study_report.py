@@ -6,8 +6,8 @@ import pytest
 
 from calnav.eval.cli import main
 from calnav.eval.config import ConfigError
-from calnav.eval.objectnav.study_report import (PAGE_BEGIN, PAGE_END, compute_markdown, embed, failure_kind, headline,
-                                                render, transfer_pairs, verdict)
+from calnav.eval.objectnav.study_report import (PAGE_BEGIN, PAGE_END, _ratio, compute_markdown, embed, failure_kind,
+                                                headline, render, transfer_pairs, verdict)
 from calnav.eval.stats import contrast
 
 
@@ -65,7 +65,7 @@ def test_page_from_hand_made_records(tmp_path):
     assert "| seg/scanned/glfs@clean | 0.5 (seg/clean/glfs) | 0.500 (0.289) |" in page
     # glfs - rbu, Success: diffs [0, 1, 0, 1]: mean 0.5, SEM 0.2887 -> 1.7 SEM, not resolved; SPL: diffs
     # [0.1, 0.4, 0, 0.5]: mean 0.25, SD sqrt(0.17 / 3) = 0.238, SEM 0.119
-    assert "| seg/clean/glfs | seg/clean/rbu | +0.500 (0.289) | +0.250 (0.119) | 1.7 | not resolved at 4 episodes | 4 |" in page
+    assert "| seg/clean/glfs | seg/clean/rbu | +0.500 (0.289) | +0.250 (0.119) | 1.73 | not resolved at 4 episodes | 4 |" in page
     # transfer: the clean-tuned threshold on scanned houses minus the scanned-tuned one: -0.5
     assert transfer_pairs(json.loads(path.read_text())) == [("seg/scanned/glfs@clean", "seg/scanned/glfs")]
     assert "| seg/scanned/glfs@clean | seg/scanned/glfs | -0.500 (0.289) |" in page
@@ -139,10 +139,28 @@ def test_conclusions_answer_each_question_or_say_what_it_waits_for(tmp_path):
     page = render(_questions(tmp_path, [{"ask": "g better?", "rows": ["g", "r"], "weights": [1.0, -1.0]},
                                         {"ask": "p better?", "rows": ["p", "r"], "weights": [1.0, -1.0]}]))
     # g - r as in test_page_from_hand_made_records: Success +0.5 (0.289), 1.7 SEM
-    assert "| g better? | g - r | +0.500 (0.289) | +0.250 (0.119) | 1.7 | not resolved at 4 episodes | 4 |" in page
+    assert "| g better? | g - r | +0.500 (0.289) | +0.250 (0.119) | 1.73 | not resolved at 4 episodes | 4 |" in page
     assert "| p better? | p - r | waiting for p |" in page
     page = render(_questions(tmp_path / "none", []))
     assert "The study file asks no questions." in page
+
+
+def test_the_sem_ratio_rounds_down():
+    """1.996 SEM is not resolved, so it must not print as 2.00."""
+    assert _ratio(0.1996, 0.1) == "1.99" and _ratio(-0.2, 0.1) == "2.00" and _ratio(0.1, 0.0) == "-"
+
+
+def test_rows_on_other_episodes_are_not_paired(tmp_path):
+    """Another house style reuses the indices for other episodes: a question or pair across them
+    is refused in one line, as is one whose rows share no episode."""
+    other = [{**_rec(i, 1, 0.5), "geodesic_distance": 9.0 + i} for i in range(4)]
+    path = _questions(tmp_path, [{"ask": "across styles?", "rows": ["g", "r"], "weights": [1.0, -1.0]}])
+    (tmp_path / "eval" / "g" / "episodes.jsonl").write_text("".join(json.dumps(r) + "\n" for r in other))
+    with pytest.raises(ConfigError, match=r"^rows g and r hold different episodes at index 0 \(0 vs 0\); a paired"):
+        render(path)
+    (tmp_path / "eval" / "g" / "episodes.jsonl").write_text(json.dumps({**_rec(7, 1, 0.5)}) + "\n")
+    with pytest.raises(ConfigError, match="^rows g and r share no evaluation episode"):
+        render(path)
 
 
 def test_compute_counts_records_and_the_plan_left(tmp_path):
