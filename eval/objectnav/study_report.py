@@ -308,6 +308,11 @@ def render(manifest_path: Path) -> str:
              f"Goal thresholds tuned on {tune['split']} {tune['episodes']} by {tune['metric']} "
              f"(grid {', '.join(f'{t:g}' for t in tune['thresholds'])}). Mean (SEM) over episodes; "
              f"evaluation compute {seconds / 3600:.2f} worker-hours.", "", metrics_markdown(manifest, records), ""]
+    wanted = len(_eval_range(manifest))
+    short = [f"{n} ({len(r)} of {wanted})" for n, r in records.items() if len(r) < wanted]
+    if short:   # a damaged or cut records file: its row's N says so, and so does this line
+        parts += ["Rows holding fewer records than the evaluation episodes (rerun `calnav study` to fill them): "
+                  + ", ".join(short) + ".", ""]
     parts += ["Conclusions: each question's contrast of rows on the episodes they share; a direction is claimed "
               f"only at {RESOLVED_SEM:g} SEM or more:", "", conclusions_markdown(manifest, records), ""]
     pairs = [tuple(p) for p in manifest.get("pairs", [])]

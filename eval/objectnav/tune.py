@@ -19,6 +19,7 @@ import csv
 import io
 import math
 from pathlib import Path
+from typing import Any
 
 from calnav.eval.config import Config, ConfigError, dump_yaml, load_config, parse_override
 from calnav.eval.results_dir import ResultsDir
@@ -126,19 +127,21 @@ def best_yaml_text(cfg: Config, *, config_path: str | None, overrides: list[str]
     return "\n".join(header) + "\n" + dump_yaml(cfg)
 
 
-def edge_extension(scores: dict[float, float]) -> float | None:
+def edge_extension(scores: dict[float, Any]) -> float | None:
     """The next threshold to try when the best one (``scores``: threshold -> its best metric
-    value, higher is better; ties go to the lower threshold) sits on an edge of the grid and
+    value, higher is better, or a tuple of values compared in order as ``select_best`` ranks
+    them; ties go to the lower threshold) sits on an edge of the grid and
     beats its neighbour: halfway to 1 above the top, one grid spacing below the bottom (if that
     stays > 0). None when the best is interior, ties with its neighbour (a flat optimum needs
     no bracketing), or there is nowhere to go."""
     ts = sorted(scores)
-    best = max(ts, key=lambda t: (_score(scores[t]), -t))
+    rank = {t: v if isinstance(v, tuple) else _score(v) for t, v in scores.items()}
+    best = max(ts, key=lambda t: (rank[t], -t))
     if len(ts) == 1:
         return round((best + 1.0) / 2.0, 4) if best < 1.0 else None
-    if best == ts[-1] and _score(scores[ts[-1]]) > _score(scores[ts[-2]]) and best < 1.0:
+    if best == ts[-1] and rank[ts[-1]] > rank[ts[-2]] and best < 1.0:
         return round((best + 1.0) / 2.0, 4)
-    if best == ts[0] and _score(scores[ts[0]]) > _score(scores[ts[1]]):
+    if best == ts[0] and rank[ts[0]] > rank[ts[1]]:
         spacing = ts[1] - ts[0]
         if ts[0] - spacing > 0:
             return round(ts[0] - spacing, 4)
@@ -199,9 +202,10 @@ def run_tune(config_path: str | None, overrides: list[str], episodes: str, thres
     with ResultsDir(out, files=("tune.csv", "best.yaml")) as root:
         run_thresholds(ts)
         for _ in range(extend):
-            scores: dict[float, float] = {}
+            scores: dict[float, tuple] = {}   # ranked as select_best ranks: the metric, then success
             for r in rows:
-                scores[r["threshold"]] = max(scores.get(r["threshold"], -math.inf), _score(r[metric]))
+                key = (_score(r[metric]), _score(r["success"]))
+                scores[r["threshold"]] = max(scores.get(r["threshold"], key), key)
             nxt = edge_extension(scores)
             if nxt is None or nxt in ts:
                 break

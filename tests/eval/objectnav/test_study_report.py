@@ -143,6 +143,10 @@ def test_conclusions_answer_each_question_or_say_what_it_waits_for(tmp_path):
     assert "| p better? | p - r | waiting for p |" in page
     page = render(_questions(tmp_path / "none", []))
     assert "The study file asks no questions." in page
+    assert "fewer records" not in page
+    (tmp_path / "none" / "eval" / "g" / "episodes.jsonl").write_text(json.dumps(_rec(0, 1, 0.5)) + "\n")
+    assert "Rows holding fewer records than the evaluation episodes (rerun `calnav study` to fill them): g (1 of 4)." \
+        in render(tmp_path / "none" / "manifest.json")
 
 
 def test_the_sem_ratio_rounds_down():

@@ -62,6 +62,11 @@ def test_edge_extension():
     flat = {0.5: 0.5945951766802705, 0.7: 0.5945951766802706, 0.85: 0.5945951766802705}
     assert edge_extension(flat) is None
     assert edge_extension({0.5: 0.4, 0.7: 0.5, 0.9: 0.5}) is None
+    # ranked as select_best ranks (SPL, then Success): an SPL tie that Success breaks at the
+    # top edge extends, as select_best would pick that edge
+    assert edge_extension({0.7: (0.5, 0.6), 0.9: (0.5, 0.7)}) == 0.95
+    assert select_best([{"threshold": 0.7, "min_area": 4, "spl": 0.5, "success": 0.6},
+                        {"threshold": 0.9, "min_area": 4, "spl": 0.5, "success": 0.7}])["threshold"] == 0.9
 
 
 def test_select_best_ignores_float_noise():
