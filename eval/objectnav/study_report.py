@@ -25,8 +25,7 @@ from pathlib import Path
 
 from calnav.eval.config import ConfigError
 from calnav.eval.results_dir import read_records
-from calnav.eval.stats import (METRIC_LABELS, contrast, finite_or_error, is_finished, mean_sem_cell, paired_difference,
-                               same_episode, summarize)
+from calnav.eval.stats import METRIC_LABELS, contrast, finite_or_error, is_finished, mean_sem_cell, same_episode, summarize
 
 RESOLVED_SEM = 2.0     # a difference is claimed only at this many paired SEMs or more
 TABLE_METRICS: tuple[str, ...] = ("success", "spl", "softspl", "distance_to_goal")
@@ -111,17 +110,23 @@ def paired_markdown(pairs: list[tuple[str, str]], records: dict[str, list[dict]]
     if not ready:
         return "None yet: no pair has both rows evaluated."
     for a, b in ready:
-        check_same_episodes([a, b], records)
-        cells = [a, b]
-        first = None
-        for m in PAIRED_METRICS:
-            d, sem, n = paired_difference(records[b], records[a], m)
-            first = first or (d, sem, n)
-            cells.append(f"{d:+.3f} ({sem:.3f})" if math.isfinite(sem) else f"{d:+.3f} (-)")
-        d, sem, n = first
-        cells += [_ratio(d, sem), verdict(d, sem, n), str(n)]
-        lines.append("| " + " | ".join(cells) + " |")
+        lines.append("| " + " | ".join([a, b, *contrast_cells([a, b], [1.0, -1.0], records)]) + " |")
     return "\n".join(lines)
+
+
+def contrast_cells(names: list[str], weights: list[float], records: dict[str, list[dict]]) -> list[str]:
+    """The table cells of a contrast of rows (``eval.stats.contrast``, paired over the episodes
+    they share, checked to be the same ones): per PAIRED_METRICS "d (SEM)", then |dSuccess| /
+    SEM, the Success verdict and N."""
+    check_same_episodes(names, records)
+    runs = [(records[n], float(w)) for n, w in zip(names, weights)]
+    cells, first = [], None
+    for m in PAIRED_METRICS:
+        d, sem, n = contrast(runs, m)
+        first = first or (d, sem, n)
+        cells.append(f"{d:+.3f} ({sem:.3f})" if math.isfinite(sem) else f"{d:+.3f} (-)")
+    d, sem, n = first
+    return [*cells, _ratio(d, sem), verdict(d, sem, n), str(n)]
 
 
 def conclusions_markdown(manifest: dict, records: dict[str, list[dict]]) -> str:
@@ -141,16 +146,7 @@ def conclusions_markdown(manifest: dict, records: dict[str, list[dict]]) -> str:
         if waiting:
             lines.append(f"| {q['ask']} | {terms} | waiting for {', '.join(waiting)} |" + " |" * (len(heads) - 3))
             continue
-        check_same_episodes(q["rows"], records)
-        runs = [(records[n], float(w)) for n, w in zip(q["rows"], q["weights"])]
-        cells, first = [q["ask"], terms], None
-        for m in PAIRED_METRICS:
-            d, sem, n = contrast(runs, m)
-            first = first or (d, sem, n)
-            cells.append(f"{d:+.3f} ({sem:.3f})" if math.isfinite(sem) else f"{d:+.3f} (-)")
-        d, sem, n = first
-        cells += [_ratio(d, sem), verdict(d, sem, n), str(n)]
-        lines.append("| " + " | ".join(cells) + " |")
+        lines.append("| " + " | ".join([q["ask"], terms, *contrast_cells(q["rows"], q["weights"], records)]) + " |")
     return "\n".join(lines)
 
 
