@@ -87,6 +87,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--only", default="", help="comma-separated sections (default: all)")
     p.add_argument("--quick", action="store_true", help="short run (indicative numbers only)")
     p.add_argument("--scene-seed", type=int, default=7, help="procedural house seed to measure on")
+    p.add_argument("--page", action="append", default=[], metavar="FILE",
+                   help="a Markdown page whose '| figure | meaning | measured | target |' tables get this run's "
+                        "figures (repeatable)")
+    p.add_argument("--from", dest="source", default="", metavar="JSON",
+                   help="render --page from this earlier bench output instead of measuring")
 
     p = sub.add_parser("train-segmenter", help="train a learned segmenter on frames of the train split")
     _add_config_args(p, "configs/segmenter.yaml")

@@ -55,6 +55,24 @@ def format_table(results: dict[str, float]) -> str:
 
 def main_bench(args, configs=()) -> None:
     """`calnav bench`: ``--only`` names comma-separated sections (default: all). It reads no
-    config (``configs`` is empty): each section's workload is fixed, so figures compare."""
-    only = tuple(s for s in args.only.split(",") if s) or tuple(SECTIONS)
-    run_bench(args.output, only, quick=args.quick, scene_seed=args.scene_seed)
+    config (``configs`` is empty): each section's workload is fixed, so figures compare. The
+    output gets a manifest beside it (``eval.bench.page.write_manifest``); ``--page`` renders
+    pages' figure tables from the run, or with ``--from`` from an earlier output (no run)."""
+    import sys
+
+    from calnav.eval.bench.page import read_output, render_pages, write_manifest
+
+    if args.source:   # render only: every page checked before any is written
+        pages = render_pages(args.page, read_output(Path(args.source)))
+    else:
+        only = tuple(s for s in args.only.split(",") if s) or tuple(SECTIONS)
+        for name in args.page:   # a page is checked (exists) before the run, rendered after it
+            if not Path(name).is_file():
+                raise ValueError(f"--page {name}: no such file")
+        results = run_bench(args.output, only, quick=args.quick, scene_seed=args.scene_seed)
+        if args.output:
+            print(f"wrote {write_manifest(args.output, sys.argv[1:])}")
+        pages = render_pages(args.page, undefined_as_null(results))
+    for path, text in pages.items():
+        path.write_text(text, encoding="utf-8")
+        print(f"rendered {path}")
