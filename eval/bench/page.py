@@ -29,13 +29,13 @@ MEASURED_COLUMN = 2      # the cell a figure's value goes in (0-based)
 
 
 def format_figure(value: float | None) -> str:
-    """A figure as the docs print it: 3 significant digits, thousands separated from 1,000 on;
-    a figure the run could not measure (JSON null) as '-'."""
+    """A figure as the docs print it: 3 significant digits (2.00, 0.912, 41.2), whole numbers
+    from 100 on (thousands separated); a figure the run could not measure (JSON null) as '-'."""
     if value is None or not math.isfinite(value):
         return "-"
-    if abs(value) >= 1000:
+    if abs(value) >= 100:
         return f"{value:,.0f}"
-    return f"{value:.3g}"
+    return f"{value:#.3g}"
 
 
 def render_page(text: str, figures: dict[str, float | None], page: str = "page") -> str:
@@ -49,13 +49,13 @@ def render_page(text: str, figures: dict[str, float | None], page: str = "page")
         elif in_table and not line.startswith("|"):
             in_table = False
         elif in_table and not line.startswith("|---"):
-            cells = line.split(" | ")
-            name = cells[0].removeprefix("| ").strip().strip("`")
+            cells = [c.strip() for c in line.strip().removeprefix("|").removesuffix("|").split("|")]
+            name = cells[0].strip("`")
             if name not in figures:
                 raise ConfigError(f"{page}: figure {name!r} is not in the bench output; its figures: "
                                   f"{', '.join(sorted(figures)[:8])}, ...")
             cells[MEASURED_COLUMN] = format_figure(figures[name])
-            line, seen = " | ".join(cells), seen + 1
+            line, seen = "| " + " | ".join(cells) + " |", seen + 1
         out.append(line)
     if not seen:
         raise ConfigError(f"{page}: no table headed '{HEADER}' to render")
