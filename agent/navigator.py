@@ -11,17 +11,18 @@
             break
         robot.do(decision.action)   # or drive to decision.short_term_goal / long_term_goal
 
-The Navigator is how every calnav command that runs episodes runs the agent: ``calnav objectnav`` (its workers
-drive a Navigator through the episode loop, ``eval.rollout``, as an ``EpisodeAgent``),
-``calnav habitat-benchmark`` (``agent.habitat_agent.HabitatAgent`` wraps one), ``calnav
-view-episode``, ``calnav collect-maps`` and ``calnav replay`` (``calnav bench`` times the agent's
-stages and ``calnav start-pose`` steps several agents in lockstep: both reach inside it). It builds the agent of
-``cfg.run.agent`` with ``agent.registry.build_agent`` from the same config (sections env, mapping,
-run, agent, segmenter: the keys of ``configs/objectnav.yaml``); every step is ``observe(obs)`` on a
-Habitat observation (rgb, depth, gps, compass, objectgoal; ``semantic`` and the privileged keys
-when an env gives them), which ``act`` builds from a robot's inputs (the goal's id, gps and
-compass from a pose). It reads the agent's step back in metres (``Decision``); the map is read and
-saved with ``map`` / ``save_map`` (``agent.navigator_map.AgentMap``).
+The Navigator is how every calnav command that runs episodes runs the agent: ``calnav
+objectnav`` (its workers drive a Navigator through the episode loop, ``eval.rollout``, as an
+``EpisodeAgent``), ``calnav habitat-benchmark`` (``agent.habitat_agent.HabitatAgent`` wraps
+one), ``calnav view-episode``, ``calnav collect-maps`` and ``calnav replay`` (``calnav bench``
+times the agent's stages and ``calnav start-pose`` steps several agents in lockstep: both reach
+inside it). It builds the agent of ``cfg.run.agent`` with ``agent.registry.build_agent`` from
+the same config (sections env, mapping, run, agent, segmenter: the keys of
+``configs/objectnav.yaml``); every step is ``observe(obs)`` on a Habitat observation (rgb,
+depth, gps, compass, objectgoal; ``semantic`` and the privileged keys when an env gives them),
+which ``act`` builds from a robot's inputs (the goal's id, gps and compass from a pose). It
+reads the agent's step back in metres (``Decision``); the map is read and saved with ``map`` /
+``save_map`` (``agent.navigator_map.AgentMap``).
 
 Inputs of ``act`` (shapes, units): ``rgb`` (H, W, 3) uint8; ``depth`` (H, W) or (H, W, 1)
 float32 at the same size, metres (0 = invalid), or Habitat's normalised [0, 1] depth when
