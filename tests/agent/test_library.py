@@ -254,3 +254,4 @@ def test_the_ros_node_sketch_uses_only_the_library():
               if isinstance(node, ast.ImportFrom) and node.module.split(".")[0] == "calnav"}
     assert calnav == {"calnav.agent.navigator", "calnav.envs.task", "calnav.eval.config"}
     assert "self.nav.act(" in code and "import rclpy" in code
+    assert not re.search(r"self\.nav\.(agent\b|_)", code)   # the Navigator's public surface only
