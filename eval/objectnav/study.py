@@ -112,7 +112,7 @@ class Manifest:
             if now is not None and (entry.get("overrides"), entry.get("threshold_from"),
                                     entry.get("thresholds", now["thresholds"])) == \
                     (now["overrides"], now["threshold_from"], now["thresholds"]):
-                self.data["rows"][name] = entry
+                self.data["rows"][name] = {**entry, "thresholds": now["thresholds"]}   # (older manifests lack it)
 
     def update(self, name: str, **entry) -> None:
         """Replace row ``name``'s entry (keeping its overrides and threshold source) and rewrite

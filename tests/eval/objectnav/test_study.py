@@ -111,6 +111,16 @@ def test_a_resumed_manifest_keeps_only_rows_of_the_same_inputs(tmp_path):
     assert carried(["run.workers=2"], ["run.workers=4"]) == {"a": "done", "b": "done"}
     assert carried(["env.max_episode_steps=200"], []) == {"a": "pending", "b": "pending"}
     assert carried([], [], grid_now=[0.3, 0.9]) == {"a": "done", "b": "pending"}
+    # a manifest written before rows recorded their grid resumes, and its rows update
+    then = Manifest(None, study, path, []).data
+    for e in then["rows"].values():
+        e.pop("thresholds")
+        e["status"] = "tuned"
+    now = Manifest(None, study, path, [])
+    now.carry(then)
+    now.write = lambda: None
+    now.update("a", status="done")
+    assert now.data["rows"]["a"]["status"] == "done" and now.data["rows"]["a"]["thresholds"] == []
 
 
 def test_bad_sections_are_refused(tmp_path):
