@@ -45,6 +45,12 @@ from calnav.eval.records import (RECORD_KEY, RECORDS_NAME, AllEpisodesFailed, Re
 # directory, and `calnav compare` never makes them columns.
 NEUTRAL_KEYS: tuple[str, ...] = ("run.workers", "run.output_dir", "run.backend", "run.ray_address",
                                  "segmenter.trace")   # (trace: bit-identical logits)
+# How many houses a split has decides which episodes exist, never what an index holds (indices
+# run over the split's houses in order, ``eval.episodes``; a house's seed is its split and
+# position): a directory of per-episode records resumes across these, so an evaluation can add
+# houses without rerunning the episodes it has. Not neutral elsewhere (training reads them).
+SPLIT_SIZE_KEYS: tuple[str, ...] = tuple(f"env.dataset.{split}_scenes" for split in ("train", "val", "test", "calib"))
+EPISODE_NEUTRAL_KEYS: tuple[str, ...] = NEUTRAL_KEYS + SPLIT_SIZE_KEYS
 LOCK_NAME = ".lock"
 CONFIG_NAME = "config.yaml"
 

@@ -115,23 +115,64 @@ def paired_difference(a: list[dict], b: list[dict], metric: str) -> tuple[float,
     return contrast([(a, -1.0), (b, 1.0)], metric)
 
 
+def clustered_sem(values, groups) -> float:
+    """SEM of the mean of ``values`` when values of one group (episodes of one house) are
+    correlated: the cluster-robust (CR1) standard error sqrt(G / (G - 1) * sum_g (S_g - n_g * m)^2) / n,
+    with m the mean, S_g and n_g the sum and count of group g's values, G the number of groups
+    and n the number of values. With one value per group it is the ordinary SEM; NaN with fewer
+    than 2 groups (one house says nothing about the spread between houses)."""
+    x = np.asarray(list(values), dtype=np.float64)
+    labels = [str(g) for g in groups]
+    if len(labels) != len(x):
+        raise ValueError(f"clustered_sem: {len(x)} values but {len(labels)} group labels")
+    names, code = np.unique(np.asarray(labels, dtype=str), return_inverse=True)
+    g = len(names)
+    if g < 2:
+        return math.nan
+    resid = np.bincount(code, weights=x - x.mean(), minlength=g)   # S_g - n_g * m per group
+    return float(math.sqrt(g / (g - 1) * float(resid @ resid)) / len(x))
+
+
+def contrast_values(runs: list[tuple[list[dict], float]], metric: str) -> tuple[list[float], list[dict]]:
+    """Per episode (matched by ``index``) that every run holds, sum_k w_k * ``metric``(run_k),
+    each run's records with its weight ``w_k``, scored as ``paired_difference`` scores them;
+    and the last run's record of each of those episodes (where its house is named)."""
+    keep = is_finished if metric not in FAILURE_SCORED else (lambda r: True)
+    scores = [{r["index"]: scored(r) for r in recs if "index" in r and keep(r)} for recs, _ in runs]
+    shared = [i for i in scores[-1] if all(i in s for s in scores)] if scores else []
+    values = [sum(w * float(s[i][metric]) for s, (_, w) in zip(scores, runs)) for i in shared]
+    return values, [scores[-1][i] for i in shared]
+
+
 def contrast(runs: list[tuple[list[dict], float]], metric: str) -> tuple[float, float, int]:
     """Mean and SEM over episodes of sum_k w_k * ``metric``(run_k), each run's records with its
     weight ``w_k``, over the episodes (matched by ``index``) every run holds, scored as
     ``paired_difference`` scores them (two runs weighted -1, +1 are that difference; four
     weighted +1, -1, -1, +1 are a difference of differences). Returns the mean, the SEM (NaN
     with fewer than 2 episodes) and the number of episodes."""
-    keep = is_finished if metric not in FAILURE_SCORED else (lambda r: True)
-    scores = [{r["index"]: scored(r) for r in recs if "index" in r and keep(r)} for recs, _ in runs]
-    shared = [i for i in scores[-1] if all(i in s for s in scores)] if scores else []
-    values = []
-    for i in shared:
-        total = 0.0
-        for s, (_, w) in zip(scores, runs):
-            total += w * float(s[i][metric])
-        values.append(total)
+    values, _ = contrast_values(runs, metric)
     m, sem = mean_sem(values)
     return m, (sem if len(values) >= 2 else math.nan), len(values)
+
+
+HOUSE_KEY = "scene"   # the record key naming an episode's house: episodes of one house are correlated
+
+
+def house_sem(runs: list[tuple[list[dict], float]], metric: str) -> float:
+    """``clustered_sem`` of ``contrast``'s per-episode values, clustered by house (the records'
+    ``HOUSE_KEY``); NaN when a record names no house or fewer than 2 houses hold the episodes."""
+    values, recs = contrast_values(runs, metric)
+    if not values or any(HOUSE_KEY not in r for r in recs):
+        return math.nan
+    return clustered_sem(values, [r[HOUSE_KEY] for r in recs])
+
+
+def governing_sem(sem: float, by_house: float) -> float:
+    """The SEM a difference is judged by: the larger of the episode SEM and the house SEM
+    (``house_sem``: a house's episodes are correlated, so the episode SEM alone can be too
+    small); the episode SEM where the house SEM is not defined (fewer than 2 houses, or records
+    that name no house)."""
+    return max(sem, by_house) if math.isfinite(by_house) else sem
 
 
 LINGER_STEPS = 20   # an episode "lingered" when it stood at the goal, in view, longer than this without STOP

@@ -22,7 +22,7 @@ from pathlib import Path
 
 from calnav.eval.config import ConfigError
 from calnav.eval.objectnav.run import RUN_RESULTS, check_not_all_failed, crashed
-from calnav.eval.results_dir import ResultsDir, writing
+from calnav.eval.results_dir import EPISODE_NEUTRAL_KEYS, ResultsDir, writing
 from calnav.eval.stats import format_metrics_table, summarize
 
 HABITAT_PREFIX = "habitat."
@@ -90,7 +90,7 @@ def run_habitat_benchmark(cfg, habitat_cfg, indices: list[int], out: Path, force
 
     habitat_text = OmegaConf.to_yaml(habitat_cfg, resolve=True)
     agent_name = cfg.run.agent
-    with ResultsDir(out, cfg, force=force, discard=RUN_RESULTS) as results:
+    with ResultsDir(out, cfg, force=force, discard=RUN_RESULTS, neutral_keys=EPISODE_NEUTRAL_KEYS) as results:
         _check_habitat_config(out, habitat_text, force)
         results.write_text(HABITAT_CONFIG_FILE, habitat_text)
         records_file = results.records()

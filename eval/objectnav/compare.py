@@ -4,7 +4,8 @@ For runs made separately (e.g. each with its own tuned ``best.yaml``), this writ
 multirun writes (``comparison.md`` / ``.csv`` / ``.png``, ``eval.objectnav.report``) with the
 config keys that differ between the runs as the leading columns, plus ``paired.md`` / ``.csv``:
 each run minus a baseline run on the episodes both hold (matched by index), mean and paired
-SEM (``eval.stats.paired_difference``), and ``|diff| / SEM``; and ``failures.md``: per run, how
+SEM (``eval.stats.paired_difference``), the SEM clustered by house (``eval.stats.house_sem``), and
+``|diff|`` over the larger of the two; and ``failures.md``: per run, how
 many episodes failed by a false STOP, by running out of steps, or by a crash
 (``eval.stats.failure_modes``, step limit from each run's ``env.max_episode_steps``). The pairs
 are the episodes both runs hold, scored as summaries score them (``eval.stats.paired_difference``:
@@ -24,8 +25,8 @@ from pathlib import Path
 
 from calnav.eval.config import ConfigError, migrate_tree
 from calnav.eval.results_dir import NEUTRAL_KEYS, read_records
-from calnav.eval.stats import (LINGER_STEPS, METRIC_LABELS, failure_modes, is_finished, paired_difference,
-                               same_episode, summarize)
+from calnav.eval.stats import (LINGER_STEPS, METRIC_LABELS, failure_modes, governing_sem, house_sem, is_finished,
+                               paired_difference, same_episode, summarize)
 
 PAIRED_METRICS: tuple[str, ...] = ("spl", "success")
 
@@ -91,10 +92,10 @@ def _ratio_cell(z: float) -> str:
     return "-" if math.isnan(z) else f"{z:.1f}"
 
 
-def _diff_cell(d: float, sem: float) -> str:
+def _diff_cell(d: float, sem: float, by_house: float) -> str:
     if math.isnan(d):
         return "-"
-    return f"{d:+.3f} ({'-' if math.isnan(sem) else f'{sem:.3f}'})"
+    return f"{d:+.3f} ({'-' if math.isnan(sem) else f'{sem:.3f}'}, {'-' if math.isnan(by_house) else f'{by_house:.3f}'})"
 
 
 def episode_span(records: list[dict]) -> str:
@@ -133,29 +134,32 @@ def check_shared_episodes(names: list[str], loaded: list[tuple[dict, list[dict]]
 
 
 def paired_rows(baseline: list[dict], runs: list[tuple[str, list[dict]]]) -> list[dict]:
-    """One row per run: {'run', 'n', metric, metric_sem, metric_z} (run - baseline)."""
+    """One row per run: {'run', 'n', metric, metric_sem, metric_house_sem, metric_z} (run -
+    baseline; ``metric_z``: |d| over the larger of the two SEMs, ``eval.stats.governing_sem``)."""
     rows = []
     for name, records in runs:
         row: dict = {"run": name, "other_episodes": other_episodes(baseline, records)}
         if row["other_episodes"]:
-            row.update({k: v for m in PAIRED_METRICS for k, v in ((m, math.nan), (f"{m}_sem", math.nan),
-                                                                  (f"{m}_z", math.nan))}, n=0)
+            row.update({f"{m}{suffix}": math.nan for m in PAIRED_METRICS for suffix in ("", "_sem", "_house_sem", "_z")},
+                       n=0)
             rows.append(row)
             continue
         for m in PAIRED_METRICS:
             d, sem, n = paired_difference(baseline, records, m)
-            row.update({m: d, f"{m}_sem": sem, f"{m}_z": _ratio(d, sem), "n": n})
+            by_house = house_sem([(baseline, -1.0), (records, 1.0)], m)
+            row.update({m: d, f"{m}_sem": sem, f"{m}_house_sem": by_house,
+                        f"{m}_z": _ratio(d, governing_sem(sem, by_house)), "n": n})
         rows.append(row)
     return rows
 
 
 def paired_markdown(base_name: str, rows: list[dict]) -> str:
-    heads = ["Run"] + [f"d{METRIC_LABELS[m]} (SEM)" for m in PAIRED_METRICS] + \
-            [f"abs d{METRIC_LABELS[m]} / SEM" for m in PAIRED_METRICS] + ["N paired"]
+    heads = ["Run"] + [f"d{METRIC_LABELS[m]} (SEM, house SEM)" for m in PAIRED_METRICS] + \
+            [f"abs d{METRIC_LABELS[m]} / larger SEM" for m in PAIRED_METRICS] + ["N paired"]
     lines = [f"Paired differences, run minus {base_name} (same episodes):", "",
              "| " + " | ".join(heads) + " |", "|" + "---|" * len(heads)]
     for r in rows:
-        cells = [r["run"]] + [_diff_cell(r[m], r[m + "_sem"]) for m in PAIRED_METRICS] + \
+        cells = [r["run"]] + [_diff_cell(r[m], r[m + "_sem"], r[m + "_house_sem"]) for m in PAIRED_METRICS] + \
                 [_ratio_cell(r[m + "_z"]) for m in PAIRED_METRICS] + \
                 ["0 (other episodes)" if r["other_episodes"] else str(r["n"])]
         lines.append("| " + " | ".join(cells) + " |")

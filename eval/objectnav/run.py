@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from calnav.eval.config import Config, build_dataclass, to_dict
-from calnav.eval.results_dir import RECORDS_NAME, AllEpisodesFailed, ResultsDir, writing
+from calnav.eval.results_dir import EPISODE_NEUTRAL_KEYS, RECORDS_NAME, AllEpisodesFailed, ResultsDir, writing
 from calnav.eval.stats import failure_modes, finite_or_error, format_metrics_table, summarize
 
 # What --force deletes from a directory that holds another config's results.
@@ -209,7 +209,8 @@ def run_jobs(jobs: list[EpisodeJob], force: bool = False, progress: bool = True,
     with ExitStack() as stack:
         dirs, files, records, duplicates, tasks = [], [], [], [], []
         for j, job in enumerate(jobs):
-            results = stack.enter_context(ResultsDir(job.out, job.cfg, force=force, discard=RUN_RESULTS))
+            results = stack.enter_context(ResultsDir(job.out, job.cfg, force=force, discard=RUN_RESULTS,
+                                                     neutral_keys=EPISODE_NEUTRAL_KEYS))
             records_file = results.records()
             # crashed episodes of this range are dropped from the file, so they run again
             resumed = records_file.resume(retry=crashed, indices=job.indices)

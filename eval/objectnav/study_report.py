@@ -6,8 +6,10 @@
   SoftSPL (fractions) and DTG (metres) as mean (SEM) over the evaluation episodes, and N;
 - the paired differences the study names (``pairs``) and, for every row that takes another
   row's threshold, the row minus its condition's own tuned row (the threshold-transfer
-  question), each with its paired SEM, ``|d| / SEM`` and the verdict: "resolved" at 2 SEM or
-  more, else "not resolved at N episodes" -- no direction is claimed inside 2 SEM;
+  question), each with its paired SEM over episodes and its SEM clustered by house
+  (``eval.stats.house_sem``: a house's episodes are correlated), ``|d|`` over the larger of the
+  two and the verdict: "resolved" at 2 of the larger SEM or more, else "not resolved at N
+  episodes" -- no direction is claimed inside 2 SEM;
 - the failure breakdown per row (``failure_kind``: false STOP, stopped short, out of steps
   searching or stuck, crashed) and the median collisions;
 - the tuning grids: Success vs goal threshold on the tuning episodes, one curve per tuned row
@@ -25,11 +27,14 @@ from pathlib import Path
 
 from calnav.eval.config import ConfigError
 from calnav.eval.results_dir import read_records
-from calnav.eval.stats import METRIC_LABELS, contrast, finite_or_error, is_finished, mean_sem_cell, same_episode, summarize
+from calnav.eval.stats import (METRIC_LABELS, contrast, finite_or_error, governing_sem, house_sem, is_finished,
+                               mean_sem_cell, same_episode, summarize)
 
-RESOLVED_SEM = 2.0     # a difference is claimed only at this many paired SEMs or more
+RESOLVED_SEM = 2.0     # a difference is claimed only at this many paired SEMs or more (the larger of episode and house SEM)
 TABLE_METRICS: tuple[str, ...] = ("success", "spl", "softspl", "distance_to_goal")
 PAIRED_METRICS: tuple[str, ...] = ("success", "spl")
+CLAIM = (f"a direction is claimed only at {RESOLVED_SEM:g} SEM or more, judged by the larger of the episode SEM "
+         "and the house SEM (clustered by house: a house's episodes are correlated)")
 RESULTS_NAME, CURVES_NAME = "results.md", "threshold_curves.png"
 
 
@@ -103,8 +108,8 @@ def metrics_markdown(manifest: dict, records: dict[str, list[dict]]) -> str:
 
 
 def paired_markdown(pairs: list[tuple[str, str]], records: dict[str, list[dict]]) -> str:
-    heads = ["Row", "minus"] + [f"d{METRIC_LABELS[m]} (SEM)" for m in PAIRED_METRICS] + \
-            ["abs dSuccess / SEM", "Success verdict", "N paired"]
+    heads = ["Row", "minus"] + [f"d{METRIC_LABELS[m]} (SEM, house SEM)" for m in PAIRED_METRICS] + \
+            ["abs dSuccess / larger SEM", "Success verdict", "N paired"]
     lines = ["| " + " | ".join(heads) + " |", "|" + "---|" * len(heads)]
     ready = [(a, b) for a, b in pairs if a in records and b in records]
     if not ready:
@@ -114,17 +119,22 @@ def paired_markdown(pairs: list[tuple[str, str]], records: dict[str, list[dict]]
     return "\n".join(lines)
 
 
+def _sem_text(sem: float) -> str:
+    return f"{sem:.3f}" if math.isfinite(sem) else "-"
+
+
 def contrast_cells(names: list[str], weights: list[float], records: dict[str, list[dict]]) -> list[str]:
     """The table cells of a contrast of rows (``eval.stats.contrast``, paired over the episodes
-    they share, checked to be the same ones): per PAIRED_METRICS "d (SEM)", then |dSuccess| /
-    SEM, the Success verdict and N."""
+    they share, checked to be the same ones): per PAIRED_METRICS "d (SEM, house SEM)", then
+    |dSuccess| / the larger SEM (``governing_sem``), the Success verdict and N."""
     check_same_episodes(names, records)
     runs = [(records[n], float(w)) for n, w in zip(names, weights)]
     cells, first = [], None
     for m in PAIRED_METRICS:
         d, sem, n = contrast(runs, m)
-        first = first or (d, sem, n)
-        cells.append(f"{d:+.3f} ({sem:.3f})" if math.isfinite(sem) else f"{d:+.3f} (-)")
+        by_house = house_sem(runs, m)
+        first = first or (d, governing_sem(sem, by_house), n)
+        cells.append(f"{d:+.3f} ({_sem_text(sem)}, {_sem_text(by_house)})")
     d, sem, n = first
     return [*cells, _ratio(d, sem), verdict(d, sem, n), str(n)]
 
@@ -136,8 +146,8 @@ def conclusions_markdown(manifest: dict, records: dict[str, list[dict]]) -> str:
     questions = manifest.get("questions") or []
     if not questions:
         return "The study file asks no questions."
-    heads = ["Question", "Contrast"] + [f"{METRIC_LABELS[m]} (SEM)" for m in PAIRED_METRICS] + \
-            ["abs / SEM", "Success verdict", "N"]
+    heads = ["Question", "Contrast"] + [f"{METRIC_LABELS[m]} (SEM, house SEM)" for m in PAIRED_METRICS] + \
+            ["abs / larger SEM", "Success verdict", "N"]
     lines = ["| " + " | ".join(heads) + " |", "|" + "---|" * len(heads)]
     for q in questions:
         terms = " ".join(f"{'+' if w > 0 else '-'} {'' if abs(w) == 1 else f'{abs(w):g} '}{n}"
@@ -309,11 +319,11 @@ def render(manifest_path: Path) -> str:
     if short:   # a damaged or cut records file: its row's N says so, and so does this line
         parts += ["Rows holding fewer records than the evaluation episodes (rerun `calnav study` to fill them): "
                   + ", ".join(short) + ".", ""]
-    parts += ["Conclusions: each question's contrast of rows on the episodes they share; a direction is claimed "
-              f"only at {RESOLVED_SEM:g} SEM or more:", "", conclusions_markdown(manifest, records), ""]
+    parts += [f"Conclusions: each question's contrast of rows on the episodes they share; {CLAIM}:", "",
+              conclusions_markdown(manifest, records), ""]
     pairs = [tuple(p) for p in manifest.get("pairs", [])]
-    parts += ["Paired differences (row minus the other, on the episodes both hold); a difference is claimed "
-              f"only at {RESOLVED_SEM:g} SEM or more:", "", paired_markdown(pairs, records), ""]
+    parts += [f"Paired differences (row minus the other, on the episodes both hold); {CLAIM}:", "",
+              paired_markdown(pairs, records), ""]
     transfer = transfer_pairs(manifest)
     if transfer:
         parts += ["Threshold transfer: each row at another condition's tuned threshold minus the same row at its "
@@ -348,7 +358,8 @@ def headline(manifest_path: Path, page: Path, results: Path) -> str:
         f"{done} of {total} rows evaluated on {ev['split']} episodes {ev['episodes']} (paired), each at the goal "
         f"threshold tuned on {tune['split']} {tune['episodes']}; mean (SEM). Everything else -- paired "
         f"differences, threshold transfer, failures, the threshold curves, compute -- is in [the results page]({link}).",
-        "", metrics_markdown(manifest, records), "", conclusions_markdown(manifest, records)])
+        "", metrics_markdown(manifest, records), "", f"Conclusions; {CLAIM}:", "",
+        conclusions_markdown(manifest, records)])
 
 
 def embed(page_text: str, block: str, page: Path) -> str:

@@ -239,6 +239,21 @@ def test_config_check_ignores_neutral_keys_and_force_discards(tmp_path):
 
 
 
+def test_more_houses_in_the_split_resume_the_same_records(run_copy, capsys):
+    """A split's house count decides which episodes exist, not what an index holds: the run of
+    0:4 with 2 val houses resumes with 3 houses to 0:7, running only 4:7 and keeping the first
+    four records as they were; episodes per house do move the indices, so changing them is refused."""
+    before = (run_copy / RECORDS).read_text()
+    assert main(_objectnav(run_copy, "0:7", "env.dataset.val_scenes=3")) == 0
+    after = (run_copy / RECORDS).read_text()
+    assert after.startswith(before) and sorted(r["index"] for r in _lines(run_copy)) == list(range(7))
+    assert [r["scene"] for r in _lines(run_copy)][-1].endswith("0002")   # the third house's first episode
+    assert "val_scenes: 3" in (run_copy / "config.yaml").read_text()
+    capsys.readouterr()
+    assert main(_objectnav(run_copy, "0:7", "env.dataset.val_scenes=3", "env.dataset.episodes_per_scene=4")) == 2
+    assert "different config" in capsys.readouterr().err
+
+
 def test_a_changed_input_file_under_the_same_config_is_another_run(tmp_path, capsys):
     """Weights replaced in place (same config, same path) are refused on resume, by open and by
     check, naming the file; --force discards; a directory without inputs.json (older calnav) is

@@ -107,10 +107,28 @@ def test_paired_identical_runs_render_dash(tmp_path):
     main_compare(argparse.Namespace(runs=[r0, r1], keys="", baseline="0", output=str(out)))
     paired = (out / "paired.md").read_text()
     row = next(line for line in paired.splitlines() if line.startswith(f"| {r1} "))
-    assert row.endswith("| +0.000 (0.000) | +0.000 (0.000) | - | - | 2 |")  # 0 / 0 is not a z
+    assert row.endswith("| +0.000 (0.000, -) | +0.000 (0.000, -) | - | - | 2 |")  # 0 / 0 is not a z; no house named
     assert "identical on every paired episode" in paired
     with open(out / "paired.csv") as f:
         assert next(csv.DictReader(f))["spl_z"] == "nan"  # the CSV keeps the number
+
+
+def test_paired_z_is_judged_by_the_larger_of_episode_and_house_sem(tmp_path):
+    """Success differences [1, 1, 1, 1, 0, 0], the 1s in house A: episode SEM 0.2108, house
+    (CR1) SEM 0.4444 (tests/eval/objectnav/test_study_report.py works both by hand): |d| / SEM
+    is 2/3 / 0.4444 = 1.5, not the 3.16 the episode SEM alone gives."""
+    cfg = {"agent": {"map_type": "fused", "segmenter": "gt"}, "mapping": {"fusion": "rbu"}}
+    rec = lambda i, v: {**_rec(i, v, v), "scene": "AAAABB"[i]}
+    r0 = _run_dir(tmp_path / "a", cfg, [rec(i, 0.0) for i in range(6)])
+    r1 = _run_dir(tmp_path / "b", {**cfg, "mapping": {"fusion": "glfs"}}, [rec(i, float(i < 4)) for i in range(6)])
+    out = tmp_path / "cmp"
+    main_compare(argparse.Namespace(runs=[r0, r1], keys="", baseline="0", output=str(out)))
+    with open(out / "paired.csv") as f:
+        row = next(csv.DictReader(f))
+    assert float(row["success_sem"]) == pytest.approx(0.21082, abs=1e-4)
+    assert float(row["success_house_sem"]) == pytest.approx(4 / 9)
+    assert float(row["success_z"]) == pytest.approx(1.5)
+    assert "| +0.667 (0.211, 0.444) | 1.5 | 1.5 | 6 |" in (out / "paired.md").read_text()
 
 
 def test_compare_bad_input(tmp_path):
@@ -168,7 +186,7 @@ def test_compare_excludes_crashed_episodes_from_the_pairs(tmp_path, capsys):
     r3 = _run_dir(tmp_path / "d", {**cfg, "mapping": {"fusion": "glfs"}}, [_rec(0, 1.0, 1.0), _rec(1, 0.0, 0.0)])
     main_compare(argparse.Namespace(runs=[r2, r3], keys="", baseline="0", output=str(out)))
     row = next(line for line in (out / "paired.md").read_text().splitlines() if line.startswith(f"| {r3} "))
-    assert row.endswith("| +0.500 (0.500) | +0.500 (0.500) | 1.0 | 1.0 | 2 |")   # episode 0: 0 -> 1
+    assert row.endswith("| +0.500 (0.500, -) | +0.500 (0.500, -) | 1.0 | 1.0 | 2 |")   # episode 0: 0 -> 1
     assert "inf" not in capsys.readouterr().out
     failures = (out / "failures.md").read_text().splitlines()
     assert failures[2].startswith(f"| {r2} | 2 |") and "| 1 | 0 |" in failures[2]   # the crash counts as failed

@@ -194,6 +194,16 @@ def test_study_end_to_end(tmp_path, capsys):
     assert (out / rows["gt/rbu"]["dir"] / "episodes.jsonl").read_text() == before
     assert again["gt/ndf"] == rows["gt/ndf"] and again["gt/rbu"]["summary"] == rows["gt/rbu"]["summary"]
 
+    # more test houses extend the evaluation: only the new episodes run, the first one is kept as it was
+    bigger = path.read_text().replace('"env.dataset.test_scenes=1"', '"env.dataset.test_scenes=2"') \
+        .replace('split: test\n  episodes: "0:1"', 'split: test\n  episodes: "0:3"')
+    assert bigger.count("test_scenes=2") == 1 and '"0:3"' in bigger
+    path.write_text(bigger)
+    assert main(["study", str(path), "--output", str(out), "--rows", "gt/rbu"]) == 0
+    extended = json.loads((out / "manifest.json").read_text())["rows"]["gt/rbu"]
+    text = (out / rows["gt/rbu"]["dir"] / "episodes.jsonl").read_text()
+    assert text.startswith(before) and extended["summary"]["count"] == 3 and extended["episodes"] == 3
+
 
 @pytest.mark.e2e
 def test_manifest_says_what_is_pending_and_tuned_when_cut_short(tmp_path, monkeypatch):

@@ -17,8 +17,8 @@ def _rec(i, success, spl, steps=20):
             "steps": steps, "collisions": 1, "wall_time_s": 1.5}
 
 
-def _study(tmp_path, rows: dict[str, list[dict]], entries: dict[str, dict], pairs) -> "Path":
-    manifest = {"version": 1, "evaluate": {"split": "test", "episodes": "0:4"},
+def _study(tmp_path, rows: dict[str, list[dict]], entries: dict[str, dict], pairs, episodes: str = "0:4") -> "Path":
+    manifest = {"version": 1, "evaluate": {"split": "test", "episodes": episodes},
                 "tune": {"split": "val", "episodes": "0:2", "thresholds": [0.5, 0.9], "metric": "success"},
                 "pairs": pairs, "rows": {}}
     for name, e in entries.items():
@@ -65,10 +65,10 @@ def test_page_from_hand_made_records(tmp_path):
     assert "| seg/scanned/glfs@clean | 0.5 (seg/clean/glfs) | 0.500 (0.289) |" in page
     # glfs - rbu, Success: diffs [0, 1, 0, 1]: mean 0.5, SEM 0.2887 -> 1.7 SEM, not resolved; SPL: diffs
     # [0.1, 0.4, 0, 0.5]: mean 0.25, SD sqrt(0.17 / 3) = 0.238, SEM 0.119
-    assert "| seg/clean/glfs | seg/clean/rbu | +0.500 (0.289) | +0.250 (0.119) | 1.73 | not resolved at 4 episodes | 4 |" in page
+    assert "| seg/clean/glfs | seg/clean/rbu | +0.500 (0.289, -) | +0.250 (0.119, -) | 1.73 | not resolved at 4 episodes | 4 |" in page
     # transfer: the clean-tuned threshold on scanned houses minus the scanned-tuned one: -0.5
     assert transfer_pairs(json.loads(path.read_text())) == [("seg/scanned/glfs@clean", "seg/scanned/glfs")]
-    assert "| seg/scanned/glfs@clean | seg/scanned/glfs | -0.500 (0.289) |" in page
+    assert "| seg/scanned/glfs@clean | seg/scanned/glfs | -0.500 (0.289, -) |" in page
     assert "None yet" not in page
     assert "Not run yet: seg/later." in page and "Tuned, not evaluated yet: seg/tuned (threshold 0.7)." in page and "Skipped: seg/low (band empty)." in page
     # failures: rbu has one false STOP (2 m from the goal) and one episode out of steps (500 of
@@ -138,8 +138,9 @@ def _questions(tmp_path, questions):
 def test_conclusions_answer_each_question_or_say_what_it_waits_for(tmp_path):
     page = render(_questions(tmp_path, [{"ask": "g better?", "rows": ["g", "r"], "weights": [1.0, -1.0]},
                                         {"ask": "p better?", "rows": ["p", "r"], "weights": [1.0, -1.0]}]))
-    # g - r as in test_page_from_hand_made_records: Success +0.5 (0.289), 1.7 SEM
-    assert "| g better? | g - r | +0.500 (0.289) | +0.250 (0.119) | 1.73 | not resolved at 4 episodes | 4 |" in page
+    # g - r as in test_page_from_hand_made_records: Success +0.5 (0.289), 1.7 SEM; the records
+    # name no house, so there is no house SEM ("-") and the episode SEM judges
+    assert "| g better? | g - r | +0.500 (0.289, -) | +0.250 (0.119, -) | 1.73 | not resolved at 4 episodes | 4 |" in page
     assert "| p better? | p - r | waiting for p |" in page
     page = render(_questions(tmp_path / "none", []))
     assert "The study file asks no questions." in page
@@ -147,6 +148,38 @@ def test_conclusions_answer_each_question_or_say_what_it_waits_for(tmp_path):
     (tmp_path / "none" / "eval" / "g" / "episodes.jsonl").write_text(json.dumps(_rec(0, 1, 0.5)) + "\n")
     assert "Rows holding fewer records than the evaluation episodes (rerun `calnav study` to fill them): g (1 of 4)." \
         in render(tmp_path / "none" / "manifest.json")
+
+
+def test_the_house_sem_judges_when_a_house_s_episodes_agree(tmp_path):
+    """Success differences [1, 1, 1, 1, 0, 0], the four 1s in house A, the 0s in house B: mean
+    2/3, episode SEM sqrt((4/9 * 4 + 4/9 * 2 ... ) -> SD sqrt(12/45) = 0.5164, SEM 0.2108 (3.16 SEM,
+    resolved on episodes); house residual sums S_g - n_g m = 4 - 8/3 = 4/3 and 0 - 4/3, CR1 SEM
+    sqrt(2/1 * 32/9) / 6 = 0.4444: 1.5 SEM (printed rounded down: 1.49), not resolved. SPL is half
+    of Success throughout."""
+    houses = "AAAABB"
+    rec = lambda i, v: {**_rec(i, v, v / 2), "scene": houses[i]}
+    entries = {"r": {"overrides": ["a=1"], "threshold_from": "", "threshold": 0.9},
+               "g": {"overrides": ["a=2"], "threshold_from": "", "threshold": 0.5}}
+    path = _study(tmp_path, {"r": [rec(i, 0) for i in range(6)], "g": [rec(i, 1 if i < 4 else 0) for i in range(6)]},
+                  entries, [["g", "r"]], episodes="0:6")
+    page = render(path)
+    assert "| g | r | +0.667 (0.211, 0.444) | +0.333 (0.105, 0.222) | 1.49 | not resolved at 6 episodes | 6 |" in page
+    assert "judged by the larger of the episode SEM and the house SEM" in page
+
+
+def test_clustered_sem_by_hand():
+    """[1, 1, 0, 0] in houses A, A, B, B: residual sums +1, -1, CR1 SEM sqrt(2 * 2) / 4 = 0.5
+    against the episode SEM 0.2887; with one value per house it is the episode SEM."""
+    import numpy as np
+
+    from calnav.eval.stats import clustered_sem, mean_sem
+
+    assert clustered_sem([1, 1, 0, 0], "AABB") == pytest.approx(0.5)
+    x = np.random.default_rng(0).normal(size=17)
+    assert clustered_sem(x, range(17)) == pytest.approx(mean_sem(x)[1])
+    assert np.isnan(clustered_sem([1, 0, 1], "AAA"))   # one house: no spread between houses
+    with pytest.raises(ValueError, match="3 values but 2 group labels"):
+        clustered_sem([1, 0, 1], "AB")
 
 
 def test_the_sem_ratio_rounds_down():
