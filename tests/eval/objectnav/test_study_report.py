@@ -3,6 +3,7 @@ paired differences and verdicts computed by hand; refusals of a missing manifest
 import json
 
 import pytest
+from hypothesis import given, settings, strategies as st
 
 from calnav.eval.cli import main
 from calnav.eval.config import ConfigError
@@ -180,6 +181,27 @@ def test_clustered_sem_by_hand():
     assert np.isnan(clustered_sem([1, 0, 1], "AAA"))   # one house: no spread between houses
     with pytest.raises(ValueError, match="3 values but 2 group labels"):
         clustered_sem([1, 0, 1], "AB")
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.tuples(st.floats(-1, 1), st.integers(0, 5)), min_size=3, max_size=40), st.floats(0.1, 10))
+def test_clustered_sem_properties(pairs, scale):
+    """Renaming the houses or reordering the episodes leaves it unchanged; scaling every
+    difference scales it; shifting every difference leaves it unchanged (a spread, not a level)."""
+    import numpy as np
+
+    from calnav.eval.stats import clustered_sem
+
+    x = np.array([v for v, _ in pairs])
+    g = [f"h{h}" for _, h in pairs]
+    base = clustered_sem(x, g)
+    if np.isnan(base):
+        assert len(set(g)) < 2
+        return
+    order = np.random.default_rng(len(pairs)).permutation(len(pairs))
+    assert clustered_sem(x[order], [g[i] + "_renamed" for i in order]) == pytest.approx(base, abs=1e-12)
+    assert clustered_sem(scale * x, g) == pytest.approx(scale * base, rel=1e-9, abs=1e-12)
+    assert clustered_sem(x + 0.5, g) == pytest.approx(base, rel=1e-9, abs=1e-12)
 
 
 def test_the_sem_ratio_rounds_down():
