@@ -36,10 +36,11 @@ $(HABITAT_STAMP): pyproject.toml
 demo: $(STAMP)
 	$(VENV)/bin/calnav demo
 
-# the main suite, then the habitat-lab interop tests (marker habitat) for real in .venv-habitat,
+# the main suite (its 10 slowest tests listed: it keeps to ~10 minutes on 2 cores), then the
+# habitat-lab interop tests (marker habitat) for real in .venv-habitat,
 # then the docs site (mkdocs.yml; strict: a broken link or anchor fails) into the ignored site/
 test: $(STAMP) $(HABITAT_STAMP)
-	$(PY) -m pytest -q -ra
+	$(PY) -m pytest -q -ra --durations=10
 	CALNAV_REQUIRE_HABITAT=1 $(HPY) -m pytest -q -ra -m habitat
 	$(VENV)/bin/mkdocs build --strict --quiet --site-dir site
 
