@@ -7,6 +7,7 @@ wheel (no ``.git``) answers ``None`` rather than failing.
 from __future__ import annotations
 
 import re
+from functools import lru_cache
 from pathlib import Path
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
@@ -60,3 +61,12 @@ def git_commit(root: Path = REPO_ROOT) -> str | None:
             if name.strip() == ref and _SHA.match(sha):
                 return sha
     return None
+
+
+@lru_cache(maxsize=1)
+def running_commit() -> str | None:
+    """The commit of the code this process runs (``git_commit`` read once, at the first call:
+    a checkout moved later does not change the code already imported). Every episode record
+    carries it, so a results directory resumed across commits says which commit made which
+    record."""
+    return git_commit()

@@ -40,6 +40,7 @@ class Command:
     checks: tuple[str, ...] = ("run", "agent", "study", "mapping")
     sections: tuple[str, ...] = EPISODE_SECTIONS   # the root config's sections it uses (() with no config)
     shorthands: tuple[Shorthand, ...] = ()         # its arguments that set config keys (eval.shorthands)
+    status: bool = False      # main returns the exit status (0 / 1: a check that found a difference)
 
     def load(self):
         """(main, configs loader), imported now."""
@@ -119,6 +120,7 @@ COMMANDS: dict[str, Command] = {
     "tune": Command("calnav.eval.objectnav.tune", "main_tune", "tune_configs"),
     "study": Command("calnav.eval.objectnav.study", "main_study", "study_configs"),
     "report": Command("calnav.eval.objectnav.study_report", "main_report", None, sections=()),  # reads records
+    "reproduce": Command("calnav.eval.objectnav.reproduce", "main_reproduce", "reproduce_configs", status=True),
     "compare": Command("calnav.eval.objectnav.compare", "main_compare", None, sections=()),  # reads runs' configs
     "demo": Command("calnav.eval.objectnav.demo", "main_demo", "demo_configs",
                     shorthands=(Shorthand("--output", "run.output_dir", default="runs/demo"),)),
@@ -155,7 +157,9 @@ def main(argv: list[str] | None = None) -> int:
             command_main, load_configs = command.load()
             configs = load_configs(args)   # every config the command runs (all multirun combinations)
             check_configs(configs, command.checks)   # every file and service they name, before anything is written
-            command_main(args, configs)
+            status = command_main(args, configs)
+            if command.status and status:
+                return int(status)
     except (ConfigError, ValueError, FileNotFoundError, ResultsError) as exc:
         print(f"calnav {args.command}: error: {exc}", file=sys.stderr)
         return 2

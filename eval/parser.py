@@ -249,6 +249,19 @@ def build_parser() -> argparse.ArgumentParser:
                    help="a Markdown file whose '<!-- calnav report -->' ... '<!-- /calnav report -->' block becomes "
                         "the headline (metrics table and conclusions); repeatable, e.g. README.md")
 
+    p = sub.add_parser("reproduce", help="rerun episodes of a results directory with its own config and compare "
+                                         "every record field (exit 1 if one differs): does the code now give the "
+                                         "same results?")
+    p.add_argument("dir", help="a calnav objectnav results directory (config.yaml, episodes.jsonl), e.g. a study "
+                               "row's eval/<row>/")
+    p.add_argument("--episodes", required=True, help="N (first N) or A:B of the split's episodes; each must have a "
+                                                     "record in DIR")
+    p.add_argument("--output", default="", help="results directory of the rerun (default: a new temporary one)")
+    p.add_argument("--force", action="store_true", help="discard results of a different config in --output")
+    p.add_argument("--tol", type=float, default=1e-9, help="absolute tolerance of float fields (default 1e-9)")
+    p.add_argument("overrides", nargs="*", metavar="KEY=VALUE",
+                   help="only run.workers, run.backend, run.ray_address (a reproduction runs DIR's config)")
+
     p = sub.add_parser("compare", help="one comparison table (+ paired differences) from finished objectnav runs")
     p.add_argument("runs", nargs="+", help="run directories (each with config.yaml and episodes.jsonl)")
     p.add_argument("--keys", default="", help="comma-separated config keys as columns (default: the keys that differ)")

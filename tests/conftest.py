@@ -50,6 +50,21 @@ def assert_same_records(a: dict[int, dict], b: dict[int, dict], tol: float) -> N
                 assert h[k] == c[k], (i, k, h[k], c[k])
 
 
+def results_dir_like(path) -> str:
+    """A results directory as `calnav objectnav` leaves it: the shipped config as its
+    config.yaml and an empty records file (for commands that read one)."""
+    import shutil
+    from pathlib import Path
+
+    from calnav.common.provenance import REPO_ROOT
+
+    path = Path(path)
+    path.mkdir(parents=True, exist_ok=True)
+    shutil.copy(REPO_ROOT / "configs" / "objectnav.yaml", path / "config.yaml")
+    (path / "episodes.jsonl").write_text("")
+    return str(path)
+
+
 def small_or_full(small, full):
     """`make test` runs end-to-end checks in a small form; `make test-full` at full size."""
     return full if FULL else small

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from calnav.common.habitat_import import import_habitat
+from calnav.common.provenance import running_commit
 from calnav.envs.measures import StepsAtGoal, TaskState
 from calnav.eval.stats import finite_or_error
 
@@ -85,7 +86,7 @@ class RecordingEnv:
             "geodesic_distance": float(ep.info["geodesic_distance"]), "steps": self._steps,
             "path_length": self._path, "collisions": self._collisions,
             "steps_at_goal": int(self._at_goal.metric), "stop_reason": "stop" if self._stopped else "max_steps",
-            "wall_time_s": round(time.perf_counter() - self._t0, 3), "status": "ok",
+            "wall_time_s": round(time.perf_counter() - self._t0, 3), "status": "ok", "commit": running_commit(),
         }))
         return m
 

@@ -25,6 +25,7 @@ from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from calnav.common.provenance import running_commit
 from calnav.eval.config import Config, build_dataclass, to_dict
 from calnav.eval.results_dir import EPISODE_NEUTRAL_KEYS, RECORDS_NAME, AllEpisodesFailed, ResultsDir, writing
 from calnav.eval.stats import failure_modes, finite_or_error, format_metrics_table, summarize
@@ -61,7 +62,7 @@ def run_one_episode(env, agent, index: int, video_dir: Path | None = None, rerun
         "steps": info["steps"], "path_length": info["path_length"], "collisions": info["collisions"],
         "steps_at_goal": int(info["steps_at_goal"]),
         "stop_reason": "stop" if result.terminated else "max_steps",
-        "wall_time_s": round(time.perf_counter() - t0, 3), "status": "ok",
+        "wall_time_s": round(time.perf_counter() - t0, 3), "status": "ok", "commit": running_commit(),
     })
 
 

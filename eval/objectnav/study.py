@@ -15,7 +15,8 @@ The study config (``eval.objectnav.study_config``) lists rows in run order. For 
 
 Every step resumes: an interrupted study is continued by rerunning the same command. After each
 row ``<output>/manifest.json`` is rewritten (atomically): the study file and its sha256, and
-per row the equivalent single commands, the resolved config, the source commit, the sha256 of
+per row the equivalent single commands, the resolved config, the source commits that ran its
+records (with how many each: every record names its commit), the sha256 of
 every weight file (``inputs.json``) and episode file it read, the episode seconds it took, its
 summary, and where its records are. ``calnav report`` renders the results pages from it.
 """
@@ -24,9 +25,9 @@ from __future__ import annotations
 import gzip
 import hashlib
 import shlex
+from collections import Counter
 from pathlib import Path
 
-from calnav.common.provenance import git_commit
 from calnav.eval.config import ConfigError, load_config, parse_override, to_dict
 from calnav.eval.inputs import INPUTS_NAME, sha256_file
 from calnav.eval.objectnav.study_config import StudyConfig, StudyRow, load_study
@@ -51,13 +52,20 @@ def episode_files(env_cfg, upto: int) -> dict[str, str]:
             for f in files if f.is_file()}
 
 
-def _episode_seconds(records_path: Path, indices: range) -> tuple[int, float]:
-    """(episodes recorded of ``indices``, the sum of their ``wall_time_s``: worker seconds)."""
+# what a record made before records carried their commit counts as
+UNRECORDED_COMMIT = "unrecorded"
+
+
+def _episode_seconds(records_path: Path, indices: range) -> tuple[int, float, dict[str, int]]:
+    """(episodes recorded of ``indices``, the sum of their ``wall_time_s``: worker seconds,
+    {commit: episodes}: which source commit ran how many of them -- a row resumed across
+    commits lists each; records older than the ``commit`` field count as ``unrecorded``)."""
     if not records_path.is_file():
-        return 0, 0.0
+        return 0, 0.0, {}
     wanted = set(indices)
     recs = [r for r in read_records(records_path, quiet=True).records.values() if r.get("index") in wanted]
-    return len(recs), float(sum(float(r.get("wall_time_s") or 0.0) for r in recs))
+    commits = Counter(r.get("commit") or UNRECORDED_COMMIT for r in recs)
+    return len(recs), float(sum(float(r.get("wall_time_s") or 0.0) for r in recs)), dict(sorted(commits.items()))
 
 
 def _read_json(path: Path) -> dict | None:
@@ -141,7 +149,6 @@ def run_study(study_path: str | Path, out: Path, extra: list[str] = (), force: b
     if unknown:
         raise ConfigError(f"--rows: no row {unknown[0]!r} in {study_path}; rows: {', '.join(r.name for r in study.rows)}")
     wanted = set(only) | {study.row(n).threshold_from for n in only if study.row(n).threshold_from} if only else None
-    commit = git_commit()
     tuned: dict[str, dict] = {}
     evaluated: dict[str, str] = {}   # resolved evaluation config (result-relevant keys) -> row that ran it
     with ResultsDir(out, files=(MANIFEST_NAME, "study.yaml")) as root:   # a lock: two studies cannot interleave
@@ -186,10 +193,10 @@ def run_study(study_path: str | Path, out: Path, extra: list[str] = (), force: b
             if progress:
                 print(f"study: {row.name}: goal_threshold={t:g} goal_min_area_cells={a} -> {eval_dir}")
             summary = run_jobs([EpisodeJob(cfg, list(indices), eval_dir)], force=force, progress=progress)[0]
-            n, seconds = _episode_seconds(eval_dir / "episodes.jsonl", indices)
+            n, seconds, commits = _episode_seconds(eval_dir / "episodes.jsonl", indices)
             evaluated[key] = row.name
             manifest.update(row.name, status="done", dir=str(eval_dir.relative_to(out)),
-                            command=_eval_command(study, eval_dir), config=to_dict(cfg), commit=commit,
+                            command=_eval_command(study, eval_dir), config=to_dict(cfg), commits=commits,
                             inputs=_read_json(eval_dir / INPUTS_NAME) or {},
                             episode_files=episode_files(cfg.env, indices.stop), episodes=n,
                             episode_seconds=round(seconds, 3),

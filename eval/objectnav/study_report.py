@@ -14,6 +14,7 @@
   searching or stuck, crashed) and the median collisions;
 - the tuning grids: Success vs goal threshold on the tuning episodes, one curve per tuned row
   (``threshold_curves.png``, +-1 SEM), with the chosen point marked;
+- the source commits that ran each row's records (each record names its commit);
 - the rows not run yet, by name.
 
 Every number comes from the committed records (``episodes.jsonl``) the manifest names, scored as
@@ -26,6 +27,7 @@ import math
 from pathlib import Path
 
 from calnav.eval.config import ConfigError
+from calnav.eval.objectnav.study import UNRECORDED_COMMIT
 from calnav.eval.results_dir import read_records
 from calnav.eval.stats import (METRIC_LABELS, contrast, finite_or_error, governing_sem, house_sem, is_finished,
                                mean_sem_cell, same_episode, summarize)
@@ -203,6 +205,20 @@ def compute_markdown(root: Path, manifest: dict) -> str:
             f"{left * per_ep / 7200:.1f} hours on 2 cores), counting each tuning grid before any extension.")
 
 
+def commits_markdown(records: dict[str, list[dict]]) -> str:
+    """Which source commit ran how many of each row's evaluation records (every record names
+    its commit; older records count as ``unrecorded``), rows with the same commits on one line."""
+    from collections import Counter
+
+    groups: dict[tuple, list[str]] = {}
+    for name, recs in records.items():
+        counts = Counter(r.get("commit") or UNRECORDED_COMMIT for r in recs)
+        groups.setdefault(tuple(sorted(counts.items())), []).append(name)
+    lines = [f"- {', '.join(f'`{c[:7]}` ({n})' if c != UNRECORDED_COMMIT else f'{c} ({n})' for c, n in key)}: "
+             + ", ".join(names) for key, names in groups.items()]
+    return "Source commits of the evaluation records (episodes each):\n\n" + "\n".join(lines)
+
+
 def _ratio(d: float, sem: float) -> str:
     """|d| / SEM, rounded down to 2 decimals: 1.996 must not read as the 2.0 that resolves."""
     return f"{math.floor(100 * abs(d) / sem) / 100:.2f}" if math.isfinite(sem) and sem > 0 else "-"
@@ -330,6 +346,8 @@ def render(manifest_path: Path) -> str:
                   "own tuned threshold:", "", paired_markdown(transfer, records), ""]
     parts += ["Failures:", "", failures_table(manifest, records), ""]
     parts += [compute_markdown(manifest_path.parent, manifest), ""]
+    if records:
+        parts += [commits_markdown(records), ""]
     if skipped:
         parts += ["Skipped: " + "; ".join(f"{n} ({r})" for n, r in skipped) + ".", ""]
     if tuned:

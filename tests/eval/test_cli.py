@@ -5,6 +5,7 @@ import json
 
 import pytest
 
+from calnav.common.provenance import git_commit
 from calnav.eval.cli import main
 from calnav.eval.stats import format_metrics_table, mean_sem, summarize
 
@@ -45,7 +46,8 @@ def test_objectnav_oracle_run_resume_and_refusal(tmp_path, capsys):
     records = load_records(out / "episodes.jsonl")
     assert sorted(r["index"] for r in records) == [0, 1, 2, 3]
     assert {"episode_id", "category", "scene", "success", "spl", "softspl", "distance_to_goal", "steps",
-            "path_length", "wall_time_s", "stop_reason"} <= set(records[0])
+            "path_length", "wall_time_s", "stop_reason", "commit"} <= set(records[0])
+    assert {r["commit"] for r in records} == {git_commit()}      # which code ran each episode
 
     # simulate an interrupted run: drop two finished episodes and tear the last line
     lines = (out / "episodes.jsonl").read_text().splitlines()

@@ -14,6 +14,7 @@ from calnav.eval.cli import COMMANDS, main, parse_args
 from calnav.eval.config import (EPISODE_SECTIONS, MOVED_KEYS, PREDICTOR_SECTIONS, SECTIONS, Config, ConfigError,
                                 dump_yaml, load_config, migrate_tree)
 from calnav.eval.sections import QUICK_PRESET
+from tests.conftest import results_dir_like
 
 OUT = "OUT"   # replaced by a path under tmp_path
 
@@ -29,6 +30,7 @@ def _argv(command: str, tmp_path) -> list[str]:
         "fit-glfs": ["fit-glfs", "--segmenter", "gt", "--output", f"{OUT}/g.json", "--work-dir", OUT],
         "map": ["map", tmp_path, "--layout", "scannet", "--segmenter", "gt", "--output", OUT],
         "replay": ["replay", tmp_path / "x.bag", "--goal", "chair", "--output", OUT],
+        "reproduce": ["reproduce", results_dir_like(tmp_path / "run"), "--episodes", "0:1"],
     }.get(command, [command, "--output", OUT])]
 
 

@@ -12,6 +12,7 @@ from calnav.agent.segmenters.base import WEIGHTS_DIR
 from calnav.eval.cli import main
 from calnav.eval.config import load_config
 from calnav.eval.preflight import check_run_resources
+from tests.conftest import results_dir_like
 
 SHIPPED_GLFS = WEIGHTS_DIR / "glfs_learned_rgb.json"
 SMALL = ["env.resolution=32x24", "env.dataset.val_scenes=2", "env.dataset.episodes_per_scene=3"]
@@ -137,7 +138,9 @@ def _argv(command: str, tmp_path) -> list[str]:
         "check-scene": ["check-scene", "house_val_0000", "--output", out],
         "study": ["study", "configs/study.yaml", "--output", out],
         "report": ["report", str(tmp_path / "manifest.json")],
+        "reproduce": ["reproduce", results_dir_like(tmp_path / "run"), "--episodes", "0:1"],
     }.get(command, [command, "--output", out])
+
 
 
 def assert_runs_the_checked_configs(argv: list[str], monkeypatch) -> list:

@@ -6,6 +6,7 @@ import textwrap
 
 import pytest
 
+from calnav.common.provenance import git_commit
 from calnav.eval.cli import main
 from calnav.eval.config import ConfigError, load_config
 from calnav.eval.objectnav.study_config import load_study
@@ -174,6 +175,7 @@ def test_study_end_to_end(tmp_path, capsys):
         assert e["summary"]["count"] == 1 and e["episodes"] == 1 and e["episode_seconds"] > 0
         assert e["episode_files"] and all(len(v) == 64 for v in e["episode_files"].values())
         assert e["config"]["agent"]["goal_threshold"] == e["threshold"]
+        assert e["commits"] == {git_commit() or "unrecorded": 1}   # the code that ran its records
     assert rows["gt/ndf@rbu"]["threshold"] == rows["gt/rbu"]["threshold"]
     if rows["gt/ndf@rbu"]["threshold"] == rows["gt/ndf"]["threshold"]:   # the same config: not run twice
         assert rows["gt/ndf@rbu"]["same_as"] == "gt/ndf"
@@ -194,7 +196,12 @@ def test_study_end_to_end(tmp_path, capsys):
     assert (out / rows["gt/rbu"]["dir"] / "episodes.jsonl").read_text() == before
     assert again["gt/ndf"] == rows["gt/ndf"] and again["gt/rbu"]["summary"] == rows["gt/rbu"]["summary"]
 
-    # more test houses extend the evaluation: only the new episodes run, the first one is kept as it was
+    # more test houses extend the evaluation: only the new episodes run, the first one is kept as it
+    # was -- here as if an older commit had run it: the manifest then names both commits
+    records = out / rows["gt/rbu"]["dir"] / "episodes.jsonl"
+    older = "0" * 40
+    records.write_text(before.replace(json.dumps(git_commit()), json.dumps(older)))
+    before = records.read_text()
     bigger = path.read_text().replace('"env.dataset.test_scenes=1"', '"env.dataset.test_scenes=2"') \
         .replace('split: test\n  episodes: "0:1"', 'split: test\n  episodes: "0:3"')
     assert bigger.count("test_scenes=2") == 1 and '"0:3"' in bigger
@@ -203,6 +210,9 @@ def test_study_end_to_end(tmp_path, capsys):
     extended = json.loads((out / "manifest.json").read_text())["rows"]["gt/rbu"]
     text = (out / rows["gt/rbu"]["dir"] / "episodes.jsonl").read_text()
     assert text.startswith(before) and extended["summary"]["count"] == 3 and extended["episodes"] == 3
+    assert extended["commits"] == {older: 1, git_commit() or "unrecorded": 2}
+    assert main(["report", str(out / "manifest.json")]) == 0
+    assert "- `0000000` (1), " in (out / "results.md").read_text()   # the page names both commits
 
 
 @pytest.mark.e2e

@@ -7,7 +7,8 @@ from hypothesis import given, settings, strategies as st
 
 from calnav.eval.cli import main
 from calnav.eval.config import ConfigError
-from calnav.eval.objectnav.study_report import (PAGE_BEGIN, PAGE_END, _ratio, compute_markdown, embed, failure_kind,
+from calnav.eval.objectnav.study_report import (PAGE_BEGIN, PAGE_END, _ratio, commits_markdown, compute_markdown, embed,
+                                                failure_kind,
                                                 headline, render, transfer_pairs, verdict)
 from calnav.eval.stats import contrast
 
@@ -272,3 +273,13 @@ def test_readme_and_study_page_headlines_are_what_report_renders():
         text = page.read_text(encoding="utf-8")
         block = headline(manifest.relative_to(repo), page, manifest.parent / "results.md")
         assert embed(text, block, page) == text, f"{page.name}: rerun calnav report --page"
+
+
+def test_commits_line_groups_rows_by_the_commits_that_ran_them():
+    a, b = "a" * 40, "b" * 40
+    records = {"r/one": [{"commit": a}, {"commit": a}, {"commit": b}],
+               "r/two": [{"commit": b}, {"commit": a}, {"commit": a}],   # the same counts: one line
+               "r/old": [{}, {"commit": None}, {"commit": b}]}           # made before records named their commit
+    assert commits_markdown(records).splitlines()[2:] == [
+        "- `aaaaaaa` (2), `bbbbbbb` (1): r/one, r/two",
+        "- `bbbbbbb` (1), unrecorded (2): r/old"]

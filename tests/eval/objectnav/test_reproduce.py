@@ -1,0 +1,72 @@
+"""`calnav reproduce`: rerunning a directory's episodes with its own config matches its records;
+a changed record is found and printed (exit 1); inputs that changed since, a missing episode
+and a result-changing override are refused before anything runs (exit 2)."""
+import json
+from pathlib import Path
+
+import pytest
+
+from calnav.eval.cli import main
+from calnav.eval.objectnav.reproduce import differences
+
+REPO = Path(__file__).resolve().parents[3]
+SMALL = ["env.resolution=32x24", "env.dataset.val_scenes=2", "env.dataset.episodes_per_scene=3", "run.workers=1"]
+
+
+def test_differences_by_hand():
+    rec = {"index": 3, "success": 1.0, "spl": 0.5, "steps": 40, "stop_reason": "stop", "wall_time_s": 2.0,
+           "commit": "a" * 40}
+    same = {**rec, "spl": 0.5 + 1e-12, "wall_time_s": 9.0, "commit": "b" * 40, "ray_node": "n1"}
+    assert differences(rec, same, tol=1e-9) == {}                    # float noise, where / when / which code aside
+    assert differences(rec, {**rec, "spl": 0.6}, tol=1e-9) == {"spl": (0.5, 0.6)}
+    assert differences(rec, {**rec, "spl": 0.6}, tol=0.2) == {}
+    assert differences(rec, {**rec, "steps": 41, "stop_reason": "max_steps"}, tol=0.0) == \
+        {"steps": (40, 41), "stop_reason": ("stop", "max_steps")}
+    assert differences(rec, {**rec, "steps": 40.0}, tol=0.0) == {}   # 40 and 40.0 are the same number
+    assert differences(rec, {**rec, "steps": True}, tol=0.0) == {"steps": (40, True)}
+    extra = {**rec, "status": "ok"}
+    assert differences(rec, extra, tol=0.0) == {"status": (None, "ok")}   # a field one side lacks
+
+
+@pytest.mark.e2e
+def test_reproduce_matches_finds_a_change_and_refuses_bad_input(tmp_path, capsys):
+    run = tmp_path / "run"
+    assert main(["objectnav", "--agent", "oracle", "--episodes", "0:2", "--output", str(run), *SMALL]) == 0
+    capsys.readouterr()
+    assert main(["reproduce", str(run), "--episodes", "0:2", "--output", str(tmp_path / "a"), "run.workers=1"]) == 0
+    assert "2 episodes of" in capsys.readouterr().out and (tmp_path / "a" / "episodes.jsonl").is_file()
+
+    # a record that says something else than the code does: found, named, exit 1
+    lines = [json.loads(line) for line in (run / "episodes.jsonl").read_text().splitlines()]
+    changed = next(r for r in lines if r["index"] == 1)
+    steps = changed["steps"]
+    changed["steps"] += 1
+    (run / "episodes.jsonl").write_text("".join(json.dumps(r) + "\n" for r in lines))
+    assert main(["reproduce", str(run), "--episodes", "0:2", "--output", str(tmp_path / "b"), "run.workers=1"]) == 1
+    out = capsys.readouterr().out
+    assert f"episode 1 ({changed['episode_id']}): steps: {steps + 1} -> {steps}" in out and "1 differ" in out
+
+    # refused before running: an episode without a record, an override that changes results,
+    # a file the config reads that changed since the directory ran, --tol NaN, no directory
+    assert main(["reproduce", str(run), "--episodes", "0:3", "--output", str(tmp_path / "c")]) == 2
+    assert "holds no record of episode(s) 2" in capsys.readouterr().err
+    assert main(["reproduce", str(run), "--episodes", "0:1", "agent.goal_threshold=0.3"]) == 2
+    assert "agent.goal_threshold may change results" in capsys.readouterr().err
+    assert main(["reproduce", str(run), "--episodes", "0:1", "--tol", "nan"]) == 2
+    assert "--tol must be a finite number" in capsys.readouterr().err
+    assert main(["reproduce", str(tmp_path / "nope"), "--episodes", "0:1"]) == 2
+    assert "config.yaml not found" in capsys.readouterr().err
+    assert not (tmp_path / "c").exists()   # nothing ran
+
+    # the GLFS parameters a peanut run read, changed since: a rerun would test other parameters
+    params = tmp_path / "glfs.json"
+    params.write_text((REPO / "agent" / "weights" / "glfs_learned_rgb.json").read_text())
+    glfs = tmp_path / "glfs_run"
+    assert main(["objectnav", "--episodes", "0:1", "--output", str(glfs), *SMALL, "agent.segmenter=gt",
+                 "mapping.fusion=glfs", f"mapping.glfs_params={params}", "env.max_episode_steps=10"]) == 0
+    capsys.readouterr()
+    params.write_text(params.read_text() + "\n")
+    assert main(["reproduce", str(glfs), "--episodes", "0:1", "--output", str(tmp_path / "d")]) == 2
+    err = capsys.readouterr().err
+    assert "cannot reproduce" in err and "other input files: mapping.glfs_params" in err
+    assert not (tmp_path / "d").exists()
