@@ -3,6 +3,7 @@ generated fresh, so generation itself is under test), and the small/full switch.
 import atexit
 import os
 import shutil
+import signal
 import tempfile
 
 import pytest
@@ -26,6 +27,14 @@ def require_habitat() -> None:
             raise RuntimeError("CALNAV_REQUIRE_HABITAT=1 but habitat-lab is not importable in this Python")
         pytest.skip("habitat-lab is not installed here (make test runs these in .venv-habitat)",
                     allow_module_level=True)
+
+
+def pytest_configure(config):
+    """A suite started in the background of a non-interactive shell (`make test &`, nohup)
+    inherits SIGINT ignored, and so would every process it starts; the Ctrl-C tests send real
+    SIGINTs, so Python's own handler is restored (a child process then starts with it too)."""
+    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 def read_records(run_dir) -> dict[int, dict]:
