@@ -178,21 +178,48 @@ def governing_sem(sem: float, by_house: float) -> float:
 LINGER_STEPS = 20   # an episode "lingered" when it stood at the goal, in view, longer than this without STOP
 
 
+STOPPED_SHORT_M = 1.0        # a failed STOP within this distance of a view point found the object but stopped short, metres
+STUCK_PATH_SHARE = 0.25      # out of steps having walked less than this share of what its forward steps allow: stuck
+FAILURES: tuple[tuple[str, str], ...] = (
+    ("false_stop", "False STOP"), ("stopped_short", f"Stopped short (< {STOPPED_SHORT_M:g} m)"),
+    ("searching", "Out of steps, searching"), ("stuck", "Out of steps, stuck"), ("crashed", "Crashed"))
+# failure_modes' coarse kinds: a STOP away from the goal, the step limit, a crash
+COARSE_FAILURE = {"false_stop": "false_stop", "stopped_short": "false_stop", "searching": "timeout",
+                  "stuck": "timeout", "crashed": "crashed"}
+
+
+def failure_kind(record: dict, max_steps: int, forward_step_m: float) -> str | None:
+    """How an episode failed (None: it succeeded), each failure in exactly one kind:
+    ``crashed`` (an error record, ``finite_or_error``); STOP called before the step limit away
+    from the goal -- ``stopped_short`` within STOPPED_SHORT_M of a view point (DistanceToGoal),
+    else ``false_stop``; at ``max_steps`` actions (the agent's forced last STOP is no decision)
+    -- ``stuck`` when its path is below STUCK_PATH_SHARE of ``steps * forward_step_m`` (blocked
+    or turning in place), else ``searching``."""
+    r = finite_or_error(record)
+    if r.get("status", "ok") != "ok":
+        return "crashed"
+    if r.get("success"):
+        return None
+    if r.get("steps", 0) < max_steps:
+        return "stopped_short" if r["distance_to_goal"] <= STOPPED_SHORT_M else "false_stop"
+    walked = float(r.get("path_length", 0.0)) / max(1e-9, r["steps"] * forward_step_m)
+    return "stuck" if walked < STUCK_PATH_SHARE else "searching"
+
+
 def failure_modes(records: list[dict], max_steps: int) -> dict[str, int]:
-    """Counts of how episodes failed: ``false_stop`` (STOP called away from the goal before the
-    step limit), ``timeout`` (still searching at ``max_steps`` actions; the agent's forced last
-    STOP does not make it a decision) and ``crashed`` (an error record, ``finite_or_error``); and, failed or not,
-    ``lingered``: episodes whose agent stood where STOP would have succeeded, the goal in view,
-    for more than LINGER_STEPS consecutive steps without calling it (records' ``steps_at_goal``;
-    older records without it count 0)."""
+    """Counts of how episodes failed, ``failure_kind`` coarsened (``COARSE_FAILURE``):
+    ``false_stop`` (STOP called away from the goal before the step limit), ``timeout`` (still
+    searching at ``max_steps`` actions) and ``crashed``; and, failed or not, ``lingered``:
+    episodes whose agent stood where STOP would have succeeded, the goal in view, for more than
+    LINGER_STEPS consecutive steps without calling it (records' ``steps_at_goal``; older records
+    without it count 0)."""
     out = {"false_stop": 0, "timeout": 0, "crashed": 0, "lingered": 0}
     for r in map(finite_or_error, records):
-        if r.get("status", "ok") != "ok":
-            out["crashed"] += 1
-            continue
-        if not r.get("success"):
-            out["timeout" if r.get("steps", 0) >= max_steps else "false_stop"] += 1
-        out["lingered"] += int(r.get("steps_at_goal", 0) > LINGER_STEPS)
+        kind = failure_kind(r, max_steps, forward_step_m=1.0)   # any step length: stuck and searching merge
+        if kind is not None:
+            out[COARSE_FAILURE[kind]] += 1
+        if kind != "crashed":
+            out["lingered"] += int(r.get("steps_at_goal", 0) > LINGER_STEPS)
     return out
 
 

@@ -10,7 +10,7 @@
   (``eval.stats.house_sem``: a house's episodes are correlated), ``|d|`` over the larger of the
   two and the verdict: "resolved" at 2 of the larger SEM or more, else "not resolved at N
   episodes" -- no direction is claimed inside 2 SEM;
-- the failure breakdown per row (``failure_kind``: false STOP, stopped short, out of steps
+- the failure breakdown per row (``eval.stats.failure_kind``: false STOP, stopped short, out of steps
   searching or stuck, crashed) and the median collisions;
 - the tuning grids: Success vs goal threshold on the tuning episodes, one curve per tuned row
   (``threshold_curves.png``, +-1 SEM), with the chosen point marked;
@@ -29,7 +29,7 @@ from pathlib import Path
 from calnav.eval.config import ConfigError
 from calnav.eval.objectnav.study import UNRECORDED_COMMIT
 from calnav.eval.results_dir import read_records
-from calnav.eval.stats import (METRIC_LABELS, contrast, finite_or_error, governing_sem, house_sem, is_finished,
+from calnav.eval.stats import (FAILURES, METRIC_LABELS, contrast, failure_kind, governing_sem, house_sem, is_finished,
                                mean_sem_cell, same_episode, summarize)
 
 RESOLVED_SEM = 2.0     # a difference is claimed only at this many paired SEMs or more (the larger of episode and house SEM)
@@ -240,30 +240,6 @@ def check_same_episodes(names: list[str], records: dict[str, list[dict]]) -> Non
             raise ConfigError(f"rows {names[0]} and {name} hold different episodes at index {bad} "
                               f"({first[bad].get('episode_id')} vs {other[bad].get('episode_id')}); a paired "
                               "comparison needs the same episodes (the same house style and dataset)")
-
-
-STOPPED_SHORT_M = 1.0        # a failed STOP within this distance of a view point found the object but stopped short, metres
-STUCK_PATH_SHARE = 0.25      # out of steps having walked less than this share of what its forward steps allow: stuck
-FAILURES: tuple[tuple[str, str], ...] = (
-    ("false_stop", "False STOP"), ("stopped_short", f"Stopped short (< {STOPPED_SHORT_M:g} m)"),
-    ("searching", "Out of steps, searching"), ("stuck", "Out of steps, stuck"), ("crashed", "Crashed"))
-
-
-def failure_kind(record: dict, max_steps: int, forward_step_m: float) -> str | None:
-    """How an episode failed (None: it succeeded), each failure in exactly one kind:
-    ``crashed`` (an error record); STOP called before the step limit away from the goal --
-    ``stopped_short`` within STOPPED_SHORT_M of a view point (DistanceToGoal), else
-    ``false_stop``; at the step limit -- ``stuck`` when its path is below STUCK_PATH_SHARE of
-    ``steps * forward_step_m`` (blocked or turning in place), else ``searching``."""
-    r = finite_or_error(record)
-    if r.get("status", "ok") != "ok":
-        return "crashed"
-    if r.get("success"):
-        return None
-    if r.get("steps", 0) < max_steps:
-        return "stopped_short" if r["distance_to_goal"] <= STOPPED_SHORT_M else "false_stop"
-    walked = float(r.get("path_length", 0.0)) / max(1e-9, r["steps"] * forward_step_m)
-    return "stuck" if walked < STUCK_PATH_SHARE else "searching"
 
 
 def failures_table(manifest: dict, records: dict[str, list[dict]]) -> str:

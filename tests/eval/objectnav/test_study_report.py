@@ -8,9 +8,8 @@ from hypothesis import given, settings, strategies as st
 from calnav.eval.cli import main
 from calnav.eval.config import ConfigError
 from calnav.eval.objectnav.study_report import (PAGE_BEGIN, PAGE_END, _ratio, commits_markdown, compute_markdown, embed,
-                                                failure_kind,
                                                 headline, render, transfer_pairs, verdict)
-from calnav.eval.stats import contrast
+from calnav.eval.stats import contrast, failure_kind
 
 
 def _rec(i, success, spl, steps=20):
