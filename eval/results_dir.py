@@ -143,11 +143,16 @@ class ResultsDir:
             raise
         return self
 
-    def check(self) -> "ResultsDir":
+    def check(self, read_only: bool = False) -> "ResultsDir":
         """What ``open`` would refuse, found without writing anything (for a command that works
         in memory first and writes only at its end): a file in the way, an unwritable parent,
-        a run holding the directory, another config's results without ``force``."""
-        check_output_dir(self.path, self.option)   # a file in the way, an unwritable parent or directory
+        a run holding the directory, another config's results without ``force``. ``read_only``:
+        the directory is only read (its results compared), so it must exist, not be writable."""
+        if read_only:
+            if not self.path.is_dir():
+                raise ResultsError(f"{self.option} {self.path} is not a directory; give a results directory")
+        else:
+            check_output_dir(self.path, self.option)   # a file in the way, an unwritable parent or directory
         if not self.path.exists():
             return self
         lock = self.path / LOCK_NAME
@@ -236,8 +241,8 @@ class ResultsDir:
         except ValueError as exc:
             raise ResultsError(f"{exc}; remove it or pass another {self.option}") from None
         if saved is None:
-            warn(f"{self.path} has no {INPUTS_NAME} (made before calnav fingerprinted its input files): "
-                 "resuming it cannot check that its weights and parameter files are unchanged")
+            warn(f"{self.path} has no {INPUTS_NAME} (made before calnav fingerprinted its input files): calnav "
+                 "cannot check that its weights and parameter files are the ones its results were made with")
             return []
         from calnav.eval.config import migrate_key
 

@@ -7,47 +7,64 @@ fingerprints prove the same *inputs*, not the same *code*. This command reruns s
 directory's episodes with its own ``config.yaml`` -- refused if the files it reads (weights,
 GLFS parameters, ...) are no longer the ones ``inputs.json`` recorded, since a difference would
 then prove nothing -- into a fresh results directory, and compares every field of every
-record with the directory's: equal, floats within ``--tol``, where and how fast it ran
+record with the directory's: equal, numbers within ``--tol``, where and how fast it ran
 (``IGNORED_FIELDS``) aside. Exit 0 when every episode matches, 1 when one differs (each
-difference printed), 2 on bad input, like every command.
+difference printed; a crash is a record like any other), 2 on bad input, like every command.
+
+The rerun goes to a new directory (``--output``, default a new temporary one): one that holds
+records already is refused, since resuming it would compare records that never reran. DIR is
+only read. What it reproduces is a directory of ``calnav objectnav``, ``calnav tune`` (a grid
+point) or a study row: episodes of calnav's ObjectNav env under the directory's config (the
+start-pose study's frame-change variants and habitat-benchmark runs use other envs). A
+record's ``commit`` is the checkout's HEAD: uncommitted edits do not show in it.
 """
 from __future__ import annotations
 
 import math
 import tempfile
+from numbers import Real
 from pathlib import Path
 
 from calnav.eval.config import Config, ConfigError, parse_override
-from calnav.eval.results_dir import (CONFIG_NAME, EPISODE_NEUTRAL_KEYS, RECORDS_NAME, ResultsDir, ResultsError,
-                                     read_records)
+from calnav.eval.results_dir import (CONFIG_NAME, EPISODE_NEUTRAL_KEYS, NEUTRAL_KEYS, RECORDS_NAME, AllEpisodesFailed,
+                                     ResultsDir, ResultsError, read_records)
 
 # record fields saying where, when and by which code an episode ran, not what happened in it
 IGNORED_FIELDS: tuple[str, ...] = ("wall_time_s", "commit", "ray_node", "video", "rerun")
-# overrides a reproduction may take: those that cannot change a result (workers, backend)
-ALLOWED_OVERRIDES: tuple[str, ...] = ("run.workers", "run.backend", "run.ray_address")
+# overrides a reproduction may take: those that cannot change a result (its output is --output)
+ALLOWED_OVERRIDES: tuple[str, ...] = tuple(k for k in NEUTRAL_KEYS if k != "run.output_dir")
+
+
+def _number(x) -> bool:
+    return isinstance(x, Real) and not isinstance(x, bool)
 
 
 def differences(old: dict, new: dict, tol: float) -> dict[str, tuple]:
     """{field: (old value, new value)} of two records of one episode: every field either holds
-    outside ``IGNORED_FIELDS``, floats equal within ``tol`` (absolute), the rest exactly; a field
-    one record lacks counts as a difference (``None`` on the side that lacks it)."""
+    outside ``IGNORED_FIELDS``, numbers equal within ``tol`` (absolute; 40 and 40.0 are one
+    number), the rest exactly; a field one record lacks counts as a difference (``None`` on the
+    side that lacks it)."""
     out: dict[str, tuple] = {}
     for key in sorted((old.keys() | new.keys()) - set(IGNORED_FIELDS)):
         a, b = old.get(key), new.get(key)
-        if isinstance(a, float) and isinstance(b, float) and math.isfinite(a) and math.isfinite(b):
+        if _number(a) and _number(b) and math.isfinite(a) and math.isfinite(b):
             if abs(a - b) > tol:
                 out[key] = (a, b)
-        elif a != b or type(a) is not type(b) and not {type(a), type(b)} <= {int, float}:
+        elif a != b or type(a) is not type(b):
             out[key] = (a, b)
     return out
 
 
 def _source(args) -> Path:
     src = Path(args.dir)
+    if not src.is_dir():
+        raise FileNotFoundError(f"{src} is not a directory; give a results directory of `calnav objectnav`, "
+                                f"`calnav tune` or a study row (its eval/<row>/), which holds {CONFIG_NAME} and "
+                                f"{RECORDS_NAME}")
     for name in (CONFIG_NAME, RECORDS_NAME):
         if not (src / name).is_file():
-            raise FileNotFoundError(f"{src / name} not found; give a results directory of `calnav objectnav` "
-                                    f"(or a study row's eval/<row>/), which holds {CONFIG_NAME} and {RECORDS_NAME}")
+            raise FileNotFoundError(f"{src / name} is not a file; give a results directory of `calnav objectnav`, "
+                                    f"`calnav tune` or a study row, which holds {CONFIG_NAME} and {RECORDS_NAME}")
     return src
 
 
@@ -61,37 +78,56 @@ def reproduce_configs(args) -> list[Config]:
     for text in args.overrides:
         key = parse_override(text)[0]
         if key not in ALLOWED_OVERRIDES:
-            raise ConfigError(f"{key} may change results; a reproduction runs the directory's own config "
-                              f"and takes only {', '.join(ALLOWED_OVERRIDES)}")
+            raise ConfigError(f"{key}: a reproduction runs the directory's own config and takes only keys that "
+                              f"cannot change results: {', '.join(ALLOWED_OVERRIDES)}")
     return [cfg]
+
+
+def _check_output(out: Path, src: Path) -> None:
+    """The rerun's directory must be new or hold no records: a resumed one would compare
+    records that were never rerun."""
+    if out.resolve() == src.resolve():
+        raise ResultsError(f"--output {out} is DIR itself; give a new directory for the rerun")
+    if (out / RECORDS_NAME).is_file() and read_records(out / RECORDS_NAME, quiet=True).records:
+        raise ResultsError(f"--output {out} already holds records; a reproduction reruns every episode, so give a "
+                           "new directory (or remove it)")
 
 
 def main_reproduce(args, configs: list[Config]) -> int:
     """Rerun ``args.episodes`` of ``args.dir`` and compare; returns the exit status (0 / 1)."""
+    from calnav.envs.episodes import parse_episode_range
     from calnav.eval.episodes import episode_indices
     from calnav.eval.objectnav.run import EpisodeJob, run_jobs
 
     src, cfg = _source(args), configs[0]
     try:   # the same config and input files as the source's records (or a locked, running directory)
-        ResultsDir(src, cfg, neutral_keys=EPISODE_NEUTRAL_KEYS, option="DIR", can_force=False).check()
+        ResultsDir(src, cfg, neutral_keys=EPISODE_NEUTRAL_KEYS, option="DIR", can_force=False).check(read_only=True)
     except ResultsError as exc:
         raise ResultsError(f"cannot reproduce: {str(exc).rsplit('; ', 1)[0]}") from None
-    old = read_records(src / RECORDS_NAME, quiet=True).records
-    indices = list(episode_indices(str(args.episodes), cfg.env, cfg.run, progress=False))
-    missing = [i for i in indices if i not in old]
+    old = read_records(src / RECORDS_NAME).records   # (damaged or duplicate lines: warned)
+    wanted = parse_episode_range(str(args.episodes), None)   # before any scene is generated
+    missing = [i for i in wanted if i not in old]
     if missing:
+        held = f"it holds {len(old)} episodes, e.g. {', '.join(map(str, sorted(old)[:5]))}" if old else \
+            "it holds no episode"
         raise ConfigError(f"{src / RECORDS_NAME} holds no record of episode(s) {', '.join(map(str, missing[:8]))}"
-                          f"{' ...' if len(missing) > 8 else ''}; it holds {len(old)} episodes, e.g. "
-                          f"{', '.join(map(str, sorted(old)[:5]))}")
+                          f"{' ...' if len(missing) > 8 else ''}; {held}")
+    if args.output:
+        _check_output(Path(args.output), src)
+    indices = list(episode_indices(str(args.episodes), cfg.env, cfg.run, progress=False))
     out = Path(args.output) if args.output else Path(tempfile.mkdtemp(prefix="calnav-reproduce-"))
-    run_jobs([EpisodeJob(cfg, indices, out)], force=args.force)
+    print(f"reproduce: rerunning {len(indices)} episode(s) of {src} into {out}")
+    try:
+        run_jobs([EpisodeJob(cfg, indices, out)], force=args.force)
+    except AllEpisodesFailed:   # every rerun crashed: a result to compare like any other (records are kept)
+        pass
     new = read_records(out / RECORDS_NAME, quiet=True).records
     differing = {i: d for i in indices if (d := differences(old[i], new[i], args.tol))}
     commits = sorted({c[:7] if (c := old[i].get("commit")) else "unrecorded" for i in indices})
     for i, diff in differing.items():
         fields = "; ".join(f"{k}: {a!r} -> {b!r}" for k, (a, b) in diff.items())
         print(f"episode {i} ({old[i].get('episode_id', '?')}): {fields}")
-    verdict = "every record matches" if not differing else f"{len(differing)} differ"
-    print(f"reproduce: {len(indices)} episodes of {src} (recorded by {', '.join(commits)}) rerun into {out}: "
-          f"{verdict} (tolerance {args.tol:g}; {', '.join(IGNORED_FIELDS)} aside)")
+    verdict = "every record matches" if not differing else f"{len(differing)} of them differ"
+    print(f"reproduce: {len(indices)} episode(s) of {src} (recorded by {', '.join(commits)}) rerun into {out}: "
+          f"{verdict} (tolerance {args.tol + 0.0:g}; {', '.join(IGNORED_FIELDS)} aside)")
     return 1 if differing else 0

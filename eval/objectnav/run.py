@@ -137,7 +137,7 @@ def run_episode_task(task: EpisodeTask) -> dict:
 def error_record(task: EpisodeTask, failure) -> dict:
     """The record of an episode whose task raised (``eval.runner.TaskFailed``): retried on resume."""
     return {"index": task.index, "status": "error", "error": failure.error,
-            "traceback": "\n".join(failure.traceback.splitlines()[-12:])}
+            "traceback": "\n".join(failure.traceback.splitlines()[-12:]), "commit": running_commit()}
 
 
 def crashed(record: dict) -> bool:
