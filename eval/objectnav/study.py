@@ -16,7 +16,7 @@ The study config (``eval.objectnav.study_config``) lists rows in run order. For 
 Every step resumes: an interrupted study is continued by rerunning the same command. After each
 row ``<output>/manifest.json`` is rewritten (atomically): the study file and its sha256, and
 per row the equivalent single commands, the resolved config, the source commits that ran its
-records (with how many each: every record names its commit), the sha256 of
+records and its tuning grid's (with how many each: every record names its commit), the sha256 of
 every weight file (``inputs.json``) and episode file it read, the episode seconds it took, its
 summary, and where its records are. ``calnav report`` renders the results pages from it.
 """
@@ -64,8 +64,18 @@ def _episode_seconds(records_path: Path, indices: range) -> tuple[int, float, di
         return 0, 0.0, {}
     wanted = set(indices)
     recs = [r for r in read_records(records_path, quiet=True).records.values() if r.get("index") in wanted]
-    commits = Counter(r.get("commit") or UNRECORDED_COMMIT for r in recs)
-    return len(recs), float(sum(float(r.get("wall_time_s") or 0.0) for r in recs)), dict(sorted(commits.items()))
+    return len(recs), float(sum(float(r.get("wall_time_s") or 0.0) for r in recs)), _commits(recs)
+
+
+def _commits(records) -> dict[str, int]:
+    """{commit: records it ran}, sorted; records older than the ``commit`` field: ``unrecorded``."""
+    return dict(sorted(Counter(r.get("commit") or UNRECORDED_COMMIT for r in records).items()))
+
+
+def _tune_commits(tune_dir: Path) -> dict[str, int]:
+    """``_commits`` over every grid point's records of a tuning directory."""
+    return _commits(r for path in sorted(tune_dir.glob("*/episodes.jsonl"))
+                    for r in read_records(path, quiet=True).records.values())
 
 
 def _read_json(path: Path) -> dict | None:
@@ -167,7 +177,7 @@ def run_study(study_path: str | Path, out: Path, extra: list[str] = (), force: b
                                            force=force, progress=progress, extend=study.tune.extend)
                 tuned[row.name] = {"dir": str(tune_dir.relative_to(out)), "command": _tune_command(study, row, extra, tune_dir),
                                    "metric": study.tune.metric, "threshold": best["threshold"],
-                                   "min_area": best["min_area"], "grid": grid_rows}
+                                   "min_area": best["min_area"], "grid": grid_rows, "commits": _tune_commits(tune_dir)}
                 if manifest.data["rows"][row.name].get("status") != "done":   # tuned, not evaluated yet
                     manifest.update(row.name, status="tuned", tune=tuned[row.name], threshold=best["threshold"],
                                     min_area=best["min_area"])

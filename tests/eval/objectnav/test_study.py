@@ -176,6 +176,7 @@ def test_study_end_to_end(tmp_path, capsys):
         assert e["episode_files"] and all(len(v) == 64 for v in e["episode_files"].values())
         assert e["config"]["agent"]["goal_threshold"] == e["threshold"]
         assert e["commits"] == {git_commit() or "unrecorded": 1}   # the code that ran its records
+        assert e["tune"]["commits"] == {git_commit() or "unrecorded": 2}   # the tuning grid's 2 points x 1 episode
     assert rows["gt/ndf@rbu"]["threshold"] == rows["gt/rbu"]["threshold"]
     if rows["gt/ndf@rbu"]["threshold"] == rows["gt/ndf"]["threshold"]:   # the same config: not run twice
         assert rows["gt/ndf@rbu"]["same_as"] == "gt/ndf"
