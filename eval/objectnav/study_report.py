@@ -13,7 +13,8 @@
 - the failure breakdown per row (``eval.stats.failure_kind``: false STOP, stopped short, out of steps
   searching or stuck, crashed) and the median collisions;
 - the tuning grids: Success vs goal threshold on the tuning episodes, one curve per tuned row
-  (``threshold_curves.png``, +-1 SEM), with the chosen point marked;
+  (``threshold_curves.png``, +-1 SEM), with the chosen point marked, and the rows whose best
+  threshold still sits on an edge of their extended grid;
 - the source commits that ran each row's records (each record names its commit);
 - the rows not run yet, by name.
 
@@ -292,6 +293,18 @@ def plot_curves(manifest: dict, path: Path) -> Path | None:
     return path
 
 
+def edge_rows(manifest: dict) -> list[tuple[str, float]]:
+    """(row, tuned threshold) of the rows whose best threshold still sits on an edge of their
+    grid after its extensions, beating its neighbour (``eval.objectnav.tune.edge_extension``):
+    their optimum may lie beyond the grid."""
+    from calnav.eval.objectnav.tune import edge_extension, grid_scores
+
+    metric = manifest["tune"].get("metric", "success")
+    return [(n, e["threshold"]) for n, e in manifest["rows"].items()
+            if e.get("tune") and not e.get("threshold_from") and e["tune"].get("grid")
+            and edge_extension(grid_scores(e["tune"]["grid"], metric)) is not None]
+
+
 def render(manifest_path: Path) -> str:
     """The results page (Markdown) of the manifest at ``manifest_path``."""
     manifest = load_manifest(manifest_path)
@@ -321,6 +334,11 @@ def render(manifest_path: Path) -> str:
         parts += ["Threshold transfer: each row at another condition's tuned threshold minus the same row at its "
                   "own tuned threshold:", "", paired_markdown(transfer, records), ""]
     parts += ["Failures:", "", failures_table(manifest, records), ""]
+    edges = edge_rows(manifest)
+    if edges:
+        parts += ["Tuned on an edge of the grid (the best threshold beats its neighbour after every extension, so "
+                  "the optimum may lie beyond the grid; see the threshold curves): "
+                  + ", ".join(f"{n} ({t:g})" for n, t in edges) + ".", ""]
     parts += [compute_markdown(manifest_path.parent, manifest), ""]
     if records:
         parts += [commits_markdown(records), ""]

@@ -127,6 +127,16 @@ def best_yaml_text(cfg: Config, *, config_path: str | None, overrides: list[str]
     return "\n".join(header) + "\n" + dump_yaml(cfg)
 
 
+def grid_scores(rows: list[dict], metric: str) -> dict[float, tuple]:
+    """threshold -> its best (metric, success) over the grid's min areas, ranked as
+    ``select_best`` ranks them (``edge_extension``'s ``scores``)."""
+    scores: dict[float, tuple] = {}
+    for r in rows:
+        key = (_score(r[metric]), _score(r["success"]))
+        scores[r["threshold"]] = max(scores.get(r["threshold"], key), key)
+    return scores
+
+
 def edge_extension(scores: dict[float, Any]) -> float | None:
     """The next threshold to try when the best one (``scores``: threshold -> its best metric
     value, higher is better, or a tuple of values compared in order as ``select_best`` ranks
@@ -202,11 +212,7 @@ def run_tune(config_path: str | None, overrides: list[str], episodes: str, thres
     with ResultsDir(out, files=("tune.csv", "best.yaml")) as root:
         run_thresholds(ts)
         for _ in range(extend):
-            scores: dict[float, tuple] = {}   # ranked as select_best ranks: the metric, then success
-            for r in rows:
-                key = (_score(r[metric]), _score(r["success"]))
-                scores[r["threshold"]] = max(scores.get(r["threshold"], key), key)
-            nxt = edge_extension(scores)
+            nxt = edge_extension(grid_scores(rows, metric))
             if nxt is None or nxt in ts:
                 break
             try:   # e.g. an uncertainty-aware agent's band [uncertain_low, threshold) would be empty

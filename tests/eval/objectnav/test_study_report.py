@@ -7,8 +7,8 @@ from hypothesis import given, settings, strategies as st
 
 from calnav.eval.cli import main
 from calnav.eval.config import ConfigError
-from calnav.eval.objectnav.study_report import (PAGE_BEGIN, PAGE_END, _ratio, commits_markdown, compute_markdown, embed,
-                                                headline, render, transfer_pairs, verdict)
+from calnav.eval.objectnav.study_report import (PAGE_BEGIN, PAGE_END, _ratio, commits_markdown, compute_markdown, edge_rows,
+                                                embed, headline, render, transfer_pairs, verdict)
 from calnav.eval.stats import contrast, failure_kind
 
 
@@ -282,3 +282,19 @@ def test_commits_line_groups_rows_by_the_commits_that_ran_them():
     assert commits_markdown(records).splitlines()[2:] == [
         "- `aaaaaaa` (2), `bbbbbbb` (1): r/one, r/two",
         "- `bbbbbbb` (1), unrecorded (2): r/old"]
+
+
+def test_rows_tuned_on_an_edge_of_their_grid():
+    def row(threshold, successes, **extra):
+        grid = [{"threshold": t, "min_area": 4, "success": v} for t, v in successes.items()]
+        return {"threshold_from": "", "threshold": threshold, "tune": {"grid": grid, "threshold": threshold}, **extra}
+
+    manifest = {"tune": {"metric": "success"}, "rows": {
+        "top": row(0.975, {0.9: 0.60, 0.95: 0.61, 0.975: 0.63}),     # still rising at the top: listed
+        "inside": row(0.7, {0.5: 0.5, 0.7: 0.6, 0.9: 0.55}),        # bracketed
+        "flat": row(0.7, {0.7: 0.6, 0.9: 0.6}),                     # ties its neighbour (the lower wins): not
+        "bottom": row(0.3, {0.3: 0.7, 0.5: 0.6}),                   # best at the bottom, 0.1 still possible
+        "at_one": row(1.0, {0.9: 0.5, 1.0: 0.6}),                   # nowhere to go above 1
+        "taken": {"threshold_from": "top", "threshold": 0.975},     # takes another row's threshold: no grid
+    }}
+    assert edge_rows(manifest) == [("top", 0.975), ("bottom", 0.3)]
