@@ -64,17 +64,17 @@ def _episode_seconds(records_path: Path, indices: range) -> tuple[int, float, di
         return 0, 0.0, {}
     wanted = set(indices)
     recs = [r for r in read_records(records_path, quiet=True).records.values() if r.get("index") in wanted]
-    return len(recs), float(sum(float(r.get("wall_time_s") or 0.0) for r in recs)), _commits(recs)
+    return len(recs), float(sum(float(r.get("wall_time_s") or 0.0) for r in recs)), record_commits(recs)
 
 
-def _commits(records) -> dict[str, int]:
+def record_commits(records) -> dict[str, int]:
     """{commit: records it ran}, sorted; records older than the ``commit`` field: ``unrecorded``."""
     return dict(sorted(Counter(r.get("commit") or UNRECORDED_COMMIT for r in records).items()))
 
 
 def _tune_commits(tune_dir: Path) -> dict[str, int]:
-    """``_commits`` over every grid point's records of a tuning directory."""
-    return _commits(r for path in sorted(tune_dir.glob("*/episodes.jsonl"))
+    """``record_commits`` over every grid point's records of a tuning directory."""
+    return record_commits(r for path in sorted(tune_dir.glob("*/episodes.jsonl"))
                     for r in read_records(path, quiet=True).records.values())
 
 

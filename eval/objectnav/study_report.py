@@ -28,7 +28,7 @@ import math
 from pathlib import Path
 
 from calnav.eval.config import ConfigError
-from calnav.eval.objectnav.study import UNRECORDED_COMMIT
+from calnav.eval.objectnav.study import UNRECORDED_COMMIT, record_commits
 from calnav.eval.results_dir import read_records
 from calnav.eval.stats import (FAILURES, METRIC_LABELS, contrast, failure_kind, governing_sem, house_sem, is_finished,
                                mean_sem_cell, same_episode, summarize)
@@ -209,12 +209,9 @@ def compute_markdown(root: Path, manifest: dict) -> str:
 def commits_markdown(records: dict[str, list[dict]]) -> str:
     """Which source commit ran how many of each row's evaluation records (every record names
     its commit; older records count as ``unrecorded``), rows with the same commits on one line."""
-    from collections import Counter
-
     groups: dict[tuple, list[str]] = {}
     for name, recs in records.items():
-        counts = Counter(r.get("commit") or UNRECORDED_COMMIT for r in recs)
-        groups.setdefault(tuple(sorted(counts.items())), []).append(name)
+        groups.setdefault(tuple(record_commits(recs).items()), []).append(name)
     lines = [f"- {', '.join(f'`{c[:7]}` ({n})' if c != UNRECORDED_COMMIT else f'{c} ({n})' for c, n in key)}: "
              + ", ".join(names) for key, names in groups.items()]
     return "Source commits of the evaluation records (episodes each):\n\n" + "\n".join(lines)
