@@ -12,11 +12,13 @@
   episodes" -- no direction is claimed inside 2 SEM;
 - the failure breakdown per row (``eval.stats.failure_kind``: false STOP, stopped short, out of steps
   searching or stuck, crashed) and the median collisions;
-- the tuning grids: Success vs goal threshold on the tuning episodes, one curve per tuned row
-  (``threshold_curves.png``, +-1 SEM), with the chosen point marked, and the rows whose best
-  threshold still sits on an edge of their extended grid;
+- the tuning grids (``eval.objectnav.study_grids``): Success vs goal threshold on the tuning
+  episodes per tuned row, as a table and a figure (``threshold_curves.png``, +-1 SEM) with the
+  chosen point marked, and the rows whose best threshold still sits on an edge of their
+  extended grid;
 - the source commits that ran each row's records (each record names its commit);
-- the rows not run yet, by name.
+- the rows tuned but not fully evaluated (with the episodes evaluated so far) and the rows not
+  run yet, by name.
 
 Every number comes from the committed records (``episodes.jsonl``) the manifest names, scored as
 ``calnav objectnav`` scores them (``eval.stats``), so the page changes only when records do.
@@ -29,6 +31,7 @@ from pathlib import Path
 
 from calnav.eval.config import ConfigError
 from calnav.eval.objectnav.study import UNRECORDED_COMMIT, record_commits
+from calnav.eval.objectnav.study_grids import edge_rows, grids_markdown, plot_curves, transfer_pairs
 from calnav.eval.results_dir import read_records
 from calnav.eval.stats import (FAILURES, METRIC_LABELS, contrast, failure_kind, governing_sem, house_sem, is_finished,
                                mean_sem_cell, same_episode, summarize)
@@ -72,20 +75,6 @@ def row_records(root: Path, manifest: dict) -> dict[str, list[dict]]:
                               "eval/ directories with its manifest")
         recs = read_records(path, quiet=True).records
         out[name] = [recs[i] for i in sorted(recs) if i in wanted]
-    return out
-
-
-def transfer_pairs(manifest: dict) -> list[tuple[str, str]]:
-    """[row, its condition's own tuned row] for every row that takes another row's threshold
-    and has a tuned row with the same overrides."""
-    rows = manifest["rows"]
-    out = []
-    for name, e in rows.items():
-        if e.get("threshold_from"):
-            own = next((n for n, o in rows.items() if not o.get("threshold_from") and o["overrides"] == e["overrides"]),
-                       None)
-            if own is not None:
-                out.append((name, own))
     return out
 
 
@@ -260,48 +249,6 @@ def failures_table(manifest: dict, records: dict[str, list[dict]]) -> str:
     return "\n".join(lines)
 
 
-def plot_curves(manifest: dict, path: Path) -> Path | None:
-    """Success vs goal threshold on the tuning episodes, one line per tuned row (+-1 SEM), the
-    chosen point circled; None when no row has tuned yet."""
-    tuned = {n: e["tune"] for n, e in manifest["rows"].items() if e.get("tune") and not e.get("threshold_from")}
-    if not tuned:
-        return None
-    from calnav.eval.objectnav.report import _plt
-
-    plt = _plt()
-    groups = sorted({n.rsplit("/", 1)[0] for n in tuned})
-    fig, axes = plt.subplots(1, len(groups), figsize=(4.2 * len(groups), 3.4), squeeze=False, sharey=True)
-    for ax, group in zip(axes[0], groups):
-        for n, t in tuned.items():
-            if n.rsplit("/", 1)[0] != group:
-                continue
-            grid = sorted((r for r in t["grid"] if r.get("min_area") == t.get("min_area")),
-                          key=lambda r: r["threshold"])   # the chosen min_area's curve
-            line = ax.errorbar([r["threshold"] for r in grid], [r["success"] for r in grid],
-                               yerr=[r["success_sem"] for r in grid], marker=".", capsize=3, label=n.rsplit("/", 1)[1])
-            best = next(r for r in grid if r["threshold"] == t["threshold"])
-            ax.plot([best["threshold"]], [best["success"]], "o", mfc="none", ms=10, color=line[0].get_color())
-        ax.set_title(group, fontsize=9)
-        ax.set_xlabel("goal threshold")
-        ax.legend(fontsize=7)
-    axes[0][0].set_ylabel(f"Success on {manifest['tune']['split']} {manifest['tune']['episodes']} (+-1 SEM)")
-    fig.savefig(path, dpi=100, bbox_inches="tight")
-    plt.close(fig)
-    return path
-
-
-def edge_rows(manifest: dict) -> list[tuple[str, float]]:
-    """(row, tuned threshold) of the rows whose best threshold still sits on an edge of their
-    grid after its extensions, beating its neighbour (``eval.objectnav.tune.edge_extension``):
-    their optimum may lie beyond the grid."""
-    from calnav.eval.objectnav.tune import edge_extension, grid_scores
-
-    metric = manifest["tune"].get("metric", "success")
-    return [(n, e["threshold"]) for n, e in manifest["rows"].items()
-            if e.get("tune") and not e.get("threshold_from") and e["tune"].get("grid")
-            and edge_extension(grid_scores(e["tune"]["grid"], metric)) is not None]
-
-
 def render(manifest_path: Path) -> str:
     """The results page (Markdown) of the manifest at ``manifest_path``."""
     manifest = load_manifest(manifest_path)
@@ -314,7 +261,9 @@ def render(manifest_path: Path) -> str:
                   if e.get("status") == "done" and not e.get("same_as"))
     parts = [f"Evaluation: {ev['split']} episodes {ev['episodes']}, every row on the same episodes (paired). "
              f"Goal thresholds tuned on {tune['split']} {tune['episodes']} by {tune['metric']} "
-             f"(grid {', '.join(f'{t:g}' for t in tune['thresholds'])}). Mean (SEM) over episodes; "
+             f"(grid {', '.join(f'{t:g}' for t in tune['thresholds'])}, extended by up to {tune.get('extend', 0)} "
+             "thresholds past an edge the best one sits on; a row may name its own grid: the tuning grids below). "
+             "Mean (SEM) over episodes; "
              f"evaluation compute {seconds / 3600:.2f} worker-hours.", "", metrics_markdown(manifest, records), ""]
     wanted = len(_eval_range(manifest))
     short = [f"{n} ({len(r)} of {wanted})" for n, r in records.items() if len(r) < wanted]
@@ -331,18 +280,26 @@ def render(manifest_path: Path) -> str:
         parts += ["Threshold transfer: each row at another condition's tuned threshold minus the same row at its "
                   "own tuned threshold:", "", paired_markdown(transfer, records), ""]
     parts += ["Failures:", "", failures_table(manifest, records), ""]
+    grids = grids_markdown(manifest)
+    if grids:
+        parts += ["Tuning grids: Success against the goal threshold on the tuning episodes, per row that tunes its own "
+                  "(+-1 SEM in the figure, the chosen point circled; a dotted line, crossed where it is on the grid, at each "
+                  "threshold transferred from another condition):", "", grids, "",
+                  f"![Success against the goal threshold, per tuned row]({CURVES_NAME})", ""]
     edges = edge_rows(manifest)
     if edges:
         parts += ["Tuned on an edge of the grid (the best threshold beats its neighbour after every extension, so "
-                  "the optimum may lie beyond the grid; see the threshold curves): "
-                  + ", ".join(f"{n} ({t:g})" for n, t in edges) + ".", ""]
+                  "the optimum may lie beyond the grid): " + ", ".join(f"{n} ({t:g})" for n, t in edges) + ".", ""]
     parts += [compute_markdown(manifest_path.parent, manifest), ""]
     if records:
         parts += [commits_markdown(records), ""]
     if skipped:
         parts += ["Skipped: " + "; ".join(f"{n} ({r})" for n, r in skipped) + ".", ""]
     if tuned:
-        parts += ["Tuned, not evaluated yet: " + ", ".join(f"{n} (threshold {t:g})" for n, t in tuned) + ".", ""]
+        root = manifest_path.parent
+        parts += ["Tuned, evaluation not finished: " + ", ".join(
+            f"{n} (threshold {t:g}; {_records_cost(root / 'eval' / n / 'episodes.jsonl')[0]} of {wanted} episodes "
+            "evaluated)" for n, t in tuned) + ".", ""]
     if pending:
         parts += ["Not run yet: " + ", ".join(pending) + ".", ""]
     return "\n".join(parts)

@@ -7,8 +7,9 @@ from hypothesis import given, settings, strategies as st
 
 from calnav.eval.cli import main
 from calnav.eval.config import ConfigError
-from calnav.eval.objectnav.study_report import (PAGE_BEGIN, PAGE_END, _ratio, commits_markdown, compute_markdown, edge_rows,
-                                                embed, headline, render, transfer_pairs, verdict)
+from calnav.eval.objectnav.study_grids import edge_rows, grids_markdown, transferred_thresholds
+from calnav.eval.objectnav.study_report import (PAGE_BEGIN, PAGE_END, _ratio, commits_markdown, compute_markdown, embed,
+                                                headline, render, transfer_pairs, verdict)
 from calnav.eval.stats import contrast, failure_kind
 
 
@@ -60,6 +61,8 @@ def test_page_from_hand_made_records(tmp_path):
     }
     rows = {"seg/clean/rbu": base, "seg/clean/glfs": better, "seg/scanned/glfs": better, "seg/scanned/glfs@clean": base}
     path = _study(tmp_path, rows, entries, [["seg/clean/glfs", "seg/clean/rbu"]])
+    (tmp_path / "eval" / "seg" / "tuned").mkdir(parents=True)   # its evaluation half done: 2 of 4 episodes
+    (tmp_path / "eval" / "seg" / "tuned" / "episodes.jsonl").write_text("".join(json.dumps(r) + "\n" for r in base[:2]))
     page = render(path)
     # metrics: rbu Success 2/4 = 0.5, SEM = std([1,0,1,0], ddof=1) / 2 = 0.2887
     assert "| seg/clean/rbu | 0.9 | 0.500 (0.289) |" in page
@@ -71,11 +74,14 @@ def test_page_from_hand_made_records(tmp_path):
     assert transfer_pairs(json.loads(path.read_text())) == [("seg/scanned/glfs@clean", "seg/scanned/glfs")]
     assert "| seg/scanned/glfs@clean | seg/scanned/glfs | -0.500 (0.289, -) |" in page
     assert "None yet" not in page
-    assert "Not run yet: seg/later." in page and "Tuned, not evaluated yet: seg/tuned (threshold 0.7)." in page and "Skipped: seg/low (band empty)." in page
+    assert "Not run yet: seg/later." in page and "Tuned, evaluation not finished: seg/tuned (threshold 0.7; 2 of 4 episodes evaluated)." in page and "Skipped: seg/low (band empty)." in page
     # failures: rbu has one false STOP (2 m from the goal) and one episode out of steps (500 of
     # 500) that walked nowhere: stuck
     assert "| seg/clean/rbu | 2 | 1 | 0 | 0 | 1 | 0 | 1 | 4 |" in page
     assert "evaluation compute 0.01 worker-hours" in page
+    # the tuning grid of the one row that tuned, the chosen point in bold, and the figure beside it
+    assert "| seg/clean/rbu | 0.5: 0.500 (0.100), **0.9: 0.600 (0.100)** | 0.9 | - |" in page
+    assert "![Success against the goal threshold, per tuned row](threshold_curves.png)" in page
 
     out = tmp_path / "report"
     assert main(["report", str(path), "--output", str(out)]) == 0
@@ -298,3 +304,25 @@ def test_rows_tuned_on_an_edge_of_their_grid():
         "taken": {"threshold_from": "top", "threshold": 0.975},     # takes another row's threshold: no grid
     }}
     assert edge_rows(manifest) == [("top", 0.975), ("bottom", 0.3)]
+
+
+def test_grid_table_names_the_thresholds_transferred_to_a_condition():
+    def tuned(threshold, grid):
+        return {"threshold_from": "", "overrides": [], "threshold": threshold, "tune": {
+            "threshold": threshold, "min_area": 4,
+            "grid": [{"threshold": x, "min_area": a, "success": s, "success_sem": 0.02} for x, a, s in grid]}}
+
+    manifest = {"tune": {"split": "val", "episodes": "0:300"}, "rows": {
+        "rgb/clean/rbu": {**tuned(0.9, [(0.5, 4, 0.8), (0.9, 4, 0.85)]), "overrides": ["clean"]},
+        # its own grid at the chosen min_area only: the min_area 8 point is not this curve's
+        "rgb/scanned/rbu": {**tuned(0.5, [(0.5, 4, 0.6), (0.9, 4, 0.55), (0.9, 8, 0.9)]), "overrides": ["scanned"]},
+        "rgb/scanned/rbu@clean": {"threshold_from": "rgb/clean/rbu", "overrides": ["scanned"], "status": "pending"},
+        "rgb/scanned/rbu_stop": {"threshold_from": "rgb/clean/rbu", "overrides": ["scanned", "stop"]},  # another condition
+        "rgbd/clean/rbu@rgb": {"threshold_from": "rgb/clean/rbu", "overrides": ["rgbd"]},   # rgbd not tuned yet
+    }}
+    # the pending transfer row already names its threshold: the source row's tuned one
+    assert transferred_thresholds(manifest) == {"rgb/scanned/rbu": [(0.9, "rgb/clean/rbu")]}
+    assert grids_markdown(manifest).splitlines()[2:] == [
+        "| rgb/clean/rbu | 0.5: 0.800 (0.020), **0.9: 0.850 (0.020)** | 0.9 | - |",
+        "| rgb/scanned/rbu | **0.5: 0.600 (0.020)**, 0.9: 0.550 (0.020) | 0.5 | 0.9 (rgb/clean/rbu) |"]
+    assert grids_markdown({"tune": {}, "rows": {"a": {"threshold_from": "b"}}}) == ""
