@@ -295,13 +295,17 @@ def render(manifest_path: Path) -> str:
         parts += [commits_markdown(records), ""]
     if skipped:
         parts += ["Skipped: " + "; ".join(f"{n} ({r})" for n, r in skipped) + ".", ""]
+    # rows whose evaluation has begun but not finished: a study stopped mid-row resumes from there
+    ran = {n: _records_cost(manifest_path.parent / "eval" / n / "episodes.jsonl")[0] for n, _ in tuned}
+    ran.update({n: k for n in pending if (k := _records_cost(manifest_path.parent / "eval" / n / "episodes.jsonl")[0])})
     if tuned:
-        root = manifest_path.parent
         parts += ["Tuned, evaluation not finished: " + ", ".join(
-            f"{n} (threshold {t:g}; {_records_cost(root / 'eval' / n / 'episodes.jsonl')[0]} of {wanted} episodes "
-            "evaluated)" for n, t in tuned) + ".", ""]
-    if pending:
-        parts += ["Not run yet: " + ", ".join(pending) + ".", ""]
+            f"{n} (threshold {t:g}; {ran[n]} of {wanted} episodes evaluated)" for n, t in tuned) + ".", ""]
+    if any(n in ran for n in pending):
+        parts += ["Evaluation not finished: " + ", ".join(
+            f"{n} ({ran[n]} of {wanted} episodes evaluated)" for n in pending if n in ran) + ".", ""]
+    if any(n not in ran for n in pending):
+        parts += ["Not run yet: " + ", ".join(n for n in pending if n not in ran) + ".", ""]
     return "\n".join(parts)
 
 

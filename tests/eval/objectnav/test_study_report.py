@@ -56,6 +56,7 @@ def test_page_from_hand_made_records(tmp_path):
         "seg/scanned/glfs": {"overrides": ["b=1"], "threshold_from": "", "threshold": 0.5},
         "seg/scanned/glfs@clean": {"overrides": ["b=1"], "threshold_from": "seg/clean/glfs", "threshold": 0.5},
         "seg/later": {"overrides": ["c=1"], "threshold_from": "", "status": "pending"},
+        "seg/started": {"overrides": ["f=1"], "threshold_from": "seg/clean/rbu", "status": "pending"},
         "seg/tuned": {"overrides": ["e=1"], "threshold_from": "", "status": "tuned", "threshold": 0.7},
         "seg/low": {"overrides": ["d=1"], "threshold_from": "seg/clean/rbu", "status": "skipped", "reason": "band empty"},
     }
@@ -63,6 +64,8 @@ def test_page_from_hand_made_records(tmp_path):
     path = _study(tmp_path, rows, entries, [["seg/clean/glfs", "seg/clean/rbu"]])
     (tmp_path / "eval" / "seg" / "tuned").mkdir(parents=True)   # its evaluation half done: 2 of 4 episodes
     (tmp_path / "eval" / "seg" / "tuned" / "episodes.jsonl").write_text("".join(json.dumps(r) + "\n" for r in base[:2]))
+    (tmp_path / "eval" / "seg" / "started").mkdir(parents=True)   # a transfer row whose evaluation has begun: 1 of 4
+    (tmp_path / "eval" / "seg" / "started" / "episodes.jsonl").write_text(json.dumps(base[0]) + "\n")
     page = render(path)
     # metrics: rbu Success 2/4 = 0.5, SEM = std([1,0,1,0], ddof=1) / 2 = 0.2887
     assert "| seg/clean/rbu | 0.9 | 0.500 (0.289) |" in page
@@ -74,6 +77,7 @@ def test_page_from_hand_made_records(tmp_path):
     assert transfer_pairs(json.loads(path.read_text())) == [("seg/scanned/glfs@clean", "seg/scanned/glfs")]
     assert "| seg/scanned/glfs@clean | seg/scanned/glfs | -0.500 (0.289, -) |" in page
     assert "None yet" not in page
+    assert "Evaluation not finished: seg/started (1 of 4 episodes evaluated)." in page
     assert "Not run yet: seg/later." in page and "Tuned, evaluation not finished: seg/tuned (threshold 0.7; 2 of 4 episodes evaluated)." in page and "Skipped: seg/low (band empty)." in page
     # failures: rbu has one false STOP (2 m from the goal) and one episode out of steps (500 of
     # 500) that walked nowhere: stuck
