@@ -160,6 +160,11 @@ def _records_cost(path: Path) -> tuple[int, float]:
     return len(recs), sum(float(r.get("wall_time_s") or 0.0) for r in recs)
 
 
+def _evaluated(root: Path, name: str) -> int:
+    """Episodes row ``name``'s evaluation has recorded so far under ``root/eval``."""
+    return _records_cost(root / "eval" / name / "episodes.jsonl")[0]
+
+
 def compute_markdown(root: Path, manifest: dict) -> str:
     """Episodes run and worker-hours (the records' wall_time_s: one worker per core) for tuning
     and evaluation, and the episodes the plan still needs (a tuned row's grid before any
@@ -184,8 +189,7 @@ def compute_markdown(root: Path, manifest: dict) -> str:
             n, s = _records_cost(root / e["dir"] / "episodes.jsonl")
             eval_n, eval_s = eval_n + n, eval_s + s
         elif e.get("status") in ("pending", "tuned"):
-            n, _ = _records_cost(root / "eval" / name / "episodes.jsonl")
-            left += max(0, n_eval - n)
+            left += max(0, n_eval - _evaluated(root, name))
     done_n, done_s = tune_n + eval_n, tune_s + eval_s
     per_ep = done_s / done_n if done_n else float("nan")
     return (f"Compute so far: {int(tune_n)} tuning episodes ({tune_s / 3600:.1f} worker-hours) and {int(eval_n)} "
@@ -296,16 +300,16 @@ def render(manifest_path: Path) -> str:
     if skipped:
         parts += ["Skipped: " + "; ".join(f"{n} ({r})" for n, r in skipped) + ".", ""]
     # rows whose evaluation has begun but not finished: a study stopped mid-row resumes from there
-    ran = {n: _records_cost(manifest_path.parent / "eval" / n / "episodes.jsonl")[0] for n, _ in tuned}
-    ran.update({n: k for n in pending if (k := _records_cost(manifest_path.parent / "eval" / n / "episodes.jsonl")[0])})
+    ran = {n: _evaluated(manifest_path.parent, n) for n in [*(n for n, _ in tuned), *pending]}
+    started, unstarted = [n for n in pending if ran[n]], [n for n in pending if not ran[n]]
     if tuned:
         parts += ["Tuned, evaluation not finished: " + ", ".join(
             f"{n} (threshold {t:g}; {ran[n]} of {wanted} episodes evaluated)" for n, t in tuned) + ".", ""]
-    if any(n in ran for n in pending):
+    if started:
         parts += ["Evaluation not finished: " + ", ".join(
-            f"{n} ({ran[n]} of {wanted} episodes evaluated)" for n in pending if n in ran) + ".", ""]
-    if any(n not in ran for n in pending):
-        parts += ["Not run yet: " + ", ".join(n for n in pending if n not in ran) + ".", ""]
+            f"{n} ({ran[n]} of {wanted} episodes evaluated)" for n in started) + ".", ""]
+    if unstarted:
+        parts += ["Not run yet: " + ", ".join(unstarted) + ".", ""]
     return "\n".join(parts)
 
 
