@@ -14,6 +14,10 @@
   same loop (the default runs a TorchScript trace with bit-identical logits).
 - ``segmenter.threads``: torch threads during the measurement (``SegmenterConfig.threads``,
   default 1).
+- ``segmenter.<model>.cuda_ms_160x120`` and ``cuda_ms_640x480``: the same calls with
+  ``device="cuda"`` (upload, network in eager mode -- calnav traces on CPU only -- upsampling,
+  and the logits' copy back to numpy, which waits for the GPU), measured only where torch sees a
+  CUDA GPU; the figures are absent elsewhere.
 
 Models whose weight file is missing are skipped with a message (the figures are then absent).
 """
@@ -64,5 +68,26 @@ def run(ctx) -> dict[str, float]:
             if eager_times:
                 out[f"segmenter.{model}.eager_ms_160x120"] = float(np.median(eager_times))
                 out[f"segmenter.{model}.trace_speedup"] = float(np.median(np.divide(eager_times, times)))
+        else:   # every CPU variant ran (the weights exist)
+            if torch.cuda.is_available():
+                out.update(_cuda_figures(ctx, model, n_frames))
     out["segmenter.threads"] = float(torch.get_num_threads())  # after the segmenters set it (config threads)
+    return out
+
+
+def _cuda_figures(ctx, model: str, n_frames: int) -> dict[str, float]:
+    """``segmenter.<model>.cuda_ms_<W>x<H>``: median ``segment`` time on the GPU (the numpy
+    result is the synchronisation point), after WARMUP calls (cuDNN picks its kernels then)."""
+    import numpy as np
+
+    from calnav.agent.segmenters import SegmenterConfig, make_segmenter
+
+    out = {}
+    for w, h in ((160, 120), (640, 480)):
+        seg = make_segmenter(model, SegmenterConfig(), "cuda")
+        frames = ctx.frames(w, h)[:n_frames]
+        for f in frames[:WARMUP]:
+            seg(f.rgb, f.depth)
+        times = [timeit_ms(lambda f=f: seg(f.rgb, f.depth), repeats=REPEATS_PER_FRAME, warmup=0) for f in frames]
+        out[f"segmenter.{model}.cuda_ms_{w}x{h}"] = float(np.median(times))
     return out

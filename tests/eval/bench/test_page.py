@@ -14,6 +14,7 @@ from calnav.eval.config import ConfigError
 REPO = Path(__file__).resolve().parents[3]
 OUTPUT = REPO / "docs" / "measured" / "bench.json"
 PAGES = ("docs/measured.md", "docs/scanned_houses.md", "docs/rerun.md")
+GPU_OUTPUT, GPU_PAGES = REPO / "docs" / "measured" / "h200" / "bench.json", ("docs/segmenters.md",)
 
 PAGE = f"""# speed
 
@@ -61,5 +62,16 @@ def test_the_committed_pages_are_the_committed_runs_rendering():
     manifest = json.loads(manifest_path(OUTPUT).read_text())
     assert manifest["command"].startswith("calnav bench --output docs/measured/bench.json") and manifest["commit"]
     for page in PAGES:
+        text = (REPO / page).read_text(encoding="utf-8")
+        assert render_page(text, figures, page) == text, f"{page}: rerun calnav bench --from ... --page {page}"
+
+
+def test_the_gpu_figures_are_the_gpu_runs_rendering():
+    """docs/segmenters.md's CUDA table is `calnav bench --from docs/measured/h200/bench.json
+    --page docs/segmenters.md`'s rendering; the script that made the output is beside it."""
+    figures = json.loads(GPU_OUTPUT.read_text())
+    assert (GPU_OUTPUT.parent / "run.sh").is_file()
+    assert any(k.endswith("cuda_ms_640x480") for k in figures)
+    for page in GPU_PAGES:
         text = (REPO / page).read_text(encoding="utf-8")
         assert render_page(text, figures, page) == text, f"{page}: rerun calnav bench --from ... --page {page}"
