@@ -299,6 +299,16 @@ def connections(start, smin, smax, area, w, h, walk_height, climb):
 
 
 @compiled
+def find_root(parent, a):
+    """Union-find: the root of ``a``'s set in ``parent`` ((N,) int64), halving the path as it
+    goes (each visited node skips to its grandparent), so later finds are shorter. In place."""
+    while parent[a] != a:
+        parent[a] = parent[parent[a]]
+        a = parent[a]
+    return a
+
+
+@compiled
 def components(con, area):
     """(S,) int64 label of each walkable span's connected surface (union-find over ``con``;
     -1 for spans that are not walkable), labels 0..k-1 in order of first appearance."""
@@ -311,14 +321,8 @@ def components(con, area):
             t = con[s, d]
             if t < 0:
                 continue
-            a = s
-            while parent[a] != a:
-                parent[a] = parent[parent[a]]
-                a = parent[a]
-            b = t
-            while parent[b] != b:
-                parent[b] = parent[parent[b]]
-                b = parent[b]
+            a = find_root(parent, s)
+            b = find_root(parent, t)
             if a != b:
                 parent[max(a, b)] = min(a, b)
     label = np.full(n, -1, np.int64)

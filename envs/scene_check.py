@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from calnav.common.jit import compiled
+from calnav.envs.heightfield import find_root
 from calnav.envs.navmesh import NavMesh
 
 MIN_PIECE_M2 = 0.05        # eroded pieces smaller than this are specks, not rooms, m^2
@@ -43,14 +44,8 @@ def _joins(order, clearance, piece, h, w):
                 n = rr * w + qq
                 if not active[n]:
                     continue
-                a = c
-                while parent[a] != a:
-                    parent[a] = parent[parent[a]]
-                    a = parent[a]
-                b = n
-                while parent[b] != b:
-                    parent[b] = parent[parent[b]]
-                    b = parent[b]
+                a = find_root(parent, c)
+                b = find_root(parent, n)
                 if a == b:
                     continue
                 pa, pb = rep[a], rep[b]
