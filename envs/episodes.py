@@ -336,6 +336,21 @@ def generation_report(split: str, env_cfg: EnvConfig) -> dict[str, dict]:
     return out
 
 
+def check_split_capacity(spec: str, split: str, env_cfg: EnvConfig) -> None:
+    """Refuse the episode range ``spec`` at once when it ends past the most episodes ``split``
+    can hold (its scenes x ``episodes_per_scene``), before any scene is generated: the exact
+    size is known only after generation (a scene may yield fewer), the bound before it."""
+    from calnav.envs.scenes import split_scene_ids
+
+    end = parse_episode_range(spec, None).stop
+    n_scenes = len(split_scene_ids(split, env_cfg.dataset))
+    most = n_scenes * env_cfg.dataset.episodes_per_scene
+    if end > most:
+        raise ValueError(f"episode range {spec!r} is outside the split, which has at most {most} episodes "
+                         f"({n_scenes} {split} scenes x dataset.episodes_per_scene "
+                         f"{env_cfg.dataset.episodes_per_scene})")
+
+
 def parse_episode_range(spec: str, n_total: int | None) -> range:
     """'N' -> first N episodes; 'A:B' -> episodes A..B-1. Errors name the valid range.
     ``n_total`` None: the split's size is not known yet (its scenes are not all generated), so

@@ -269,7 +269,8 @@ def load_config(path: str | Path | None = None, overrides: list[str] | tuple[str
         if not path.exists() and (CONFIG_DIR / path.name).exists():
             path = CONFIG_DIR / path.name
         if not path.exists():
-            raise ConfigError(f"config file not found: {path}")
+            shipped = ", ".join(sorted(f.name for f in CONFIG_DIR.glob("*.yaml")))
+            raise ConfigError(f"config file not found: {path}; the shipped configs (found by name too): {shipped}")
         if path.is_dir():
             raise ConfigError(f"config {path} is a directory; give a YAML file, e.g. {CONFIG_DIR.name}/objectnav.yaml")
         try:

@@ -71,7 +71,8 @@ def episode_indices(spec: str, env_cfg: EnvConfig, run_cfg, progress: bool = Tru
     """The indices of the episode range ``spec`` ('N' or 'A:B') of ``env_cfg.split``, its
     scenes generated first (``prepare_episodes``); a range past the split's end is refused with
     the split's size."""
-    from calnav.envs.episodes import parse_episode_range
+    from calnav.envs.episodes import check_split_capacity, parse_episode_range
 
+    check_split_capacity(str(spec), env_cfg.split, env_cfg)   # before generating scenes for nothing
     episodes = prepare_episodes(env_cfg, run_cfg, range_end(spec), progress)
     return parse_episode_range(str(spec), len(episodes))

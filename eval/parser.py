@@ -8,6 +8,12 @@ from calnav.eval.sections import QUICK_PRESET
 from calnav.mapping.registry import LAYOUTS
 
 
+DESCRIPTION = ("ObjectNav on a calibrated semantic 3D map: run episodes, switch the fusion strategy, segmenter "
+               "or calibration with one config key, and compare navigation and map-calibration metrics.")
+EPILOG = ("Start with `calnav demo`; `calnav COMMAND --help` gives a command's options. The commands that run "
+          "an agent or build a map take --config FILE and KEY=VALUE overrides (docs/configuration.md).")
+
+
 def _add_config_args(p: argparse.ArgumentParser, default_config: str) -> None:
     p.add_argument("--config", default=default_config, help=f"YAML config (default: {default_config})")
     p.add_argument("overrides", nargs="*", metavar="KEY=VALUE",
@@ -15,7 +21,7 @@ def _add_config_args(p: argparse.ArgumentParser, default_config: str) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="calnav", description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(prog="calnav", description=DESCRIPTION, epilog=EPILOG)
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("objectnav", help="run ObjectNav episodes and report Success/SPL/SoftSPL/DTG")

@@ -85,6 +85,31 @@ def check_output_file(path: Path | str, option: str = "--output") -> Path:
     return path
 
 
+def flatten(tree: dict, prefix: str = "") -> dict[str, object]:
+    """{'a': {'b': 1}} -> {'a.b': 1} (lists stay values)."""
+    out: dict[str, object] = {}
+    for k, v in tree.items():
+        key = f"{prefix}{k}"
+        if isinstance(v, dict):
+            out.update(flatten(v, key + "."))
+        else:
+            out[key] = v
+    return out
+
+
+MAX_NAMED_DIFFERENCES = 3    # config keys a refusal names (the rest counted): one readable line
+
+
+def config_differences(saved: dict, current: dict) -> str:
+    """The dotted keys in which two resolved configs differ, each with both values ('mapping.fusion:
+    averaging there, rbu here'), the first few named and the rest counted."""
+    a, b = flatten(saved), flatten(current)
+    keys = sorted(k for k in a.keys() | b.keys() if a.get(k, "(absent)") != b.get(k, "(absent)"))
+    named = [f"{k}: {a.get(k, '(absent)')} there, {b.get(k, '(absent)')} here" for k in keys[:MAX_NAMED_DIFFERENCES]]
+    more = f"; {len(keys) - MAX_NAMED_DIFFERENCES} more key(s)" if len(keys) > MAX_NAMED_DIFFERENCES else ""
+    return "; ".join(named) + more
+
+
 def strip_neutral(cfg_dict: dict, neutral_keys: Iterable[str] = NEUTRAL_KEYS) -> dict:
     """A deep copy of a resolved config dict without the dotted ``neutral_keys``."""
     out = json.loads(json.dumps(cfg_dict))
@@ -210,26 +235,28 @@ class ResultsDir:
                 raise ResultsError(f"cannot read an input file of the config: {exc}") from None
         return self._fingerprints
 
-    def _holds_other_config(self) -> bool:
-        """Whether the directory's config.yaml (if any) differs from ``cfg`` beyond the neutral
-        keys, the saved one read with moved keys at their new place."""
+    def _other_config(self) -> str | None:
+        """How the directory's config.yaml (if any) differs from ``cfg`` beyond the neutral keys
+        (``config_differences``), the saved one read with moved keys at their new place; None
+        when it does not."""
         from calnav.eval.config import ConfigError, migrate_tree
 
         saved = self.path / CONFIG_NAME
         if not saved.exists():
-            return False
+            return None
         try:
             old = yaml.safe_load(saved.read_text()) or {}
         except (yaml.YAMLError, UnicodeDecodeError) as exc:
             raise ResultsError(f"{saved} is not a readable config ({type(exc).__name__}); remove it or "
                                f"pass another {self.option}") from None
         if not isinstance(old, dict):
-            return True
+            return "not a config mapping"
         try:
             old = migrate_tree(old)
         except ConfigError:   # a key at its old and its new place: not a config calnav wrote
-            return True
-        return strip_neutral(old, self.neutral_keys) != strip_neutral(self._cfg_dict(), self.neutral_keys)
+            return "a key at both its old and its new place: not a config calnav wrote"
+        old, new = strip_neutral(old, self.neutral_keys), strip_neutral(self._cfg_dict(), self.neutral_keys)
+        return config_differences(old, new) if old != new else None
 
     def _other_inputs(self) -> list[str]:
         """The labels of the input files that differ from the ones the directory's results were
@@ -250,8 +277,10 @@ class ResultsDir:
 
     def _refusal(self) -> str | None:
         """Why the directory's results are not this run's (one line), or None."""
-        if self._holds_other_config():
-            return f"{self.path} holds results of a different config ({self.path / CONFIG_NAME}); {self._remedy}"
+        differences = self._other_config()
+        if differences is not None:
+            return (f"{self.path} holds results of a different config ({self.path / CONFIG_NAME}: {differences}); "
+                    f"{self._remedy}")
         changed = self._other_inputs()
         if changed:
             files = ", ".join(f"{k} ({self._inputs()[k]['path']})" for k in changed)

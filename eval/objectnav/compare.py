@@ -24,23 +24,11 @@ import statistics
 from pathlib import Path
 
 from calnav.eval.config import ConfigError, migrate_tree
-from calnav.eval.results_dir import NEUTRAL_KEYS, read_records
+from calnav.eval.results_dir import NEUTRAL_KEYS, flatten, read_records
 from calnav.eval.stats import (LINGER_STEPS, METRIC_LABELS, failure_modes, governing_sem, house_sem, is_finished,
                                paired_difference, same_episode, summarize)
 
 PAIRED_METRICS: tuple[str, ...] = ("spl", "success")
-
-
-def flatten(tree: dict, prefix: str = "") -> dict[str, object]:
-    """{'a': {'b': 1}} -> {'a.b': 1} (lists stay values)."""
-    out: dict[str, object] = {}
-    for k, v in tree.items():
-        key = f"{prefix}{k}"
-        if isinstance(v, dict):
-            out.update(flatten(v, key + "."))
-        else:
-            out[key] = v
-    return out
 
 
 def load_run(path: Path) -> tuple[dict[str, object], list[dict]]:
@@ -209,6 +197,8 @@ def main_compare(args, configs=()) -> None:
         raise ConfigError(f"--keys {', '.join(unknown)} not in any run's config; keys that differ: "
                           f"{', '.join(differing_keys(configs)) or '(none)'}")
     rows = [({k: cell_value(c, k) for k in keys}, summarize(r)) for c, r in loaded]
+    if not keys:   # the same config run twice (a reproducibility check): the directories tell the rows apart
+        keys, rows = ["Run"], [({"Run": name}, summary) for name, (_, summary) in zip(names, rows)]
     out = Path(args.output)
     table = write_comparison(keys, rows, out)
     others = [(names[i], loaded[i][1]) for i in range(len(paths)) if i != base]

@@ -18,15 +18,14 @@ def demo_configs(args) -> list:
 def main_demo(args, configs) -> None:
     """``configs``: ``demo_configs(args)``, checked by the preflight."""
     from calnav.eval.episodes import episode_indices
-    from calnav.eval.objectnav.run import run_objectnav
+    from calnav.eval.objectnav.run import run_label, run_objectnav
 
     cfg = configs[0]
     indices = episode_indices(str(args.episodes), cfg.env, cfg.run)
     out = Path(cfg.run.output_dir)
     summary = run_objectnav(cfg, indices, out, force=True, video=1)
-    label = f"{cfg.run.agent} ({cfg.agent.segmenter} + {cfg.mapping.fusion})"
     print()
-    print(format_metrics_table([(label, summary)], first_header="Agent"))
+    print(format_metrics_table([(run_label(cfg), summary)], first_header="Agent"))
     videos = sorted((out / "videos").glob("*.mp4"))
     print(f"\nresults: {out}/episodes.jsonl, {out}/summary.json, config: {out}/config.yaml")
     print(f"plots:   {out}/plots/")

@@ -296,6 +296,17 @@ def objectnav_configs(args) -> list[Config]:
     return [load_command_config(args, combo) for combo in combos]
 
 
+def run_label(cfg: Config) -> str:
+    """The agent as a metrics table names it, with what it maps from, so a table of the default
+    config (the ground-truth segmenter) is not read as the learned one's: 'peanut (gt +
+    averaging)', 'peanut (learned_rgb + ndf)'; an agent without a semantic map (the oracle) by
+    name alone."""
+    if cfg.run.agent != "peanut":
+        return cfg.run.agent
+    semantic_map = cfg.mapping.fusion if cfg.agent.map_type == "fused" else cfg.agent.map_type
+    return f"{cfg.run.agent} ({cfg.agent.segmenter} + {semantic_map})"
+
+
 def _job(args, cfg: Config, out: Path | None) -> EpisodeJob:
     """``cfg``'s job: --episodes resolved on its split, writing to ``out`` (default: run.output_dir)."""
     from calnav.eval.episodes import episode_indices
@@ -309,7 +320,7 @@ def main_objectnav(args, configs: list[Config]) -> None:
     if not getattr(args, "multirun", False):
         job = _job(args, configs[0], args.output)
         summary = run_jobs([job], force=args.force)[0]
-        print(format_metrics_table([(summary["agent"], summary)], first_header="Agent"))
+        print(format_metrics_table([(run_label(configs[0]), summary)], first_header="Agent"))
         print(f"results: {job.out}/episodes.jsonl, {job.out}/summary.json, {job.out}/plots/"
               + (f", {job.out}/rerun/ (calnav view {job.out}/rerun/<episode>.rrd)" if job.rerun else ""))
         return

@@ -59,13 +59,27 @@ def test_objectnav_oracle_run_resume_and_refusal(tmp_path, capsys):
     # a different config in the same directory is refused, --force discards
     other = args + ["env.max_episode_steps=100"]
     assert main(other) == 2
-    assert "holds results of a different config" in capsys.readouterr().err
+    # the refusal names the key that differs, with both values
+    assert "holds results of a different config" in (err := capsys.readouterr().err)
+    assert "config.yaml: env.max_episode_steps: 500 there, 100 here); use another --output" in err
     # so is another agent: its episodes would silently mix with the oracle's
     peanut = [a if a != "oracle" else "peanut" for a in args]
     assert main(peanut) == 2
     assert "holds results of a different config" in capsys.readouterr().err
     assert main(other + ["--force"]) == 0
     assert len(load_records(out / "episodes.jsonl")) == 4
+
+
+def test_range_past_the_splits_capacity_is_refused_before_any_scene_is_generated(tmp_path, monkeypatch, capsys):
+    """2 val scenes x 3 episodes hold at most 6 episodes: 100000:100003 is refused at once, by
+    that bound, with no scene generated and nothing written."""
+    monkeypatch.setenv("CALNAV_CACHE", str(tmp_path / "cache"))
+    out = tmp_path / "r"
+    assert main(["objectnav", "--output", str(out), *SMALL, "--episodes", "100000:100003"]) == 2
+    err = capsys.readouterr().err
+    assert "is outside the split, which has at most 6 episodes (2 val scenes x dataset.episodes_per_scene 3)" in err
+    assert not list((tmp_path / "cache").rglob("*.npz")) and not list((tmp_path / "cache").rglob("*.json.gz"))
+    assert not out.exists()
 
 
 def test_objectnav_bad_input(tmp_path, capsys):
@@ -129,10 +143,24 @@ PEANUT_TINY = ["--agent", "peanut", "--episodes", "1", "run.workers=1", "env.res
                "env.dataset.val_scenes=1", "env.dataset.episodes_per_scene=2", "env.max_episode_steps=25"]
 
 
-def test_objectnav_video_same_metrics_and_plots(tmp_path):
+@pytest.mark.parametrize("overrides, label", [
+    (["agent.segmenter=learned_rgb", "mapping.fusion=glfs"], "peanut (learned_rgb + glfs)"),
+    (["agent.map_type=ndf"], "peanut (gt + ndf)"),      # NDF fuses nothing: mapping.fusion is not its map
+    (["run.agent=oracle"], "oracle"),                   # no semantic map at all
+])
+def test_run_label_names_what_the_agent_maps_from(overrides, label):
+    from calnav.eval.config import load_config
+    from calnav.eval.objectnav.run import run_label
+
+    assert run_label(load_config(None, overrides)) == label
+
+
+def test_objectnav_video_same_metrics_and_plots(tmp_path, capsys):
     import imageio.v2 as imageio
 
     assert main(["objectnav", "--output", str(tmp_path / "plain"), *PEANUT_TINY]) == 0
+    # the table names what the agent mapped from: the default config's ground-truth segmenter
+    assert "| peanut (gt + averaging) |" in capsys.readouterr().out
     assert main(["objectnav", "--output", str(tmp_path / "vid"), "--video", "1", *PEANUT_TINY]) == 0
     videos = list((tmp_path / "vid" / "videos").glob("*.mp4"))
     assert len(videos) == 1 and videos[0].stat().st_size > 1000 and ":" not in videos[0].name

@@ -108,7 +108,8 @@ def test_override_syntax_errors():
 
 
 def test_missing_file_is_clear(tmp_path):
-    with pytest.raises(ConfigError, match="config file not found"):
+    with pytest.raises(ConfigError, match=r"config file not found: .*missing.yaml; the shipped configs "
+                                          r"\(found by name too\): .*demo.yaml, .*objectnav.yaml"):
         load_config(tmp_path / "missing.yaml")
 
 

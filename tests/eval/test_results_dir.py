@@ -407,3 +407,12 @@ def test_check_finds_a_held_directory_and_another_config_without_writing(tmp_pat
     assert sorted(p.name for p in path.iterdir()) == before   # check writes nothing
     ResultsDir(tmp_path / "new" / "dir").check()
     assert not (tmp_path / "new").exists()
+
+
+def test_config_differences_name_the_first_keys_and_count_the_rest():
+    from calnav.eval.results_dir import config_differences
+
+    saved = {"a": {"x": 1, "y": [1, 2]}, "b": 2, "c": 3, "d": 4}
+    assert config_differences(saved, {**saved, "b": 5}) == "b: 2 there, 5 here"
+    assert config_differences(saved, {"a": {"x": 1, "y": [1, 3]}, "e": 0}) == (
+        "a.y: [1, 2] there, [1, 3] here; b: 2 there, (absent) here; c: 3 there, (absent) here; 2 more key(s)")

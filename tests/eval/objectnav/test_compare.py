@@ -8,7 +8,8 @@ import math
 import pytest
 import yaml
 
-from calnav.eval.objectnav.compare import cell_value, differing_keys, flatten, main_compare
+from calnav.eval.objectnav.compare import cell_value, differing_keys, main_compare
+from calnav.eval.results_dir import flatten
 from calnav.eval.config import ConfigError
 from calnav.eval.stats import failure_modes, paired_difference
 
@@ -96,6 +97,21 @@ def test_compare_run_directories(tmp_path, capsys):
     assert "Paired differences" in capsys.readouterr().out
     failures = (out / "failures.md").read_text().splitlines()
     assert failures[3].endswith("| 1 | 1 | 0 | 0 | 0 | - | 2 |")  # ndf: episode 0 failed with steps absent -> false STOP
+
+
+def test_compare_of_one_config_twice_names_the_runs(tmp_path):
+    """Two runs of the same config (a reproducibility check) differ in no key: the table's
+    first column is then the run directory, so its rows can be told apart."""
+    cfg = {"agent": {"map_type": "fused", "segmenter": "gt"}, "mapping": {"fusion": "rbu"}}
+    r0 = _run_dir(tmp_path / "first", cfg, [_rec(0, 1.0, 0.5), _rec(1, 1.0, 1.0)])
+    r1 = _run_dir(tmp_path / "second", cfg, [_rec(0, 0.0, 0.0), _rec(1, 1.0, 0.5)])
+    out = tmp_path / "cmp"
+    main_compare(argparse.Namespace(runs=[r0, r1], keys="", baseline="0", output=str(out)))
+    md = (out / "comparison.md").read_text().splitlines()
+    assert md[0] == "| Run | SPL | Success | SoftSPL | DTG | N |"
+    assert md[2].startswith(f"| {r0} | 0.750 (0.250) |") and md[3].startswith(f"| {r1} | 0.250 (0.250) |")
+    with open(out / "comparison.csv") as f:
+        assert [row["Run"] for row in csv.DictReader(f)] == [r0, r1]
 
 
 def test_paired_identical_runs_render_dash(tmp_path):
