@@ -230,6 +230,9 @@ def run_jobs(jobs: list[EpisodeJob], force: bool = False, progress: bool = True,
                               for i in job.indices if i not in done], job.cfg)
         total = sum(len(job.indices) for job in jobs)
         name = jobs[0].cfg.run.agent if len(jobs) == 1 else f"{len(jobs)} configs"
+        if progress and not tasks:   # a rerun of a finished range: say so, rather than a bare 100% bar
+            tqdm.write(f"nothing to run: all {total} episodes are recorded in "
+                       f"{', '.join(str(job.out) for job in jobs)} (the figures below are theirs)")
 
         def save(task: EpisodeTask, rec: dict) -> None:
             files[task.job].append(rec)

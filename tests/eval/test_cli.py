@@ -55,6 +55,10 @@ def test_objectnav_oracle_run_resume_and_refusal(tmp_path, capsys):
     assert main(args[:4] + ["0:6"] + args[5:]) == 0
     records = load_records(out / "episodes.jsonl")
     assert sorted(r["index"] for r in records) == [0, 1, 2, 3, 4, 5]  # none missing, none twice
+    capsys.readouterr()
+    assert main(args[:4] + ["0:6"] + args[5:]) == 0   # the same range again: said, not silently re-summed
+    assert f"nothing to run: all 6 episodes are recorded in {out}" in capsys.readouterr().out
+    assert len(load_records(out / "episodes.jsonl")) == 6
 
     # a different config in the same directory is refused, --force discards
     other = args + ["env.max_episode_steps=100"]
