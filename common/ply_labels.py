@@ -77,6 +77,9 @@ def read_label_table(path) -> dict:
         if path.suffix.lower() == ".json":
             data = json.loads(path.read_text())
             if isinstance(data, list):
+                if not all(isinstance(rec, dict) and {"id", "name"} <= rec.keys() for rec in data):
+                    raise ValueError("a list must hold {\"id\": raw id, \"name\": class name} records; or give an "
+                                     "object {raw id: class name}")
                 data = {rec["id"]: rec["name"] for rec in data}
             if not isinstance(data, dict):
                 raise ValueError("expected an object {raw id: class name} or a list of {id, name} records")

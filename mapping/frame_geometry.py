@@ -26,6 +26,11 @@ SMOOTH_JUMP_RATIO = 0.5
 # near-180-degree view) sends back-projected points kilometres away and sizes the per-frame
 # block table in tebibytes; one that sees under a degree is a unit mix-up (metres vs pixels).
 MIN_FOV_DEG, MAX_FOV_DEG = 1.0, 179.0
+# How far the principal point may sit from the image centre, as a fraction of the image size on
+# each axis: real cameras put it within a few percent of the centre (crops rarely past 15%), while
+# a K calibrated for twice or half the resolution puts it at a full or a quarter width off -- a
+# map fused through it is skewed with no other sign.
+MAX_PRINCIPAL_OFFSET = 0.2
 
 
 def _describe(a) -> str:
@@ -41,11 +46,13 @@ def field_of_view_deg(focal_px: float, centre_px: float, size_px: int) -> float:
 
 def check_intrinsics(intrinsics, width: int | None = None, height: int | None = None) -> np.ndarray:
     """(3, 3) float64 pinhole matrix with fx, fy > 0 and last row (0, 0, 1). With the image
-    size (pixels), the horizontal and vertical fields of view must also be plausible: within
-    (MIN_FOV_DEG, MAX_FOV_DEG)."""
+    size (pixels), the horizontal and vertical fields of view must also be plausible, within
+    (MIN_FOV_DEG, MAX_FOV_DEG), and the principal point near the centre (MAX_PRINCIPAL_OFFSET)."""
     k = np.asarray(intrinsics, dtype=np.float64)
-    if k.shape != (3, 3) or not np.isfinite(k).all():
+    if k.shape != (3, 3):
         raise ValueError(f"intrinsics must be a finite (3, 3) matrix, got {_describe(np.asarray(intrinsics))}")
+    if not np.isfinite(k).all():
+        raise ValueError(f"intrinsics hold NaN or inf: {k.tolist()}")
     if k[0, 0] <= 0 or k[1, 1] <= 0 or not np.allclose(k[2], (0, 0, 1)) or k[1, 0] != 0:
         raise ValueError(f"intrinsics must be [[fx, s, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0, got {k.tolist()}")
     if width is not None and height is not None:
@@ -56,6 +63,12 @@ def check_intrinsics(intrinsics, width: int | None = None, height: int | None = 
                                  f"image, outside ({MIN_FOV_DEG:g}, {MAX_FOV_DEG:g}) deg: focal lengths are in "
                                  f"pixels (fx = fy = {width / 2 / math.tan(math.radians(79 / 2)):.1f} for a "
                                  f"79-degree view), got fx = {k[0, 0]:g}, fy = {k[1, 1]:g}")
+        offset = max(abs(k[0, 2] - width / 2) / width, abs(k[1, 2] - height / 2) / height)
+        if offset > MAX_PRINCIPAL_OFFSET:
+            raise ValueError(f"intrinsics put the principal point at ({k[0, 2]:g}, {k[1, 2]:g}), {offset:.0%} of the "
+                             f"image's size off the centre of a {width}x{height} image (at most {MAX_PRINCIPAL_OFFSET:.0%}): "
+                             f"they look like a {2 * k[0, 2]:.0f}x{2 * k[1, 2]:.0f} image's intrinsics; scale fx, fy, "
+                             f"cx, cy to this image's size")
     return k
 
 

@@ -183,7 +183,9 @@ def recorded_scan(cfg, scene_id: str) -> RecordedScan | None:
     for entries in read_sequence_list(cfg.sequences.list, cfg.sequences.layout).values():
         for sid, folder, layout in entries:
             if sid == scene_id:
-                return RecordedScan(Sequence(folder, layout, cfg.sequence), default_class_names())
+                seq = Sequence(folder, layout, cfg.sequence)
+                seq.check_scale(cfg.mapping.depth_min_m, cfg.mapping.depth_max_m, cfg.mapping.voxel_size_m)
+                return RecordedScan(seq, default_class_names())
     return None
 
 

@@ -119,6 +119,7 @@ def main_map(args, configs: list[Config]) -> None:
         require_rerun("--rerun")   # the install command, before anything is read or written
         frame_log = FrameLog()
     seq = Sequence(args.sequence_dir, args.layout, cfg.sequence)
+    seq.check_scale(cfg.mapping.depth_min_m, cfg.mapping.depth_max_m, cfg.mapping.voxel_size_m)   # units, frame
     source = logits_source(seq, cfg, args.segmenter, args.logits, args.classes)
     names = tuple(source.class_names)
     ply = Path(args.labels_ply) if args.labels_ply else seq.labelled_ply()
@@ -190,7 +191,8 @@ def _write_results(out: Path, cfg, seq, res: MappedSequence, names, ply, gt, arg
         write_map_recording(out / "map.rrd", frame_log, coords, probs, names, cfg.mapping.voxel_size_m,
                             labels=labels if gt is not None else None, ply=ply, gt=gt)
     write_json_atomic(out / "results.json", results, indent=1)
-    print(f"{seq.name}: {res.frames} frames fused ({len(res.skipped)} skipped: {seq.skip_summary()}) in {res.seconds:.1f} s "
+    skipped = f" ({len(res.skipped)} skipped: {seq.skip_summary()})" if res.skipped else ""
+    print(f"{seq.name}: {res.frames} frames fused{skipped} in {res.seconds:.1f} s "
           f"({results['frames_per_s']:.1f} frames/s), {len(coords)} voxels")
     if gt is not None:
         print("  ".join(f"{k} {results[k]:.4f}" for k in ("miou", "ece", "tl_ece", "mece", "brier"))

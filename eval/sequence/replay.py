@@ -165,6 +165,7 @@ def main_replay(args, configs: list[Config]) -> None:
         require_rerun("--rerun")   # the install command, before anything is read or written
     seq = Sequence(args.recording, args.layout, configs[0].sequence)
     cfg, notes = sensor_config(configs[0], seq)
+    seq.check_scale(cfg.mapping.depth_min_m, cfg.mapping.depth_max_m, cfg.mapping.voxel_size_m)   # units, frame
     nav = Navigator(cfg)
     goal = int(args.goal) if args.goal.isdigit() else args.goal   # a name, or its id
     nav.goal_id(goal)   # an unknown goal: one line naming the valid ones

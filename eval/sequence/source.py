@@ -25,6 +25,12 @@ class SegmenterLogits:
         self.class_names = tuple(segmenter.class_names)
 
     def __call__(self, frame: SequenceFrame, rgb: np.ndarray, semantic, reg: Registration) -> np.ndarray:
+        k = len(self.class_names)
+        if self.segmenter.needs_semantic and semantic is not None and semantic.max(initial=-1) >= k:
+            # raw dataset ids where class indices belong: every pixel would be void, the map empty of them
+            raise ValueError(f"frame {frame.index}: its semantic frame holds class id {int(semantic.max())}, past the "
+                             f"{k} classes ({', '.join(self.class_names[:3])}, ...): semantic/N.png stores class index "
+                             "+ 1 (0 = void); raw dataset ids go in label-filt/N.png with sequence.frame_label_map")
         return self.segmenter.segment(rgb, frame.depth, semantic=semantic, pose=frame.pose)
 
 

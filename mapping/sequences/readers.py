@@ -5,6 +5,7 @@
 from __future__ import annotations
 
 import re
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Iterator
@@ -22,6 +23,17 @@ SEVEN_EXPECTED = "frame-NNNNNN.color.png|jpg, frame-NNNNNN.depth.png, frame-NNNN
 SEVEN_FRAME = re.compile(r"^frame-(\d+)\.depth\.png$")
 VOID = -1
 SEMANTIC_OFFSET = 1   # semantic PNGs store class id + 1 (0 = void) in uint16
+# ``Sequence.check_scale``: depth in the wrong units (TUM's 5000 per metre read as 1000,
+# centimetres as millimetres) puts nearly every pixel outside the mapping's depth range, and the
+# map then holds a few stray voxels with exit 0. A real recording keeps most of its valid depth in
+# range (a robot facing a far wall in one sampled frame is outvoted by the others).
+MIN_DEPTH_IN_RANGE = 0.2          # fraction of the sampled frames' valid depth pixels
+SCALE_SAMPLE_FRAMES = 3           # frames sampled: first, middle, last
+# The voxel map stores float32 coordinates: spaced |x| * 2^-23 apart at distance |x| from the
+# origin. Past a tenth of a voxel the voxels' centres snap to that grid (UTM / GNSS map frames:
+# 0.25-0.5 m at 4e6 m), so such poses are refused with how to fix them.
+FLOAT32_EPS = 2.0 ** -23
+MAX_SPACING_VOXELS = 0.1
 
 
 # Size-like keys of a recording's reading (``sequence``), and why their bounds: depth is cut
@@ -144,11 +156,42 @@ class Sequence:
                              f"got {depth.dtype} with shape {depth.shape}")
         self.color_size = (rgb.shape[1], rgb.shape[0])    # (W, H) pixels
         self.depth_size = (depth.shape[1], depth.shape[0])
+        for what, k, (w, h) in (("colour", self.k_color, self.color_size), ("depth", self.k_depth, self.depth_size)):
+            try:   # against the images' size: a K for another resolution skews the whole map
+                fg.check_intrinsics(k, w, h)
+            except ValueError as exc:
+                raise ValueError(f"{root}: the {what} intrinsics for its {w}x{h} {what} images: {exc}") from None
         self._has_labels = {k: self._paths(first).get(k) is not None for k in ("semantic", "label_raw")}
         self._label_lut: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.ids)
+
+    def pose_of(self, index: int) -> np.ndarray:
+        """(4, 4) camera-to-world pose of frame ``index`` (one of ``ids``)."""
+        return self._poses[index]
+
+    def check_scale(self, depth_min_m: float, depth_max_m: float, voxel_size_m: float) -> None:
+        """Refuse (ValueError, one line) a recording the map would hold wrongly with no other
+        sign: depth mostly outside ``depth_min_m``-``depth_max_m`` in sampled frames (its units
+        are not ``sequence.depth_scale``'s), or a camera so far from the origin that float32
+        voxel coordinates are coarser than a tenth of ``voxel_size_m``."""
+        picks = sorted({self.ids[0], self.ids[len(self.ids) // 2], self.ids[-1]})[:SCALE_SAMPLE_FRAMES]
+        valid = np.concatenate([d[d > 0] for d in (self.read(i).depth for i in picks)])
+        if valid.size:
+            inside = float(((valid >= depth_min_m) & (valid <= depth_max_m)).mean())
+            if inside < MIN_DEPTH_IN_RANGE:
+                raise ValueError(f"{self.root}: only {inside:.1%} of the valid depth of frames {picks} lies within "
+                                 f"mapping.depth_min_m-depth_max_m ({depth_min_m:g}-{depth_max_m:g} m; median "
+                                 f"{float(np.median(valid)):.3g} m): a depth range that misses the recording, or depth in "
+                                 f"other units? sequence.depth_scale is {self.cfg.depth_scale:g} raw units per metre "
+                                 "(ScanNet / 7-Scenes: 1000, TUM: 5000)")
+        reach = max(float(np.abs(self.pose_of(i)[:3, 3]).max()) for i in self.ids)
+        spacing = reach * FLOAT32_EPS
+        if spacing > MAX_SPACING_VOXELS * voxel_size_m:
+            raise ValueError(f"{self.root}: a camera position lies {reach:.4g} m from the origin, where the map's float32 "
+                             f"coordinates are {spacing:.2g} m apart (mapping.voxel_size_m is {voxel_size_m:g} m): give "
+                             "the poses in a local frame (subtract a fixed origin, e.g. the first camera position)")
 
     def skip_summary(self) -> str:
         """Why the ``skipped`` frames were dropped, for a one-line report."""
@@ -195,7 +238,9 @@ class Sequence:
         frame when unreadable or not rigid."""
         path = self._paths(index)["pose"]
         try:
-            pose = np.loadtxt(path, dtype=np.float64, ndmin=2)
+            with warnings.catch_warnings():   # an empty file: numpy warns, then the shape check names it
+                warnings.simplefilter("ignore", UserWarning)
+                pose = np.loadtxt(path, dtype=np.float64, ndmin=2)
         except ValueError as exc:
             raise ValueError(f"frame {index}: unreadable pose {path}: {exc}") from exc
         if pose.shape != (4, 4):
@@ -216,13 +261,13 @@ class Sequence:
             raise ValueError(f"frame {index}: depth {paths['depth']} must be a single-channel 16-bit PNG, "
                              f"got {raw.dtype} with shape {raw.shape}")
         if (raw.shape[1], raw.shape[0]) != self.depth_size:
-            raise ValueError(f"frame {index}: depth is {raw.shape[1]}x{raw.shape[0]}, the sequence's is "
+            raise ValueError(f"frame {index}: depth {paths['depth']} is {raw.shape[1]}x{raw.shape[0]}, the sequence's is "
                              f"{self.depth_size[0]}x{self.depth_size[1]}")
         depth = depth_from_raw(raw, self.cfg)
         rgb = cv2.cvtColor(_imread(paths["color"], cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
         if (rgb.shape[1], rgb.shape[0]) != self.color_size:
-            raise ValueError(f"frame {index}: colour is {rgb.shape[1]}x{rgb.shape[0]}, the sequence's is "
-                             f"{self.color_size[0]}x{self.color_size[1]}")
+            raise ValueError(f"frame {index}: colour {paths['color']} is {rgb.shape[1]}x{rgb.shape[0]}, the sequence's "
+                             f"is {self.color_size[0]}x{self.color_size[1]}")
         sem = None
         if paths.get("semantic") is not None:
             sem = _imread(paths["semantic"], cv2.IMREAD_UNCHANGED).astype(np.int64) - SEMANTIC_OFFSET
@@ -265,6 +310,9 @@ def open_scannet(root: Path) -> tuple[list[int], Callable[[int], dict], np.ndarr
         missing = sorted(depth - have)
         if missing:
             raise ValueError(f"{root}: {len(missing)} depth frames have no {name} file, e.g. frame {missing[0]}")
+    missing = sorted((color | pose) - depth)   # a lost depth frame would silently drop its frame
+    if missing:
+        raise ValueError(f"{root}: {len(missing)} colour / pose frames have no depth/N.png file, e.g. frame {missing[0]}")
     sem_dir, raw_dir = root / "semantic", root / "label-filt"
     sem, raw = _numeric_stems(sem_dir, ".png"), _numeric_stems(raw_dir, ".png")
     for name, have in (("semantic", sem), ("label-filt", raw)):
@@ -292,6 +340,10 @@ def open_7scenes(root: Path) -> tuple[list[int], Callable[[int], dict], np.ndarr
     width = len(re.match(r"frame-(\d+)", next(root.glob("frame-*.depth.png")).name).group(1))
     name = (lambda i: f"frame-{i:0{width}d}")
     ext = ".color.png" if (root / f"{name(ids[0])}.color.png").exists() else ".color.jpg"
+    posed = {int(m.group(1)) for p in root.glob("frame-*.pose.txt") if (m := re.match(r"^frame-(\d+)\.pose\.txt$", p.name))}
+    missing = sorted(posed - set(ids))   # a lost depth frame would silently drop its frame
+    if missing:
+        raise ValueError(f"{root}: {len(missing)} posed frames have no depth file, e.g. frame {missing[0]}")
     for i in ids:
         for kind, suffix in (("colour", ext), ("pose", ".pose.txt")):
             if not (root / f"{name(i)}{suffix}").exists():

@@ -336,6 +336,9 @@ class RosbagSequence(Sequence):
         finally:
             reader.close()
 
+    def pose_of(self, index: int) -> np.ndarray:
+        return self._poses_of[index]
+
     def read(self, index: int) -> SequenceFrame:
         """Frame ``index`` (one of ``ids``), by random access (its messages' log times)."""
         if self._reader is None:

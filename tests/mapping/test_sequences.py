@@ -141,6 +141,31 @@ def test_7scenes_reader_masks_invalid_depth_and_accepts_kinectfusion_poses(tmp_p
         np.testing.assert_array_equal(f.rgb, rgb)               # PNG: lossless
         np.testing.assert_allclose(f.pose, pose, atol=1e-7)     # re-orthonormalised
         assert f.semantic is None
+    # a lost depth frame: its colour and pose are there, the frame would be dropped unsaid
+    (seq_dir / "frame-000001.depth.png").unlink()
+    with pytest.raises(ValueError, match="1 posed frames have no depth file, e.g. frame 1"):
+        Sequence(seq_dir, "7scenes")
+
+
+@pytest.mark.parametrize("k, ok", [
+    ([[100, 0, 79.5, 0], [0, 100, 59.5, 0]], True),     # centred on a 160x120 image
+    ([[100, 0, 100.0, 0], [0, 100, 59.5, 0]], True),    # 12.8% right of the centre (a crop): accepted
+    ([[100, 0, 112.0, 0], [0, 100, 59.5, 0]], True),    # exactly 20%: the bound itself
+    ([[100, 0, 113.0, 0], [0, 100, 59.5, 0]], False),   # 20.6%: past MAX_PRINCIPAL_OFFSET
+    ([[400, 0, 319.5, 0], [0, 400, 239.5, 0]], False),  # a 640x480 calibration
+    ([[25, 0, 39.5, 0], [0, 25, 29.5, 0]], False),      # an 80x60 one
+])
+def test_the_principal_point_must_fit_the_image(k, ok):
+    """|cx - W/2| / W and |cy - H/2| / H at most 0.2 for a W x H = 160 x 120 image: (100 - 80) /
+    160 = 0.125 and (112 - 80) / 160 = 0.2 pass, (113 - 80) / 160 = 0.206 does not."""
+    from calnav.mapping.frame_geometry import check_intrinsics
+
+    m = np.array([*k, [0, 0, 1, 0]], float)[:, :3]
+    if ok:
+        np.testing.assert_array_equal(check_intrinsics(m, 160, 120), m)
+    else:
+        with pytest.raises(ValueError, match=r"image's size off the centre of a 160x120 image \(at most 20%\)"):
+            check_intrinsics(m, 160, 120)
 
 
 def test_readers_name_what_is_missing(tmp_path):

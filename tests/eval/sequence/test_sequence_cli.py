@@ -192,6 +192,22 @@ def _break(root, logits, defect: str) -> None:
     elif defect == "truncated npy":
         data = (logits / "2.npy").read_bytes()
         (logits / "2.npy").write_bytes(data[:len(data) // 2])
+    elif defect == "missing depth frame":
+        (root / "depth" / "2.png").unlink()
+    elif defect == "intrinsics of 4x the size":   # a 160x120 calibration on 40x30 images
+        for name in ("intrinsic_color.txt", "intrinsic_depth.txt"):
+            k = np.loadtxt(root / "intrinsic" / name)
+            k[:2] *= 4   # fx, fy, cx, cy (rows 0, 1 of the 4x4 form)
+            np.savetxt(root / "intrinsic" / name, k)
+    elif defect == "depth at 5000 per metre":      # TUM's depth read with ScanNet's scale
+        for f in (root / "depth").glob("*.png"):
+            d = cv2.imread(str(f), cv2.IMREAD_UNCHANGED)
+            cv2.imwrite(str(f), (d.astype(np.uint32) * 5).clip(0, 65534).astype(np.uint16))
+    elif defect == "utm poses":                    # a GNSS map frame: 4,000 km north
+        for f in (root / "pose").glob("*.txt"):
+            pose = np.loadtxt(f)
+            pose[:3, 3] += (5e5, 4e6, 0.0)
+            np.savetxt(f, pose)
     elif defect == "nan ply vertex":
         from plyfile import PlyData
 
@@ -202,10 +218,15 @@ def _break(root, logits, defect: str) -> None:
 
 
 @pytest.mark.parametrize("defect, message", [
-    ("truncated jpeg", "2.jpg"), ("3-channel depth", "frame 2: depth"), ("wrong-size depth", "frame 2: depth is"),
+    ("truncated jpeg", "2.jpg"), ("3-channel depth", "frame 2: depth"), ("wrong-size depth", "depth/2.png is 40x28"),
     ("missing semantic frame", "have no semantic/ file, e.g. frame 2"), ("nan logits", "of frame 2 hold NaN"),
     ("int8 logits", "2.npy must be (H, W, K) float16 / float32, got int8"), ("missing logits", "no logits for frame 2"),
     ("truncated npy", "cannot read logits"), ("nan ply vertex", "1 vertices have NaN or inf coordinates"),
+    # what real recordings get wrong with no other sign: each refused when the sequence opens
+    ("missing depth frame", "1 colour / pose frames have no depth/N.png file, e.g. frame 2"),
+    ("intrinsics of 4x the size", "the colour intrinsics for its 40x30 colour images: intrinsics put the principal point"),
+    ("depth at 5000 per metre", "of the valid depth of frames [0, 1, 2] lies within mapping.depth_min_m-depth_max_m"),
+    ("utm poses", "m from the origin, where the map's float32 coordinates are"),
 ])
 def test_map_per_frame_defects_are_named_and_nothing_is_written(tmp_path, capsys, defect, message):
     """Per-frame problems are one line naming the frame, found before map.npz is written (no tracebacks)."""
@@ -227,6 +248,21 @@ def test_map_per_frame_defects_are_named_and_nothing_is_written(tmp_path, capsys
     assert not out.exists(), "nothing may be written on bad input"
 
 
+def test_raw_dataset_ids_in_semantic_frames_are_refused(tmp_path, capsys):
+    """semantic/N.png holds class index + 1; raw dataset ids there (99 for 18 classes) would
+    make every such pixel void and the gt segmenter's map silently poorer."""
+    import cv2
+
+    root = write_scannet(tmp_path / "seq", n=3)
+    sem = cv2.imread(str(root / "semantic" / "1.png"), cv2.IMREAD_UNCHANGED)
+    cv2.imwrite(str(root / "semantic" / "1.png"), np.full_like(sem, 99))
+    out = tmp_path / "out"
+    assert main(["map", str(root), "--layout", "scannet", "--segmenter", "gt", "--output", str(out)]) == 2
+    last = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "frame 1: its semantic frame holds class id 98, past the 18 classes" in last, last
+    assert not out.exists()
+
+
 def test_a_map_with_no_voxels_or_nothing_to_score_is_an_error(tmp_path, capsys):
     """A depth range that holds none of the room fuses no voxel, and a labelled mesh elsewhere
     labels none: either map's metrics would be NaN (written as bare NaN, exit 0), so the command
@@ -240,9 +276,9 @@ def test_a_map_with_no_voxels_or_nothing_to_score_is_an_error(tmp_path, capsys):
     v, t, c = room_mesh()
     far = write_labels_ply(tmp_path / "far.ply", *densify(v + 100.0, t, c, 0.1))
     for extra, message, out in (
-            (["mapping.depth_max_m=0.2"], "calnav map: error: seq: the map holds no voxels after fusing 3 frames "
-             "(mapping.voxel_size_m 0.05 m, depth 0.1-0.2 m): no surface was reconstructed, nothing is written",
-             tmp_path / "near"),
+            # a depth range that misses the recording is refused when it opens, before fusing
+            (["mapping.depth_max_m=0.2"], f"calnav map: error: {root}: only 0.0% of the valid depth of frames "
+             "[0, 1, 2] lies within mapping.depth_min_m-depth_max_m (0.1-0.2 m; median", tmp_path / "near"),
             (["--labels-ply", str(far)], "calnav map: error: seq: none of the map's ",
              tmp_path / "far")):
         assert main([*base, *extra, "--output", str(out)]) == 2
@@ -250,6 +286,16 @@ def test_a_map_with_no_voxels_or_nothing_to_score_is_an_error(tmp_path, capsys):
         assert last.startswith(message), last
         assert not out.exists()
     assert f"lies within sequence.label_distance_m (0.05 m) of a labelled vertex of {far}: there is nothing" in last
+    # a map that still holds no voxel after fusing (a recording of nothing in range) is refused too
+    from types import SimpleNamespace
+
+    from calnav.eval.config import load_config
+    from calnav.eval.sequence.map_cmd import MappedSequence, check_map
+
+    with pytest.raises(ValueError, match="seq: the map holds no voxels after fusing 3 frames .mapping.voxel_size_m "
+                                         "0.05 m, depth 0.1-5 m.: no surface was reconstructed, nothing is written"):
+        check_map(SimpleNamespace(name="seq"), MappedSequence(None, 3), load_config(None, []), np.zeros((0, 3)),
+                  None, None)
     out = tmp_path / "ok"
     assert main([*base, "--output", str(out)]) == 0
     results = json.loads((out / "results.json").read_text(), parse_constant=lambda c: pytest.fail(f"bare {c}"))
