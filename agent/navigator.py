@@ -62,6 +62,18 @@ from calnav.envs.task import (COMPASS, DEPTH, GPS, OBJECTGOAL, RGB, SEMANTIC, Ac
 # camera tilted 2 degrees lands 0.17 m off the floor, still under agent.obstacle_min_height_m
 # (0.25 m); tilted more, far floor would become obstacles.
 LEVEL_TOLERANCE_DEG = 2.0
+# What a robot's inputs cannot be, refused rather than mapped: each is a unit or frame mix-up that
+# the agent would otherwise turn into a blind search or a wrong map with no other sign.
+# - depth: metric depth past 100 m (the mapping's depth-range cap) over most of a frame is
+#   millimetres; normalised depth past 1 is metric depth.
+MAX_PLAUSIBLE_DEPTH_M = 100.0
+NORMALISED_DEPTH_SLACK = 1e-6
+# - pose: Habitat keeps the start position in float32 (its gps is computed so, bit for bit), which
+#   is 1 mm apart at 8.4 km from the origin: UTM / GNSS frames need a local origin.
+MAX_POSE_COORD_M = 8_000.0
+# - motion: a step moves 0.25 m; 50 m between two steps is no robot's, but a pose in millimetres.
+MAX_STEP_JUMP_M = 50.0
+ANGLE_SLACK = 1e-5   # rad: float32 round-off of an angle at +-pi
 
 
 def planar_pose(pose: Any) -> tuple[np.ndarray, float]:
@@ -70,13 +82,24 @@ def planar_pose(pose: Any) -> tuple[np.ndarray, float]:
     ValueError (one line) for another shape, a non-finite value or a camera tilted more than
     ``LEVEL_TOLERANCE_DEG`` (pitch: the optical axis out of the horizontal; roll: the image's x
     axis out of it)."""
+    from calnav.mapping.frame_geometry import check_pose
+
     p = np.asarray(pose, np.float64)
     if p.shape not in ((3,), (4, 4)):
         raise ValueError(f"pose must be a (4, 4) world-from-camera transform or (x, y, yaw); got shape {p.shape}")
     if not np.isfinite(p).all():
         raise ValueError(f"pose is not finite: {p.tolist()}")
+    xy = p[:2].copy() if p.shape == (3,) else p[:2, 3].copy()
+    if np.abs(xy).max() > MAX_POSE_COORD_M:
+        raise ValueError(f"the camera is at ({xy[0]:.6g}, {xy[1]:.6g}) m, more than {MAX_POSE_COORD_M:g} m from the "
+                         "world origin, where Habitat's float32 start position is coarser than 1 mm: give poses in a "
+                         "local frame (subtract a fixed origin, e.g. the first position)")
     if p.shape == (3,):
-        return p[:2].copy(), float(p[2])
+        if abs(p[2]) > 2 * math.pi + ANGLE_SLACK:
+            raise ValueError(f"yaw {p[2]:g} is not an angle in radians (|yaw| <= 2 pi): degrees? (an unwrapped "
+                             "odometry yaw: wrap it with math.remainder(yaw, 2 * math.pi))")
+        return xy, float(p[2])
+    p = check_pose(p)   # a scaled, sheared or mirrored rotation is another convention, not a camera
     forward, right = p[:3, 2], p[:3, 0]
     pitch = math.degrees(math.asin(float(np.clip(forward[2] / max(np.linalg.norm(forward), 1e-12), -1, 1))))
     roll = math.degrees(math.asin(float(np.clip(right[2] / max(np.linalg.norm(right), 1e-12), -1, 1))))
@@ -84,7 +107,28 @@ def planar_pose(pose: Any) -> tuple[np.ndarray, float]:
         raise ValueError(f"the camera is pitched {pitch:.1f} and rolled {roll:.1f} degrees from level (at most "
                          f"{LEVEL_TOLERANCE_DEG:g}): the agent maps with a level camera at env.camera_height_m; give "
                          "a pose whose +z is up, or the level pose (x, y, yaw)")
-    return p[:2, 3].copy(), math.atan2(forward[1], forward[0])
+    return xy, math.atan2(forward[1], forward[0])
+
+
+def check_depth(depth: np.ndarray, normalised: bool) -> None:
+    """Refuse (ValueError, one line) depth that cannot be the metres (``normalised``: Habitat's
+    [0, 1]) the agent maps: an integer image (raw sensor units), normalised depth past 1, metric
+    depth beyond ``MAX_PLAUSIBLE_DEPTH_M`` over most of the frame (millimetres). NaN, inf and 0
+    are invalid pixels, which the map skips."""
+    unit = "normalised [0, 1] (env.normalize_depth is true)" if normalised else "metres (env.normalize_depth is false)"
+    if depth.dtype.kind != "f":
+        raise ValueError(f"depth must be float {unit}; got {depth.dtype}: raw sensor units? divide by the sensor's "
+                         "depth scale (millimetres: 1000) into float32")
+    if normalised:
+        over = int(np.count_nonzero(depth > 1.0 + NORMALISED_DEPTH_SLACK))
+        if over:
+            raise ValueError(f"depth must be {unit}; {over} pixels exceed 1 (max {float(np.nanmax(depth)):.4g}): "
+                             "metric depth? set env.normalize_depth=false")
+        return
+    far, valid = int(np.count_nonzero(depth > MAX_PLAUSIBLE_DEPTH_M)), int(np.count_nonzero(depth > 0))
+    if valid and 2 * far > valid:
+        raise ValueError(f"depth must be {unit}; {far} of its {valid} valid pixels lie beyond {MAX_PLAUSIBLE_DEPTH_M:g} "
+                         "m: millimetres? divide by 1000")
 
 
 @dataclass(frozen=True)
@@ -125,7 +169,7 @@ class GoalSighting:
 class Decision:
     """One step of the agent. ``action``: Habitat's discrete action (``envs.task.Action``: STOP,
     MOVE_FORWARD, TURN_LEFT, TURN_RIGHT); ``mode``: why ('spin': the opening turn, 'explore',
-    'goal': heading for a detected goal, 'verify', 'untrap': escaping, 'stop': the step limit);
+    'goal': heading for a detected goal, 'verify', 'untrap': escaping, 'stop': STOP at the goal or the step limit);
     ``step``: 1 at the first ``act`` after ``reset``. In the episode-start frame (module
     docstring), metres: ``position`` (x, y) and ``yaw`` (rad) of the agent as it read them;
     ``long_term_goal`` (x, y): the frontier / predicted goal it explores toward, or the goal
@@ -160,6 +204,7 @@ class Navigator:
         self.goal_categories = goal_categories()   # what objectgoal ids index (the task's contract)
         self._goal_id: int | None = None           # reset's goal; None: the first observation's
         self._start: StartFrame | None = None
+        self._last_gps: np.ndarray | None = None   # the last act's gps (float64 m): the motion check
         self._reset = self._started = False
         self._steps = 0
 
@@ -199,6 +244,7 @@ class Navigator:
         (its pose defines the start frame; the map starts empty)."""
         self._goal_id = None if goal is None else self.goal_id(goal)
         self._start, self._reset, self._started, self._steps = None, True, False, 0
+        self._last_gps: np.ndarray | None = None
 
     def act(self, rgb: np.ndarray, depth: np.ndarray, *, gps=None, compass=None, pose=None,
             semantic: np.ndarray | None = None) -> Decision:
@@ -208,6 +254,7 @@ class Navigator:
         if self._goal_id is None:
             raise ValueError("call reset(goal) before act()")
         gps, compass = self._gps_compass(gps, compass, pose)
+        self._check_motion(gps)
         obs = {RGB: rgb, DEPTH: depth, GPS: gps, COMPASS: compass, OBJECTGOAL: np.array([self._goal_id], np.int64)}
         if semantic is not None:
             obs[SEMANTIC] = semantic
@@ -238,6 +285,7 @@ class Navigator:
         if depth.shape[:2] != rgb.shape[:2] or depth.ndim not in (2, 3) or depth.shape[2:] not in ((), (1,)):
             raise ValueError(f"depth must be (H, W) or (H, W, 1) at the rgb's size {rgb.shape[1]}x{rgb.shape[0]}; "
                              f"got shape {depth.shape}")
+        check_depth(depth, self.cfg.env.normalize_depth)
         if not self._started:
             self.begin(obs)
         action = self.agent.act(obs)
@@ -258,7 +306,20 @@ class Navigator:
         if gps.shape != (2,) or not np.isfinite(gps).all() or not np.isfinite(compass).all():
             raise ValueError(f"gps must be 2 finite numbers (forward, right) and compass one; got {gps.tolist()}, "
                              f"{compass.tolist()}")
+        if abs(float(compass[0])) > math.pi + ANGLE_SLACK:
+            raise ValueError(f"compass {float(compass[0]):g} is not Habitat's EpisodicCompass, radians in [-pi, pi]: "
+                             "degrees?")
         return gps, compass
+
+    def _check_motion(self, gps: np.ndarray) -> None:
+        """Refuse a jump no robot makes between two steps (``MAX_STEP_JUMP_M``): poses in mm."""
+        if self._last_gps is not None:
+            jump = float(np.hypot(*(gps.astype(np.float64) - self._last_gps)))
+            if jump > MAX_STEP_JUMP_M:
+                raise ValueError(f"the camera moved {jump:.4g} m between steps {self._steps} and {self._steps + 1} "
+                                 f"(more than {MAX_STEP_JUMP_M:g} m; a step is env.forward_step_m): poses in "
+                                 "millimetres? give metres")
+        self._last_gps = gps.astype(np.float64)
 
     # ------------------------------------------------------------------ reading the step
     def _decision(self, action: int, obs: dict) -> Decision:

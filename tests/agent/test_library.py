@@ -226,6 +226,49 @@ def test_bad_inputs_are_one_line(setup):
         Navigator(oracle)
 
 
+def test_unit_and_frame_mix_ups_are_refused(setup):
+    """What a robot's driver gets wrong that the agent would otherwise map into a blind search
+    with no other sign: depth in raw millimetres (uint16 or float), normalised depth past 1 or
+    metric depth with env.normalize_depth, yaw or compass in degrees, a non-rigid 4x4, a UTM
+    map frame, poses in millimetres (one step of 250 'metres')."""
+    import dataclasses
+
+    from calnav.agent.navigator import Navigator, planar_pose
+
+    cfg, env, _ = setup
+    obs, _ = env.reset(options={"episode_index": 0})
+    rgb, depth, sem, pose = obs["rgb"], obs["depth"], obs["semantic"], obs["camera_pose"]
+    nav = Navigator(cfg)
+    nav.reset("chair")
+    for bad, message in [((depth * 1000).astype(np.uint16), r"^depth must be float metres \(env.normalize_depth is "
+                                                            r"false\); got uint16: raw sensor units\?"),
+                         (depth * 1000, r"valid pixels lie beyond 100 m: millimetres\? divide by 1000$")]:
+        with pytest.raises(ValueError, match=message):
+            nav.act(rgb, bad, pose=pose, semantic=sem)
+    normalised = Navigator(dataclasses.replace(cfg, env=dataclasses.replace(cfg.env, normalize_depth=True)))
+    normalised.reset("chair")
+    with pytest.raises(ValueError, match=r"^depth must be normalised \[0, 1\] .*pixels exceed 1 .*metric depth\? set "
+                                         r"env.normalize_depth=false$"):
+        normalised.act(rgb, depth, pose=pose, semantic=sem)
+    with pytest.raises(ValueError, match=r"^compass 170 is not Habitat's EpisodicCompass, radians in \[-pi, pi\]"):
+        nav.act(rgb, depth, gps=obs["gps"], compass=[170.0], semantic=sem)
+    with pytest.raises(ValueError, match=r"^yaw 400 is not an angle in radians"):
+        planar_pose((1.0, 2.0, 400.0))
+    sheared = pose.copy()
+    sheared[:3, :3] *= 2.0
+    with pytest.raises(ValueError, match=r"^pose is not a rigid transform"):
+        planar_pose(sheared)
+    far = pose.copy()
+    far[:2, 3] += (5e5, 4e6)
+    with pytest.raises(ValueError, match=r"more than 8000 m from the world origin.*give poses in a local frame"):
+        planar_pose(far)
+    nav.act(rgb, depth, pose=pose, semantic=sem)   # a good first step, then a forward step read in millimetres
+    moved = pose.copy()
+    moved[:3, 3] += 250.0 * pose[:3, 2]
+    with pytest.raises(ValueError, match=r"^the camera moved .* m between steps 1 and 2 .*poses in millimetres\?"):
+        nav.act(rgb, depth, pose=moved, semantic=sem)
+
+
 def _docs_block(page: str, marker: str) -> str:
     """The first ```python block after ``marker`` in docs/<page>."""
     text = (REPO / "docs" / page).read_text()
