@@ -166,6 +166,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--sequences", default=None, metavar="LIST",
                    help="recorded sequences instead of calnav's houses: a list file of '<role> <dir> [layout]' lines "
                         "(role: calib_train | calib_val | test); shorthand for sequences.list=LIST")
+    p.add_argument("--page", action="append", default=[], metavar="FILE",
+                   help="render FILE's '<!-- calnav calibrate-map DIR -->' tables from the committed records under DIR "
+                        "(DIR/clean/results.csv, DIR/scanned/results.csv) instead of running the study; repeatable")
 
     p = sub.add_parser("map", help="fuse a recorded RGB-D sequence (ScanNet / 7-Scenes layout, ROS bag) into a semantic map "
                                    "and score it against a labelled mesh")

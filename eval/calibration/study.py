@@ -268,6 +268,11 @@ def calibrate_map_configs(args) -> list[Config]:
 
 def main_calibrate_map(args, configs: list[Config]) -> None:
     """``configs``: ``calibrate_map_configs(args)``, checked by the preflight."""
+    if getattr(args, "page", None):   # re-render the docs' tables from committed records: no study runs
+        from calnav.eval.calibration.page import render_pages
+
+        render_pages(args.page, Path.cwd())
+        return
     cfg = configs[0]
     out = Path(args.output or (cfg.run.output_dir + "_quick" if args.quick else cfg.run.output_dir))
     rows = run_calibrate_map(cfg, out, force=args.force)
