@@ -316,3 +316,9 @@ def main_fit_glfs(args, configs: list[Config]) -> None:
     with writing(args.output):
         dest = params.save(args.output)
     print(f"GLFS parameters: tau mean {params.tau.mean():.3f}, G {params.g:.3f}, eps {params.eps:.3f} -> {dest}")
+    hist = fits.get(f"glfs/{name}")   # the kept checkpoint's validation figures (the bar shows the last epoch's)
+    if hist and hist.get("val_miou"):
+        k = int(hist["best_check"])
+        print(f"kept: validation check {k} of {len(hist['val_miou']) - 1} (epoch {hist['best_epoch']:.2f}, "
+              f"glfs.selection={cfg.glfs_configs()[name].selection}): "
+              f"validation mIoU {hist['val_miou'][k]:.3f}, mECE {hist['val_mece'][k]:.3f}")

@@ -115,7 +115,12 @@ def test_fit_glfs_writes_params_a_map_can_use(tmp_path, capsys):
     vmap = SemanticVoxelMap(18, MappingConfig(fusion="glfs", glfs_params=str(dest)), class_names=default_class_names())
     np.testing.assert_allclose(vmap.glfs_params.tau, params.tau)
     assert params.g == 0.0 and params.eps == 0.0          # the authors' fixed gates
-    capsys.readouterr()
+    # the kept checkpoint's validation figures, from the fit's own history (not the last epoch's)
+    hist = json.loads((tmp_path / "w" / "fits" / "learned_rgb" / "fits.json").read_text())["glfs/authors"]
+    k = hist["best_check"]
+    assert (f"kept: validation check {k} of {len(hist['val_miou']) - 1} (epoch {hist['best_epoch']:.2f}, "
+            f"glfs.selection=val_miou): validation mIoU {hist['val_miou'][k]:.3f}, mECE {hist['val_mece'][k]:.3f}"
+            in capsys.readouterr().out)
     assert main(["fit-glfs", "--segmenter", "learned_rgb", "--output", str(dest), "--variant", "nope", *tiny]) == 2
     assert "unknown GLFS variant 'nope'" in capsys.readouterr().err
 
