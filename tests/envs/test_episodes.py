@@ -310,7 +310,8 @@ def test_a_run_generates_only_the_scenes_its_range_needs_on_its_pool():
     assert len(prefix) == 4 and not (content / "house_val_0002.json.gz").exists()
     full = load_split("val", cfg.env, progress=False)   # generates the rest; the prefix is its start
     assert len(full) == 6 and episodes_to_habitat(full[:4]) == episodes_to_habitat(prefix)
-    with pytest.raises(ValueError, match="outside the split, which has episodes 0:6"):
+    with pytest.raises(ValueError, match=r"outside the split, which has at most 6 episodes \(3 val scenes x "
+                                         r"dataset.episodes_per_scene 2\)"):   # refused by the bound, at once
         episode_indices("0:7", cfg.env, cfg.run, progress=False)
     with pytest.raises(ValueError, match="empty or reversed"):
         episode_indices("5:2", cfg.env, cfg.run, progress=False)

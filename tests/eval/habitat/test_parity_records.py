@@ -4,7 +4,7 @@ wall time and the commit), and the page quotes their steps, Success and SPL."""
 import json
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 RECORDS = REPO / "docs" / "measured" / "habitat_parity"
 OWN = {"wall_time_s", "commit"}   # how long and by which commit a run took: not what it did
 
