@@ -171,6 +171,10 @@ def habitat_config(env_base: EnvConfig | None = None, overrides: list[str] | Non
         path = Path(HABITAT_CONFIG).parent / path.name  # a file of calnav's configs/, from any directory
     if not path.exists():
         raise FileNotFoundError(f"habitat config {config_path} not found")
+    for text in overrides or []:   # Hydra takes nan / inf as numbers; calnav's keys refuse them, so do these
+        key, _, value = text.partition("=")
+        if value.strip().lower().lstrip("+-.") in ("nan", "inf", "infinity"):
+            raise ValueError(f"bad habitat config override {text}: {key} expects a finite number")
     try:
         cfg = habitat.get_config(str(path), overrides=list(overrides or []))
     except (HydraException, OmegaConfBaseException) as exc:

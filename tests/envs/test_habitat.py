@@ -186,8 +186,9 @@ def test_bad_input(tmp_path, capsys, setup):
     # refused: forward_step_size=-1 (the agent would walk backwards), a NaN success distance (would hang)
     assert _run("habitat-benchmark", tmp_path / "c", "habitat.simulator.forward_step_size=-1") == 2
     assert "env.forward_step_m must be in [0.01, 2] metres, got -1.0" in capsys.readouterr().err
-    assert _run("habitat-benchmark", tmp_path / "d", "habitat.task.measurements.success.success_distance=nan") == 2
-    assert "env.success_distance_m must be in (0, 10] metres, got nan" in capsys.readouterr().err
+    for key in ("habitat.task.measurements.success.success_distance", "habitat.simulator.turn_angle"):
+        assert _run("habitat-benchmark", tmp_path / "d", f"{key}=nan") == 2   # refused as calnav's keys are
+        assert f"bad habitat config override {key}=nan: {key} expects a finite number" in capsys.readouterr().err
     assert not any((tmp_path / d).exists() for d in "abcd")
 
     from calnav.common.habitat_import import import_habitat
