@@ -25,7 +25,7 @@ from calnav.eval.results_dir import ResultsDir, writing
 from calnav.eval.config import Config
 from calnav.common.prefetch import prefetched
 from calnav.eval.sequence.source import PrecomputedLogits, SegmenterLogits, fuse_frames, map_frames
-from calnav.mapping.sequences import LogitsDir, Sequence, vertex_ground_truth
+from calnav.mapping.sequences import LogitsDir, Sequence, label_map_source, vertex_ground_truth
 
 DEFAULT_CONFIG = "configs/map_sequence.yaml"
 MAP_FORMAT_VERSION = 1
@@ -180,7 +180,8 @@ def _write_results(out: Path, cfg, seq, res: MappedSequence, names, ply, gt, arg
         from calnav.eval.calibration.plots import plot_reliability, plot_reliability_per_class
 
         stats = score(probs, labels, len(names))
-        results.update({"labels_ply": str(ply), "labelled_voxels": int((labels >= 0).sum()), "miou": stats.miou(),
+        results.update({"labels_ply": str(ply), "label_map": label_map_source(cfg.sequence, seq.root),
+                        "labelled_voxels": int((labels >= 0).sum()), "miou": stats.miou(),
                         "ece": stats.ece(), "tl_ece": stats.tl_ece(), "mece": stats.mece(), "brier": stats.brier()})
         table = {cfg.mapping.fusion: stats.reliability()}
         plot_reliability(table, out / "reliability.png", title=f"{seq.name} ({stats.n} labelled voxels)")
@@ -196,6 +197,7 @@ def _write_results(out: Path, cfg, seq, res: MappedSequence, names, ply, gt, arg
           f"({results['frames_per_s']:.1f} frames/s), {len(coords)} voxels")
     if gt is not None:
         print("  ".join(f"{k} {results[k]:.4f}" for k in ("miou", "ece", "tl_ece", "mece", "brier"))
-              + f"  ({results['labelled_voxels']} labelled voxels)")
+              + f"  ({results['labelled_voxels']} labelled voxels; ground truth through label map "
+                f"{results['label_map']})")
     print(f"wrote {out / 'map.npz'}, {out / 'map.ply'}, {out / 'results.json'}"
           + (f", {out / 'map.rrd'} (calnav view {out / 'map.rrd'})" if frame_log is not None else ""))

@@ -34,12 +34,12 @@ pixels falling outside the colour image get void / all-zero (uniform) logits. ``
 is not used: it assumes the principal points scale with the image size, which ScanNet's do not.
 """
 
-from calnav.mapping.sequences.labels import LogitsDir, read_class_list, vertex_ground_truth
+from calnav.mapping.sequences.labels import LogitsDir, label_map_source, read_class_list, vertex_ground_truth
 from calnav.mapping.registry import LAYOUTS
 from calnav.mapping.sequences.readers import (SEMANTIC_OFFSET, VOID, Sequence, SequenceConfig, SequenceFrame,
                                        depth_from_raw, read_7scenes, read_intrinsics, read_scannet)
 from calnav.mapping.sequences.registration import Registration
 
 __all__ = ["LAYOUTS", "SEMANTIC_OFFSET", "VOID", "LogitsDir", "Registration", "Sequence", "SequenceConfig",
-           "SequenceFrame", "depth_from_raw", "read_7scenes", "read_class_list", "read_intrinsics", "read_scannet",
-           "vertex_ground_truth"]
+           "SequenceFrame", "depth_from_raw", "label_map_source", "read_7scenes", "read_class_list", "read_intrinsics",
+           "read_scannet", "vertex_ground_truth"]

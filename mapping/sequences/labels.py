@@ -81,6 +81,16 @@ class LogitsDir:
 
 
 
+def label_map_source(cfg: SequenceConfig, seq_root=None) -> str:
+    """The label map a labelled mesh's raw labels are read through: ``cfg.label_map``, else
+    ``<seq_root>/label_map.json`` when present, else ``nyu40`` (ScanNet's ids)."""
+    if cfg.label_map:
+        return cfg.label_map
+    if seq_root is not None and (Path(seq_root) / "label_map.json").exists():
+        return str(Path(seq_root) / "label_map.json")
+    return "nyu40"
+
+
 def vertex_ground_truth(ply_path, class_names, cfg: SequenceConfig, seq_root=None) -> tuple[np.ndarray, np.ndarray]:
     """(vertices (V, 3) float64 m, class per vertex (V,) int64 index into ``class_names``, -1
     void) of a labelled PLY. Raw labels (``cfg.label_property``) map to names through
@@ -93,11 +103,9 @@ def vertex_ground_truth(ply_path, class_names, cfg: SequenceConfig, seq_root=Non
     if not np.isfinite(vertices).all():
         bad = int((~np.isfinite(vertices).all(axis=1)).sum())
         raise ValueError(f"{ply_path}: {bad} vertices have NaN or inf coordinates")
-    source = cfg.label_map
-    if not source and seq_root is not None and (Path(seq_root) / "label_map.json").exists():
-        source = str(Path(seq_root) / "label_map.json")
-    if not source or source == "nyu40":
-        table, source = {i + 1: n for i, n in enumerate(NYU40_NAMES)}, "nyu40"
+    source = label_map_source(cfg, seq_root)
+    if source == "nyu40":
+        table = {i + 1: n for i, n in enumerate(NYU40_NAMES)}
     else:
         table = int_keyed(read_label_table(source))
     ids = class_ids_of(class_names)

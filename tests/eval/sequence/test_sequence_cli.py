@@ -300,3 +300,6 @@ def test_a_map_with_no_voxels_or_nothing_to_score_is_an_error(tmp_path, capsys):
     assert main([*base, "--output", str(out)]) == 0
     results = json.loads((out / "results.json").read_text(), parse_constant=lambda c: pytest.fail(f"bare {c}"))
     assert results["labelled_voxels"] > 0 and 0 <= results["miou"] <= 1
+    # which table read the mesh's raw labels: the export's own label_map.json (not NYU40's ids)
+    assert results["label_map"] == str(root / "label_map.json")
+    assert f"ground truth through label map {root / 'label_map.json'})" in capsys.readouterr().out
