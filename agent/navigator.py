@@ -68,9 +68,9 @@ LEVEL_TOLERANCE_DEG = 2.0
 #   millimetres; normalised depth past 1 is metric depth.
 MAX_PLAUSIBLE_DEPTH_M = 100.0
 NORMALISED_DEPTH_SLACK = 1e-6
-# - pose: Habitat keeps the start position in float32 (its gps is computed so, bit for bit), which
-#   is 1 mm apart at 8.4 km from the origin: UTM / GNSS frames need a local origin.
-MAX_POSE_COORD_M = 8_000.0
+# - pose: Habitat keeps the start position in float32 (its gps is computed so, bit for bit), whose
+#   values are 2^-10 m (~1 mm) apart from 2^13 m on: UTM / GNSS frames need a local origin.
+MAX_POSE_DISTANCE_M = 8192.0
 # - motion: a step moves 0.25 m; 50 m between two steps is no robot's, but a pose in millimetres.
 MAX_STEP_JUMP_M = 50.0
 ANGLE_SLACK = 1e-5   # rad: float32 round-off of an angle at +-pi
@@ -90,10 +90,10 @@ def planar_pose(pose: Any) -> tuple[np.ndarray, float]:
     if not np.isfinite(p).all():
         raise ValueError(f"pose is not finite: {p.tolist()}")
     xy = p[:2].copy() if p.shape == (3,) else p[:2, 3].copy()
-    if np.abs(xy).max() > MAX_POSE_COORD_M:
-        raise ValueError(f"the camera is at ({xy[0]:.6g}, {xy[1]:.6g}) m, more than {MAX_POSE_COORD_M:g} m from the "
-                         "world origin, where Habitat's float32 start position is coarser than 1 mm: give poses in a "
-                         "local frame (subtract a fixed origin, e.g. the first position)")
+    if float(np.hypot(*xy)) >= MAX_POSE_DISTANCE_M:
+        raise ValueError(f"the camera is at ({xy[0]:.6g}, {xy[1]:.6g}) m, {float(np.hypot(*xy)):.6g} m from the world "
+                         f"origin (at most {MAX_POSE_DISTANCE_M:g}), where Habitat's float32 start position is 1 mm "
+                         "coarse or worse: give poses in a local frame (subtract a fixed origin, e.g. the first position)")
     if p.shape == (3,):
         if abs(p[2]) > 2 * math.pi + ANGLE_SLACK:
             raise ValueError(f"yaw {p[2]:g} is not an angle in radians (|yaw| <= 2 pi): degrees? (an unwrapped "
@@ -120,12 +120,14 @@ def check_depth(depth: np.ndarray, normalised: bool) -> None:
         raise ValueError(f"depth must be float {unit}; got {depth.dtype}: raw sensor units? divide by the sensor's "
                          "depth scale (millimetres: 1000) into float32")
     if normalised:
-        over = int(np.count_nonzero(depth > 1.0 + NORMALISED_DEPTH_SLACK))
+        over = int(np.count_nonzero(np.isfinite(depth) & (depth > 1.0 + NORMALISED_DEPTH_SLACK)))
         if over:
-            raise ValueError(f"depth must be {unit}; {over} pixels exceed 1 (max {float(np.nanmax(depth)):.4g}): "
+            raise ValueError(f"depth must be {unit}; {over} pixels exceed 1 (max "
+                             f"{float(depth[np.isfinite(depth)].max()):.4g}): "
                              "metric depth? set env.normalize_depth=false")
         return
-    far, valid = int(np.count_nonzero(depth > MAX_PLAUSIBLE_DEPTH_M)), int(np.count_nonzero(depth > 0))
+    finite = depth[np.isfinite(depth)]   # inf (ROS REP 117: out of range) is an invalid pixel, not a far one
+    far, valid = int(np.count_nonzero(finite > MAX_PLAUSIBLE_DEPTH_M)), int(np.count_nonzero(finite > 0))
     if valid and 2 * far > valid:
         raise ValueError(f"depth must be {unit}; {far} of its {valid} valid pixels lie beyond {MAX_PLAUSIBLE_DEPTH_M:g} "
                          "m: millimetres? divide by 1000")
@@ -258,7 +260,9 @@ class Navigator:
         obs = {RGB: rgb, DEPTH: depth, GPS: gps, COMPASS: compass, OBJECTGOAL: np.array([self._goal_id], np.int64)}
         if semantic is not None:
             obs[SEMANTIC] = semantic
-        return self.observe(obs)
+        decision = self.observe(obs)
+        self._last_gps = np.asarray(gps, np.float64)   # only a step taken is the next one's reference
+        return decision
 
     def begin(self, obs: Mapping) -> None:
         """Start the episode on its first observation now (``observe`` does it on the first call
@@ -312,14 +316,14 @@ class Navigator:
         return gps, compass
 
     def _check_motion(self, gps: np.ndarray) -> None:
-        """Refuse a jump no robot makes between two steps (``MAX_STEP_JUMP_M``): poses in mm."""
+        """Refuse a jump no robot makes between two steps (``MAX_STEP_JUMP_M``): poses in mm.
+        The reference is the last step the agent took (``act`` records it after the step)."""
         if self._last_gps is not None:
             jump = float(np.hypot(*(gps.astype(np.float64) - self._last_gps)))
             if jump > MAX_STEP_JUMP_M:
                 raise ValueError(f"the camera moved {jump:.4g} m between steps {self._steps} and {self._steps + 1} "
                                  f"(more than {MAX_STEP_JUMP_M:g} m; a step is env.forward_step_m): poses in "
                                  "millimetres? give metres")
-        self._last_gps = gps.astype(np.float64)
 
     # ------------------------------------------------------------------ reading the step
     def _decision(self, action: int, obs: dict) -> Decision:

@@ -223,6 +223,17 @@ def failure_modes(records: list[dict], max_steps: int) -> dict[str, int]:
     return out
 
 
+def run_label(cfg) -> str:
+    """The agent as a metrics table names it, with what it maps from, so a table of the default
+    config (the ground-truth segmenter) is not read as the learned one's: 'peanut (gt +
+    averaging)', 'peanut (learned_rgb + ndf)'; an agent without a semantic map (the oracle) by
+    name alone. ``cfg``: a root ``Config``."""
+    if cfg.run.agent != "peanut":
+        return cfg.run.agent
+    semantic_map = cfg.mapping.fusion if cfg.agent.map_type == "fused" else cfg.agent.map_type
+    return f"{cfg.run.agent} ({cfg.agent.segmenter} + {semantic_map})"
+
+
 def format_metrics_table(rows: list[tuple[str, dict]], first_header: str = "Run") -> str:
     """Markdown table: one row per (name, summary), each metric as 'mean (SEM)'."""
     header = f"| {first_header} | " + " | ".join(METRIC_LABELS[m] for m in METRICS) + " | N |"

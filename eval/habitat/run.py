@@ -23,7 +23,7 @@ from pathlib import Path
 from calnav.eval.config import ConfigError
 from calnav.eval.objectnav.run import RUN_RESULTS, check_not_all_failed, crashed
 from calnav.eval.results_dir import EPISODE_NEUTRAL_KEYS, ResultsDir, writing
-from calnav.eval.stats import format_metrics_table, summarize
+from calnav.eval.stats import format_metrics_table, run_label, summarize
 
 HABITAT_PREFIX = "habitat."
 HABITAT_CONFIG_FILE = "habitat_config.yaml"
@@ -162,5 +162,5 @@ def main_habitat_benchmark(args, configs) -> None:
     indices = list(parse_episode_range(str(args.episodes), len(episodes)))
     out = Path(args.output or cfg.run.output_dir)
     summary = run_habitat_benchmark(cfg, habitat_cfg, indices, out, force=args.force)
-    print(format_metrics_table([(f"{summary['agent']} (habitat-lab)", summary)], first_header="Agent"))
+    print(format_metrics_table([(f"{run_label(cfg)} (habitat-lab)", summary)], first_header="Agent"))
     print(f"results: {out}/episodes.jsonl, {out}/summary.json, {out}/plots/")

@@ -7,7 +7,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from calnav.eval.shorthands import load_command_config
-from calnav.eval.stats import format_metrics_table
+from calnav.eval.stats import format_metrics_table, run_label
 
 def demo_configs(args) -> list:
     """The config ``calnav demo`` runs: ``configs/demo.yaml`` and the overrides, writing to
@@ -18,7 +18,7 @@ def demo_configs(args) -> list:
 def main_demo(args, configs) -> None:
     """``configs``: ``demo_configs(args)``, checked by the preflight."""
     from calnav.eval.episodes import episode_indices
-    from calnav.eval.objectnav.run import run_label, run_objectnav
+    from calnav.eval.objectnav.run import run_objectnav
 
     cfg = configs[0]
     indices = episode_indices(str(args.episodes), cfg.env, cfg.run)

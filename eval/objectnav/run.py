@@ -28,7 +28,7 @@ from pathlib import Path
 from calnav.common.provenance import running_commit
 from calnav.eval.config import Config, build_dataclass, to_dict
 from calnav.eval.results_dir import EPISODE_NEUTRAL_KEYS, RECORDS_NAME, AllEpisodesFailed, ResultsDir, writing
-from calnav.eval.stats import failure_modes, finite_or_error, format_metrics_table, summarize
+from calnav.eval.stats import failure_modes, finite_or_error, format_metrics_table, run_label, summarize
 
 # What --force deletes from a directory that holds another config's results.
 RUN_RESULTS: tuple[str, ...] = (RECORDS_NAME, "summary.json", "plots", "videos", "rerun")
@@ -297,17 +297,6 @@ def objectnav_configs(args) -> list[Config]:
         require_rerun("--rerun")
     combos = expand_multirun(list(args.overrides)) if getattr(args, "multirun", False) else [list(args.overrides)]
     return [load_command_config(args, combo) for combo in combos]
-
-
-def run_label(cfg: Config) -> str:
-    """The agent as a metrics table names it, with what it maps from, so a table of the default
-    config (the ground-truth segmenter) is not read as the learned one's: 'peanut (gt +
-    averaging)', 'peanut (learned_rgb + ndf)'; an agent without a semantic map (the oracle) by
-    name alone."""
-    if cfg.run.agent != "peanut":
-        return cfg.run.agent
-    semantic_map = cfg.mapping.fusion if cfg.agent.map_type == "fused" else cfg.agent.map_type
-    return f"{cfg.run.agent} ({cfg.agent.segmenter} + {semantic_map})"
 
 
 def _job(args, cfg: Config, out: Path | None) -> EpisodeJob:

@@ -114,8 +114,12 @@ def main_view_episode(args, configs) -> None:
     from calnav.eval.results_dir import check_output_dir
     from calnav.eval.rollout import rollout
 
+    from calnav.envs.episodes import check_split_capacity
+
     cfg = configs[0]
     check_output_dir(args.output)
+    if args.episode >= 0:   # past the split's most episodes: refused before its houses are generated
+        check_split_capacity(str(args.episode + 1), cfg.env.split, cfg.env)
     env = gym.make("calnav/ObjectNav-v0", split=cfg.env.split, config=cfg.env)
     n = len(env.unwrapped.episodes)
     if not 0 <= args.episode < n:

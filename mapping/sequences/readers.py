@@ -27,12 +27,10 @@ SEMANTIC_OFFSET = 1   # semantic PNGs store class id + 1 (0 = void) in uint16
 # centimetres as millimetres) puts nearly every pixel outside the mapping's depth range, and the
 # map then holds a few stray voxels with exit 0. A real recording keeps most of its valid depth in
 # range (a robot facing a far wall in one sampled frame is outvoted by the others).
-MIN_DEPTH_IN_RANGE = 0.2          # fraction of the sampled frames' valid depth pixels
-SCALE_SAMPLE_FRAMES = 3           # frames sampled: first, middle, last
-# The voxel map stores float32 coordinates: spaced |x| * 2^-23 apart at distance |x| from the
-# origin. Past a tenth of a voxel the voxels' centres snap to that grid (UTM / GNSS map frames:
-# 0.25-0.5 m at 4e6 m), so such poses are refused with how to fix them.
-FLOAT32_EPS = 2.0 ** -23
+MIN_DEPTH_IN_RANGE = 0.2          # fraction of the valid depth pixels of the first, middle and last frames
+# The voxel map stores float32 coordinates, whose spacing grows with the distance from the origin
+# (0.25 m at 4e6 m). Past a tenth of a voxel the voxels' centres snap to that grid (UTM / GNSS map
+# frames), so such poses are refused with how to fix them.
 MAX_SPACING_VOXELS = 0.1
 
 
@@ -176,7 +174,7 @@ class Sequence:
         sign: depth mostly outside ``depth_min_m``-``depth_max_m`` in sampled frames (its units
         are not ``sequence.depth_scale``'s), or a camera so far from the origin that float32
         voxel coordinates are coarser than a tenth of ``voxel_size_m``."""
-        picks = sorted({self.ids[0], self.ids[len(self.ids) // 2], self.ids[-1]})[:SCALE_SAMPLE_FRAMES]
+        picks = sorted({self.ids[0], self.ids[len(self.ids) // 2], self.ids[-1]})
         valid = np.concatenate([d[d > 0] for d in (self.read(i).depth for i in picks)])
         if valid.size:
             inside = float(((valid >= depth_min_m) & (valid <= depth_max_m)).mean())
@@ -187,7 +185,7 @@ class Sequence:
                                  f"other units? sequence.depth_scale is {self.cfg.depth_scale:g} raw units per metre "
                                  "(ScanNet / 7-Scenes: 1000, TUM: 5000)")
         reach = max(float(np.abs(self.pose_of(i)[:3, 3]).max()) for i in self.ids)
-        spacing = reach * FLOAT32_EPS
+        spacing = float(np.spacing(np.float32(reach)))
         if spacing > MAX_SPACING_VOXELS * voxel_size_m:
             raise ValueError(f"{self.root}: a camera position lies {reach:.4g} m from the origin, where the map's float32 "
                              f"coordinates are {spacing:.2g} m apart (mapping.voxel_size_m is {voxel_size_m:g} m): give "
@@ -340,10 +338,11 @@ def open_7scenes(root: Path) -> tuple[list[int], Callable[[int], dict], np.ndarr
     width = len(re.match(r"frame-(\d+)", next(root.glob("frame-*.depth.png")).name).group(1))
     name = (lambda i: f"frame-{i:0{width}d}")
     ext = ".color.png" if (root / f"{name(ids[0])}.color.png").exists() else ".color.jpg"
-    posed = {int(m.group(1)) for p in root.glob("frame-*.pose.txt") if (m := re.match(r"^frame-(\d+)\.pose\.txt$", p.name))}
-    missing = sorted(posed - set(ids))   # a lost depth frame would silently drop its frame
+    others = {int(m.group(1)) for p in root.glob("frame-*.*")
+              if (m := re.match(r"^frame-(\d+)\.(pose\.txt|color\.png|color\.jpg)$", p.name))}
+    missing = sorted(others - set(ids))   # a lost depth frame would silently drop its frame
     if missing:
-        raise ValueError(f"{root}: {len(missing)} posed frames have no depth file, e.g. frame {missing[0]}")
+        raise ValueError(f"{root}: {len(missing)} colour / pose frames have no depth file, e.g. frame {missing[0]}")
     for i in ids:
         for kind, suffix in (("colour", ext), ("pose", ".pose.txt")):
             if not (root / f"{name(i)}{suffix}").exists():

@@ -101,7 +101,7 @@ def test_peanut_through_habitat_benchmark_equals_objectnav(tmp_path, capsys):
     out = tmp_path / "hab"
     assert main(["habitat-benchmark", "--habitat-config", SEMANTIC_CONFIG, "--agent", "peanut", "--episodes", "0:2",
                  "--output", str(out), "agent.segmenter=gt", "run.workers=1", *CALNAV_SMALL, *HABITAT_SMALL]) == 0
-    assert "peanut (habitat-lab)" in capsys.readouterr().out
+    assert "| peanut (gt + averaging) (habitat-lab) |" in capsys.readouterr().out   # what it maps from
     assert main(["objectnav", "--agent", "peanut", "--episodes", "0:2", "--output", str(tmp_path / "cal"),
                  "agent.segmenter=gt", "run.workers=1", f"env.resolution={W}x{H}", "env.normalize_depth=true",
                  *CALNAV_SMALL]) == 0

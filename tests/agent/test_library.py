@@ -260,8 +260,16 @@ def test_unit_and_frame_mix_ups_are_refused(setup):
         planar_pose(sheared)
     far = pose.copy()
     far[:2, 3] += (5e5, 4e6)
-    with pytest.raises(ValueError, match=r"more than 8000 m from the world origin.*give poses in a local frame"):
+    with pytest.raises(ValueError, match=r"m from the world origin \(at most 8192\).*give poses in a local frame"):
         planar_pose(far)
+    # inf (ROS REP 117: out of range) and NaN are invalid pixels, skipped by the map, not units
+    from calnav.agent.navigator import check_depth
+
+    holes = depth.copy()
+    holes[: int(0.6 * len(holes))] = np.inf
+    holes[-1] = np.nan
+    check_depth(holes, normalised=False)
+    check_depth(np.clip(holes / 5.0, 0, None), normalised=True)
     nav.act(rgb, depth, pose=pose, semantic=sem)   # a good first step, then a forward step read in millimetres
     moved = pose.copy()
     moved[:3, 3] += 250.0 * pose[:3, 2]

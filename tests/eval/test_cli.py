@@ -101,6 +101,9 @@ def test_view_episode_writes_pngs(tmp_path):
     assert main(["view-episode", "--episode", "1", "--output", str(out), *SMALL]) == 0
     for name in ("topdown.png", "frames.png"):
         assert (out / name).stat().st_size > 10_000
+    # past the split's most episodes (2 houses x 3): refused by that bound before any house is made
+    assert main(["view-episode", "--episode", "100000", "--output", str(tmp_path / "v2"), *SMALL]) == 2
+    assert not (tmp_path / "v2").exists()
 
 
 def test_bench_quick_has_required_figures(tmp_path):
@@ -154,7 +157,7 @@ PEANUT_TINY = ["--agent", "peanut", "--episodes", "1", "run.workers=1", "env.res
 ])
 def test_run_label_names_what_the_agent_maps_from(overrides, label):
     from calnav.eval.config import load_config
-    from calnav.eval.objectnav.run import run_label
+    from calnav.eval.stats import run_label
 
     assert run_label(load_config(None, overrides)) == label
 

@@ -143,13 +143,13 @@ def test_7scenes_reader_masks_invalid_depth_and_accepts_kinectfusion_poses(tmp_p
         assert f.semantic is None
     # a lost depth frame: its colour and pose are there, the frame would be dropped unsaid
     (seq_dir / "frame-000001.depth.png").unlink()
-    with pytest.raises(ValueError, match="1 posed frames have no depth file, e.g. frame 1"):
+    with pytest.raises(ValueError, match="1 colour / pose frames have no depth file, e.g. frame 1"):
         Sequence(seq_dir, "7scenes")
 
 
 @pytest.mark.parametrize("k, ok", [
     ([[100, 0, 79.5, 0], [0, 100, 59.5, 0]], True),     # centred on a 160x120 image
-    ([[100, 0, 100.0, 0], [0, 100, 59.5, 0]], True),    # 12.8% right of the centre (a crop): accepted
+    ([[100, 0, 100.0, 0], [0, 100, 59.5, 0]], True),    # 12.5% right of the centre (a crop): accepted
     ([[100, 0, 112.0, 0], [0, 100, 59.5, 0]], True),    # exactly 20%: the bound itself
     ([[100, 0, 113.0, 0], [0, 100, 59.5, 0]], False),   # 20.6%: past MAX_PRINCIPAL_OFFSET
     ([[400, 0, 319.5, 0], [0, 400, 239.5, 0]], False),  # a 640x480 calibration
