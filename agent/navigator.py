@@ -54,6 +54,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from calnav.agent.navigator_map import AgentMap
+from calnav.agent.sensors import check_depth
 from calnav.agent.segmenters.base import goal_categories
 from calnav.envs.task import (COMPASS, DEPTH, GPS, OBJECTGOAL, RGB, SEMANTIC, Action, gps_compass_to_xy_yaw,
                               xy_yaw_to_gps_compass, yaw_to_habitat_quaternion)
@@ -64,10 +65,7 @@ from calnav.envs.task import (COMPASS, DEPTH, GPS, OBJECTGOAL, RGB, SEMANTIC, Ac
 LEVEL_TOLERANCE_DEG = 2.0
 # What a robot's inputs cannot be, refused rather than mapped: each is a unit or frame mix-up that
 # the agent would otherwise turn into a blind search or a wrong map with no other sign.
-# - depth: metric depth past 100 m (the mapping's depth-range cap) over most of a frame is
-#   millimetres; normalised depth past 1 is metric depth.
-MAX_PLAUSIBLE_DEPTH_M = 100.0
-NORMALISED_DEPTH_SLACK = 1e-6
+# - depth: ``agent.sensors.check_depth``.
 # - pose: Habitat keeps the start position in float32 (its gps is computed so, bit for bit), whose
 #   values are 2^-10 m (~1 mm) apart from 2^13 m on: UTM / GNSS frames need a local origin.
 MAX_POSE_DISTANCE_M = 8192.0
@@ -108,29 +106,6 @@ def planar_pose(pose: Any) -> tuple[np.ndarray, float]:
                          f"{LEVEL_TOLERANCE_DEG:g}): the agent maps with a level camera at env.camera_height_m; give "
                          "a pose whose +z is up, or the level pose (x, y, yaw)")
     return xy, math.atan2(forward[1], forward[0])
-
-
-def check_depth(depth: np.ndarray, normalised: bool) -> None:
-    """Refuse (ValueError, one line) depth that cannot be the metres (``normalised``: Habitat's
-    [0, 1]) the agent maps: an integer image (raw sensor units), normalised depth past 1, metric
-    depth beyond ``MAX_PLAUSIBLE_DEPTH_M`` over most of the frame (millimetres). NaN, inf and 0
-    are invalid pixels, which the map skips."""
-    unit = "normalised [0, 1] (env.normalize_depth is true)" if normalised else "metres (env.normalize_depth is false)"
-    if depth.dtype.kind != "f":
-        raise ValueError(f"depth must be float {unit}; got {depth.dtype}: raw sensor units? divide by the sensor's "
-                         "depth scale (millimetres: 1000) into float32")
-    if normalised:
-        over = int(np.count_nonzero(np.isfinite(depth) & (depth > 1.0 + NORMALISED_DEPTH_SLACK)))
-        if over:
-            raise ValueError(f"depth must be {unit}; {over} pixels exceed 1 (max "
-                             f"{float(depth[np.isfinite(depth)].max()):.4g}): "
-                             "metric depth? set env.normalize_depth=false")
-        return
-    finite = depth[np.isfinite(depth)]   # inf (ROS REP 117: out of range) is an invalid pixel, not a far one
-    far, valid = int(np.count_nonzero(finite > MAX_PLAUSIBLE_DEPTH_M)), int(np.count_nonzero(finite > 0))
-    if valid and 2 * far > valid:
-        raise ValueError(f"depth must be {unit}; {far} of its {valid} valid pixels lie beyond {MAX_PLAUSIBLE_DEPTH_M:g} "
-                         "m: millimetres? divide by 1000")
 
 
 @dataclass(frozen=True)

@@ -73,3 +73,32 @@ class SensorModel:
         d = np.asarray(obs[DEPTH], np.float32)
         d = d[..., 0] if d.ndim == 3 else d
         return depth_to_metres(d, self.normalize_depth, self.min_depth_m, self.max_depth_m)
+
+
+# Depth a robot hands over in other units: metric depth past 100 m (the mapping's depth-range cap)
+# over most of a frame is millimetres; normalised depth past 1 is metric depth.
+MAX_PLAUSIBLE_DEPTH_M = 100.0
+NORMALISED_DEPTH_SLACK = 1e-6
+
+
+def check_depth(depth: np.ndarray, normalised: bool) -> None:
+    """Refuse (ValueError, one line) depth that cannot be the metres (``normalised``: Habitat's
+    [0, 1]) the agent maps: an integer image (raw sensor units), normalised depth past 1, metric
+    depth beyond ``MAX_PLAUSIBLE_DEPTH_M`` over most of the frame (millimetres). NaN, inf and 0
+    are invalid pixels, which the map skips."""
+    unit = "normalised [0, 1] (env.normalize_depth is true)" if normalised else "metres (env.normalize_depth is false)"
+    if depth.dtype.kind != "f":
+        raise ValueError(f"depth must be float {unit}; got {depth.dtype}: raw sensor units? divide by the sensor's "
+                         "depth scale (millimetres: 1000) into float32")
+    if normalised:
+        over = int(np.count_nonzero(np.isfinite(depth) & (depth > 1.0 + NORMALISED_DEPTH_SLACK)))
+        if over:
+            raise ValueError(f"depth must be {unit}; {over} pixels exceed 1 (max "
+                             f"{float(depth[np.isfinite(depth)].max()):.4g}): "
+                             "metric depth? set env.normalize_depth=false")
+        return
+    finite = depth[np.isfinite(depth)]   # inf (ROS REP 117: out of range) is an invalid pixel, not a far one
+    far, valid = int(np.count_nonzero(finite > MAX_PLAUSIBLE_DEPTH_M)), int(np.count_nonzero(finite > 0))
+    if valid and 2 * far > valid:
+        raise ValueError(f"depth must be {unit}; {far} of its {valid} valid pixels lie beyond {MAX_PLAUSIBLE_DEPTH_M:g} "
+                         "m: millimetres? divide by 1000")
