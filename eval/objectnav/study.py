@@ -10,7 +10,8 @@ The study config (``eval.objectnav.study_config``) lists rows in run order. For 
    ``threshold_from`` -- on the evaluation episodes into ``<output>/eval/<row>/``, a results
    directory like ``calnav objectnav``'s. A row whose evaluation config equals an earlier
    row's (a transferred threshold that equals the row's own) is not run twice: its manifest
-   entry names the earlier records. A row whose config the tuned point makes invalid (the
+   entry names the earlier records -- also when ``--rows`` leaves out the earlier row that an
+   earlier invocation finished. A row whose config the tuned point makes invalid (the
    uncertainty-aware agent's band below a low tuned threshold) is skipped, with the reason.
 
 Every step resumes: an interrupted study is continued by rerunning the same command. After each
@@ -168,6 +169,7 @@ def run_study(study_path: str | Path, out: Path, extra: list[str] = (), force: b
         manifest.write()   # the plan, before any row runs: a study cut short says what is pending
         for row in study.rows:
             if wanted is not None and row.name not in wanted:
+                _register_finished(study, row, extra, manifest, evaluated)
                 continue
             if not row.threshold_from:
                 tune_dir = out / "tune" / row.name
@@ -182,6 +184,7 @@ def run_study(study_path: str | Path, out: Path, extra: list[str] = (), force: b
                     manifest.update(row.name, status="tuned", tune=tuned[row.name], threshold=best["threshold"],
                                     min_area=best["min_area"])
             if only and row.name not in only:
+                _register_finished(study, row, extra, manifest, evaluated)
                 continue
             source = tuned[row.threshold_from or row.name]
             t, a = source["threshold"], source["min_area"]
@@ -212,6 +215,21 @@ def run_study(study_path: str | Path, out: Path, extra: list[str] = (), force: b
                             episode_seconds=round(seconds, 3),
                             summary={k: v for k, v in summary.items() if k != "per_category"}, **entry)
     return manifest.data
+
+
+def _register_finished(study: StudyConfig, row: StudyRow, extra: list[str], manifest: Manifest,
+                       evaluated: dict[str, str]) -> None:
+    """A row ``--rows`` leaves out but an earlier invocation finished still counts as an earlier
+    row: a later row of the same evaluation config names its records (``same_as``) instead of
+    running them again, as in a study run whole."""
+    entry = manifest.data["rows"][row.name]
+    if entry.get("status") != "done" or entry.get("same_as") or entry.get("threshold") is None:
+        return
+    try:
+        cfg = load_config(study.config, study.eval_overrides(row, entry["threshold"], entry["min_area"], extra))
+    except ConfigError:
+        return
+    evaluated.setdefault(repr(strip_neutral(to_dict(cfg))), row.name)
 
 
 def study_configs(args) -> list:

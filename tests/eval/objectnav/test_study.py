@@ -217,6 +217,31 @@ def test_study_end_to_end(tmp_path, capsys):
 
 
 @pytest.mark.e2e
+def test_rows_left_out_by_rows_still_count_as_earlier_rows(tmp_path):
+    """``--rows`` that leaves out a finished row whose evaluation config a later row shares: the
+    later row names the finished row's records (``same_as``), as in a study run whole, instead
+    of running the same episodes again. One-point grids make the shared config certain."""
+    rows = """\
+- name: gt/ndf
+  thresholds: [0.5]
+  overrides: [agent.segmenter=gt, agent.map_type=ndf]
+- name: gt/rbu
+  thresholds: [0.5]
+  overrides: [agent.segmenter=gt, mapping.fusion=rbu]
+- name: gt/ndf@rbu
+  threshold_from: gt/rbu
+  overrides: [agent.segmenter=gt, agent.map_type=ndf]
+"""
+    path, out = _study(tmp_path, rows), tmp_path / "out"
+    assert main(["study", str(path), "--output", str(out), "--rows", "gt/ndf"]) == 0
+    assert main(["study", str(path), "--output", str(out), "--rows", "gt/ndf@rbu"]) == 0
+    manifest = json.loads((out / "manifest.json").read_text())["rows"]
+    assert manifest["gt/ndf@rbu"]["same_as"] == "gt/ndf"
+    assert manifest["gt/ndf@rbu"]["dir"] == manifest["gt/ndf"]["dir"]
+    assert not (out / "eval" / "gt" / "ndf@rbu").exists()
+
+
+@pytest.mark.e2e
 def test_manifest_says_what_is_pending_and_tuned_when_cut_short(tmp_path, monkeypatch):
     """The plan is written before any row runs, and a tuned row is recorded as tuned before its
     evaluation: a study stopped between the two (here: the evaluation fails) says where it is."""
