@@ -14,6 +14,9 @@ The study config (``eval.objectnav.study_config``) lists rows in run order. For 
    earlier invocation finished. A row whose config the tuned point makes invalid (the
    uncertainty-aware agent's band below a low tuned threshold) is skipped, with the reason.
 
+A row the study file leaves out (``left_out: <why>``, e.g. the compute budget) runs nothing; the
+manifest marks it ``left_out`` with the reason, and the report lists it.
+
 Every step resumes: an interrupted study is continued by rerunning the same command. After each
 row ``<output>/manifest.json`` is rewritten (atomically): the study file and its sha256, and
 per row the equivalent single commands, the resolved config, the source commits that ran its
@@ -112,7 +115,9 @@ class Manifest:
         self.data = {"version": MANIFEST_VERSION, "study": str(study_path), "study_sha256": sha256_file(study_path),
                      "config": study.config, "overrides": list(extra), "tune": to_dict(study.tune), "evaluate": to_dict(study.evaluate),
                      "pairs": [list(p) for p in study.pairs], "questions": [to_dict(q) for q in study.questions],
-                     "rows": {r.name: {"status": "pending", "overrides": study.row_overrides(r),
+                     "rows": {r.name: {"status": "left_out" if r.left_out else "pending",
+                                       **({"reason": r.left_out} if r.left_out else {}),
+                                       "overrides": study.row_overrides(r),
                                        "threshold_from": r.threshold_from, "thresholds": r.thresholds}
                               for r in study.rows}}
 
@@ -120,7 +125,8 @@ class Manifest:
         """Keep the entries of an earlier invocation (``--rows`` runs some rows only) for rows
         whose overrides, threshold source and grid are unchanged, when the episodes, the base
         config and the command line's result-relevant overrides are the same; a row that runs now
-        replaces its entry."""
+        replaces its entry. A row the study leaves out now stays left out, and one it left out then
+        but runs now starts pending (it resumes from its records)."""
         if not previous or previous.get("version") != MANIFEST_VERSION or \
                 (previous.get("tune"), previous.get("evaluate")) != (self.data["tune"], self.data["evaluate"]) or \
                 previous.get("config", self.data["config"]) != self.data["config"] or \
@@ -128,7 +134,7 @@ class Manifest:
             return
         for name, entry in previous.get("rows", {}).items():
             now = self.data["rows"].get(name)
-            if now is not None and (entry.get("overrides"), entry.get("threshold_from"),
+            if now is not None and "left_out" not in (now["status"], entry.get("status")) and (entry.get("overrides"), entry.get("threshold_from"),
                                     entry.get("thresholds", now["thresholds"])) == \
                     (now["overrides"], now["threshold_from"], now["thresholds"]):
                 self.data["rows"][name] = {**entry, "thresholds": now["thresholds"]}   # (older manifests lack it)
@@ -159,6 +165,10 @@ def run_study(study_path: str | Path, out: Path, extra: list[str] = (), force: b
     unknown = [n for n in only if n not in {r.name for r in study.rows}]
     if unknown:
         raise ConfigError(f"--rows: no row {unknown[0]!r} in {study_path}; rows: {', '.join(r.name for r in study.rows)}")
+    left_out = [n for n in only if study.row(n).left_out]
+    if left_out:
+        raise ConfigError(f"--rows: {left_out[0]} is left out by {study_path} ({study.row(left_out[0]).left_out}); "
+                          "remove its left_out key to run it")
     wanted = set(only) | {study.row(n).threshold_from for n in only if study.row(n).threshold_from} if only else None
     tuned: dict[str, dict] = {}
     evaluated: dict[str, str] = {}   # resolved evaluation config (result-relevant keys) -> row that ran it
@@ -168,6 +178,8 @@ def run_study(study_path: str | Path, out: Path, extra: list[str] = (), force: b
         manifest.carry(_read_json(out / MANIFEST_NAME))
         manifest.write()   # the plan, before any row runs: a study cut short says what is pending
         for row in study.rows:
+            if row.left_out:   # the manifest says so (Manifest): nothing runs
+                continue
             if wanted is not None and row.name not in wanted:
                 _register_finished(study, row, extra, manifest, evaluated)
                 continue
@@ -195,7 +207,7 @@ def run_study(study_path: str | Path, out: Path, extra: list[str] = (), force: b
                 print(f"study: row {row.name} skipped at goal_threshold={t:g}: {exc}")
                 manifest.update(row.name, status="skipped", reason=str(exc), **entry)
                 continue
-            key = repr(strip_neutral(to_dict(cfg)))
+            key = _eval_key(cfg)
             eval_dir = out / "eval" / row.name
             if key in evaluated:   # the same config as an earlier row: its records are this row's
                 same = manifest.data["rows"][evaluated[key]]
@@ -217,6 +229,11 @@ def run_study(study_path: str | Path, out: Path, extra: list[str] = (), force: b
     return manifest.data
 
 
+def _eval_key(cfg) -> str:
+    """What makes two rows' evaluations the same: their resolved configs but the result-neutral keys."""
+    return repr(strip_neutral(to_dict(cfg)))
+
+
 def _register_finished(study: StudyConfig, row: StudyRow, extra: list[str], manifest: Manifest,
                        evaluated: dict[str, str]) -> None:
     """A row ``--rows`` leaves out but an earlier invocation finished still counts as an earlier
@@ -229,7 +246,7 @@ def _register_finished(study: StudyConfig, row: StudyRow, extra: list[str], mani
         cfg = load_config(study.config, study.eval_overrides(row, entry["threshold"], entry["min_area"], extra))
     except ConfigError:
         return
-    evaluated.setdefault(repr(strip_neutral(to_dict(cfg))), row.name)
+    evaluated.setdefault(_eval_key(cfg), row.name)
 
 
 def study_configs(args) -> list:
@@ -244,10 +261,10 @@ def main_study(args, configs) -> None:
     manifest = run_study(args.study, out, list(args.overrides), force=args.force, only=only)
     rows = manifest["rows"]
     width = max(len(n) for n in rows)
-    print(f"{'row'.ljust(width)}  status   threshold  Success        SPL            N")
+    print(f"{'row'.ljust(width)}  status    threshold  Success        SPL            N")
     for name, e in rows.items():
         s = e.get("summary") or {}
         figures = (f"{e['threshold']:<9g}  {s['success']:.3f} ({s['success_sem']:.3f})  "
                    f"{s['spl']:.3f} ({s['spl_sem']:.3f})  {s['count']}") if s else e.get("reason", "")
-        print(f"{name.ljust(width)}  {e['status']:<7}  {figures}")
+        print(f"{name.ljust(width)}  {e['status']:<8}  {figures}")
     print(f"manifest: {out / MANIFEST_NAME}")

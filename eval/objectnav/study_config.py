@@ -91,6 +91,9 @@ class StudyRow:
     overrides: list[str] = field(default_factory=list)   # config overrides of this row (dotted key=value)
     threshold_from: str = ""                  # "" = tune this row's own threshold; else an earlier tuned row's name
     thresholds: list[float] = field(default_factory=list)   # this row's tuning grid ([] = tune.thresholds)
+    # "" = run this row; else why the study leaves it out (e.g. the compute budget): it does not
+    # run, and the report lists it with this reason; remove the key to run it (the study resumes)
+    left_out: str = ""
 
     def __post_init__(self) -> None:
         if not ROW_NAME_RE.match(self.name) or any(p in (".", "..") for p in self.name.split("/")):
@@ -101,6 +104,9 @@ class StudyRow:
             if key in STUDY_KEYS:
                 raise ValueError(f"row {self.name}: {key} is set by the study itself (tune / evaluate sections, "
                                  "threshold_from); remove the override")
+        if self.left_out != self.left_out.strip():   # blank reasons are padded too
+            raise ValueError(f"row {self.name}: left_out {self.left_out!r} is blank or padded; say why the study "
+                             "leaves the row out, or remove the key to run it")
         if self.thresholds:
             _check_thresholds(self.thresholds, f"row {self.name}: thresholds")
             if self.threshold_from:
@@ -182,6 +188,9 @@ class StudyConfig:
                 if source.threshold_from:
                     raise ValueError(f"row {row.name}: threshold_from {row.threshold_from!r} names a row that tunes "
                                      "no threshold of its own; name the row it takes its threshold from")
+                if source.left_out and not row.left_out:
+                    raise ValueError(f"row {row.name}: threshold_from {row.threshold_from!r} names a row the study "
+                                     "leaves out; run that row too or leave this one out")
             seen[row.name] = row
         for key in ("overrides",):
             for text in getattr(self, key):
@@ -229,7 +238,8 @@ def load_study(path: str | Path, extra: list[str] = ()) -> tuple[StudyConfig, li
     at every grid point and its evaluation config (at the grid's first point: the tuned point
     is not known yet); the preflight gets one tuning config per row, as the grid's points differ
     only in keys that name no file. ``extra``: overrides of every row from the command line. Raises
-    ConfigError (one line) for any bad key, value, row or row config."""
+    ConfigError (one line) for any bad key, value, row or row config. A row the study leaves out
+    (``left_out``) runs nothing, so none of its configs is loaded."""
     try:
         study = load_config(path, [], cls=StudyConfig)
     except ConfigError as exc:   # a check of the whole study is named by the file, not the class
@@ -237,6 +247,8 @@ def load_study(path: str | Path, extra: list[str] = ()) -> tuple[StudyConfig, li
     base = study.config
     configs: list[Config] = []
     for row in study.rows:
+        if row.left_out:   # a row that does not run reads nothing
+            continue
         try:
             if not row.threshold_from:   # every grid point loads; one per row is preflighted (the tuned
                 points = [load_config(base, [*study.tune_overrides(row, extra), f"agent.goal_threshold={t!r}",

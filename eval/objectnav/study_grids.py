@@ -9,13 +9,13 @@ from pathlib import Path
 
 def transfer_pairs(manifest: dict) -> list[tuple[str, str]]:
     """[row, its condition's own tuned row] for every row that takes another row's threshold
-    and has a tuned row with the same overrides."""
+    and has a tuned row with the same overrides (neither of them a row the study leaves out)."""
     rows = manifest["rows"]
     out = []
     for name, e in rows.items():
-        if e.get("threshold_from"):
-            own = next((n for n, o in rows.items() if not o.get("threshold_from") and o["overrides"] == e["overrides"]),
-                       None)
+        if e.get("threshold_from") and e.get("status") != "left_out":
+            own = next((n for n, o in rows.items() if not o.get("threshold_from") and o["overrides"] == e["overrides"]
+                        and o.get("status") != "left_out"), None)
             if own is not None:
                 out.append((name, own))
     return out

@@ -17,8 +17,9 @@
   chosen point marked, and the rows whose best threshold still sits on an edge of their
   extended grid;
 - the source commits that ran each row's records (each record names its commit);
-- the rows tuned but not fully evaluated (with the episodes evaluated so far) and the rows not
-  run yet, by name.
+- the rows tuned but not fully evaluated (with the episodes evaluated so far), the rows not
+  run yet, by name, and the rows the study file leaves out, with its reason and what they would
+  cost.
 
 Every number comes from the committed records (``episodes.jsonl``) the manifest names, scored as
 ``calnav objectnav`` scores them (``eval.stats``), so the page changes only when records do.
@@ -134,7 +135,8 @@ def contrast_cells(names: list[str], weights: list[float], records: dict[str, li
 def conclusions_markdown(manifest: dict, records: dict[str, list[dict]]) -> str:
     """The study's questions (``StudyQuestion``), each answered by its contrast of rows' Success
     and SPL over the episodes its rows share, with the verdict on Success; a question whose rows
-    have not all run says which it waits for."""
+    have not all run says which it waits for, and one naming a row the study leaves out says it is
+    not answered."""
     questions = manifest.get("questions") or []
     if not questions:
         return "The study file asks no questions."
@@ -144,9 +146,11 @@ def conclusions_markdown(manifest: dict, records: dict[str, list[dict]]) -> str:
     for q in questions:
         terms = " ".join(f"{'+' if w > 0 else '-'} {'' if abs(w) == 1 else f'{abs(w):g} '}{n}"
                          for n, w in zip(q["rows"], q["weights"])).removeprefix("+ ")
+        cut = [n for n in q["rows"] if manifest["rows"].get(n, {}).get("status") == "left_out"]
         waiting = [n for n in q["rows"] if n not in records]
-        if waiting:
-            lines.append(f"| {q['ask']} | {terms} | waiting for {', '.join(waiting)} |" + " |" * (len(heads) - 3))
+        if cut or waiting:
+            why = f"not answered: the study leaves out {', '.join(cut)}" if cut else f"waiting for {', '.join(waiting)}"
+            lines.append(f"| {q['ask']} | {terms} | {why} |" + " |" * (len(heads) - 3))
             continue
         lines.append("| " + " | ".join([q["ask"], terms, *contrast_cells(q["rows"], q["weights"], records)]) + " |")
     return "\n".join(lines)
@@ -169,14 +173,15 @@ def compute_markdown(root: Path, manifest: dict) -> str:
     """Episodes run and worker-hours (the records' wall_time_s: one worker per core) for tuning
     and evaluation, and the episodes the plan still needs (a tuned row's grid before any
     extension, each evaluation not shared with an earlier row) with the worker-hours they take at
-    the mean cost per episode so far."""
+    the mean cost per episode so far; the same for the rows the study leaves out."""
     tune_n = tune_s = eval_n = eval_s = 0.0
-    left = 0
+    left = cut = 0
     a, _, b = str(manifest["tune"]["episodes"]).partition(":")
     per_tune = (int(b) - int(a)) if b else int(a)
     n_eval = len(_eval_range(manifest))
-    grid = len(manifest["tune"]["thresholds"]) * len(manifest["tune"].get("min_areas", [4]))
+    areas = len(manifest["tune"].get("min_areas", [4]))
     for name, e in manifest["rows"].items():
+        grid = len(e.get("thresholds") or manifest["tune"]["thresholds"]) * areas   # a row may name its own grid
         if not e.get("threshold_from"):
             n = s = 0
             for f in sorted((root / "tune" / name).glob("*/episodes.jsonl")):
@@ -185,18 +190,40 @@ def compute_markdown(root: Path, manifest: dict) -> str:
             tune_n, tune_s = tune_n + n, tune_s + s
             if e.get("status") == "pending":
                 left += max(0, grid * per_tune - n)
+            elif e.get("status") == "left_out":
+                cut += max(0, grid * per_tune - n)
         if e.get("status") == "done" and not e.get("same_as"):
             n, s = _records_cost(root / e["dir"] / "episodes.jsonl")
             eval_n, eval_s = eval_n + n, eval_s + s
         elif e.get("status") in ("pending", "tuned"):
             left += max(0, n_eval - _evaluated(root, name))
+        elif e.get("status") == "left_out":   # what its evaluation ran before it was left out counts as run
+            n, s = _records_cost(root / "eval" / name / "episodes.jsonl")
+            eval_n, eval_s, cut = eval_n + n, eval_s + s, cut + max(0, n_eval - n)
     done_n, done_s = tune_n + eval_n, tune_s + eval_s
     per_ep = done_s / done_n if done_n else float("nan")
     return (f"Compute so far: {int(tune_n)} tuning episodes ({tune_s / 3600:.1f} worker-hours) and {int(eval_n)} "
             f"evaluation episodes ({eval_s / 3600:.1f} worker-hours), {per_ep:.2f} s per episode on one core; "
             f"on the 2-core development machine (2 workers) that is about {done_s / 7200:.1f} hours of wall time. "
-            f"The plan still needs about {left} episodes ({left * per_ep / 3600:.1f} worker-hours, about "
-            f"{left * per_ep / 7200:.1f} hours on 2 cores), counting each tuning grid before any extension.")
+            + (f"The plan still needs about {left} episodes ({left * per_ep / 3600:.1f} worker-hours, about "
+               f"{left * per_ep / 7200:.1f} hours on 2 cores), counting each tuning grid before any extension."
+               if left else "Every row the study runs has run.")
+            + (f" The rows the study leaves out would need about {cut} more ({cut * per_ep / 3600:.1f} worker-hours, "
+               f"about {cut * per_ep / 7200:.1f} hours on 2 cores)." if cut else ""))
+
+
+def left_out_markdown(root: Path, manifest: dict) -> str:
+    """The rows the study file leaves out (``left_out``), grouped by the reason it gives, each
+    with the episodes its evaluation ran before it was left out, if any; "" when it leaves out
+    none."""
+    groups: dict[str, list[str]] = {}
+    wanted = len(_eval_range(manifest))
+    for name, e in manifest["rows"].items():
+        if e.get("status") == "left_out":
+            ran = _evaluated(root, name)
+            groups.setdefault(e.get("reason", ""), []).append(
+                f"{name} ({ran} of {wanted} episodes evaluated)" if ran else name)
+    return " ".join(f"Left out ({reason.rstrip('.')}): {', '.join(names)}." for reason, names in groups.items())
 
 
 def commits_markdown(records: dict[str, list[dict]]) -> str:
@@ -310,6 +337,9 @@ def render(manifest_path: Path) -> str:
             f"{n} ({ran[n]} of {wanted} episodes evaluated)" for n in started) + ".", ""]
     if unstarted:
         parts += ["Not run yet: " + ", ".join(unstarted) + ".", ""]
+    cut = left_out_markdown(manifest_path.parent, manifest)
+    if cut:
+        parts += [cut, ""]
     return "\n".join(parts)
 
 
@@ -326,12 +356,16 @@ def headline(manifest_path: Path, page: Path, results: Path) -> str:
     records = row_records(manifest_path.parent, manifest)
     ev, tune = manifest["evaluate"], manifest["tune"]
     done, total = len(records), len(manifest["rows"])
+    left_out = sum(e.get("status") == "left_out" for e in manifest["rows"].values())
     link = Path(os.path.relpath(results.resolve(), page.resolve().parent)).as_posix()
+    cut = left_out_markdown(manifest_path.parent, manifest)
     return "\n".join([
         f"Rendered by `calnav report {manifest_path.as_posix()}` from the study's committed records: "
         f"{done} of {total} rows evaluated on {ev['split']} episodes {ev['episodes']} (paired), each at the goal "
-        f"threshold tuned on {tune['split']} {tune['episodes']}; mean (SEM). Everything else -- paired "
+        f"threshold tuned on {tune['split']} {tune['episodes']}; mean (SEM)"
+        f"{f'; the study leaves out {left_out} (below)' if left_out else ''}. Everything else -- paired "
         f"differences, threshold transfer, failures, the threshold curves, compute -- is in [the results page]({link}).",
+        *(["", cut] if cut else []),
         "", metrics_markdown(manifest, records), "", f"Conclusions; {CLAIM}:", "",
         conclusions_markdown(manifest, records)])
 

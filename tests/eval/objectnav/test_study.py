@@ -62,6 +62,8 @@ ROWS = """\
     ("- name: a\n  overrides: [mapping.fusion=nope]\n", "row a: "),
     ("- name: a\n  thresholds: [0.5, 1.5]\n", "outside (0, 1]"),
     ("[]\n", "rows is empty"),
+    ("- name: a\n  left_out: ' '\n", "left_out ' ' is blank or padded"),
+    ("- name: a\n  left_out: budget\n- name: b\n  threshold_from: a\n", "names a row the study leaves out"),
 ])
 def test_bad_study_is_refused_in_one_line(tmp_path, rows, message):
     with pytest.raises(ConfigError) as exc:
@@ -122,6 +124,44 @@ def test_a_resumed_manifest_keeps_only_rows_of_the_same_inputs(tmp_path):
     now.write = lambda: None
     now.update("a", status="done")
     assert now.data["rows"]["a"]["status"] == "done" and now.data["rows"]["a"]["thresholds"] == []
+
+
+def test_a_left_out_row_runs_nothing_and_says_why(tmp_path, capsys):
+    """A row the study file leaves out loads no config (its segmenter need not exist), runs
+    nothing, is marked left_out with its reason in the manifest, cannot be asked for with
+    --rows, and the report lists it and the question over it as not answered."""
+    from calnav.eval.objectnav.study import Manifest
+    from calnav.eval.objectnav.study_report import render
+
+    rows = ("- name: a\n  left_out: over the compute budget\n  overrides: [agent.segmenter=nope]\n"
+            "- name: b\n  threshold_from: a\n  left_out: over the compute budget\n"
+            "- name: c\n  left_out: no scanned houses\n")
+    path, out = _study(tmp_path, rows, tail="questions:\n- ask: a or c?\n  rows: [a, c]\n"), tmp_path / "out"
+    study, configs = load_study(path)
+    assert configs == [] and study.row("a").left_out == "over the compute budget"
+    assert main(["study", str(path), "--output", str(out), "--rows", "c"]) == 2
+    assert "--rows: c is left out by" in capsys.readouterr().err and not out.exists()
+    assert main(["study", str(path), "--output", str(out)]) == 0
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert {n: (e["status"], e["reason"]) for n, e in manifest["rows"].items()} == {
+        "a": ("left_out", "over the compute budget"), "b": ("left_out", "over the compute budget"),
+        "c": ("left_out", "no scanned houses")}
+    assert not (out / "tune").exists() and not (out / "eval").exists()
+    page = render(out / "manifest.json")
+    assert "Left out (over the compute budget): a, b. Left out (no scanned houses): c." in page
+    assert "| a or c? | a - c | not answered: the study leaves out a, c |" in page
+    assert "Not run yet" not in page
+    # an earlier invocation's finished entry does not override left_out; a row left out then but
+    # not now starts pending (it resumes from its records), not left out with the old reason
+    running = load_study(_study(tmp_path, "- name: a\n- name: b\n  threshold_from: a\n- name: c\n", name="then.yaml"))[0]
+    then = Manifest(None, running, path, []).data
+    then["rows"]["a"]["status"] = "done"
+    now = Manifest(None, study, path, [])
+    now.carry(then)
+    assert now.data["rows"]["a"]["status"] == "left_out"
+    back = Manifest(None, running, path, [])
+    back.carry(manifest)
+    assert {n: e["status"] for n, e in back.data["rows"].items()} == {"a": "pending", "b": "pending", "c": "pending"}
 
 
 def test_bad_sections_are_refused(tmp_path):

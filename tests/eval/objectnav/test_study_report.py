@@ -242,7 +242,24 @@ def test_compute_counts_records_and_the_plan_left(tmp_path):
     text = compute_markdown(tmp_path, json.loads(path.read_text()))
     assert text.startswith("Compute so far: 2 tuning episodes (0.0 worker-hours) and 8 evaluation episodes (0.0 "
                            "worker-hours), 1.50 s per episode on one core;")
+    assert "The plan still needs about 8 episodes" in text and "leaves out" not in text
+    # a row left out after 1 of its tuning episodes: 2 x 2 - 1 tuning + 4 evaluation episodes, at
+    # 1.5 s each, are what the cut saves; they are not in the plan left
+    manifest = json.loads(path.read_text())
+    manifest["rows"]["x"] = {"overrides": ["a=4"], "threshold_from": "", "status": "left_out", "reason": "budget"}
+    (tmp_path / "tune" / "x" / "0.5_4").mkdir(parents=True)
+    (tmp_path / "tune" / "x" / "0.5_4" / "episodes.jsonl").write_text(json.dumps(_rec(0, 1, 0.5)) + "\n")
+    text = compute_markdown(tmp_path, manifest)
+    assert text.startswith("Compute so far: 3 tuning episodes")
     assert "The plan still needs about 8 episodes" in text
+    assert text.endswith("The rows the study leaves out would need about 7 more (0.0 worker-hours, about 0.0 hours "
+                         "on 2 cores).")
+    manifest["rows"]["p"] = {**manifest["rows"]["p"], "status": "left_out", "reason": "budget", "thresholds": [0.3]}
+    (tmp_path / "eval" / "p").mkdir(parents=True)   # it had evaluated 1 episode: it counts as run
+    (tmp_path / "eval" / "p" / "episodes.jsonl").write_text(json.dumps(_rec(0, 1, 0.5)) + "\n")
+    text = compute_markdown(tmp_path, manifest)   # nothing left to run: p's own 1-point grid x 2 + 3 join the cut
+    assert text.startswith("Compute so far: 3 tuning episodes (0.0 worker-hours) and 9 evaluation episodes")
+    assert "Every row the study runs has run. The rows the study leaves out would need about 12 more" in text
 
 
 def test_report_embeds_the_headline_in_pages_and_refuses_a_page_without_its_block(tmp_path, capsys):
@@ -259,6 +276,15 @@ def test_report_embeds_the_headline_in_pages_and_refuses_a_page_without_its_bloc
     assert text.startswith("# title\n\n" + PAGE_BEGIN + "\n") and text.endswith(PAGE_END + "\n\nafter\n")
     assert "stale text" not in text and "| g better? | g - r |" in text and "[the results page](results.md)" in text
     assert embed(text, "x", page) == f"# title\n\n{PAGE_BEGIN}\nx\n{PAGE_END}\n\nafter\n"
+    manifest = json.loads(path.read_text())   # the headline says what the study leaves out, and why
+    manifest["rows"]["p"] = {**manifest["rows"]["p"], "status": "left_out", "reason": "over budget."}
+    path.write_text(json.dumps(manifest))
+    text = headline(path, page, tmp_path / "results.md")
+    assert "2 of 3 rows evaluated on" in text and "mean (SEM); the study leaves out 1 (below). Everything" in text
+    assert "\n\nLeft out (over budget): p.\n\n| Row |" in text
+    (tmp_path / "eval" / "p").mkdir()   # its evaluation had begun: 1 of 4 episodes
+    (tmp_path / "eval" / "p" / "episodes.jsonl").write_text(json.dumps(_rec(0, 1, 0.5)) + "\n")
+    assert "Left out (over budget): p (1 of 4 episodes evaluated)." in headline(path, page, tmp_path / "results.md")
 
 
 def test_committed_results_page_is_what_report_renders():
@@ -330,3 +356,7 @@ def test_grid_table_names_the_thresholds_transferred_to_a_condition():
         "| rgb/clean/rbu | 0.5: 0.800 (0.020), **0.9: 0.850 (0.020)** | 0.9 | - |",
         "| rgb/scanned/rbu | **0.5: 0.600 (0.020)**, 0.9: 0.550 (0.020) | 0.5 | 0.9 (rgb/clean/rbu) |"]
     assert grids_markdown({"tune": {}, "rows": {"a": {"threshold_from": "b"}}}) == ""
+    # a transfer whose row or own tuned row the study leaves out is no transfer pair
+    for left_out in ("rgb/scanned/rbu@clean", "rgb/scanned/rbu"):
+        rows = {**manifest["rows"], left_out: {**manifest["rows"][left_out], "status": "left_out"}}
+        assert transfer_pairs({**manifest, "rows": rows}) == []
