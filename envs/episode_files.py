@@ -18,7 +18,7 @@ import json
 import math
 import zlib
 from dataclasses import dataclass, field
-from pathlib import Path
+from pathlib import Path, PurePosixPath
 
 import numpy as np
 
@@ -94,7 +94,7 @@ def episodes_to_habitat(episodes: list[ObjectNavEpisode]) -> dict:
     goals_by_category: dict[str, list[dict]] = {}
     out = []
     for ep in episodes:
-        key = f"{ep.scene_id}_{ep.object_category}"
+        key = goals_key(ep.scene_id, ep.object_category)
         if key not in goals_by_category:
             goals_by_category[key] = [{
                 "object_id": g.object_id, "object_category": g.object_category,
@@ -113,17 +113,27 @@ def episodes_to_habitat(episodes: list[ObjectNavEpisode]) -> dict:
     return {"episodes": out, "goals_by_category": goals_by_category}
 
 
+def goals_key(scene_id: str, category: str) -> str:
+    """habitat-lab's ``ObjectGoalNavEpisode.goals_key``: the scene file's base name and the
+    category (``TEEsavR23oF.basis.glb_chair``; calnav's ``house_val_0003_chair``)."""
+    return f"{PurePosixPath(scene_id).name}_{category}"
+
+
+def _goal_from_habitat(g: dict) -> GoalObject:
+    return GoalObject(int(g["object_id"]), g["object_category"],
+                      np.array([g["position"][0], -g["position"][2], g["position"][1]], dtype=np.float64),
+                      _view_points_from_habitat(g["view_points"]))
+
+
 def episodes_from_habitat(data: dict) -> list[ObjectNavEpisode]:
-    goals = {
-        key: [GoalObject(int(g["object_id"]), g["object_category"],
-                         np.array([g["position"][0], -g["position"][2], g["position"][1]], dtype=np.float64),
-                         _view_points_from_habitat(g["view_points"]))
-              for g in gs]
-        for key, gs in data.get("goals_by_category", {}).items()
-    }
+    """The episodes of a habitat-lab ObjectNav file (dict): goals from ``goals_by_category``
+    (``goals_key``), or from each episode's ``goals`` in a file without it."""
+    goals = {key: [_goal_from_habitat(g) for g in gs] for key, gs in data.get("goals_by_category", {}).items()}
     episodes = []
     for e in data["episodes"]:
-        key = f"{e['scene_id']}_{e['object_category']}"
+        key = goals_key(e["scene_id"], e["object_category"])
+        if key not in goals and e.get("goals"):   # a file without goals_by_category (habitat-lab's dedup_goals)
+            goals[key] = [_goal_from_habitat(g) for g in e["goals"]]
         if key not in goals:
             raise ValueError(f"episode {e['episode_id']}: no goals_by_category entry {key!r}")
         episodes.append(ObjectNavEpisode(
