@@ -77,7 +77,7 @@ def _stat_key(paths: list[Path]) -> list:
 
 
 def _glb_inputs(path: Path, kind: str, root: Path | None, config: Path | None) -> list[Path]:
-    """Every file the conversion of the GLB scene ``path`` reads."""
+    """Every file the conversion of the GLB scene ``path`` reads, the render mesh first."""
     if kind == "hm3d":
         files = hm3d_files(path)
         scene_id, inputs = scene_id_of(path), [files["render"], files["semantic_glb"], files["semantic_txt"]]
@@ -116,7 +116,8 @@ def load_scene_file(path: str | Path, root: str | Path | None = None, dataset_co
         scene_id = scene_id_of(path) if kind == "hm3d" else path.stem
         inputs = _glb_inputs(path, kind, root, config)
         key = hashlib.sha1(json.dumps([GLB_CONVERSION_VERSION, kind, _stat_key(inputs)]).encode()).hexdigest()[:12]
-        identity = {"converted_from": {kind: str(path.resolve()), "key": key}}
+        # the render file, not the path asked for: <id>.basis.glb and <id>.glb beside it are one scene
+        identity = {"converted_from": {kind: str(inputs[0].resolve()), "key": key}}
         loader = load_hm3d_scene if kind == "hm3d" else load_mp3d_scene
         convert = lambda: loader(path, root=root, config=config, name=scene_id)  # noqa: E731
     cached = cache_dir() / "scenes" / f"user_{scene_id}_{key}.npz"

@@ -127,7 +127,7 @@ def _front_for(up: np.ndarray) -> list[float]:
 
 
 def _fix(up: np.ndarray) -> str:
-    up_list = [float(x) for x in up]
+    up_list = [float(x) + 0.0 for x in up]   # + 0.0: no -0.0 in the message
     return (f'declare it in a {CONFIG_SUFFIX} beside the scene ("stages": {{"default_attributes": {{"up": {up_list}, '
             f'"front": {_front_for(up)}}}}}; envs.hm3d_write.write_scene_dataset_config(folder, up=..., front=...))')
 
