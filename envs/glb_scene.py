@@ -13,7 +13,8 @@ names as calnav classes, and labels carried from a separate semantic mesh onto t
 - ``transfer_faces(...)``: which semantic-mesh face each render-mesh face lies on (habitat-sim
   renders the semantic mesh on its own; calnav keeps one mesh, so the labels move onto the render
   faces): the semantic face with the nearest centroid, kept when it is within that face's longest
-  edge (plus ``TRANSFER_GAP_M``), else none. One k-d tree query, no loop per face.
+  edge (plus ``TRANSFER_GAP_M``), else none. One k-d tree query, no loop per face; meshes with the
+  same faces in the same order (HM3D's semantic mesh is often the render mesh) match face by face.
 """
 from __future__ import annotations
 
@@ -119,6 +120,8 @@ def transfer_faces(dst_verts: np.ndarray, dst_tris: np.ndarray, src_verts: np.nd
     from scipy.spatial import cKDTree
 
     src = src_verts[src_tris]
+    if len(dst_tris) == len(src_tris) and np.array_equal(dst_verts[dst_tris], src):
+        return np.arange(len(src_tris), dtype=np.int64)   # the same faces in the same order: each is its own match
     src_c = src.mean(axis=1)
     reach = np.max(np.linalg.norm(src - np.roll(src, 1, axis=1), axis=2), axis=1) + TRANSFER_GAP_M
     dist, idx = cKDTree(src_c).query(dst_verts[dst_tris].mean(axis=1), workers=-1)

@@ -324,12 +324,21 @@ def wrap_texels(coord: np.ndarray, size, mode) -> np.ndarray:
     """int64 texel indices along one image axis of texture coordinates ``coord`` (any shape; 0..1
     spans the image, glTF's nearest texel: floor(coord x size)) under the glTF wrap ``mode``
     (REPEAT, CLAMP_TO_EDGE or MIRRORED_REPEAT). ``size`` and ``mode`` are scalars or arrays
-    broadcasting with ``coord`` (one texture per element)."""
+    broadcasting with ``coord`` (one texture per element); a scalar mode computes only its rule."""
     size = np.asarray(size, dtype=np.int64)
+    x = np.floor(np.asarray(coord) * size).astype(np.int64)
+    modes = np.unique(mode)
+    if len(modes) == 1:
+        return _wrap(x, size, int(modes[0]))
     mode = np.asarray(mode)
-    x = np.floor(np.asarray(coord, dtype=np.float64) * size).astype(np.int64)
-    repeat = np.mod(x, size)
-    clamp = np.clip(x, 0, size - 1)
+    return np.where(mode == REPEAT, _wrap(x, size, REPEAT),
+                    np.where(mode == CLAMP_TO_EDGE, _wrap(x, size, CLAMP_TO_EDGE), _wrap(x, size, MIRRORED_REPEAT)))
+
+
+def _wrap(x: np.ndarray, size: np.ndarray, mode: int) -> np.ndarray:
+    if mode == REPEAT:
+        return np.mod(x, size)
+    if mode == CLAMP_TO_EDGE:
+        return np.clip(x, 0, size - 1)
     m = np.mod(x, 2 * size)
-    mirror = np.where(m >= size, 2 * size - 1 - m, m)
-    return np.where(mode == REPEAT, repeat, np.where(mode == CLAMP_TO_EDGE, clamp, mirror))
+    return np.where(m >= size, 2 * size - 1 - m, m)

@@ -146,3 +146,41 @@ def hm3d_config(path: Path, up=(0, 0, 1), front=(0, 1, 0), textures: bool = True
         "semantic_asset": "%%CONFIG_NAME_AS_ASSET_FILENAME%%.semantic.glb",
         "has_semantic_textures": textures}, "paths": {".glb": ["*/*.glb"]}}}))
     return path
+
+
+def large_hm3d_scene(folder: Path, n_tris: int = 1_000_000, texture_side: int = 2048, sid: str = "big",
+                     seed: int = 0) -> Path:
+    """An HM3D scene folder of HM3D's size: a 12 x 10 x 3 m room whose floor, four walls and
+    ceiling are grids of ``n_tris`` triangles in all (shared vertices), each surface with its own
+    ``texture_side``^2 JPEG colour texture (noise: JPEG's worst case), and a semantic GLB of the
+    same faces whose instance colours (floor, wall, ceiling) come from small PNG textures."""
+    rng = np.random.default_rng(seed)
+    w, d, h = 12.0, 10.0, 3.0
+    # (origin, edge u, edge v, area share) per surface: floor, ceiling, walls at y = 0 / d, x = 0 / w
+    surfaces = [((0, 0, 0), (w, 0, 0), (0, d, 0)), ((0, 0, h), (w, 0, 0), (0, d, 0)),
+                ((0, 0, 0), (w, 0, 0), (0, 0, h)), ((0, d, 0), (w, 0, 0), (0, 0, h)),
+                ((0, 0, 0), (0, d, 0), (0, 0, h)), ((w, 0, 0), (0, d, 0), (0, 0, h))]
+    areas = np.array([np.linalg.norm(np.cross(u, v)) for _, u, v in surfaces])
+    prims, sem_prims, images, sem_images = [], [], [], []
+    names = ["floor", "ceiling", "wall", "wall", "wall", "wall"]
+    ids = {"floor": (1, "1E90FF"), "ceiling": (2, "FFD700"), "wall": (3, "32CD32")}
+    for k, ((o, u, v), share) in enumerate(zip(surfaces, areas / areas.sum())):
+        cells = max(1, int(np.sqrt(n_tris * share / 2)))
+        gu, gv = np.meshgrid(np.linspace(0, 1, cells + 1), np.linspace(0, 1, cells + 1))
+        pos = np.asarray(o) + gu.reshape(-1, 1) * np.asarray(u) + gv.reshape(-1, 1) * np.asarray(v)
+        i = np.arange(cells)[None, :] + (cells + 1) * np.arange(cells)[:, None]
+        quads = np.stack([i, i + 1, i + cells + 2, i + cells + 1], axis=-1).reshape(-1, 4)
+        tris = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
+        uv = np.stack([gu.ravel(), gv.ravel()], axis=1) * 4.0           # each texture repeats 4 x 4 times
+        prims.append(Prim(pos, tris, uv=uv, image=k))
+        images.append(Image(jpeg(rng.integers(0, 255, (texture_side, texture_side, 3), dtype=np.uint8), 90),
+                            mime="image/jpeg"))
+        colour = ids[names[k]][1]
+        sem_images.append(Image(png(np.tile(np.array([int(colour[j:j + 2], 16) for j in (0, 2, 4)], np.uint8),
+                                            (8, 8, 1)))))
+        sem_prims.append(Prim(pos, tris, uv=uv, image=k))
+    folder.mkdir(parents=True, exist_ok=True)
+    write_glb(folder / f"{sid}.glb", prims, images)
+    write_glb(folder / f"{sid}.semantic.glb", sem_prims, sem_images)
+    semantic_txt(folder / f"{sid}.semantic.txt", [(i, c, n, 0) for n, (i, c) in ids.items()])
+    return folder / f"{sid}.glb"
