@@ -19,6 +19,11 @@ broadcast adds. Colour = per-triangle pre-lit albedo x a texture tile looked up 
 point's surface coordinates; every per-pixel step is one in-place float32 / int32 pass over
 preallocated scratch buffers, split into row bands that run on worker threads (numpy
 releases the GIL) when the renderer may use more than one core.
+
+Image-textured scenes (``Scene.textured``: HM3D / MP3D meshes): a hit on a textured triangle
+takes the nearest texel at its interpolated texture coordinates, times the triangle's albedo, no
+extra shading (scan textures carry their lighting): ``envs.render_textures``. Untextured scenes
+skip that step and render as they always have.
 """
 from __future__ import annotations
 
@@ -30,6 +35,7 @@ import numpy as np
 import open3d as o3d
 
 from calnav.common.threads import thread_budget
+from calnav.envs.render_textures import TextureSampler
 from calnav.envs.scene import Scene, Texture
 from calnav.envs.task import camera_pose, pinhole_intrinsics  # noqa: F401  (camera_pose re-exported: the contract owns it)
 
@@ -166,6 +172,18 @@ class RenderedView:
     normal: np.ndarray | None = None
 
 
+def lit_albedo(scene: Scene) -> np.ndarray:
+    """(F, 3) uint8 per-triangle albedo x calnav's directional light (``AMBIENT`` + ``DIFFUSE``
+    |n . LIGHT_DIR|); unshaded for scenes whose colours carry their lighting (meta "lighting":
+    "baked": shading them again would darken every surface facing away from the sun twice)."""
+    v = scene.vertices.astype(np.float64)[scene.triangles]
+    n = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+    baked = scene.meta.get("lighting") == "baked"
+    shade = np.ones(len(scene.triangles)) if baked else AMBIENT + DIFFUSE * np.abs(n @ LIGHT_DIR)
+    return np.round(scene.tri_albedo * shade[:, None]).clip(0, 255).astype(np.uint8)
+
+
 def build_raycasting_scene(scene: Scene) -> o3d.t.geometry.RaycastingScene:
     """A ``RaycastingScene`` holding the scene mesh as geometry 0 (primitive id = triangle index)."""
     rc = o3d.t.geometry.RaycastingScene()
@@ -211,21 +229,16 @@ class Renderer:
         self._n_tris = f
         self._class = np.append(scene.tri_class, np.int16(-1)).astype(np.int16)
         self._instance = np.append(scene.tri_instance, np.int32(-1)).astype(np.int32)
-        v = scene.vertices.astype(np.float64)[scene.triangles]
-        n = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
-        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
-        # scans carry their lighting in their colours (meta "lighting": "baked"): shading them
-        # again would darken every surface that faces away from calnav's sun twice
-        baked = scene.meta.get("lighting") == "baked"
-        shade = np.ones(f) if baked else AMBIENT + DIFFUSE * np.abs(n @ LIGHT_DIR)
         lit = np.zeros((f + 1, 4), dtype=np.uint8)  # RGBA8; the miss row stays black
-        lit[:f, :3] = np.round(scene.tri_albedo * shade[:, None]).clip(0, 255)
+        lit[:f, :3] = lit_albedo(scene)
         # One uint32 per triangle: numpy's take has a fast path for 4-byte items (3-byte or
         # 12-byte rows go through a generic copy ~3x slower).
         self._lit_rgba = lit.view(np.uint32).ravel()
         tex = np.clip(scene.tri_texture.astype(np.int32), 0, len(Texture) - 1)
         self._tex_base = np.append(tex * TILE * TILE, 0).astype(np.int32)  # tile offset per triangle
         self._tiles_flat = TEXTURE_TILES.reshape(-1)
+        # image textures (HM3D / MP3D meshes): untextured scenes render without this step
+        self._textures = TextureSampler(scene) if scene.textured else None
 
     def _build_buffers(self, camera: Camera) -> None:
         """Camera-frame ray components x(u) = (u - cx) / fx, y(v) = (v - cy) / fy, z = 1 (so
@@ -275,6 +288,7 @@ class Renderer:
         t = hit["t_hit"].numpy()                      # (H, W) float32, inf on a miss
         prim = hit["primitive_ids"].numpy()           # (H, W) uint32, INVALID_ID on a miss
         nrm = hit["primitive_normals"].numpy()        # (H, W, 3) float32
+        bary = hit["primitive_uvs"].numpy() if self._textures is not None else None   # (H, W, 2) float32
         h, w = t.shape
         frame = RenderedView(rgb=np.empty((h, w, 3), np.uint8), depth=np.empty((h, w), np.float32),
                       semantic=np.empty((h, w), np.int16), instance=np.empty((h, w), np.int32))
@@ -285,7 +299,7 @@ class Renderer:
             rgb_noise *= np.float32(self.rgb_noise_std)
 
         def work(rows: slice) -> None:
-            self._post(rows, t, prim, nrm, frame, rgb_noise)
+            self._post(rows, t, prim, nrm, frame, rgb_noise, bary)
 
         if len(self._bands) == 1:
             work(self._bands[0])
@@ -304,7 +318,7 @@ class Renderer:
         return frame
 
     def _post(self, rows: slice, t: np.ndarray, prim: np.ndarray, nrm: np.ndarray, frame: RenderedView,
-              rgb_noise: np.ndarray | None) -> None:
+              rgb_noise: np.ndarray | None, bary: np.ndarray | None = None) -> None:
         """Per-pixel work for image rows ``rows``: depth, labels and colour into ``frame``."""
         s = {k: v[rows] for k, v in self._scratch.items()}
         t, prim, nrm, buf = t[rows], prim[rows], nrm[rows], self._rays[rows]
@@ -354,6 +368,8 @@ class Renderer:
 
         # colour = pre-lit albedo (RGBA8 gathered as one uint32) x pattern, channel by channel
         rgba = self._lit_rgba.take(idx, out=s["rgba"]).view(np.uint8).reshape(*t.shape, 4)
+        if bary is not None:
+            self._textures.apply(rgba, idx, bary[rows])
         out = frame.rgb[rows]
         for c in range(3):
             np.multiply(rgba[..., c], pattern, out=a)
@@ -361,6 +377,7 @@ class Renderer:
                 a += rgb_noise[c, rows]
                 np.clip(a, 0, 255, out=a)
             np.copyto(out[..., c], a, casting="unsafe")
+
 
 
 _POOL: ThreadPoolExecutor | None = None

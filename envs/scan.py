@@ -94,6 +94,15 @@ def _faces(ply, path: Path) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(tris, dtype=np.int64), np.asarray(owner)
 
 
+def floor_height(verts: np.ndarray, tris: np.ndarray, tri_class: np.ndarray) -> float:
+    """The floor's height, metres: the ``FLOOR_PERCENTILE`` percentile of the z of the vertices of
+    floor-class faces (of all vertices when no face is floor). verts (V, 3) z-up, tris (F, 3),
+    tri_class (F,)."""
+    floor_faces = tri_class == CLASS_ID["floor"]
+    floor_vz = verts[np.unique(tris[floor_faces]), 2] if floor_faces.any() else verts[:, 2]
+    return float(np.percentile(floor_vz, FLOOR_PERCENTILE))
+
+
 def per_face_majority(vertex_values: np.ndarray, tris: np.ndarray) -> np.ndarray:
     """Majority vote of a triangle's three vertex values (all differ: the first vertex's)."""
     a, b, c = (vertex_values[tris[:, k]] for k in range(3))
@@ -166,9 +175,7 @@ def load_labelled_ply(path, label_map=None, label_property: str = "label", up_ax
 
     if up_axis == "y":   # +90 degrees about x: (x, y, z) -> (x, -z, y), right-handed
         verts = np.stack([verts[:, 0], -verts[:, 2], verts[:, 1]], axis=1)
-    floor_faces = tri_class == CLASS_ID["floor"]
-    floor_vz = verts[np.unique(tris[floor_faces]), 2] if floor_faces.any() else verts[:, 2]
-    floor_z = float(np.percentile(floor_vz, FLOOR_PERCENTILE))
+    floor_z = floor_height(verts, tris, tri_class)
     verts[:, 2] -= floor_z
 
     coloured = True

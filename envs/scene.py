@@ -4,8 +4,15 @@ Conventions (used everywhere in calnav):
 - World frame is z-up, metres; procedural houses have their floor at z = 0.
 - Every triangle carries a class id (``envs.semantics``; ``VOID`` = -1 for unlabelled), an
   instance id (-1 = none), an albedo (RGB uint8) and a procedural texture id (``Texture``).
+- Scenes read from textured meshes (``envs.scene_files``) also carry per-triangle texture
+  coordinates and an image texture per triangle (``tri_uv``, ``tri_material`` into ``textures``,
+  -1 = untextured); the renderer then colours a hit from its texel instead of the procedural
+  pattern. Scenes without them are unchanged.
+- A scene whose source has no semantic annotation says why in ``meta["semantics_unavailable"]``
+  (it may then be all void); one whose colours cannot be decoded says why in
+  ``meta["rgb_unavailable"]``.
 - Scenes save to a single compressed ``.npz`` (arrays + a JSON metadata string) and load back
-  bit-identically.
+  bit-identically; the texture arrays are optional entries, absent for untextured scenes.
 """
 from __future__ import annotations
 
@@ -20,6 +27,10 @@ from calnav.common.npz import load_versioned_npz, save_versioned_npz
 from calnav.envs.semantics import CLASS_NAMES, VOID
 
 FORMAT_VERSION = 1
+SEMANTICS_UNAVAILABLE = "semantics_unavailable"   # meta key: why a scene has no labels (may be all void)
+RGB_UNAVAILABLE = "rgb_unavailable"               # meta key: why a scene's colours are not the source's
+WRAP_REPEAT, WRAP_CLAMP, WRAP_MIRROR = 10497, 33071, 33648   # glTF sampler wrap codes (texture_wrap)
+_REQUIRED = ("vertices", "triangles", "tri_class", "tri_instance", "tri_albedo", "tri_texture")
 
 
 class Texture(IntEnum):
@@ -65,6 +76,11 @@ class Scene:
     tri_instance: (F,) int32 instance id (-1 = none); an instance has one class.
     tri_albedo: (F, 3) uint8 base colour.
     tri_texture: (F,) uint8 ``Texture`` id.
+    tri_uv: (F, 3, 2) float32 texture coordinates of each triangle's corners (glTF's: (0, 0) the
+      image's top-left corner, v down), or None for an untextured scene.
+    tri_material: (F,) int16 index into ``textures`` (-1 = untextured), or None.
+    textures: list of (h, w, 3) uint8 RGB images.
+    texture_wrap: (T, 2) int32 glTF wrap codes (wrapS, wrapT) per texture (``WRAP_*``).
     """
 
     name: str
@@ -78,6 +94,10 @@ class Scene:
     rooms: list[Room] = field(default_factory=list)
     floor_z: float = 0.0
     meta: dict = field(default_factory=dict)
+    tri_uv: np.ndarray | None = None
+    tri_material: np.ndarray | None = None
+    textures: list[np.ndarray] = field(default_factory=list)
+    texture_wrap: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.vertices = np.ascontiguousarray(self.vertices, dtype=np.float32)
@@ -87,6 +107,14 @@ class Scene:
         self.tri_albedo = np.ascontiguousarray(self.tri_albedo, dtype=np.uint8)
         self.tri_texture = np.ascontiguousarray(self.tri_texture, dtype=np.uint8)
         self.class_names = tuple(self.class_names)
+        if self.tri_uv is not None:
+            self.tri_uv = np.ascontiguousarray(self.tri_uv, dtype=np.float32)
+        if self.tri_material is not None:
+            self.tri_material = np.ascontiguousarray(self.tri_material, dtype=np.int16)
+        self.textures = [np.ascontiguousarray(t, dtype=np.uint8) for t in self.textures]
+        if self.texture_wrap is None:
+            self.texture_wrap = np.full((len(self.textures), 2), WRAP_REPEAT, dtype=np.int32)
+        self.texture_wrap = np.ascontiguousarray(self.texture_wrap, dtype=np.int32).reshape(-1, 2)
         self.validate()
 
     # ------------------------------------------------------------------ checks
@@ -112,8 +140,40 @@ class Scene:
         bad = (self.tri_class < VOID) | (self.tri_class >= k)
         if bad.any():
             raise SceneError(f"scene {self.name!r}: class ids must be in [-1, {k}), got {self.tri_class[bad][:5]}")
-        if (self.tri_class == VOID).all():
+        # only a scene that says its source has no annotation may be unlabelled (a geometry /
+        # RGB-only scene a `gt` run refuses by that reason); any other all-void mesh is a mistake
+        if (self.tri_class == VOID).all() and not self.meta.get(SEMANTICS_UNAVAILABLE):
             raise SceneError(f"scene {self.name!r}: the mesh carries no semantic labels (every face is void)")
+        self._validate_textures()
+
+    def _validate_textures(self) -> None:
+        f, n_tex = len(self.triangles), len(self.textures)
+        if (self.tri_uv is None) != (self.tri_material is None):
+            raise SceneError(f"scene {self.name!r}: tri_uv and tri_material come together (one is missing)")
+        if self.tri_uv is None:
+            if n_tex:
+                raise SceneError(f"scene {self.name!r}: {n_tex} textures but no tri_uv / tri_material")
+            return
+        if self.tri_uv.shape != (f, 3, 2) or self.tri_material.shape != (f,):
+            raise SceneError(f"scene {self.name!r}: tri_uv must be ({f}, 3, 2) and tri_material ({f},), got "
+                             f"{self.tri_uv.shape} and {self.tri_material.shape}")
+        if not np.isfinite(self.tri_uv).all():
+            raise SceneError(f"scene {self.name!r}: tri_uv contains NaN or inf")
+        bad = (self.tri_material < -1) | (self.tri_material >= n_tex)
+        if bad.any():
+            raise SceneError(f"scene {self.name!r}: tri_material must be in [-1, {n_tex}), got {self.tri_material[bad][:5]}")
+        for k, tex in enumerate(self.textures):
+            if tex.ndim != 3 or tex.shape[2] != 3 or tex.shape[0] < 1 or tex.shape[1] < 1:
+                raise SceneError(f"scene {self.name!r}: texture {k} must be (h, w, 3) uint8, got {tex.shape}")
+        if self.texture_wrap.shape != (n_tex, 2) or not np.isin(self.texture_wrap, (WRAP_REPEAT, WRAP_CLAMP,
+                                                                                      WRAP_MIRROR)).all():
+            raise SceneError(f"scene {self.name!r}: texture_wrap must be ({n_tex}, 2) glTF wrap codes "
+                             f"({WRAP_REPEAT}, {WRAP_CLAMP}, {WRAP_MIRROR})")
+
+    @property
+    def textured(self) -> bool:
+        """Whether any triangle takes its colour from an image texture."""
+        return self.tri_material is not None and bool((self.tri_material >= 0).any())
 
     # ------------------------------------------------------------- accessors
     @property
@@ -158,6 +218,9 @@ class Scene:
             "vertices": self.vertices, "triangles": self.triangles, "tri_class": self.tri_class,
             "tri_instance": self.tri_instance, "tri_albedo": self.tri_albedo, "tri_texture": self.tri_texture,
         }
+        if self.tri_uv is not None:   # optional entries: untextured scenes write exactly the arrays above
+            arrays.update(tri_uv=self.tri_uv, tri_material=self.tri_material, texture_wrap=self.texture_wrap)
+            arrays.update({f"texture_{k}": tex for k, tex in enumerate(self.textures)})
         # atomic: a crash never leaves a half-written cache entry
         return save_versioned_npz(path, arrays, meta, FORMAT_VERSION)
 
@@ -165,13 +228,17 @@ class Scene:
     def load(cls, path: str | os.PathLike) -> "Scene":
         path = Path(path)
         arrays, meta = load_versioned_npz(path, FORMAT_VERSION, what="scene file", error=SceneError)
-        missing = {"vertices", "triangles", "tri_class", "tri_instance", "tri_albedo", "tri_texture"} - set(arrays)
+        missing = set(_REQUIRED) - set(arrays)
         if missing:
             raise SceneError(f"corrupt scene file {path}: missing arrays {sorted(missing)}")
+        n_tex = sum(1 for k in arrays if k.startswith("texture_") and k[8:].isdigit())
+        textures = [arrays.pop(f"texture_{k}") for k in range(n_tex) if f"texture_{k}" in arrays]
+        if len(textures) != n_tex:
+            raise SceneError(f"corrupt scene file {path}: texture arrays are not numbered 0..{n_tex - 1}")
         return cls(
             name=meta["name"], class_names=tuple(meta["class_names"]),
             rooms=[Room(**r) for r in meta["rooms"]], floor_z=float(meta["floor_z"]),
-            meta=meta.get("meta", {}), **arrays,
+            meta=meta.get("meta", {}), textures=textures, **arrays,
         )
 
 

@@ -16,12 +16,15 @@ Procedural scenes (``DatasetConfig.scene_dir == ""``)
 
 User scenes (``DatasetConfig.scene_dir`` set)
     Ids are the file stems of the ``*.npz`` (``Scene.save`` files) and ``*.ply`` (labelled
-    meshes, see ``envs.scan``) in that directory; a stem present in both loads the ``.npz``.
-    Without ``train/``, ``val/``, ``test/`` subfolders every split lists the same (sorted)
-    scenes; with them, each split lists its own subfolder. A PLY's labels come from a sibling
+    meshes, see ``envs.scan``) in that directory, and the ids of the HM3D / MP3D scenes
+    (``*.glb``) anywhere below it (``envs.scene_files.scene_files_in``); a stem present as both
+    ``.npz`` and ``.ply`` loads the ``.npz``. Without ``train/``, ``val/``, ``test/`` subfolders
+    every split lists the same (sorted) scenes; with them (an HM3D tree has ``train/`` and
+    ``val/``), each split lists its own subfolder. A PLY's labels come from a sibling
     ``<stem>.labels.json`` or else ``labels.json``: either a plain ``{raw id: class name}``
     mapping or ``{"label_map": {...}, "up_axis": "y", "label_property": "label"}``; with
-    neither, raw labels must already be calnav class ids. Converted PLYs are cached too.
+    neither, raw labels must already be calnav class ids. Files load through
+    ``envs.scene_files.load_scene_file``; converted PLYs and GLBs are cached too.
 
 Scanned houses (``DatasetConfig.style == "scanned"``)
     The same ids and seeds; the scene is the procedural house scanned and reconstructed by
@@ -34,7 +37,7 @@ Every cache file carries its identity in its metadata and is checked on load, li
 episode sidecar (``envs.episode_files``): a generated house its ``scene_id``, ``seed`` and
 ``spec_digest`` (``procedural_identity``); a scan also its ``scan_seed``, ``scanner_version``
 and ``scanning`` settings (``scanned_identity``); a converted PLY the file and stat key it was
-converted from (``converted_from``). A cache file that is damaged, or holds another scene (a
+converted from (``converted_from``, a GLB scene also its semantic files, configs and label map). A cache file that is damaged, or holds another scene (a
 file copied over another, another house's scan), is a cache and nothing else: it is rebuilt,
 with a warning naming the file and what it held.
 
@@ -46,15 +49,13 @@ import dataclasses
 import hashlib
 import json
 import re
-import warnings
 from collections import OrderedDict
 from pathlib import Path
 
-from calnav.common.atomic import atomic_path, is_temp_file
 from calnav.envs.config import DatasetConfig
 from calnav.envs.house import HouseSpec, generate_house
-from calnav.envs.scan import load_labelled_ply
-from calnav.envs.scene import Scene, SceneError, cache_dir
+from calnav.envs.scene import Scene, cache_dir
+from calnav.envs.scene_files import cached_scene, load_scene_file, save_atomic, scene_files_in
 
 SPLITS = ("train", "val", "test", "calib")
 STYLES = ("clean", "scanned")               # DatasetConfig.style choices (envs.config.StyleName)
@@ -62,7 +63,6 @@ SPLIT_RANK = {"calib": 0, "train": 1, "val": 2, "test": 3}  # seed block of each
 SPLIT_BLOCK = 1_000_000                     # seeds per split block (max scenes per split)
 BASE_SEED_STRIDE = 4 * SPLIT_BLOCK          # seed distance between consecutive base seeds
 LRU_SIZE = 4                                # scenes kept in memory
-PLY_CONVERSION_VERSION = 2                  # converted-PLY cache key (2: meta closed_solids = False)
 USER_SEED_MODULUS = 2 ** 31                 # user-scene generation seeds lie in [0, this)
 _ID_RE = re.compile(r"^house_(train|val|test|calib)_(\d+)$")
 _lru: OrderedDict[tuple, Scene] = OrderedDict()
@@ -117,20 +117,12 @@ def _split_dirs(root: Path) -> dict[str, Path] | None:
     return found or None
 
 
-def _scene_files(folder: Path) -> dict[str, Path]:
-    """{stem: path} of the scene files in ``folder``; ``.npz`` wins over ``.ply``."""
-    files: dict[str, Path] = {}
-    for p in sorted(folder.glob("*.ply")) + sorted(folder.glob("*.npz")):
-        if not is_temp_file(p):
-            files[p.stem] = p
-    return files
-
-
 def _found(files: dict[str, Path], folder: Path) -> dict[str, Path]:
     """``files``, or ValueError when ``folder`` held none (a run would have nothing to do)."""
     if not files:
         raise ValueError(f"no scenes found in {folder}: put *.ply labelled meshes or *.npz calnav scenes there "
-                         "(any file name) and set env.dataset.scene_dir to it")
+                         "(any file name), or HM3D / MP3D scene folders (*.glb) below it, and set env.dataset.scene_dir "
+                         "to it")
     return files
 
 
@@ -140,50 +132,16 @@ def _user_files(scene_dir: str, split: str | None) -> dict[str, Path]:
         raise ValueError(f"dataset.scene_dir {str(root)!r} is not a directory")
     dirs = _split_dirs(root)
     if dirs is None:
-        return _found(_scene_files(root), root)
+        return _found(scene_files_in(root), root)
     if split is not None:
         if split not in dirs:
             raise ValueError(f"{root} has split folders {sorted(dirs)} but no {split!r} folder")
-        return _found(_scene_files(dirs[split]), dirs[split])
+        return _found(scene_files_in(dirs[split]), dirs[split])
     merged: dict[str, Path] = {}
     for folder in (dirs[s] for s in SPLITS if s in dirs):   # any split's scene loads by id; first split wins
-        for stem, p in _scene_files(folder).items():
+        for stem, p in scene_files_in(folder).items():
             merged.setdefault(stem, p)
     return _found(merged, root)
-
-
-def _ply_settings(ply: Path) -> dict:
-    """load_labelled_ply keyword arguments from the PLY's sibling label file, if any."""
-    for cand in (ply.with_name(ply.stem + ".labels.json"), ply.with_name("labels.json")):
-        if cand.exists():
-            try:
-                data = json.loads(cand.read_text())
-            except ValueError as exc:
-                raise SceneError(f"unreadable label file {cand}: {exc}") from exc
-            if isinstance(data, dict) and "label_map" in data:
-                unknown = set(data) - {"label_map", "up_axis", "label_property"}
-                if unknown:
-                    raise SceneError(f"{cand}: unknown keys {sorted(unknown)}; valid: label_map, up_axis, label_property")
-                return dict(data)
-            return {"label_map": data}
-    return {}
-
-
-def _load_user_scene(path: Path) -> Scene:
-    if path.suffix == ".npz":
-        return Scene.load(path)
-    settings = _ply_settings(path)
-    st = path.stat()
-    key = hashlib.sha1(json.dumps([PLY_CONVERSION_VERSION, str(path.resolve()), st.st_mtime_ns, st.st_size, settings],
-                                  sort_keys=True, default=str).encode()).hexdigest()[:12]
-    cached = cache_dir() / "scenes" / f"user_{path.stem}_{key}.npz"
-    identity = {"converted_from": {"ply": str(path.resolve()), "key": key}}
-    scene = _cached_scene(cached, identity)
-    if scene is None:
-        scene = load_labelled_ply(path, name=path.stem, **settings)
-        scene.meta.update(identity)
-        _save_atomic(scene, cached)
-    return scene
 
 
 # --------------------------------------------------------------------------------- api
@@ -219,15 +177,6 @@ def scanned_cache_path(scene_id: str, dataset_cfg: DatasetConfig | None = None,
     return cache_dir() / "scenes" / f"{scene_id}_scan_{key}.npz"
 
 
-def _save_atomic(scene: Scene, path: Path) -> None:
-    """Save under a unique temporary name, then rename: concurrent workers never see half a file."""
-    try:
-        with atomic_path(path) as tmp:
-            scene.save(tmp)
-    except OSError as exc:   # a read-only cache only costs speed
-        warnings.warn(f"could not cache scene at {path}: {exc}")
-
-
 def load_scene(scene_id: str, dataset_cfg: DatasetConfig | None = None, spec: HouseSpec | None = None,
                style: str | None = None) -> Scene:
     """The scene ``scene_id``: a procedural house (generated once, then read from the cache; with
@@ -246,7 +195,8 @@ def load_scene(scene_id: str, dataset_cfg: DatasetConfig | None = None, spec: Ho
             raise ValueError(f"unknown scene id {scene_id!r} in {cfg.scene_dir}; valid ids: "
                              f"{', '.join(shown) or '(none: no *.npz / *.ply files)'}{' ...' if len(files) > 20 else ''}")
         key = ("user", str(files[scene_id].resolve()), files[scene_id].stat().st_mtime_ns)
-        loader = lambda: _load_user_scene(files[scene_id])  # noqa: E731
+        root = Path(cfg.scene_dir).expanduser()
+        loader = lambda: load_scene_file(files[scene_id], root=root)  # noqa: E731
     else:
         split, index = parse_scene_id(scene_id)
         count = int(getattr(cfg, f"{split}_scenes"))
@@ -289,40 +239,15 @@ def scanned_identity(scene_id: str, seed: int, spec: HouseSpec, cfg: DatasetConf
             "scanning": scanning}
 
 
-def _cached_scene(path: Path, identity: dict) -> Scene | None:
-    """The scene cached at ``path`` when it is readable and its metadata holds ``identity``;
-    None (rebuild it) when it is missing, damaged, or another scene's (with a warning naming the
-    file and the first field that differs)."""
-    if not path.exists():
-        return None
-    try:
-        scene = Scene.load(path)
-    except SceneError:
-        return None   # a corrupt cache entry (a killed writer): rebuilt
-    for key, want in identity.items():
-        held = scene.meta.get(key)
-        if held != want:
-            warnings.warn(f"scene cache {path} holds another scene ({key} {_short(held)}, expected {_short(want)}); "
-                          "rebuilding it")
-            return None
-    return scene
-
-
-def _short(value, limit: int = 60) -> str:
-    """``repr(value)``, or a placeholder when it is too long for a one-line warning (a settings dict)."""
-    text = repr(value)
-    return text if len(text) <= limit else "other settings"
-
-
 def _load_procedural(scene_id: str, path: Path, seed: int, spec: HouseSpec) -> Scene:
-    scene = _cached_scene(path, procedural_identity(scene_id, seed, spec))
+    scene = cached_scene(path, procedural_identity(scene_id, seed, spec))
     if scene is not None:
         return scene
     scene = generate_house(seed, spec)
     scene.name = scene_id
     scene.meta["scene_id"] = scene_id
     path.parent.mkdir(parents=True, exist_ok=True)
-    _save_atomic(scene, path)
+    save_atomic(scene, path)
     return scene
 
 
@@ -331,12 +256,12 @@ def _load_scanned(path: Path, clean_loader, identity: dict, seed: int, cfg: Data
     clean house (``clean_loader()``) and cache it."""
     from calnav.envs.scanning.scanner import scan_house
 
-    scene = _cached_scene(path, identity)
+    scene = cached_scene(path, identity)
     if scene is not None:
         return scene
     scene = scan_house(clean_loader(), cfg.scanning, seed)
     path.parent.mkdir(parents=True, exist_ok=True)
-    _save_atomic(scene, path)
+    save_atomic(scene, path)
     return scene
 
 

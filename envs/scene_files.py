@@ -1,0 +1,192 @@
+"""Scene files by path: which kinds there are, finding them under a folder, loading any one (cached).
+
+Kinds, told apart by their files (no format flag):
+
+- ``*.npz``: a ``Scene.save`` file, read as it is.
+- ``*.ply``: a labelled mesh (``envs.scan``), its settings from ``<stem>.labels.json`` or
+  ``labels.json`` beside it: a plain ``{raw id: class name}`` map or ``{"label_map": {...},
+  "up_axis": "y", "label_property": "label"}``.
+- ``<id>.glb`` with ``<id>.house`` or ``<id>_semantic.ply`` beside it: an MP3D scene (``envs.mp3d``).
+- any other ``<id>.glb`` / ``<id>.basis.glb``: an HM3D scene (``envs.hm3d``; semantics from
+  ``<id>.semantic.glb`` + ``<id>.semantic.txt`` when present). ``<id>.semantic.glb`` is a
+  semantic mesh, not a scene.
+
+``load_scene_file(path)`` loads any of them; a converted PLY or GLB is cached at
+``cache_dir()/scenes/user_<id>_<key>.npz``, ``key`` a hash of every input file's path, mtime and
+size (the mesh, its semantic files, the scene dataset configs and label map found) and the
+converter's version. Every cache file carries its identity (``converted_from``) and is checked on
+load: a damaged one, or one holding another scene, is rebuilt (with a warning naming it).
+``scene_files_in(folder)`` lists a folder's scenes by id; ``check_scene_usable`` refuses, in one
+line, a scene that lacks the RGB or the semantics a command needs.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import warnings
+from pathlib import Path
+
+from calnav.common.atomic import atomic_path, is_temp_file
+from calnav.envs.glb_scene import label_settings
+from calnav.envs.hm3d import hm3d_files, load_hm3d_scene, scene_id_of
+from calnav.envs.mp3d import load_mp3d_scene, mp3d_files
+from calnav.envs.scan import load_labelled_ply
+from calnav.envs.scene import RGB_UNAVAILABLE, SEMANTICS_UNAVAILABLE, Scene, SceneError, cache_dir
+from calnav.envs.scene_frame import find_dataset_configs
+
+PLY_CONVERSION_VERSION = 2                  # converted-PLY cache key (2: meta closed_solids = False)
+GLB_CONVERSION_VERSION = 1                  # converted HM3D / MP3D cache key
+SCENE_SUFFIXES = (".npz", ".ply", ".glb")
+SEMANTIC_GLB_SUFFIX = ".semantic.glb"
+
+
+def scene_kind(path: Path) -> str:
+    """"npz" | "ply" | "hm3d" | "mp3d" of a scene file; SceneError naming the valid kinds."""
+    name = path.name
+    if name.endswith(SEMANTIC_GLB_SUFFIX):
+        raise SceneError(f"{path} is an HM3D semantic mesh, not a scene: load "
+                         f"{name[: -len(SEMANTIC_GLB_SUFFIX)]}.glb (or .basis.glb) beside it")
+    if path.suffix not in SCENE_SUFFIXES:
+        raise SceneError(f"{path}: unknown scene file type {path.suffix!r}; scene files are .npz (calnav scenes), "
+                         ".ply (labelled meshes), .glb (HM3D / MP3D)")
+    if path.suffix != ".glb":
+        return path.suffix[1:]
+    files = mp3d_files(path)
+    return "mp3d" if files["house"] or files["semantic_ply"] else "hm3d"
+
+
+def _ply_settings(ply: Path) -> dict:
+    """load_labelled_ply keyword arguments from the PLY's sibling label file, if any."""
+    for cand in (ply.with_name(ply.stem + ".labels.json"), ply.with_name("labels.json")):
+        if cand.exists():
+            try:
+                data = json.loads(cand.read_text())
+            except ValueError as exc:
+                raise SceneError(f"unreadable label file {cand}: {exc}") from exc
+            if isinstance(data, dict) and "label_map" in data:
+                unknown = set(data) - {"label_map", "up_axis", "label_property"}
+                if unknown:
+                    raise SceneError(f"{cand}: unknown keys {sorted(unknown)}; valid: label_map, up_axis, label_property")
+                return dict(data)
+            return {"label_map": data}
+    return {}
+
+
+def _stat_key(paths: list[Path]) -> list:
+    return [[str(p.resolve()), p.stat().st_mtime_ns, p.stat().st_size] for p in paths]
+
+
+def _glb_inputs(path: Path, kind: str, root: Path | None, config: Path | None) -> list[Path]:
+    """Every file the conversion of the GLB scene ``path`` reads, the render mesh first."""
+    if kind == "hm3d":
+        files = hm3d_files(path)
+        scene_id, inputs = scene_id_of(path), [files["render"], files["semantic_glb"], files["semantic_txt"]]
+    else:
+        files = mp3d_files(path)
+        scene_id, inputs = path.stem, [path, files["house"], files["semantic_ply"]]
+    inputs += [config] if config is not None else find_dataset_configs(path, root)
+    inputs.append(label_settings(path, scene_id, root)[1])
+    return [p for p in inputs if p is not None]
+
+
+def load_scene_file(path: str | Path, root: str | Path | None = None, dataset_config: str | Path | None = None) -> Scene:
+    """The scene in ``path`` (.npz, labelled .ply, HM3D or MP3D .glb; see the module docstring).
+
+    root: the scene directory the file was found under (the highest folder searched for a scene
+    dataset config and a label map; None: every folder above the file). dataset_config: an
+    explicit ``*.scene_dataset_config.json`` for a GLB (e.g. the one an episode file names).
+    SceneError in one line for a missing or unusable file."""
+    path = Path(path)
+    root = Path(root) if root is not None else None
+    config = Path(dataset_config) if dataset_config is not None else None
+    kind = scene_kind(path)
+    if not path.is_file():
+        raise SceneError(f"scene file not found: {path}")
+    if kind == "npz":
+        return Scene.load(path)
+    if kind == "ply":
+        settings = _ply_settings(path)
+        st = path.stat()
+        key = hashlib.sha1(json.dumps([PLY_CONVERSION_VERSION, str(path.resolve()), st.st_mtime_ns, st.st_size,
+                                       settings], sort_keys=True, default=str).encode()).hexdigest()[:12]
+        identity = {"converted_from": {"ply": str(path.resolve()), "key": key}}
+        scene_id = path.stem
+        convert = lambda: load_labelled_ply(path, name=scene_id, **settings)  # noqa: E731
+    else:
+        scene_id = scene_id_of(path) if kind == "hm3d" else path.stem
+        inputs = _glb_inputs(path, kind, root, config)
+        key = hashlib.sha1(json.dumps([GLB_CONVERSION_VERSION, kind, _stat_key(inputs)]).encode()).hexdigest()[:12]
+        # the render file, not the path asked for: <id>.basis.glb and <id>.glb beside it are one scene
+        identity = {"converted_from": {kind: str(inputs[0].resolve()), "key": key}}
+        loader = load_hm3d_scene if kind == "hm3d" else load_mp3d_scene
+        convert = lambda: loader(path, root=root, config=config, name=scene_id)  # noqa: E731
+    cached = cache_dir() / "scenes" / f"user_{scene_id}_{key}.npz"
+    scene = cached_scene(cached, identity)
+    if scene is None:
+        scene = convert()
+        scene.meta.update(identity)
+        save_atomic(scene, cached)
+    return scene
+
+
+def scene_files_in(folder: Path) -> dict[str, Path]:
+    """{scene id: file} of the scenes in ``folder``: its ``*.ply`` / ``*.npz`` (the id is the
+    stem; ``.npz`` wins over ``.ply``) and the HM3D / MP3D ``.glb`` scenes anywhere below it
+    (the id is the scene's: ``TEEsavR23oF``; a ``.glb`` beside a ``.basis.glb`` is the one listed;
+    an id found twice, as HM3D's minival repeats val scenes, is the first in path order)."""
+    files: dict[str, Path] = {}
+    for p in sorted(folder.rglob("*.glb")):
+        if is_temp_file(p) or p.name.endswith(SEMANTIC_GLB_SUFFIX):
+            continue
+        sid = scene_id_of(p)
+        held = files.get(sid)
+        if held is None or (held.parent == p.parent and held.name.endswith(".basis.glb")):
+            files[sid] = p
+    for p in sorted(folder.glob("*.ply")) + sorted(folder.glob("*.npz")):
+        if not is_temp_file(p):
+            files[p.stem] = p
+    return files
+
+
+def check_scene_usable(scene: Scene, needs_rgb: bool = False, needs_semantics: bool = False,
+                       what: str = "this run") -> None:
+    """SceneError (one line, the scene's recorded reason and the fix) when ``what`` needs RGB or
+    ground-truth semantics the scene's source could not provide."""
+    for needed, key, kind in ((needs_rgb, RGB_UNAVAILABLE, "RGB"), (needs_semantics, SEMANTICS_UNAVAILABLE,
+                                                                     "ground-truth semantics")):
+        if needed and scene.meta.get(key):
+            raise SceneError(f"{what} needs {kind}, which scene {scene.name!r} lacks: {scene.meta[key]}")
+
+
+def cached_scene(path: Path, identity: dict) -> Scene | None:
+    """The scene cached at ``path`` when it is readable and its metadata holds ``identity``;
+    None (rebuild it) when it is missing, damaged, or another scene's (with a warning naming the
+    file and the first field that differs)."""
+    if not path.exists():
+        return None
+    try:
+        scene = Scene.load(path)
+    except SceneError:
+        return None   # a corrupt cache entry (a killed writer): rebuilt
+    for key, want in identity.items():
+        held = scene.meta.get(key)
+        if held != want:
+            warnings.warn(f"scene cache {path} holds another scene ({key} {_short(held)}, expected {_short(want)}); "
+                          "rebuilding it")
+            return None
+    return scene
+
+
+def _short(value, limit: int = 60) -> str:
+    """``repr(value)``, or a placeholder when it is too long for a one-line warning (a settings dict)."""
+    text = repr(value)
+    return text if len(text) <= limit else "other settings"
+
+
+def save_atomic(scene: Scene, path: Path) -> None:
+    """Save under a unique temporary name, then rename: concurrent workers never see half a file."""
+    try:
+        with atomic_path(path) as tmp:
+            scene.save(tmp)
+    except OSError as exc:   # a read-only cache only costs speed
+        warnings.warn(f"could not cache scene at {path}: {exc}")
