@@ -17,7 +17,8 @@ which HM3D's ``up [0, 0, 1], front [0, 1, 0]`` maps to habitat's world as calnav
   instance joins one object per class, void faces are colour 000000; the name is the calnav
   class, the region the index of the room holding the object's centroid (-1: none).
 
-``write_scene_dataset_config(root)`` writes habitat-sim's scene dataset config for the scenes
+The GLBs are pygltflib documents (its ``GLTF2``, ``Accessor``, ``Material``, ... classes) saved with
+pygltflib. ``write_scene_dataset_config(root)`` writes habitat-sim's scene dataset config for the scenes
 under ``root`` with HM3D's semantic stage defaults.
 """
 from __future__ import annotations
@@ -27,18 +28,15 @@ import re
 from pathlib import Path
 
 import numpy as np
+import pygltflib as g
 
 from calnav.common.atomic import atomic_path
-from calnav.envs.gltf import CLAMP_TO_EDGE, pack_glb
 from calnav.envs.hm3d import HM3D_HEADER, linear_from_srgb
 from calnav.envs.render import lit_albedo
 from calnav.envs.scene import Scene
 from calnav.envs.scene_frame import CONFIG_SUFFIX
 from calnav.envs.semantics import VOID
 
-NEAREST = 9728                        # glTF sampler filter
-FLOAT, UINT32 = 5126, 5125            # accessor component types
-ARRAY_BUFFER, ELEMENT_ARRAY_BUFFER = 34962, 34963
 _GOLDEN = 0x9E3779                    # odd: id * _GOLDEN mod 2^24 is a bijection, spreading neighbouring ids
 _ID_CHARS = re.compile(r"^[A-Za-z0-9_-]+$")
 
@@ -69,41 +67,41 @@ def _textured_glb(positions: np.ndarray, tri_uv: np.ndarray, image: np.ndarray,
     """A GLB of unshared-vertex triangles: positions (F, 3, 3) float32, tri_uv (F, 3, 2), the base
     colour texture ``image`` (h, w, 3) uint8 and optional COLOR_0 (F, 3, 3) float32 linear."""
     f = len(positions)
-    parts = [(positions.reshape(-1, 3).astype("<f4").tobytes(), ARRAY_BUFFER),
-             (tri_uv.reshape(-1, 2).astype("<f4").tobytes(), ARRAY_BUFFER),
-             (np.arange(3 * f, dtype="<u4").tobytes(), ELEMENT_ARRAY_BUFFER)]
+    flat = positions.reshape(-1, 3).astype("<f4")
+    parts = [(flat.tobytes(), g.ARRAY_BUFFER), (tri_uv.reshape(-1, 2).astype("<f4").tobytes(), g.ARRAY_BUFFER),
+             (np.arange(3 * f, dtype="<u4").tobytes(), g.ELEMENT_ARRAY_BUFFER)]
     if vertex_colour is not None:
-        parts.append((vertex_colour.reshape(-1, 3).astype("<f4").tobytes(), ARRAY_BUFFER))
+        parts.append((vertex_colour.reshape(-1, 3).astype("<f4").tobytes(), g.ARRAY_BUFFER))
     parts.append((_png(image), None))   # an image's buffer view has no target
-    views, blob = [], b""
+    views, blob = [], bytearray()
     for data, target in parts:
-        views.append({"buffer": 0, "byteOffset": len(blob), "byteLength": len(data),
-                      **({"target": target} if target else {})})
-        blob += data + b"\0" * (-len(data) % 4)
-    flat = positions.reshape(-1, 3)
-    accessors = [
-        {"bufferView": 0, "componentType": FLOAT, "count": 3 * f, "type": "VEC3",
-         "min": flat.min(axis=0).tolist(), "max": flat.max(axis=0).tolist()},
-        {"bufferView": 1, "componentType": FLOAT, "count": 3 * f, "type": "VEC2"},
-        {"bufferView": 2, "componentType": UINT32, "count": 3 * f, "type": "SCALAR"},
+        views.append(g.BufferView(buffer=0, byteOffset=len(blob), byteLength=len(data), target=target))
+        blob.extend(data)
+        blob.extend(b"\0" * (-len(data) % 4))
+    accessors = [   # POSITION's min / max are required, and are those of the float32 values stored
+        g.Accessor(bufferView=0, componentType=g.FLOAT, count=3 * f, type=g.VEC3,
+                   min=flat.min(axis=0).tolist(), max=flat.max(axis=0).tolist()),
+        g.Accessor(bufferView=1, componentType=g.FLOAT, count=3 * f, type=g.VEC2),
+        g.Accessor(bufferView=2, componentType=g.UNSIGNED_INT, count=3 * f, type=g.SCALAR),
     ]
-    attributes = {"POSITION": 0, "TEXCOORD_0": 1}
+    attributes = g.Attributes(POSITION=0, TEXCOORD_0=1)
     if vertex_colour is not None:
-        accessors.append({"bufferView": 3, "componentType": FLOAT, "count": 3 * f, "type": "VEC3"})
-        attributes["COLOR_0"] = 3
-    doc = {
-        "asset": {"version": "2.0", "generator": "calnav envs.hm3d_write"},
-        "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
-        "meshes": [{"primitives": [{"attributes": attributes, "indices": 2, "material": 0}]}],
-        "materials": [{"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}, "metallicFactor": 0.0},
-                       "extensions": {"KHR_materials_unlit": {}}}],
-        "extensionsUsed": ["KHR_materials_unlit"],
-        "textures": [{"source": 0, "sampler": 0}],
-        "samplers": [{"magFilter": NEAREST, "minFilter": NEAREST, "wrapS": CLAMP_TO_EDGE, "wrapT": CLAMP_TO_EDGE}],
-        "images": [{"bufferView": len(views) - 1, "mimeType": "image/png"}],
-        "accessors": accessors, "bufferViews": views, "buffers": [{"byteLength": len(blob)}],
-    }
-    return pack_glb(doc, blob)
+        accessors.append(g.Accessor(bufferView=3, componentType=g.FLOAT, count=3 * f, type=g.VEC3))
+        attributes.COLOR_0 = 3
+    material = g.Material(pbrMetallicRoughness=g.PbrMetallicRoughness(baseColorTexture=g.TextureInfo(index=0),
+                                                                      metallicFactor=0.0),
+                          extensions={"KHR_materials_unlit": {}})
+    doc = g.GLTF2(
+        asset=g.Asset(generator="calnav envs.hm3d_write"), scene=0, scenes=[g.Scene(nodes=[0])],
+        nodes=[g.Node(mesh=0)],
+        meshes=[g.Mesh(primitives=[g.Primitive(attributes=attributes, indices=2, material=0)])],
+        materials=[material], extensionsUsed=["KHR_materials_unlit"],
+        textures=[g.Texture(source=0, sampler=0)],
+        samplers=[g.Sampler(magFilter=g.NEAREST, minFilter=g.NEAREST, wrapS=g.CLAMP_TO_EDGE, wrapT=g.CLAMP_TO_EDGE)],
+        images=[g.Image(bufferView=len(views) - 1, mimeType=g.IMAGEPNG)],
+        accessors=accessors, bufferViews=views, buffers=[g.Buffer(byteLength=len(blob))])
+    doc.set_binary_blob(bytes(blob))
+    return b"".join(doc.save_to_bytes())
 
 
 def semantic_objects(scene: Scene) -> tuple[np.ndarray, list[tuple[int, int, str, int]]]:
