@@ -1,9 +1,10 @@
 """Typed configuration of the simulator and task (loaded from YAML by ``eval.config``)."""
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Any, ClassVar, Literal
 
 from calnav.common.ranges import Range, check_ranges
 from calnav.envs.scanning.config import ScanningConfig
@@ -45,6 +46,9 @@ DATASET_RANGES = {
     # house is beyond any benchmark (HM3D: ~50 per scene in val)
     "episodes_per_scene": Range(1, 10_000, "episodes"),
     "oracle_max_steps": Range(1, 100_000, "actions"),
+    # one storey is every calnav house before storeys existed; three keep a house's stairs and
+    # floors within the ~9 m that the renderer's and the map's height ranges were sized for
+    "storeys": Range(1, 3, "storeys"),
 }
 
 # Size-like keys of the agent, its sensor and its task (``env``), and why their bounds:
@@ -92,9 +96,18 @@ class DatasetConfig:
     scene_dir: str = ""              # directory of user scenes (*.npz / *.ply); "" = procedural houses
     style: StyleName = "clean"       # procedural houses as built (clean) or reconstructed from a simulated scan (scanned)
     scanning: ScanningConfig = field(default_factory=ScanningConfig)  # scan settings (style scanned only)
+    storeys: int = 1                 # storeys per procedural house, joined by staircases (envs.stairs), storeys
+
+    # Left out of every key, fingerprint and saved config while at these values (``plain_dict``):
+    # the keys and records made before the field existed stay valid.
+    OMIT_AT_DEFAULT: ClassVar[dict[str, Any]] = {"storeys": 1}
 
     def __post_init__(self) -> None:
         check_ranges(self, "env.dataset", DATASET_RANGES)
+        if self.storeys > 1 and (self.scene_dir or self.style == "scanned"):
+            raise ValueError(f"env.dataset.storeys={self.storeys} builds calnav's procedural houses with stairs; it "
+                             f"does not apply to {'user scenes (env.dataset.scene_dir)' if self.scene_dir else 'scans'}"
+                             ": use storeys=1 there")
         if not self.min_geodesic_m < self.max_geodesic_m:
             raise ValueError(f"env.dataset.max_geodesic_m ({self.max_geodesic_m:g} m) must be above "
                              f"env.dataset.min_geodesic_m ({self.min_geodesic_m:g} m): no start distance lies between "
@@ -192,3 +205,17 @@ class EnvConfig:
                 raise ValueError(f"env.{key} must be >= 0, got {getattr(self, key)}")
         if self.max_episode_steps < 1:
             raise ValueError(f"env.max_episode_steps must be >= 1 actions, got {self.max_episode_steps}")
+
+
+def plain_dict(obj) -> Any:
+    """``dataclasses.asdict`` of a config, without the fields a config class lists in its
+    ``OMIT_AT_DEFAULT`` while they hold those values (cache keys, fingerprints, saved configs)."""
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        omit = getattr(type(obj), "OMIT_AT_DEFAULT", {})
+        return {f.name: plain_dict(getattr(obj, f.name)) for f in dataclasses.fields(obj)
+                if not (f.name in omit and getattr(obj, f.name) == omit[f.name])}
+    if isinstance(obj, (list, tuple)):
+        return type(obj)(plain_dict(x) for x in obj)
+    if isinstance(obj, dict):
+        return {k: plain_dict(v) for k, v in obj.items()}
+    return obj

@@ -32,19 +32,31 @@ VIEW_POINT_IOU = None             # habitat-lab's ObjectViewLocation.iou: not co
 @dataclass
 class GoalObject:
     """One instance of a goal category. position: (3,) world centroid, metres.
-    view_points: (M, 2) float64 world xy of the view-point cell centres, metres."""
+    view_points: (M, 2) float64 world xy of the view-point cell centres, metres.
+    view_point_heights: (M,) float64 floor height under each view point, metres (Habitat's
+    view point y), or None: all on the single storey's floor (a file's y = 0)."""
 
     object_id: int
     object_category: str
     position: np.ndarray
     view_points: np.ndarray
+    view_point_heights: np.ndarray | None = None
+
+    def heights(self) -> np.ndarray:
+        """(M,) float64 view point floor heights, metres (zeros on a single storey)."""
+        if self.view_point_heights is None:
+            return np.zeros(len(self.view_points))
+        return np.asarray(self.view_point_heights, np.float64)
 
 
 @dataclass
 class ObjectNavEpisode:
     """start_position: (2,) world xy metres; start_rotation: Habitat [x, y, z, w] start
     quaternion, kept as the episode file stores it (habitat-lab's GPS / compass read these very
-    numbers); ``start_yaw``: the same heading in radians, counter-clockwise from +x."""
+    numbers); ``start_yaw``: the same heading in radians, counter-clockwise from +x. In a house
+    with storeys: ``start_height`` the floor height under the start, metres (Habitat's start y),
+    ``start_storey`` its storey and ``goal_storey`` the storey of the nearest goal view point
+    (geodesically); all 0 on one storey."""
 
     episode_id: str
     scene_id: str
@@ -54,6 +66,13 @@ class ObjectNavEpisode:
     geodesic_distance: float
     euclidean_distance: float
     goals: list[GoalObject] = field(default_factory=list)
+    start_height: float = 0.0
+    start_storey: int = 0
+    goal_storey: int = 0
+
+    @property
+    def crosses_storeys(self) -> bool:
+        return self.start_storey != self.goal_storey
 
     @property
     def start_yaw(self) -> float:
@@ -84,6 +103,13 @@ def _view_points_from_habitat(view_points: list[dict]) -> np.ndarray:
     return np.stack([p[:, 0], -p[:, 2]], axis=1)
 
 
+def _view_point_heights(view_points: list[dict]) -> np.ndarray | None:
+    """(V,) float64 heights (Habitat's y) of habitat view points, or None when all are 0 (one
+    storey: GoalObject.view_point_heights None, as before storeys)."""
+    y = np.array([float(v["agent_state"]["position"][1]) for v in view_points], dtype=np.float64)
+    return y if y.any() else None
+
+
 def habitat_quaternion_to_yaw(q) -> float:
     theta = 2 * math.atan2(q[1], q[3])
     return (theta + math.pi / 2) % (2 * math.pi)
@@ -99,15 +125,18 @@ def episodes_to_habitat(episodes: list[ObjectNavEpisode]) -> dict:
             goals_by_category[key] = [{
                 "object_id": g.object_id, "object_category": g.object_category,
                 "position": [float(g.position[0]), float(g.position[2]), float(-g.position[1])],
-                "view_points": [{"agent_state": {"position": _to_habitat(v), "rotation": [0.0, 0.0, 0.0, 1.0]},
-                                 "iou": VIEW_POINT_IOU} for v in g.view_points],
+                "view_points": [{"agent_state": {"position": _to_habitat(v, z), "rotation": [0.0, 0.0, 0.0, 1.0]},
+                                 "iou": VIEW_POINT_IOU} for v, z in zip(g.view_points, g.heights())],
             } for g in ep.goals]
+        info = {"geodesic_distance": ep.geodesic_distance, "euclidean_distance": ep.euclidean_distance}
+        if ep.start_storey or ep.goal_storey or ep.start_height:   # (one storey: the file as before storeys)
+            info.update(start_storey=int(ep.start_storey), goal_storey=int(ep.goal_storey))
         out.append({
             "episode_id": ep.episode_id, "scene_id": ep.scene_id,
-            "start_position": _to_habitat(ep.start_position),
+            "start_position": _to_habitat(ep.start_position, ep.start_height),
             "start_rotation": [float(c) for c in ep.start_rotation],
             "object_category": ep.object_category,
-            "info": {"geodesic_distance": ep.geodesic_distance, "euclidean_distance": ep.euclidean_distance},
+            "info": info,
             "goals": [],
         })
     return {"episodes": out, "goals_by_category": goals_by_category}
@@ -122,7 +151,7 @@ def goals_key(scene_id: str, category: str) -> str:
 def _goal_from_habitat(g: dict) -> GoalObject:
     return GoalObject(int(g["object_id"]), g["object_category"],
                       np.array([g["position"][0], -g["position"][2], g["position"][1]], dtype=np.float64),
-                      _view_points_from_habitat(g["view_points"]))
+                      _view_points_from_habitat(g["view_points"]), _view_point_heights(g["view_points"]))
 
 
 def episodes_from_habitat(data: dict) -> list[ObjectNavEpisode]:
@@ -143,7 +172,8 @@ def episodes_from_habitat(data: dict) -> list[ObjectNavEpisode]:
             object_category=e["object_category"],
             geodesic_distance=float(e["info"]["geodesic_distance"]),
             euclidean_distance=float(e["info"].get("euclidean_distance", float("nan"))),
-            goals=goals[key]))
+            goals=goals[key], start_height=float(e["start_position"][1]),
+            start_storey=int(e["info"].get("start_storey", 0)), goal_storey=int(e["info"].get("goal_storey", 0))))
     return episodes
 
 
@@ -241,6 +271,10 @@ def cached_episodes(path: Path) -> list[ObjectNavEpisode] | None:
 # consistent arrays is ignored (the JSON is parsed instead and the sidecar rewritten). No
 # pickles: ``np.load(allow_pickle=False)``; strings travel as one JSON text.
 SIDECAR_FORMAT = 1   # bump when ObjectNavEpisode / GoalObject change what they hold
+# A house with storeys also stores heights and storeys (``STOREY_ARRAYS``); single-storey sidecars
+# keep format 1 and their bytes.
+STOREY_SIDECAR_FORMAT = 2
+STOREY_ARRAYS = ("start_height", "storeys", "vp_heights")
 
 
 def sidecar_path(content_file: Path) -> Path | None:
@@ -282,6 +316,12 @@ def write_sidecar(content_file: Path, source_key: tuple[int, int, int], episodes
         "view_points": np.concatenate([np.asarray(g.view_points, np.float64).reshape(-1, 2) for g in goals]
                                       or [np.zeros((0, 2))]),
     }
+    if any(e.start_storey or e.goal_storey or e.start_height for e in episodes) or any(
+            g.view_point_heights is not None for g in goals):
+        arrays["format"][0] = STOREY_SIDECAR_FORMAT
+        arrays["start_height"] = np.array([e.start_height for e in episodes], np.float64)
+        arrays["storeys"] = np.array([[e.start_storey, e.goal_storey] for e in episodes], np.int64).reshape(-1, 2)
+        arrays["vp_heights"] = np.concatenate([g.heights() for g in goals] or [np.zeros(0)])
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         with atomic_path(path) as tmp:
@@ -299,8 +339,10 @@ def read_sidecar(content_file: Path, source_key: tuple[int, int, int]) -> list |
     try:
         with np.load(path, allow_pickle=False) as z:
             a = {k: z[k] for k in z.files}
-        if a["format"].tolist() != [SIDECAR_FORMAT, *source_key]:
+        fmt = int(a["format"][0])
+        if a["format"].tolist()[1:] != [*source_key] or fmt not in (SIDECAR_FORMAT, STOREY_SIDECAR_FORMAT):
             return None
+        storeyed = fmt == STOREY_SIDECAR_FORMAT
         s = json.loads(str(a["strings"]))
         n, ng = len(s["episode_id"]), len(s["goal_category"])
         eo, vo = a["ep_goal_offsets"], a["vp_offsets"]
@@ -310,10 +352,14 @@ def read_sidecar(content_file: Path, source_key: tuple[int, int, int]) -> list |
                      and ((a["ep_goals"] >= 0) & (a["ep_goals"] < ng)).all() and len(a["goal_id"]) == ng
                      and a["goal_position"].shape == (ng, 3) and len(vo) == ng + 1 and vo[0] == 0
                      and (np.diff(vo) >= 0).all() and vo[-1] == len(a["view_points"]))
+        if storeyed:
+            shapes_ok = shapes_ok and a["start_height"].shape == (n,) and a["storeys"].shape == (n, 2) \
+                and a["vp_heights"].shape == (len(a["view_points"]),)
         if not shapes_ok:
             return None
         goals = [GoalObject(int(a["goal_id"][i]), s["goal_category"][i], a["goal_position"][i].copy(),
-                            a["view_points"][vo[i]:vo[i + 1]].copy()) for i in range(ng)]
+                            a["view_points"][vo[i]:vo[i + 1]].copy(),
+                            a["vp_heights"][vo[i]:vo[i + 1]].copy() if storeyed else None) for i in range(ng)]
         shared: dict[tuple, list] = {}   # episodes with the same goals share one list, as parsed from JSON
         episodes = []
         for i in range(n):
@@ -322,7 +368,9 @@ def read_sidecar(content_file: Path, source_key: tuple[int, int, int]) -> list |
                 episode_id=s["episode_id"][i], scene_id=s["scene_id"][i], start_position=a["start_position"][i].copy(),
                 start_rotation=a["start_rotation"][i].tolist(), object_category=s["object_category"][i],
                 geodesic_distance=float(a["distances"][i, 0]), euclidean_distance=float(a["distances"][i, 1]),
-                goals=shared.setdefault(ids, [goals[j] for j in ids])))
+                goals=shared.setdefault(ids, [goals[j] for j in ids]),
+                **({"start_height": float(a["start_height"][i]), "start_storey": int(a["storeys"][i, 0]),
+                    "goal_storey": int(a["storeys"][i, 1])} if storeyed else {})))
         return episodes
     except Exception:  # noqa: BLE001 -- any damage to a cache file means: parse the JSON instead
         return None

@@ -35,7 +35,7 @@ import numpy as np
 from scipy import ndimage
 
 from calnav.common.atomic import write_json_atomic
-from calnav.envs.config import EnvConfig
+from calnav.envs.config import EnvConfig, plain_dict
 from calnav.envs.episode_files import (GoalObject, ObjectNavEpisode, cached_episodes, episodes_from_habitat,
                                        episodes_to_habitat, write_json_gz)
 from calnav.envs.oracle import oracle_solves
@@ -112,7 +112,12 @@ def find_goal_objects(scene: Scene, navgrid, raycasting_scene, env_cfg: EnvConfi
 
 
 def goal_mask(navgrid, goals: list[GoalObject]) -> np.ndarray:
-    """(H, W) bool: the view-point cells of all given goal instances."""
+    """(H, W) bool: the view-point cells of all given goal instances; (L, H, W) on a layered
+    grid (``envs.storey_episodes.layered_goal_mask``)."""
+    if getattr(navgrid, "layered", False):
+        from calnav.envs.storey_episodes import layered_goal_mask
+
+        return layered_goal_mask(navgrid, goals)
     return view_point_mask(navgrid, np.concatenate([g.view_points for g in goals]))
 
 
@@ -208,7 +213,7 @@ def generate_scene_episodes(scene_id: str, scene: Scene, navgrid, raycasting_sce
 def dataset_key(env_cfg: EnvConfig) -> str:
     """Hash of everything that changes the generated episodes."""
     relevant = {
-        "version": GENERATOR_VERSION, "dataset": asdict(env_cfg.dataset), "navmesh": asdict(env_cfg.navmesh),
+        "version": GENERATOR_VERSION, "dataset": plain_dict(env_cfg.dataset), "navmesh": asdict(env_cfg.navmesh),
         "nav": [env_cfg.agent_radius_m, env_cfg.agent_height_m, env_cfg.nav_cell_m, env_cfg.view_point_radius_m,
                 env_cfg.camera_height_m, env_cfg.hfov_deg, list(env_cfg.resolution)],
         # the oracle check runs the task's actions (its step limit is the dataset's oracle_max_steps)
@@ -234,9 +239,11 @@ def generate_scene(split: str, scene_id: str, env_cfg: EnvConfig) -> tuple[dict,
     renderer = Renderer(scene, Camera.from_config(env_cfg))
     navgrid = NavGrid.build(scene, env_cfg, renderer.raycasting_scene)
     counts: dict = {}
-    eps = generate_scene_episodes(scene_id, scene, navgrid, renderer.raycasting_scene, env_cfg,
-                                  env_cfg.dataset.episodes_per_scene, generation_seed(scene_id, env_cfg.dataset.seed),
-                                  report=counts)
+    generate = generate_scene_episodes
+    if navgrid.layered:
+        from calnav.envs.storey_episodes import generate_layered_episodes as generate
+    eps = generate(scene_id, scene, navgrid, renderer.raycasting_scene, env_cfg, env_cfg.dataset.episodes_per_scene,
+                   generation_seed(scene_id, env_cfg.dataset.seed), report=counts)
     if not eps:
         raise ValueError(f"scene {scene_id!r}: every episode drawn was rejected ({counts['unsolvable']} "
                          f"unsolvable by the oracle, {counts['no_start']} category draws without a start "

@@ -76,6 +76,8 @@ class NavGrid:
     _fields: OrderedDict = field(default_factory=OrderedDict, init=False, repr=False)
     _graph: tuple | None = field(default=None, init=False, repr=False)
 
+    layered = False   # one storey; ``envs.layered_navigation.LayeredNavGrid`` (True) has a layer per storey
+
     @property
     def graph(self) -> tuple[sparse.csr_matrix, np.ndarray, np.ndarray]:
         """(CSR graph over navigable cells, (H, W) node index, (N, 2) node cells); built on
@@ -90,11 +92,16 @@ class NavGrid:
 
     # ------------------------------------------------------------- building
     @classmethod
-    def build(cls, scene: Scene, env_cfg, raycasting_scene=None) -> "NavGrid":
+    def build(cls, scene: Scene, env_cfg, raycasting_scene=None):
         """The navigable grid of ``scene`` for the agent of ``env_cfg`` (``nav_cell_m``,
         ``agent_radius_m``, ``agent_height_m``, ``navmesh``): ``envs.navmesh.build_navmesh``.
         ``raycasting_scene`` is accepted for callers that hold one; the navmesh does not cast
-        rays. Raises ValueError if nothing is navigable."""
+        rays. A house with storeys (``scene.meta["storey_z"]``, more than one) gets a
+        ``LayeredNavGrid`` instead. Raises ValueError if nothing is navigable."""
+        if len(scene.meta.get("storey_z", ())) > 1:
+            from calnav.envs.layered_navigation import LayeredNavGrid
+
+            return LayeredNavGrid.build(scene, env_cfg)
         mesh = build_navmesh(scene, env_cfg)
         return cls(navigable=mesh.navigable, origin_xy=mesh.origin_xy, cell_m=mesh.cell_m,
                    floor_z=float(scene.floor_z), free=mesh.ground, floor_heights=mesh.floor_z,
