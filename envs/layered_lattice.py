@@ -12,10 +12,9 @@ import math
 import numpy as np
 
 from calnav.common.jit import compiled
-from calnav.envs.geodesics import _point_distance
+from calnav.envs.geodesics import MOVE_SAMPLE_FRACTION, _point_distance
 from calnav.envs.lattice import FORWARD, LEFT, RIGHT, _key
 from calnav.envs.layered_navigation import segment_layer
-from calnav.envs.navigation import MOVE_SAMPLE_FRACTION
 
 
 @compiled

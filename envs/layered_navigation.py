@@ -22,8 +22,7 @@ from scipy import sparse
 from scipy.sparse.csgraph import dijkstra
 
 from calnav.common.jit import compiled
-from calnav.envs.geodesics import _point_distance, grid_graph
-from calnav.envs.navigation import FIELD_CACHE_SIZE, MOVE_SAMPLE_FRACTION
+from calnav.envs.geodesics import FIELD_CACHE_SIZE, MOVE_SAMPLE_FRACTION, _point_distance, grid_graph
 from calnav.envs.navmesh_layers import NEIGHBOURS_8, build_layered_navmesh, transitions
 
 

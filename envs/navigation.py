@@ -15,12 +15,10 @@ import numpy as np
 from scipy import sparse
 
 from calnav.common.jit import compiled
-from calnav.envs.geodesics import GeodesicField, grid_graph
+from calnav.envs.geodesics import FIELD_CACHE_SIZE, MOVE_SAMPLE_FRACTION, GeodesicField, grid_graph
 from calnav.envs.navmesh import build_navmesh
 from calnav.envs.scene import Scene
 
-FIELD_CACHE_SIZE = 8        # geodesic fields kept per NavGrid (LRU)
-MOVE_SAMPLE_FRACTION = 0.5  # move_forward checks the segment every this many cells
 # Peak memory of a scene's navigation per grid cell, bytes: the span heightfield, the navmesh's
 # (H, W) layers, the cell graph and the geodesic fields of episode generation. Measured (numpy's
 # peak under tracemalloc, NavGrid.build + generating 5 episodes of house_val_0001): 415 B/cell at

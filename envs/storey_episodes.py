@@ -18,8 +18,8 @@ import numpy as np
 
 from calnav.envs.config import EnvConfig
 from calnav.envs.episode_files import GoalObject, ObjectNavEpisode
-from calnav.envs.episodes import MAX_START_TRIES, MAX_UNSOLVABLE_TRIES, START_DISTANCE_POWER, TRIVIAL_REJECT_PROB, \
-    find_view_points
+from calnav.envs.episode_rules import (MAX_START_TRIES, MAX_UNSOLVABLE_TRIES, START_DISTANCE_POWER,
+                                       TRIVIAL_REJECT_PROB, find_view_points)
 from calnav.envs.oracle import layered_oracle_solves
 from calnav.envs.scene import Scene
 from calnav.envs.semantics import GOAL_CATEGORIES
