@@ -207,6 +207,14 @@ class EnvConfig:
             raise ValueError(f"env.max_episode_steps must be >= 1 actions, got {self.max_episode_steps}")
 
 
+def require_single_storey(env_cfg: EnvConfig, what: str) -> None:
+    """Refuse a house with storeys where ``what`` (a command or a simulator front end) only
+    knows one storey, naming what does run them (the gym env behind ``calnav objectnav``)."""
+    if env_cfg.dataset.storeys > 1:
+        raise ValueError(f"{what} runs single-storey houses only; env.dataset.storeys={env_cfg.dataset.storeys} "
+                         "runs in calnav objectnav (calnav's gym env): use env.dataset.storeys=1 here")
+
+
 def plain_dict(obj) -> Any:
     """``dataclasses.asdict`` of a config, without the fields a config class lists in its
     ``OMIT_AT_DEFAULT`` while they hold those values (cache keys, fingerprints, saved configs)."""
