@@ -35,7 +35,7 @@ from calnav.agent.goal_detection import GoalDetection, GoalDetector
 from calnav.agent.perception import Perception
 from calnav.agent.planner import Plan, Planner
 from calnav.agent.projection import dilate
-from calnav.agent.registry import GOAL_SELECTORS, MAP_BUILDERS
+from calnav.agent.registry import GOAL_SELECTORS, MAP_BUILDERS, STOREY_AGENTS
 from calnav.agent.segmenters.base import goal_categories
 from calnav.agent.sensors import SensorModel
 from calnav.agent.watchdog import LOOP, ProgressWatchdog
@@ -90,7 +90,12 @@ class PeanutAgent:
 
     @classmethod
     def from_config(cls, cfg: Any) -> "PeanutAgent":
-        """The registry's builder (``agent.registry.build_agent``): on ``run.device``."""
+        """The registry's builder (``agent.registry.build_agent``): on ``run.device``; in a
+        house with storeys (``env.dataset.storeys > 1``, a fact of the task like the camera's
+        height) the agent of ``agent.registry.STOREY_AGENTS`` (``agent.storey_policy``)."""
+        dataset = getattr(cfg.env, "dataset", None)
+        if getattr(dataset, "storeys", 1) > 1:
+            return STOREY_AGENTS.get(cls.name)(cfg, cfg.run.device)
         return cls(cfg, cfg.run.device)
 
     def goal_names(self) -> tuple[str, ...]:
@@ -134,11 +139,11 @@ class PeanutAgent:
         observation, privileged = split_observation(obs)
         self.sensors.check(observation)
         xy, yaw = self.sensors.xy_yaw(observation)
-        pose = self.pose = self.sensors.pose(observation)   # the camera pose this step maps with (start frame)
+        pose = self.pose = self._camera_pose(observation, xy, yaw)   # the camera pose this step maps with (start frame)
         if self.last_action is not None:
             self._after_move(xy, yaw)
         frame = self.frame = self.perception.observe(observation, privileged)    # perceive
-        self.mapper.update(self.state, frame, pose)                               # map
+        self._map(frame, pose)                                                    # map
         self.steps += 1
         self.path.append(self.state.to_cell(xy, self.cfg.cell_m))
         if self.steps >= self.max_steps:
@@ -148,6 +153,15 @@ class PeanutAgent:
         self.last_action, self.prev_xy = action, xy
         self.collisions.record(action)
         return action
+
+    def _camera_pose(self, observation, xy: np.ndarray, yaw: float) -> np.ndarray:
+        """(4, 4) start-frame-from-camera pose of this step: level, at the camera's height
+        above the start's floor (``agent.sensors``; ``agent.storey_policy`` tracks the floor)."""
+        return self.sensors.pose(observation)
+
+    def _map(self, frame, pose: np.ndarray) -> None:
+        """Map the segmented ``frame`` seen from ``pose`` into the map state."""
+        self.mapper.update(self.state, frame, pose)
 
     def _after_move(self, xy: np.ndarray, yaw: float) -> None:
         """What the last action did: a blocked forward marks the map and counts toward an escape;
@@ -217,8 +231,12 @@ class PeanutAgent:
 
     def _explore(self, agent_rc, yaw: float, free: np.ndarray, det: GoalDetection) -> int:
         """Plan to the long-term goal (window cells), with one more choice if it is unreachable."""
+        goal = self.selector.select(self.state, self.window, agent_rc, free)                  # select
+        return self._explore_goal(goal, agent_rc, yaw, free, det)
+
+    def _explore_goal(self, goal, agent_rc, yaw: float, free: np.ndarray, det: GoalDetection) -> int:
+        """``_explore`` once the long-term goal (window cells, or None) is chosen."""
         st, win = self.state, self.window
-        goal = self.selector.select(st, win, agent_rc, free)                                  # select
         for _ in range(2):
             if goal is None:
                 break

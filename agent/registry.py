@@ -42,6 +42,11 @@ GOAL_SELECTORS.add("prediction", "calnav.agent.goal_selection:PredictionSelector
 AGENTS: Registry[type] = Registry("agent", key="run.agent")
 AGENTS.add("peanut", "calnav.agent.policy:PeanutAgent", "the PEANUT-like semantic-map agent (agent.*)")
 AGENTS.add("oracle", "calnav.agent.oracle:OracleAgent", "the shortest-path follower (privileged: the simulator)")
+# The agent an AGENTS class builds instead in a house with storeys (``env.dataset.storeys > 1``),
+# so that single-storey runs keep their class and every action they took.
+STOREY_AGENTS: Registry[type] = Registry("agent for storeys", key="run.agent")
+STOREY_AGENTS.add("peanut", "calnav.agent.storey_policy:StoreyPeanutAgent",
+                  "the PEANUT-like agent with a map per storey and stairs (agent.storeys)")
 
 
 def build_agent(name: str, cfg: Any, simulator: "SimulatorHandle | None" = None) -> "Agent":
