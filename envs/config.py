@@ -45,7 +45,15 @@ DATASET_RANGES = {
     # house is beyond any benchmark (HM3D: ~50 per scene in val)
     "episodes_per_scene": Range(1, 10_000, "episodes"),
     "oracle_max_steps": Range(1, 100_000, "actions"),
+    # how far a habitat-lab episode's start may move onto calnav's navmesh: habitat-sim's and
+    # calnav's navmeshes differ by centimetres; beyond 2 m (habitat-sim's own snap box) it is
+    # another task
+    "max_snap_m": Range(0.0, 2.0, METRES),
 }
+
+# keys that exist only for habitat-lab episode files: left out of the dataset's fingerprint at
+# these values, so the caches and records of generated houses keep their keys
+FILE_DATASET_DEFAULTS = {"data_path": "", "max_snap_m": 0.5}
 
 # Size-like keys of the agent, its sensor and its task (``env``), and why their bounds:
 ENV_RANGES = {
@@ -92,9 +100,16 @@ class DatasetConfig:
     scene_dir: str = ""              # directory of user scenes (*.npz / *.ply); "" = procedural houses
     style: StyleName = "clean"       # procedural houses as built (clean) or reconstructed from a simulated scan (scanned)
     scanning: ScanningConfig = field(default_factory=ScanningConfig)  # scan settings (style scanned only)
+    data_path: str = ""              # habitat-lab ObjectNav episode file, {split} for the split (HM3D / MP3D); "" = generated episodes
+    max_snap_m: float = 0.5          # a file's start farther than this from calnav's navmesh is refused, metres
 
     def __post_init__(self) -> None:
         check_ranges(self, "env.dataset", DATASET_RANGES)
+        if not isinstance(self.data_path, str):
+            raise ValueError(f"env.dataset.data_path must be a path (str), got {self.data_path!r}")
+        if self.data_path and not self.scene_dir:
+            raise ValueError(f"env.dataset.data_path {self.data_path!r} needs env.dataset.scene_dir: the folder its "
+                             "scene ids resolve under (habitat-lab's scenes_dir, e.g. data/scene_datasets)")
         if not self.min_geodesic_m < self.max_geodesic_m:
             raise ValueError(f"env.dataset.max_geodesic_m ({self.max_geodesic_m:g} m) must be above "
                              f"env.dataset.min_geodesic_m ({self.min_geodesic_m:g} m): no start distance lies between "
@@ -192,3 +207,16 @@ class EnvConfig:
                 raise ValueError(f"env.{key} must be >= 0, got {getattr(self, key)}")
         if self.max_episode_steps < 1:
             raise ValueError(f"env.max_episode_steps must be >= 1 actions, got {self.max_episode_steps}")
+
+
+def dataset_fingerprint(dataset: DatasetConfig) -> dict:
+    """``dataset`` as a dict for cache and record keys, without the keys of
+    ``FILE_DATASET_DEFAULTS`` at their defaults (those keys did not exist when most keys were
+    computed)."""
+    from dataclasses import asdict
+
+    out = asdict(dataset)
+    for key, default in FILE_DATASET_DEFAULTS.items():
+        if out[key] == default:
+            del out[key]
+    return out

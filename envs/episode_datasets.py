@@ -77,6 +77,16 @@ class EpisodeDataset:
         return list(dict.fromkeys(ep.scene_id for ep in self.episodes))
 
 
+def task_categories(env_cfg) -> tuple[str, ...]:
+    """The task's goal categories by objectgoal id: the episode file's
+    ``category_to_task_category_id`` when ``env.dataset.data_path`` is set, else calnav's."""
+    from calnav.envs.semantics import GOAL_CATEGORIES
+
+    if not env_cfg.dataset.data_path:
+        return GOAL_CATEGORIES
+    return dataset_files(env_cfg.dataset.data_path, env_cfg.split).category_names
+
+
 def split_file(data_path: str, split: str) -> Path:
     """The split file ``data_path`` names for ``split`` (``{split}`` replaced); ValueError naming
     the path, and what lies beside it, when it is not a file."""

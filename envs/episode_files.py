@@ -32,19 +32,31 @@ VIEW_POINT_IOU = None             # habitat-lab's ObjectViewLocation.iou: not co
 @dataclass
 class GoalObject:
     """One instance of a goal category. position: (3,) world centroid, metres.
-    view_points: (M, 2) float64 world xy of the view-point cell centres, metres."""
+    view_points: (M, 2) float64 world xy of the view-point cell centres, metres.
+    view_point_heights: (M,) float64 the view points' heights (Habitat's y), metres; None reads
+    as zeros (calnav's generated houses: their floors lie at z = 0)."""
 
     object_id: int
     object_category: str
     position: np.ndarray
     view_points: np.ndarray
+    view_point_heights: np.ndarray | None = None
+
+    def heights(self) -> np.ndarray:
+        """(M,) float64 the view points' heights, metres (zeros when none are stored)."""
+        if self.view_point_heights is None:
+            return np.zeros(len(self.view_points))
+        return np.asarray(self.view_point_heights, np.float64)
 
 
 @dataclass
 class ObjectNavEpisode:
     """start_position: (2,) world xy metres; start_rotation: Habitat [x, y, z, w] start
     quaternion, kept as the episode file stores it (habitat-lab's GPS / compass read these very
-    numbers); ``start_yaw``: the same heading in radians, counter-clockwise from +x."""
+    numbers); ``start_yaw``: the same heading in radians, counter-clockwise from +x.
+    start_height: the start's height (Habitat's y), metres (0 in calnav's generated houses).
+    refused: why the episode cannot run on calnav's navmesh ("" when it can): an episode of a
+    habitat-lab dataset (``envs.file_episodes``) keeps its index and is listed, not run."""
 
     episode_id: str
     scene_id: str
@@ -54,6 +66,8 @@ class ObjectNavEpisode:
     geodesic_distance: float
     euclidean_distance: float
     goals: list[GoalObject] = field(default_factory=list)
+    start_height: float = 0.0
+    refused: str = ""
 
     @property
     def start_yaw(self) -> float:
@@ -62,6 +76,22 @@ class ObjectNavEpisode:
     @property
     def goal_id(self) -> int:
         return GOAL_CATEGORIES.index(self.object_category)
+
+
+# ------------------------------------------------------------------- goals on a grid
+def goal_mask(navgrid, goals: list[GoalObject]) -> np.ndarray:
+    """(H, W) bool: the view-point cells of all given goal instances."""
+    return view_point_mask(navgrid, np.concatenate([g.view_points for g in goals]))
+
+
+def view_point_mask(navgrid, points_xy: np.ndarray) -> np.ndarray:
+    """(H, W) bool: the cells of view points ``points_xy`` ((N, 2) world xy, metres); points
+    off the grid mark nothing."""
+    mask = np.zeros(navgrid.navigable.shape, dtype=bool)
+    rc = navgrid.to_cell(np.asarray(points_xy, np.float64).reshape(-1, 2))
+    inside = navgrid.in_grid(rc)
+    mask[rc[inside, 0], rc[inside, 1]] = True
+    return mask
 
 
 # ---------------------------------------------------------------- Habitat JSON schema
@@ -73,15 +103,15 @@ def _from_habitat(p) -> np.ndarray:
     return np.array([p[0], -p[2]], dtype=np.float64)
 
 
-def _view_points_from_habitat(view_points: list[dict]) -> np.ndarray:
-    """(V, 2) float64 calnav x-y of habitat view points (``_from_habitat`` of each, in one array
-    op: a goal has thousands)."""
+def _view_points_from_habitat(view_points: list[dict]) -> tuple[np.ndarray, np.ndarray]:
+    """((V, 2) float64 calnav x-y, (V,) float64 heights) of habitat view points
+    (``_from_habitat`` of each, in one array op: a goal has thousands)."""
     if not view_points:
-        return np.zeros((0, 2))
+        return np.zeros((0, 2)), np.zeros(0)
     p = np.array([v["agent_state"]["position"] for v in view_points], dtype=np.float64)
     if p.ndim != 2 or p.shape[1] != 3:   # (a ragged list already raised ValueError)
         raise ValueError(f"view point positions must be [x, y, z], got shape {p.shape}")
-    return np.stack([p[:, 0], -p[:, 2]], axis=1)
+    return np.stack([p[:, 0], -p[:, 2]], axis=1), p[:, 1].copy()
 
 
 def habitat_quaternion_to_yaw(q) -> float:
@@ -99,12 +129,12 @@ def episodes_to_habitat(episodes: list[ObjectNavEpisode]) -> dict:
             goals_by_category[key] = [{
                 "object_id": g.object_id, "object_category": g.object_category,
                 "position": [float(g.position[0]), float(g.position[2]), float(-g.position[1])],
-                "view_points": [{"agent_state": {"position": _to_habitat(v), "rotation": [0.0, 0.0, 0.0, 1.0]},
-                                 "iou": VIEW_POINT_IOU} for v in g.view_points],
+                "view_points": [{"agent_state": {"position": _to_habitat(v, h), "rotation": [0.0, 0.0, 0.0, 1.0]},
+                                 "iou": VIEW_POINT_IOU} for v, h in zip(g.view_points, g.heights())],
             } for g in ep.goals]
         out.append({
             "episode_id": ep.episode_id, "scene_id": ep.scene_id,
-            "start_position": _to_habitat(ep.start_position),
+            "start_position": _to_habitat(ep.start_position, ep.start_height),
             "start_rotation": [float(c) for c in ep.start_rotation],
             "object_category": ep.object_category,
             "info": {"geodesic_distance": ep.geodesic_distance, "euclidean_distance": ep.euclidean_distance},
@@ -120,9 +150,10 @@ def goals_key(scene_id: str, category: str) -> str:
 
 
 def _goal_from_habitat(g: dict) -> GoalObject:
+    xy, heights = _view_points_from_habitat(g["view_points"])
     return GoalObject(int(g["object_id"]), g["object_category"],
                       np.array([g["position"][0], -g["position"][2], g["position"][1]], dtype=np.float64),
-                      _view_points_from_habitat(g["view_points"]))
+                      xy, heights)
 
 
 def episodes_from_habitat(data: dict) -> list[ObjectNavEpisode]:
@@ -143,7 +174,7 @@ def episodes_from_habitat(data: dict) -> list[ObjectNavEpisode]:
             object_category=e["object_category"],
             geodesic_distance=float(e["info"]["geodesic_distance"]),
             euclidean_distance=float(e["info"].get("euclidean_distance", float("nan"))),
-            goals=goals[key]))
+            goals=goals[key], start_height=float(e["start_position"][1])))
     return episodes
 
 
@@ -240,7 +271,7 @@ def cached_episodes(path: Path) -> list[ObjectNavEpisode] | None:
 # ``SIDECAR_FORMAT``, and anything that does not match, cannot be read, or does not hold
 # consistent arrays is ignored (the JSON is parsed instead and the sidecar rewritten). No
 # pickles: ``np.load(allow_pickle=False)``; strings travel as one JSON text.
-SIDECAR_FORMAT = 1   # bump when ObjectNavEpisode / GoalObject change what they hold
+SIDECAR_FORMAT = 2   # bump when ObjectNavEpisode / GoalObject change what they hold
 
 
 def sidecar_path(content_file: Path) -> Path | None:
@@ -271,6 +302,7 @@ def write_sidecar(content_file: Path, source_key: tuple[int, int, int], episodes
         "format": np.array([SIDECAR_FORMAT, *source_key], np.int64),
         "strings": np.array(json.dumps(strings)),
         "start_position": np.array([e.start_position for e in episodes], np.float64).reshape(-1, 2),
+        "start_height": np.array([e.start_height for e in episodes], np.float64),
         "start_rotation": np.array([e.start_rotation for e in episodes], np.float64).reshape(-1, 4),
         "distances": np.array([[e.geodesic_distance, e.euclidean_distance] for e in episodes],
                               np.float64).reshape(-1, 2),
@@ -281,6 +313,7 @@ def write_sidecar(content_file: Path, source_key: tuple[int, int, int], episodes
         "vp_offsets": np.cumsum([0] + [len(g.view_points) for g in goals]).astype(np.int64),
         "view_points": np.concatenate([np.asarray(g.view_points, np.float64).reshape(-1, 2) for g in goals]
                                       or [np.zeros((0, 2))]),
+        "view_point_heights": np.concatenate([g.heights() for g in goals] or [np.zeros(0)]),
     }
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -309,11 +342,13 @@ def read_sidecar(content_file: Path, source_key: tuple[int, int, int]) -> list |
                      and eo[0] == 0 and (np.diff(eo) >= 0).all() and eo[-1] == len(a["ep_goals"])
                      and ((a["ep_goals"] >= 0) & (a["ep_goals"] < ng)).all() and len(a["goal_id"]) == ng
                      and a["goal_position"].shape == (ng, 3) and len(vo) == ng + 1 and vo[0] == 0
-                     and (np.diff(vo) >= 0).all() and vo[-1] == len(a["view_points"]))
+                     and (np.diff(vo) >= 0).all() and vo[-1] == len(a["view_points"])
+                     and a["start_height"].shape == (n,) and a["view_point_heights"].shape == (vo[-1],))
         if not shapes_ok:
             return None
         goals = [GoalObject(int(a["goal_id"][i]), s["goal_category"][i], a["goal_position"][i].copy(),
-                            a["view_points"][vo[i]:vo[i + 1]].copy()) for i in range(ng)]
+                            a["view_points"][vo[i]:vo[i + 1]].copy(), a["view_point_heights"][vo[i]:vo[i + 1]].copy())
+                 for i in range(ng)]
         shared: dict[tuple, list] = {}   # episodes with the same goals share one list, as parsed from JSON
         episodes = []
         for i in range(n):
@@ -322,7 +357,7 @@ def read_sidecar(content_file: Path, source_key: tuple[int, int, int]) -> list |
                 episode_id=s["episode_id"][i], scene_id=s["scene_id"][i], start_position=a["start_position"][i].copy(),
                 start_rotation=a["start_rotation"][i].tolist(), object_category=s["object_category"][i],
                 geodesic_distance=float(a["distances"][i, 0]), euclidean_distance=float(a["distances"][i, 1]),
-                goals=shared.setdefault(ids, [goals[j] for j in ids])))
+                goals=shared.setdefault(ids, [goals[j] for j in ids]), start_height=float(a["start_height"][i])))
         return episodes
     except Exception:  # noqa: BLE001 -- any damage to a cache file means: parse the JSON instead
         return None
