@@ -192,13 +192,16 @@ def place_scene(scene_id: str, mine: list[tuple[int, ObjectNavEpisode]], env_cfg
     navmesh built first: (its report, its placed content file as a dict). Writes nothing:
     ``write_placed`` caches them (in the driver, so a Ray worker needs no shared disk)."""
     from calnav.envs.navigation import NavGrid
+    from calnav.envs.scene import RGB_UNAVAILABLE, SEMANTICS_UNAVAILABLE
     from calnav.envs.scenes import load_scene
 
     scene = load_scene(scene_id, env_cfg.dataset)
     navgrid = NavGrid.build(scene, env_cfg)
     placed, counts = place_scene_episodes(navgrid, [ep for _, ep in mine], env_cfg)
+    # what the scene's files could not give (a run that needs it is refused before it starts)
+    lacks = {"rgb": scene.meta.get(RGB_UNAVAILABLE, ""), "semantics": scene.meta.get(SEMANTICS_UNAVAILABLE, "")}
     report = {**counts, "scene": scene_id, "scene_file": scene_file_key(scene_id, env_cfg), "navmesh": navgrid.stats,
-              "indices": [i for i, _ in mine],
+              "indices": [i for i, _ in mine], "lacks": lacks,
               "refused_episodes": {ep.episode_id: ep.refused for ep in placed if ep.refused}}
     return report, episodes_to_habitat(placed)
 

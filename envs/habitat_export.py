@@ -55,6 +55,23 @@ def write_scene(scene, out: Path, split: str, index: int, scene_id: str) -> dict
     return write_hm3d_scene(scene, paths(out, split)["scenes"] / scene_folder(split, index, scene_id), scene_id)
 
 
+def with_floor_heights(navgrid, episodes: list[ObjectNavEpisode]) -> list[ObjectNavEpisode]:
+    """``episodes`` with every start and view point at the height of the floor under it (where
+    habitat-sim's navmesh puts an agent; a scanned house's floor is not at 0)."""
+    import numpy as np
+
+    goals: dict[int, object] = {}
+
+    def lifted(g):
+        if id(g) not in goals:
+            goals[id(g)] = replace(g, view_point_heights=np.array([navgrid.floor_height(p) for p in g.view_points],
+                                                                   np.float64))
+        return goals[id(g)]
+
+    return [replace(ep, start_height=navgrid.floor_height(ep.start_position), goals=[lifted(g) for g in ep.goals])
+            for ep in episodes]
+
+
 def scene_content(episodes: list[ObjectNavEpisode], split: str, index: int, scene_id: str) -> dict:
     """One scene's episodes as its habitat-lab content file (dict), under the exported scene id."""
     sid = habitat_scene_id(split, index, scene_id)

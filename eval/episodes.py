@@ -135,3 +135,24 @@ def refused_episodes(env_cfg: EnvConfig, indices: list[int]) -> dict[int, str]:
 
     episodes = load_split(env_cfg.split, env_cfg, progress=False, upto=max(indices) + 1)
     return {i: episodes[i].refused for i in indices if episodes[i].refused}
+
+
+def check_file_scenes(cfg, indices: list[int]) -> None:
+    """Refuse, in one line, a run of an episode file's ``indices`` whose agent needs what one of
+    their scenes lacks (``envs.file_episodes``' per-scene ``lacks``): ground-truth semantics
+    for a segmenter that reads them, RGB (Basis textures) for any other map agent's segmenter."""
+    env_cfg = cfg.env
+    if not env_cfg.dataset.data_path or not indices or getattr(cfg.run, "agent", "") != "peanut":
+        return
+    from calnav.agent.segmenters import segmenter_needs_semantic
+    from calnav.envs.episode_datasets import read_dataset
+    from calnav.envs.file_episodes import placement_report
+
+    needs = "semantics" if segmenter_needs_semantic(cfg.agent.segmenter) else "rgb"
+    dataset = read_dataset(env_cfg.dataset.data_path, env_cfg.split)
+    reports = placement_report(dataset, env_cfg)
+    for scene_id in dict.fromkeys(dataset.episodes[i].scene_id for i in indices if i < len(dataset.episodes)):
+        why = reports.get(scene_id, {}).get("lacks", {}).get(needs)
+        if why:
+            what = "ground-truth semantics" if needs == "semantics" else "RGB"
+            raise ValueError(f"agent.segmenter={cfg.agent.segmenter} needs {what}, which scene {scene_id} lacks: {why}")

@@ -41,6 +41,7 @@ def main_export_habitat(args, configs: list) -> None:
     from tqdm import tqdm
 
     from calnav.envs import habitat_export as hx
+    from calnav.envs.navigation import NavGrid
     from calnav.envs.scenes import load_scene, split_scene_ids
     from calnav.envs.semantics import GOAL_CATEGORIES
     from calnav.eval.episodes import prepare_episodes
@@ -61,8 +62,10 @@ def main_export_habitat(args, configs: list) -> None:
         by_scene[ep.scene_id].append(ep)
     contents = {}
     for index, scene_id in enumerate(tqdm(scenes, desc=f"writing {env.split} houses", unit="scene")):
-        hx.write_scene(load_scene(scene_id, env.dataset), out, env.split, index, scene_id)
-        contents[scene_id] = hx.scene_content(by_scene[scene_id], env.split, index, scene_id)
+        scene = load_scene(scene_id, env.dataset)
+        hx.write_scene(scene, out, env.split, index, scene_id)
+        placed = hx.with_floor_heights(NavGrid.build(scene, env), by_scene[scene_id])
+        contents[scene_id] = hx.scene_content(placed, env.split, index, scene_id)
     split_file = hx.write_episodes(out, env.split, GOAL_CATEGORIES, contents)
     config = hx.write_dataset_config(out)
     where = hx.paths(out, env.split)

@@ -207,7 +207,10 @@ def run_jobs(jobs: list[EpisodeJob], force: bool = False, progress: bool = True,
 
             require_rerun("--rerun")   # the install command, before anything is written
     check_backend(run_cfg.backend, run_cfg.ray_address)   # before anything is written
-    from calnav.eval.episodes import refused_episodes
+    from calnav.eval.episodes import check_file_scenes, refused_episodes
+
+    for job in jobs:
+        check_file_scenes(job.cfg, job.indices)   # a scene without what the agent reads: before anything is written
 
     refusals = [refused_episodes(job.cfg.env, job.indices) for job in jobs]   # an episode file's, on calnav's navmesh
     for job, refused in zip(jobs, refusals):

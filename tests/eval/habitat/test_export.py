@@ -1,0 +1,105 @@
+"""`calnav export-habitat` and the round trip back through ``env.dataset.data_path``: the
+exported houses and episodes, read as an HM3D-layout dataset, give calnav's own run episode by
+episode (same navmesh, same starts, same goals), and every bad input is one line."""
+import gzip
+import json
+
+import numpy as np
+import pytest
+
+from calnav.eval.cli import main
+from tests.conftest import read_records
+
+SMALL = ["env.resolution=64x48", "env.dataset.val_scenes=1", "env.dataset.episodes_per_scene=4", "run.workers=1"]
+
+
+@pytest.fixture(scope="module")
+def exported(tmp_path_factory):
+    out = tmp_path_factory.mktemp("export")
+    assert main(["export-habitat", "--split", "val", "--output", str(out), *SMALL]) == 0
+    return out
+
+
+def _file_args(out) -> list[str]:
+    return [f"env.dataset.data_path={out}/datasets/objectnav/calnav/v1/{{split}}/{{split}}.json.gz",
+            f"env.dataset.scene_dir={out}/scene_datasets"]
+
+
+def test_the_export_is_in_hm3d_v02_layout(exported):
+    scene = exported / "scene_datasets" / "calnav" / "val" / "00000-house_val_0000"
+    assert sorted(p.name for p in scene.iterdir()) == ["house_val_0000.glb", "house_val_0000.semantic.glb",
+                                                        "house_val_0000.semantic.txt"]
+    assert (exported / "scene_datasets" / "calnav" / "calnav.scene_dataset_config.json").is_file()
+    split = exported / "datasets" / "objectnav" / "calnav" / "v1" / "val"
+    with gzip.open(split / "val.json.gz", "rt") as f:
+        head = json.load(f)
+    assert head["episodes"] == [] and head["category_to_task_category_id"]["chair"] == 0
+    with gzip.open(split / "content" / "house_val_0000.json.gz", "rt") as f:
+        content = json.load(f)
+    ep = content["episodes"][0]
+    assert ep["scene_id"] == "calnav/val/00000-house_val_0000/house_val_0000.glb"
+    assert ep["scene_dataset_config"] == "./data/scene_datasets/calnav/calnav.scene_dataset_config.json"
+    assert f"house_val_0000.glb_{ep['object_category']}" in content["goals_by_category"]
+
+
+def test_read_back_the_oracle_runs_every_episode_as_on_calnavs_own(exported, tmp_path):
+    """The exported GLB's navmesh is calnav's own (its winding decides walkability, as in
+    habitat-sim; judged by |normal| the ceilings would be the ground), so every episode
+    is placed where it was and the oracle takes the same actions."""
+    own, back = tmp_path / "own", tmp_path / "back"
+    assert main(["objectnav", "--agent", "oracle", "--episodes", "0:4", "--output", str(own), *SMALL]) == 0
+    assert main(["objectnav", "--agent", "oracle", "--episodes", "0:4", "--output", str(back), *SMALL,
+                 *_file_args(exported)]) == 0
+    a, b = read_records(own), read_records(back)
+    assert sorted(a) == sorted(b) == [0, 1, 2, 3]
+    for i in a:
+        assert (a[i]["success"], a[i]["steps"]) == (b[i]["success"], b[i]["steps"]) == (1.0, a[i]["steps"])
+        assert b[i]["scene"] == "calnav/val/00000-house_val_0000/house_val_0000.glb"
+        assert np.isclose(a[i]["spl"], b[i]["spl"], atol=1e-4)
+
+
+def test_refused_episodes_are_listed_not_run(exported, tmp_path):
+    """An episode whose start a user moved 3 m off the house keeps its index, is listed with its
+    reason in summary.json, and the others run."""
+    data = tmp_path / "moved"
+    split = exported / "datasets" / "objectnav" / "calnav" / "v1" / "val"
+    (data / "val" / "content").mkdir(parents=True)
+    (data / "val" / "val.json.gz").write_bytes((split / "val.json.gz").read_bytes())
+    with gzip.open(split / "content" / "house_val_0000.json.gz", "rt") as f:
+        content = json.load(f)
+    content["episodes"][1]["start_position"][0] -= 30.0
+    with gzip.open(data / "val" / "content" / "house_val_0000.json.gz", "wt") as f:
+        json.dump(content, f)
+    out = tmp_path / "run"
+    assert main(["objectnav", "--agent", "oracle", "--episodes", "0:3", "--output", str(out), *SMALL,
+                 f"env.dataset.data_path={data}/{{split}}/{{split}}.json.gz",
+                 f"env.dataset.scene_dir={exported}/scene_datasets"]) == 0
+    assert sorted(read_records(out)) == [0, 2]
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["refused"]["episodes"] == 1 and list(summary["refused"]["indices"]) == ["1"]
+    assert summary["refused"]["by_reason"] == {"start off the navmesh": 1}
+
+
+@pytest.mark.parametrize("override, message", [
+    ("env.dataset.data_path=/nonexistent/{split}/{split}.json.gz", "names no file for split 'val'"),
+    ("env.dataset.scene_dir=/nonexistent", "is missing under env.dataset.scene_dir"),
+    ("agent.goal_categories=[chair,bed]", "set agent.goal_categories=[chair,bed,plant,toilet,tv_monitor,sofa]"),
+    ("env.dataset.max_snap_m=nan", "env.dataset.max_snap_m"),
+])
+def test_bad_file_inputs_are_one_line_before_anything_is_written(exported, tmp_path, capsys, override, message):
+    out = tmp_path / "run"
+    args = [a for a in _file_args(exported) if a.split("=")[0] != override.split("=")[0]]
+    assert main(["objectnav", "--episodes", "0:2", "--output", str(out), *SMALL, *args, override]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0], err
+    assert not out.exists()
+
+
+def test_a_data_path_needs_a_scene_dir(capsys, tmp_path):
+    assert main(["objectnav", "--output", str(tmp_path / "r"), "env.dataset.data_path=x/{split}.json.gz"]) == 2
+    assert "needs env.dataset.scene_dir" in capsys.readouterr().err
+
+
+def test_export_refuses_a_non_empty_output(exported, capsys):
+    assert main(["export-habitat", "--output", str(exported), *SMALL]) == 2
+    assert "is not empty" in capsys.readouterr().err
