@@ -207,13 +207,16 @@ def place_scene(scene_id: str, mine: list[tuple[int, ObjectNavEpisode]], env_cfg
 
 
 def scene_file_key(scene_id: str, env_cfg: EnvConfig) -> list:
-    """[path, size, mtime_ns] of the file ``scene_id`` resolves to: a placement is of that file
-    (a scene replaced since is placed again)."""
+    """[[path, size, mtime_ns], ...] of the file ``scene_id`` resolves to and the files of its
+    scene beside it (``<id>.semantic.glb``, ``.semantic.txt``, ``.house``, ``_semantic.ply``): a
+    placement, and what it recorded of the scene, is of those files (a scene changed since is
+    placed again)."""
     from calnav.envs.episode_datasets import resolve_scene
 
     path = resolve_scene(scene_id, env_cfg.dataset.scene_dir)
-    st = path.stat()
-    return [str(path.resolve()), st.st_size, st.st_mtime_ns]
+    stem = scene_name(path.name)
+    files = sorted({path, *(p for p in path.parent.glob(f"{stem}*") if p.is_file())})
+    return [[str(p.resolve()), p.stat().st_size, p.stat().st_mtime_ns] for p in files]
 
 
 def write_placed(root: Path, scene_id: str, report: dict, content: dict) -> None:

@@ -103,3 +103,23 @@ def test_a_data_path_needs_a_scene_dir(capsys, tmp_path):
 def test_export_refuses_a_non_empty_output(exported, capsys):
     assert main(["export-habitat", "--output", str(exported), *SMALL]) == 2
     assert "is not empty" in capsys.readouterr().err
+
+
+def test_a_scene_without_its_semantic_files_is_refused_for_gt(exported, tmp_path, capsys):
+    """The gt segmenter reads the semantic annotations; a scene whose semantic files are gone
+    is placed again (its files changed) and the run refused, naming the scene and the files."""
+    import shutil
+
+    copy = tmp_path / "data"
+    shutil.copytree(exported, copy)
+    scene = copy / "scene_datasets" / "calnav" / "val" / "00000-house_val_0000"
+    for name in ("house_val_0000.semantic.glb", "house_val_0000.semantic.txt"):
+        (scene / name).unlink()
+    out = tmp_path / "run"
+    assert main(["objectnav", "--episodes", "0:2", "--output", str(out), *SMALL, *_file_args(copy)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "agent.segmenter=gt needs ground-truth semantics, which scene" in err and "semantic" in err
+    assert not out.exists()
+    # the oracle reads no image: it runs
+    assert main(["objectnav", "--agent", "oracle", "--episodes", "0:2", "--output", str(out), *SMALL,
+                 *_file_args(copy)]) == 0
