@@ -200,20 +200,20 @@ def place_scene(scene_id: str, mine: list[tuple[int, ObjectNavEpisode]], env_cfg
     placed, counts = place_scene_episodes(navgrid, [ep for _, ep in mine], env_cfg)
     # what the scene's files could not give (a run that needs it is refused before it starts)
     lacks = {"rgb": scene.meta.get(RGB_UNAVAILABLE, ""), "semantics": scene.meta.get(SEMANTICS_UNAVAILABLE, "")}
-    report = {**counts, "scene": scene_id, "scene_file": scene_file_key(scene_id, env_cfg), "navmesh": navgrid.stats,
+    report = {**counts, "scene": scene_id, "scene_file": scene_file_key(scene_id, env_cfg.dataset.scene_dir), "navmesh": navgrid.stats,
               "indices": [i for i, _ in mine], "lacks": lacks,
               "refused_episodes": {ep.episode_id: ep.refused for ep in placed if ep.refused}}
     return report, episodes_to_habitat(placed)
 
 
-def scene_file_key(scene_id: str, env_cfg: EnvConfig) -> list:
+def scene_file_key(scene_id: str, scene_dir: str) -> list:
     """[[path, size, mtime_ns], ...] of the file ``scene_id`` resolves to and the files of its
     scene beside it (``<id>.semantic.glb``, ``.semantic.txt``, ``.house``, ``_semantic.ply``): a
     placement, and what it recorded of the scene, is of those files (a scene changed since is
     placed again)."""
     from calnav.envs.episode_datasets import resolve_scene
 
-    path = resolve_scene(scene_id, env_cfg.dataset.scene_dir)
+    path = resolve_scene(scene_id, scene_dir)
     stem = scene_name(path.name)
     files = sorted({path, *(p for p in path.parent.glob(f"{stem}*") if p.is_file())})
     return [[str(p.resolve()), p.stat().st_size, p.stat().st_mtime_ns] for p in files]
@@ -248,7 +248,7 @@ def _placed(root: Path, scene_id: str, env_cfg: EnvConfig) -> bool:
 def _current(report: dict, scene_id: str, env_cfg: EnvConfig) -> bool:
     """Whether a cached placement is of the scene file ``scene_id`` resolves to now."""
     try:
-        return isinstance(report, dict) and report.get("scene_file") == scene_file_key(scene_id, env_cfg)
+        return isinstance(report, dict) and report.get("scene_file") == scene_file_key(scene_id, env_cfg.dataset.scene_dir)
     except (ValueError, OSError):
         return False
 

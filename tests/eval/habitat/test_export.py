@@ -123,3 +123,25 @@ def test_a_scene_without_its_semantic_files_is_refused_for_gt(exported, tmp_path
     # the oracle reads no image: it runs
     assert main(["objectnav", "--agent", "oracle", "--episodes", "0:2", "--output", str(out), *SMALL,
                  *_file_args(copy)]) == 0
+
+
+def test_a_file_run_fingerprints_its_episode_and_scene_files(exported, tmp_path, capsys):
+    """inputs.json names every file of the split (by content) and every file of its scenes (by
+    path, size, mtime); a resume after one changed is refused, naming it."""
+    import os
+    import shutil
+
+    copy = tmp_path / "data"
+    shutil.copytree(exported, copy)
+    out = tmp_path / "run"
+    args = ["objectnav", "--agent", "oracle", "--episodes", "0:1", "--output", str(out), *SMALL, *_file_args(copy)]
+    assert main(args) == 0
+    inputs = json.loads((out / "inputs.json").read_text())
+    assert {"env.dataset.data_path (val.json.gz)", "env.dataset.data_path (house_val_0000.json.gz)",
+            "env.dataset.scene_dir (house_val_0000.glb)", "env.dataset.scene_dir (house_val_0000.semantic.txt)"} \
+        <= set(inputs)
+    txt = copy / "scene_datasets" / "calnav" / "val" / "00000-house_val_0000" / "house_val_0000.semantic.txt"
+    os.utime(txt, ns=(txt.stat().st_atime_ns, txt.stat().st_mtime_ns + 10**9))
+    capsys.readouterr()
+    assert main([*args[:4], "0:2", *args[5:]]) == 2
+    assert "house_val_0000.semantic.txt" in capsys.readouterr().err
