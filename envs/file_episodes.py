@@ -44,7 +44,7 @@ from calnav.envs.episode_files import (GoalObject, ObjectNavEpisode, cached_epis
                                        write_json_gz)
 from calnav.envs.scene import cache_dir
 
-PLACEMENT_VERSION = 1
+PLACEMENT_VERSION = 2                   # 2: heights in the scene file's frame (floor offset)
 MAX_Y_DELTA_M = 0.5                 # habitat-sim's is_navigable(max_y_delta): on the navmesh within this height
 SNAP_BOX_M = (2.0, 4.0)             # habitat-sim's polyPickExt half extents: horizontal, vertical, metres
 SNAP_CANDIDATES = 16                # nearest cells tried per point for one inside the search box
@@ -197,13 +197,33 @@ def place_scene(scene_id: str, mine: list[tuple[int, ObjectNavEpisode]], env_cfg
 
     scene = load_scene(scene_id, env_cfg.dataset)
     navgrid = NavGrid.build(scene, env_cfg)
-    placed, counts = place_scene_episodes(navgrid, [ep for _, ep in mine], env_cfg)
+    offset = float(scene.meta.get("floor_offset_m", 0.0))   # the file's heights are calnav's + this
+    placed, counts = place_scene_episodes(navgrid, lowered([ep for _, ep in mine], offset), env_cfg)
     # what the scene's files could not give (a run that needs it is refused before it starts)
     lacks = {"rgb": scene.meta.get(RGB_UNAVAILABLE, ""), "semantics": scene.meta.get(SEMANTICS_UNAVAILABLE, "")}
     report = {**counts, "scene": scene_id, "scene_file": scene_file_key(scene_id, env_cfg.dataset.scene_dir), "navmesh": navgrid.stats,
               "indices": [i for i, _ in mine], "lacks": lacks,
               "refused_episodes": {ep.episode_id: ep.refused for ep in placed if ep.refused}}
     return report, episodes_to_habitat(placed)
+
+
+def lowered(episodes: list[ObjectNavEpisode], offset_m: float) -> list[ObjectNavEpisode]:
+    """``episodes`` with every height (start, view points, goal centroids) less ``offset_m``:
+    a file's heights are in the scene file's frame, which calnav shifts to put the floor at
+    z = 0 (``envs.scene_frame.place_on_floor``; ``meta["floor_offset_m"]``). HM3D's floors lie
+    anywhere (-1.4 m, 2.9 m on an upper storey), so without this every start would be metres
+    off its floor."""
+    if offset_m == 0.0:
+        return episodes
+    goals: dict[int, GoalObject] = {}
+
+    def low(g: GoalObject) -> GoalObject:
+        if id(g) not in goals:
+            goals[id(g)] = replace(g, position=np.asarray(g.position, np.float64) - [0.0, 0.0, offset_m],
+                                   view_point_heights=g.heights() - offset_m)
+        return goals[id(g)]
+
+    return [replace(ep, start_height=ep.start_height - offset_m, goals=[low(g) for g in ep.goals]) for ep in episodes]
 
 
 def scene_file_key(scene_id: str, scene_dir: str) -> list:

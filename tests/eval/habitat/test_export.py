@@ -145,3 +145,35 @@ def test_a_file_run_fingerprints_its_episode_and_scene_files(exported, tmp_path,
     capsys.readouterr()
     assert main([*args[:4], "0:2", *args[5:]]) == 2
     assert "house_val_0000.semantic.txt" in capsys.readouterr().err
+
+
+def test_a_scene_whose_floor_is_not_at_zero_keeps_its_episodes(tmp_path):
+    """HM3D's floors lie anywhere in the file's frame; calnav puts the floor at z = 0, so the
+    file's heights are moved by the same offset: a house raised 1.4 m, with its episodes at
+    y = 1.4 m, places every start where the flat house has it."""
+    from dataclasses import replace
+
+    from calnav.envs import habitat_export as hx
+    from calnav.envs.episodes import load_split
+    from calnav.eval.config import load_config
+
+    cfg = load_config(None, SMALL).env
+    episodes = load_split("val", cfg)
+    from calnav.envs.scenes import load_scene
+
+    scene = load_scene("house_val_0000", cfg.dataset)
+    raised = replace(scene, vertices=scene.vertices + np.array([0.0, 0.0, 1.4], np.float32))
+    out = tmp_path / "data"
+    hx.write_scene(raised, out, "val", 0, "house_val_0000")
+    high = [replace(ep, start_height=1.4, goals=[replace(g, view_point_heights=g.heights() + 1.4) for g in ep.goals])
+            for ep in episodes]
+    hx.write_episodes(out, "val", ("chair", "bed", "plant", "toilet", "tv_monitor", "sofa"),
+                      {"house_val_0000": hx.scene_content(high, "val", 0, "house_val_0000")})
+    hx.write_dataset_config(out)
+    where = hx.paths(out, "val")
+    file_cfg = replace(cfg, dataset=replace(cfg.dataset, data_path=where["data_path"], scene_dir=where["scene_dir"]))
+    placed = load_split("val", file_cfg, progress=False)
+    assert [ep.refused for ep in placed] == [""] * len(episodes)
+    for a, b in zip(episodes, placed):
+        np.testing.assert_allclose(a.start_position, b.start_position, atol=1e-9)
+        assert abs(b.start_height) < 0.01
