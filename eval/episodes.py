@@ -127,14 +127,14 @@ def episode_indices(spec: str, env_cfg: EnvConfig, run_cfg, progress: bool = Tru
 
 
 def refused_episodes(env_cfg: EnvConfig, indices: list[int]) -> dict[int, str]:
-    """{index: why} of the ``indices`` an episode file holds but calnav's navmesh cannot run
+    """{index: "<scene id>: <why>"} of the ``indices`` an episode file holds but calnav's navmesh cannot run
     (``envs.file_episodes``); {} for calnav's generated episodes (none is ever refused)."""
     if not env_cfg.dataset.data_path or not indices:
         return {}
     from calnav.envs.episodes import load_split
 
     episodes = load_split(env_cfg.split, env_cfg, progress=False, upto=max(indices) + 1)
-    return {i: episodes[i].refused for i in indices if episodes[i].refused}
+    return {i: f"{episodes[i].scene_id}: {episodes[i].refused}" for i in indices if episodes[i].refused}
 
 
 def check_file_scenes(cfg, indices: list[int]) -> None:

@@ -266,6 +266,7 @@ def run_jobs(jobs: list[EpisodeJob], force: bool = False, progress: bool = True,
             summary = summarize(ordered)
             if refused:   # an episode file's episodes calnav cannot run: counted, never averaged in
                 summary["refused"] = {"episodes": len(refused), "by_reason": refusal_counts(refused),
+                                      "by_scene": refusal_counts(refused, by_scene=True),
                                       "indices": {str(i): why for i, why in sorted(refused.items())}}
             summary["failures"] = failure_modes(ordered, job.cfg.env.max_episode_steps)
             summary["agent"] = job.cfg.run.agent
@@ -283,11 +284,13 @@ def run_jobs(jobs: list[EpisodeJob], force: bool = False, progress: bool = True,
     return summaries
 
 
-def refusal_counts(refused: dict[int, str]) -> dict[str, int]:
-    """{reason kind (the text before its colon): episodes} of ``refused`` ({index: reason})."""
+def refusal_counts(refused: dict[int, str], by_scene: bool = False) -> dict[str, int]:
+    """{reason kind (the text before its colon): episodes} of ``refused`` ({index: "<scene>:
+    <reason>"}), or {scene: episodes} with ``by_scene``."""
     out: dict[str, int] = {}
-    for why in refused.values():
-        kind = why.split(":")[0]
+    for text in refused.values():
+        scene, _, why = text.partition(": ")
+        kind = scene if by_scene else why.split(":")[0]
         out[kind] = out.get(kind, 0) + 1
     return dict(sorted(out.items()))
 

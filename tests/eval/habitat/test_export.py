@@ -78,6 +78,7 @@ def test_refused_episodes_are_listed_not_run(exported, tmp_path):
     summary = json.loads((out / "summary.json").read_text())
     assert summary["refused"]["episodes"] == 1 and list(summary["refused"]["indices"]) == ["1"]
     assert summary["refused"]["by_reason"] == {"start off the navmesh": 1}
+    assert summary["refused"]["by_scene"] == {"calnav/val/00000-house_val_0000/house_val_0000.glb": 1}
 
 
 @pytest.mark.parametrize("override, message", [
