@@ -121,6 +121,9 @@ class AgentConfig:
     stuck_radius_m: float = 0.3         # "no progress": every position of those steps within this of the current one, metres
     loop_steps: int = 120               # going round in circles for this many steps defers the goal it heads for, steps
     loop_radius_m: float = 1.5          # "round in circles": every position of those steps within this, metres
+    # --- the task -------------------------------------------------------------------------------
+    goal_categories: tuple[str, ...] = ()  # what objectgoal ids name, by id (an episode file's category_to_task_category_id);
+                                        # () = calnav's six (HM3D's: chair, bed, plant, toilet, tv_monitor, sofa)
     # --- uncertainty-aware variant (off by default) ---------------------------------------------
     uncertainty_aware: bool = False     # verify uncertain detections before STOP
     uncertain_low: float = 0.3          # goal confidence band [uncertain_low, goal_threshold) counts as a candidate
@@ -155,6 +158,11 @@ class AgentConfig:
                              "verify, [uncertain_low, goal_threshold), would be empty")
         if not self.clearance_cost >= 1:
             raise ValueError(f"agent.clearance_cost must be >= 1 (free cells cost 1), got {self.clearance_cost}")
+        names = self.goal_categories
+        if not isinstance(names, (tuple, list)) or not all(isinstance(n, str) and n for n in names) \
+                or len(set(names)) != len(names):
+            raise ValueError(f"agent.goal_categories must be a list of distinct category names (by objectgoal id), "
+                             f"got {names!r}")
         w, h = self.map_resolution
         if not (8 <= w <= MAX_IMAGE_SIDE_PX and 8 <= h <= MAX_IMAGE_SIDE_PX):
             raise ValueError(f"agent.map_resolution must be between 8x8 and {MAX_IMAGE_SIDE_PX}x{MAX_IMAGE_SIDE_PX} "

@@ -55,7 +55,7 @@ import numpy as np
 
 from calnav.agent.navigator_map import AgentMap
 from calnav.agent.sensors import check_depth
-from calnav.agent.segmenters.base import goal_categories
+from calnav.agent.segmenters.base import task_goal_categories
 from calnav.envs.task import (COMPASS, DEPTH, GPS, OBJECTGOAL, RGB, SEMANTIC, Action, gps_compass_to_xy_yaw,
                               xy_yaw_to_gps_compass, yaw_to_habitat_quaternion)
 
@@ -178,7 +178,7 @@ class Navigator:
         self.cfg = cfg
         self.agent_name = agent or cfg.run.agent
         self.agent = build_agent(self.agent_name, cfg, simulator=simulator)
-        self.goal_categories = goal_categories()   # what objectgoal ids index (the task's contract)
+        self.goal_categories = task_goal_categories(cfg.agent)   # what objectgoal ids index (the task's contract)
         self._goal_id: int | None = None           # reset's goal; None: the first observation's
         self._start: StartFrame | None = None
         self._last_gps: np.ndarray | None = None   # the last act's gps (float64 m): the motion check
@@ -205,7 +205,7 @@ class Navigator:
 
     def goal_id(self, goal: str | int) -> int:
         """The task's ``objectgoal`` id of ``goal`` (a name of ``goal_names``, or its id in
-        ``agent.segmenters.base.goal_categories()``); ValueError naming the valid goals."""
+        ``agent.segmenters.base.task_goal_categories``); ValueError naming the valid goals."""
         names, categories = self.goal_names, self.goal_categories
         if isinstance(goal, (int, np.integer)) and not isinstance(goal, (bool, np.bool_)):
             if 0 <= int(goal) < len(categories) and categories[int(goal)] in names:

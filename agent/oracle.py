@@ -18,20 +18,24 @@ class OracleAgent:
     name = "oracle"
     privileged = (SIMULATOR,)
 
-    def __init__(self, simulator: SimulatorHandle):
+    def __init__(self, simulator: SimulatorHandle, categories: tuple[str, ...] = ()):
         self.simulator = simulator
+        self.categories = categories   # the task's goal categories; () = calnav's
         self.steps = 0
 
     @classmethod
     def from_config(cls, cfg: Any, simulator: SimulatorHandle) -> "OracleAgent":
-        """The registry's builder (``agent.registry.build_agent``); the config sets nothing here."""
-        return cls(simulator)
+        """The registry's builder (``agent.registry.build_agent``); the config sets only the task's
+        goal categories (``agent.goal_categories``)."""
+        from calnav.agent.segmenters.base import task_goal_categories
+
+        return cls(simulator, task_goal_categories(getattr(cfg, "agent", None)))
 
     def goal_names(self) -> tuple[str, ...]:
         """The goal categories it can be asked for: every ObjectNav goal (it reads the scene)."""
         from calnav.agent.segmenters.base import goal_categories
 
-        return goal_categories()
+        return self.categories or goal_categories()
 
     def reset(self, obs: Mapping) -> None:
         self.simulator.reset()

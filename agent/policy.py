@@ -36,7 +36,7 @@ from calnav.agent.perception import Perception
 from calnav.agent.planner import Plan, Planner
 from calnav.agent.projection import dilate
 from calnav.agent.registry import GOAL_SELECTORS, MAP_BUILDERS, STOREY_AGENTS
-from calnav.agent.segmenters.base import goal_categories
+from calnav.agent.segmenters.base import task_goal_categories
 from calnav.agent.sensors import SensorModel
 from calnav.agent.watchdog import LOOP, ProgressWatchdog
 from calnav.envs.task import OBJECTGOAL, Action
@@ -76,7 +76,7 @@ class PeanutAgent:
         self.approach = GoalApproach(self.cfg, cfg.env)
         self.perception = Perception(self.cfg, cfg.segmenter, self.sensors, device)
         self.class_names = self.perception.class_names   # the map's channels: the segmenter's classes
-        self.goal_categories = goal_categories()          # what objectgoal ids index (the task's contract)
+        self.goal_categories = task_goal_categories(self.cfg)   # what objectgoal ids index (the task's contract)
         self.num_classes = len(self.class_names)
         self.mapper = MAP_BUILDERS.get(self.cfg.map_type)(self.cfg, cfg.mapping, self.class_names,
                                                           (self.sensors.min_depth_m, self.sensors.max_depth_m))

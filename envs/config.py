@@ -46,10 +46,18 @@ DATASET_RANGES = {
     # house is beyond any benchmark (HM3D: ~50 per scene in val)
     "episodes_per_scene": Range(1, 10_000, "episodes"),
     "oracle_max_steps": Range(1, 100_000, "actions"),
+    # how far a habitat-lab episode's start may move onto calnav's navmesh: habitat-sim's and
+    # calnav's navmeshes differ by centimetres; beyond 2 m (habitat-sim's own snap box) it is
+    # another task
+    "max_snap_m": Range(0.0, 2.0, METRES),
     # one storey is every calnav house before storeys existed; three keep a house's stairs and
     # floors within the ~9 m that the renderer's and the map's height ranges were sized for
     "storeys": Range(1, 3, "storeys"),
 }
+
+# keys that exist only for habitat-lab episode files: left out of the dataset's fingerprint at
+# these values, so the caches and records of generated houses keep their keys
+FILE_DATASET_DEFAULTS = {"data_path": "", "max_snap_m": 0.5}
 
 # Size-like keys of the agent, its sensor and its task (``env``), and why their bounds:
 ENV_RANGES = {
@@ -96,6 +104,8 @@ class DatasetConfig:
     scene_dir: str = ""              # directory of user scenes (*.npz / *.ply); "" = procedural houses
     style: StyleName = "clean"       # procedural houses as built (clean) or reconstructed from a simulated scan (scanned)
     scanning: ScanningConfig = field(default_factory=ScanningConfig)  # scan settings (style scanned only)
+    data_path: str = ""              # habitat-lab ObjectNav episode file, {split} for the split (HM3D / MP3D); "" = generated episodes
+    max_snap_m: float = 0.5          # a file's start farther than this from calnav's navmesh is refused, metres
     storeys: int = 1                 # storeys per procedural house, joined by staircases (envs.stairs), storeys
 
     # Left out of every key, fingerprint and saved config while at these values (``plain_dict``):
@@ -104,6 +114,11 @@ class DatasetConfig:
 
     def __post_init__(self) -> None:
         check_ranges(self, "env.dataset", DATASET_RANGES)
+        if not isinstance(self.data_path, str):
+            raise ValueError(f"env.dataset.data_path must be a path (str), got {self.data_path!r}")
+        if self.data_path and not self.scene_dir:
+            raise ValueError(f"env.dataset.data_path {self.data_path!r} needs env.dataset.scene_dir: the folder its "
+                             "scene ids resolve under (habitat-lab's scenes_dir, e.g. data/scene_datasets)")
         if self.storeys > 1 and (self.scene_dir or self.style == "scanned"):
             raise ValueError(f"env.dataset.storeys={self.storeys} builds calnav's procedural houses with stairs; it "
                              f"does not apply to {'user scenes (env.dataset.scene_dir)' if self.scene_dir else 'scans'}"
@@ -227,3 +242,14 @@ def plain_dict(obj) -> Any:
     if isinstance(obj, dict):
         return {k: plain_dict(v) for k, v in obj.items()}
     return obj
+
+
+def dataset_fingerprint(dataset: DatasetConfig) -> dict:
+    """``dataset`` as a dict for cache and record keys, without the keys of
+    ``FILE_DATASET_DEFAULTS`` at their defaults (those keys did not exist when most keys were
+    computed)."""
+    out = plain_dict(dataset)   # (without the OMIT_AT_DEFAULT keys at their values too)
+    for key, default in FILE_DATASET_DEFAULTS.items():
+        if out[key] == default:
+            del out[key]
+    return out

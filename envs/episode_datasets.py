@@ -17,7 +17,9 @@ and with the rules habitat-lab's loader uses, without habitat-lab:
 - ``scene_id`` resolves under ``env.dataset.scene_dir`` (habitat-lab's ``scenes_dir``) after
   habitat-lab's ``data/scene_datasets/`` prefix is stripped; a ``.basis.glb`` that is missing falls
   back to the ``.glb`` beside it (HM3D's two releases), and HM3D v0.2 files written with an
-  ``hm3d_v0.2/`` prefix resolve against a ``hm3d/`` folder too.
+  ``hm3d_v0.2/`` prefix resolve against a ``hm3d/`` folder too. Last, a relative id is tried as
+  it stands, from the working directory: habitat-lab writes back the ids it loaded joined to
+  its (relative) ``scenes_dir``.
 - habitat-lab renumbers ``episode_id`` to the index within its file; calnav keeps the file's own
   id, prefixed with the scene's name (``TEEsavR23oF:12``) unless the file's ids are unique already.
 
@@ -75,6 +77,16 @@ class EpisodeDataset:
     def scene_ids(self) -> list[str]:
         """The distinct scene ids of the episodes, in the order they first appear."""
         return list(dict.fromkeys(ep.scene_id for ep in self.episodes))
+
+
+def task_categories(env_cfg) -> tuple[str, ...]:
+    """The task's goal categories by objectgoal id: the episode file's
+    ``category_to_task_category_id`` when ``env.dataset.data_path`` is set, else calnav's."""
+    from calnav.envs.semantics import GOAL_CATEGORIES
+
+    if not env_cfg.dataset.data_path:
+        return GOAL_CATEGORIES
+    return dataset_files(env_cfg.dataset.data_path, env_cfg.split).category_names
 
 
 def split_file(data_path: str, split: str) -> Path:
@@ -212,8 +224,10 @@ def scene_candidates(scene_id: str, scenes_dir: str) -> list[Path]:
             variants.append(b + rel[len(a):])
     root = Path(scenes_dir).expanduser()
     out = []
-    for v in variants:
-        p = root / v if not Path(v).is_absolute() else Path(v)
+    # last, a relative id as it stands (from the working directory): habitat-lab writes back
+    # the ids it loaded joined to a relative scenes_dir, which joined again names nothing
+    tail = [Path(rel)] if not Path(rel).is_absolute() else []
+    for p in [root / v if not Path(v).is_absolute() else Path(v) for v in variants] + tail:
         out.append(p)
         if p.name.endswith(BASIS_SUFFIX):
             out.append(p.with_name(p.name[:-len(BASIS_SUFFIX)] + ".glb"))

@@ -27,14 +27,15 @@ from __future__ import annotations
 
 import hashlib
 import json
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 
 import numpy as np
 
 from calnav.common.atomic import write_json_atomic
-from calnav.envs.config import EnvConfig, plain_dict
-from calnav.envs.episode_files import (GoalObject, ObjectNavEpisode, cached_episodes, episodes_from_habitat,
+from calnav.envs.config import EnvConfig, dataset_fingerprint
+from calnav.envs.episode_files import (goal_mask, view_point_mask,  # noqa: F401 (importable here too)
+                                       GoalObject, ObjectNavEpisode, cached_episodes, episodes_from_habitat,
                                        episodes_to_habitat, write_json_gz)
 from calnav.envs.episode_rules import (MAX_START_TRIES, MAX_UNSOLVABLE_TRIES, START_DISTANCE_POWER,  # noqa: F401
                                        SURFACE_SAMPLE_SPACING_M, TRIVIAL_REJECT_PROB, VISIBILITY_TARGETS,
@@ -61,26 +62,6 @@ def find_goal_objects(scene: Scene, navgrid, raycasting_scene, env_cfg: EnvConfi
             goals.setdefault(category, []).append(
                 GoalObject(int(instance_id), category, centroid.astype(np.float64), vps))
     return goals
-
-
-def goal_mask(navgrid, goals: list[GoalObject]) -> np.ndarray:
-    """(H, W) bool: the view-point cells of all given goal instances; (L, H, W) on a layered
-    grid (``envs.storey_episodes.layered_goal_mask``)."""
-    if getattr(navgrid, "layered", False):
-        from calnav.envs.storey_episodes import layered_goal_mask
-
-        return layered_goal_mask(navgrid, goals)
-    return view_point_mask(navgrid, np.concatenate([g.view_points for g in goals]))
-
-
-def view_point_mask(navgrid, points_xy: np.ndarray) -> np.ndarray:
-    """(H, W) bool: the cells of view points ``points_xy`` ((N, 2) world xy, metres); points
-    off the grid mark nothing."""
-    mask = np.zeros(navgrid.navigable.shape, dtype=bool)
-    rc = navgrid.to_cell(np.asarray(points_xy, np.float64).reshape(-1, 2))
-    inside = navgrid.in_grid(rc)
-    mask[rc[inside, 0], rc[inside, 1]] = True
-    return mask
 
 
 def island_radii(navgrid) -> np.ndarray:
@@ -165,7 +146,7 @@ def generate_scene_episodes(scene_id: str, scene: Scene, navgrid, raycasting_sce
 def dataset_key(env_cfg: EnvConfig) -> str:
     """Hash of everything that changes the generated episodes."""
     relevant = {
-        "version": GENERATOR_VERSION, "dataset": plain_dict(env_cfg.dataset), "navmesh": asdict(env_cfg.navmesh),
+        "version": GENERATOR_VERSION, "dataset": dataset_fingerprint(env_cfg.dataset), "navmesh": asdict(env_cfg.navmesh),
         "nav": [env_cfg.agent_radius_m, env_cfg.agent_height_m, env_cfg.nav_cell_m, env_cfg.view_point_radius_m,
                 env_cfg.camera_height_m, env_cfg.hfov_deg, list(env_cfg.resolution)],
         # the oracle check runs the task's actions (its step limit is the dataset's oracle_max_steps)
@@ -249,6 +230,10 @@ def load_split(split: str, env_cfg: EnvConfig, progress: bool = True, upto: int 
     (``eval.episodes.prepare_episodes`` generates them on a run's worker pool)."""
     from tqdm import tqdm
 
+    if env_cfg.dataset.data_path:   # a habitat-lab episode file: its episodes, placed on calnav's navmesh
+        from calnav.envs.file_episodes import load_dataset_split
+
+        return load_dataset_split(replace(env_cfg, split=split), progress, upto)
     generated: set[str] = set()
     while True:   # ends: every pass generates scenes not generated before, of finitely many
         needed, todo = scenes_needed(split, env_cfg, upto)

@@ -31,6 +31,11 @@ from calnav.envs.semantics import CLASS_NAMES, VOID
 DEFAULT_GREY = 180           # albedo of faces whose colour cannot be decoded (as envs.scan's uncoloured PLYs), uint8
 TRANSFER_GAP_M = 0.05        # how far a render face's centroid may sit off its semantic face's extent, metres
 LABEL_FILE = "labels.json"   # a folder's label map (a scene's own: <id>.labels.json)
+# A GLB's winding decides what is walkable, as in habitat-sim: Recast marks a triangle walkable
+# by its normal from the file's winding (glTF: counter-clockwise faces the viewer), so a
+# reconstruction's ceiling, which faces down into the room, is never ground; judged by |normal|
+# (``envs.navmesh.closed_solids`` False) it would be, and as the largest surface, the storey
+WINDING_FACES_VIEWER = True
 _CALNAV_IDS = class_ids_of(CLASS_NAMES)
 
 

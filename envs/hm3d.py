@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from calnav.envs.glb_scene import glb_colours, label_settings, name_classes, transfer_faces
+from calnav.envs.glb_scene import WINDING_FACES_VIEWER, glb_colours, label_settings, name_classes, transfer_faces
 from calnav.envs.gltf import GlbMesh, decode_image, read_glb, wrap_texels
 from calnav.envs.scan import per_face_majority
 from calnav.envs.scene import RGB_UNAVAILABLE, SEMANTICS_UNAVAILABLE, Scene, SceneError, Texture
@@ -218,7 +218,7 @@ def load_hm3d_scene(path: str | Path, root: Path | None = None, config: Path | N
     rgb_reason = colours.pop("rgb_unavailable")
     meta.update({"source": str(path), "format": "hm3d", "render_file": str(files["render"]),
                  "frame": {"up": list(frame.up), "front": list(frame.front), "source": frame.source},
-                 "floor_offset_m": floor_z, "closed_solids": False, "lighting": "baked",
+                 "floor_offset_m": floor_z, "closed_solids": WINDING_FACES_VIEWER, "lighting": "baked",
                  **({"label_map_file": str(label_file)} if label_file else {}),
                  **({RGB_UNAVAILABLE: rgb_reason} if rgb_reason else {})})
     return Scene(name=name or files["sid"], vertices=verts, triangles=render.triangles, tri_class=tri_class,

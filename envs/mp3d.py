@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from calnav.envs.glb_scene import glb_colours, label_settings, name_classes, transfer_faces
+from calnav.envs.glb_scene import WINDING_FACES_VIEWER, glb_colours, label_settings, name_classes, transfer_faces
 from calnav.envs.gltf import read_glb
 from calnav.envs.scene import RGB_UNAVAILABLE, SEMANTICS_UNAVAILABLE, Scene, SceneError, Texture
 from calnav.envs.scene_frame import place_on_floor, scene_frame
@@ -143,7 +143,7 @@ def load_mp3d_scene(path: str | Path, root: Path | None = None, config: Path | N
     rgb_reason = colours.pop("rgb_unavailable")
     meta.update({"source": str(path), "format": "mp3d",
                  "frame": {"up": list(frame.up), "front": list(frame.front), "source": frame.source},
-                 "floor_offset_m": floor_z, "closed_solids": False, "lighting": "baked",
+                 "floor_offset_m": floor_z, "closed_solids": WINDING_FACES_VIEWER, "lighting": "baked",
                  **({"label_map_file": str(label_file)} if label_file else {}),
                  **({RGB_UNAVAILABLE: rgb_reason} if rgb_reason else {})})
     return Scene(name=name or path.stem, vertices=verts, triangles=render.triangles, tri_class=tri_class,

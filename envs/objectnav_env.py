@@ -38,7 +38,8 @@ from calnav.envs.config import EnvConfig
 from calnav.envs.episodes import ObjectNavEpisode, goal_mask, load_split
 from calnav.envs.measures import TaskState, objectnav_measurements
 from calnav.envs.motion import apply_action, apply_layered_action
-from calnav.envs.semantics import GOAL_CATEGORIES, NUM_CLASSES
+from calnav.envs.episode_datasets import task_categories
+from calnav.envs.semantics import NUM_CLASSES
 from calnav.envs.task import (CAMERA_INTRINSICS, CAMERA_POSE, COMPASS, DEPTH, GPS, OBJECTGOAL, RGB, SEMANTIC, Action,
                        SimulatorHandle, check_action, normalize_depth_m, num_actions, observation_specs,
                        xy_yaw_to_gps_compass)
@@ -73,6 +74,7 @@ class ObjectNavEnv(gym.Env):
         self.episodes = episodes if episodes is not None else load_split(split, cfg)
         if not self.episodes:
             raise ValueError(f"split {split!r} has no episodes")
+        self.categories = task_categories(cfg)   # what objectgoal ids name (an episode file's, or calnav's)
         self._build_spaces()
         self._scene_id: str | None = None
         self._episode: ObjectNavEpisode | None = None
@@ -85,7 +87,7 @@ class ObjectNavEnv(gym.Env):
         cfg = self.config
         w, h = cfg.resolution
         self.camera = Camera.from_config(cfg)
-        specs = observation_specs(w, h, len(GOAL_CATEGORIES), NUM_CLASSES, cfg.max_depth_m, cfg.normalize_depth,
+        specs = observation_specs(w, h, len(self.categories), NUM_CLASSES, cfg.max_depth_m, cfg.normalize_depth,
                                   cfg.semantic_sensor)
         self.observation_space = spaces.Dict({k: spaces.Box(s.low, s.high, s.shape, s.dtype) for k, s in specs.items()})
         self.action_space = spaces.Discrete(num_actions(cfg.enable_look))
@@ -120,6 +122,9 @@ class ObjectNavEnv(gym.Env):
         super().reset(seed=seed)
         i = self._episode_from_options(options)
         ep = self.episodes[i]
+        if ep.refused:
+            raise ValueError(f"episode {i} ({ep.episode_id} of {ep.scene_id}) cannot run on calnav's navmesh: "
+                             f"{ep.refused}")
         self._load_scene(ep.scene_id)
         self._episode = ep
         self.goal_field = self.navgrid.geodesic_field(goal_mask(self.navgrid, ep.goals))
@@ -169,7 +174,12 @@ class ObjectNavEnv(gym.Env):
             if eid not in ids:
                 raise ValueError(f"unknown episode_id {eid!r}; ids look like {ids[0]!r}")
             return ids.index(eid)
-        return int(self.np_random.integers(n))
+        runnable = [i for i, e in enumerate(self.episodes) if not e.refused]   # a draw skips refused episodes
+        if not runnable:
+            raise ValueError(f"every one of the {n} episodes is refused on calnav's navmesh; the first: "
+                             f"{self.episodes[0].refused}")
+        return runnable[int(self.np_random.integers(len(runnable)))] if len(runnable) < n \
+            else int(self.np_random.integers(n))
 
     def step(self, action):
         if self._done:
@@ -251,7 +261,7 @@ class ObjectNavEnv(gym.Env):
             DEPTH: depth[..., None],
             GPS: gps,
             COMPASS: compass,
-            OBJECTGOAL: np.array([ep.goal_id], dtype=np.int64),
+            OBJECTGOAL: np.array([self.categories.index(ep.object_category)], dtype=np.int64),
             CAMERA_POSE: pose.astype(np.float64),
             CAMERA_INTRINSICS: self.camera.intrinsics.astype(np.float64),
         }

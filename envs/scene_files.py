@@ -35,7 +35,7 @@ from calnav.envs.scene import RGB_UNAVAILABLE, SEMANTICS_UNAVAILABLE, Scene, Sce
 from calnav.envs.scene_frame import find_dataset_configs
 
 PLY_CONVERSION_VERSION = 2                  # converted-PLY cache key (2: meta closed_solids = False)
-GLB_CONVERSION_VERSION = 1                  # converted HM3D / MP3D cache key
+GLB_CONVERSION_VERSION = 2                  # converted HM3D / MP3D cache key (2: the winding decides walkability)
 SCENE_SUFFIXES = (".npz", ".ply", ".glb")
 SEMANTIC_GLB_SUFFIX = ".semantic.glb"
 

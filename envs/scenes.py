@@ -26,6 +26,10 @@ User scenes (``DatasetConfig.scene_dir`` set)
     neither, raw labels must already be calnav class ids. Files load through
     ``envs.scene_files.load_scene_file``; converted PLYs and GLBs are cached too.
 
+Episode-file scenes (``DatasetConfig.data_path`` set as well)
+    Ids are the ``scene_id`` paths of a habitat-lab episode file, resolved under ``scene_dir``
+    as habitat-lab resolves them (``envs.episode_datasets.resolve_scene``).
+
 Scanned houses (``DatasetConfig.style == "scanned"``)
     The same ids and seeds; the scene is the procedural house scanned and reconstructed by
     ``envs.scanning`` (seeded by the house seed), cached at
@@ -192,7 +196,13 @@ def load_scene(scene_id: str, dataset_cfg: DatasetConfig | None = None, spec: Ho
         if style not in STYLES:
             raise ValueError(f"unknown scene style {style!r}; valid styles: {', '.join(STYLES)}")
         cfg = dataclasses.replace(cfg, style=style)   # its checks refuse a scanned user scene_dir
-    if cfg.scene_dir:
+    if cfg.scene_dir and cfg.data_path:   # an episode file's scene id: a path under scene_dir
+        from calnav.envs.episode_datasets import resolve_scene
+
+        path, root = resolve_scene(scene_id, cfg.scene_dir), Path(cfg.scene_dir).expanduser()
+        key = ("file", str(path.resolve()), path.stat().st_mtime_ns)
+        loader = lambda: load_scene_file(path, root=root)  # noqa: E731
+    elif cfg.scene_dir:
         files = _user_files(cfg.scene_dir, None)
         if scene_id not in files:
             shown = sorted(files)[:20]

@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from calnav.envs.config import EnvConfig
-from calnav.envs.episode_files import GoalObject, ObjectNavEpisode
+from calnav.envs.episode_files import GoalObject, ObjectNavEpisode, goal_mask
 from calnav.envs.episode_rules import (MAX_START_TRIES, MAX_UNSOLVABLE_TRIES, START_DISTANCE_POWER,
                                        TRIVIAL_REJECT_PROB, find_view_points)
 from calnav.envs.oracle import layered_oracle_solves
@@ -70,17 +70,6 @@ def find_layered_goals(scene: Scene, grid, raycasting_scene, env_cfg: EnvConfig,
     return goals
 
 
-def layered_goal_mask(grid, goals: list[GoalObject]) -> np.ndarray:
-    """(L, H, W) bool: the view-point cells of ``goals``, each on the layer of its height."""
-    mask = np.zeros(grid.navigable.shape, dtype=bool)
-    for g in goals:
-        rc = grid.to_cell(np.asarray(g.view_points, np.float64).reshape(-1, 2))
-        layers = np.array([grid.storey_at(z) for z in g.heights()], np.int64)
-        inside = grid.in_grid(rc)
-        mask[layers[inside], rc[inside, 0], rc[inside, 1]] = True
-    return mask
-
-
 def _island_radii(grid) -> np.ndarray:
     """(n_islands,) largest horizontal distance from an island's centroid to its cells, metres."""
     cells = np.argwhere(grid.islands >= 0)
@@ -105,8 +94,8 @@ def generate_layered_episodes(scene_id: str, scene: Scene, grid, raycasting_scen
     categories = sorted(goals_by_category)
     fields, storey_fields = {}, {}
     for c in categories:
-        fields[c] = grid.geodesic_field(layered_goal_mask(grid, goals_by_category[c]))
-        per = [grid.geodesic_field(layered_goal_mask(grid, goals_by_category[c]) & (np.arange(grid.n_layers) == k)
+        fields[c] = grid.geodesic_field(goal_mask(grid, goals_by_category[c]))
+        per = [grid.geodesic_field(goal_mask(grid, goals_by_category[c]) & (np.arange(grid.n_layers) == k)
                                    [:, None, None]).values for k in range(grid.n_layers)]
         storey_fields[c] = np.argmin(np.stack(per), axis=0)   # (L, H, W) storey of the nearest goal
     free = np.argwhere(grid.navigable)                         # (N, 3) layer, row, col

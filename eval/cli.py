@@ -73,6 +73,9 @@ COMMANDS: dict[str, Command] = {
                           shorthands=(Shorthand("--workers", "run.workers"),)),
     "habitat-benchmark": Command("calnav.eval.habitat.run", "main_habitat_benchmark", "habitat_benchmark_configs",
                                  shorthands=(AGENT,)),
+    "export-habitat": Command("calnav.eval.habitat.export", "main_export_habitat", "export_habitat_configs",
+                              checks=("run",),   # runs no agent: generates episodes, writes files
+                              shorthands=(Shorthand("--split", "env.split"),)),
     "view-episode": Command("calnav.eval.objectnav.view_episode", "main_view_episode", "view_episode_configs",
                             shorthands=(Shorthand("--agent", "run.agent", default="oracle"),)),  # the shortest path
     "scan-houses": Command("calnav.eval.scanning.run", "main_scan_houses", "scan_houses_configs",

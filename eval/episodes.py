@@ -32,6 +32,57 @@ def generate_scene_task(task: SceneTask) -> tuple[dict, dict]:
     return generate_scene(task.split, task.scene_id, task.env_cfg)
 
 
+@dataclass(frozen=True)
+class PlaceTask:
+    """Place one scene of a habitat-lab episode file on calnav's navmesh (a picklable task)."""
+
+    scene_id: str
+    episodes: tuple   # ((dataset index, ObjectNavEpisode), ...): the scene's episodes as the file has them
+    env_cfg: EnvConfig
+
+
+def place_scene_task(task: PlaceTask) -> tuple[dict, dict]:
+    """``envs.file_episodes.place_scene`` of ``task``'s scene (in a worker; the driver caches it)."""
+    from calnav.envs.file_episodes import place_scene
+
+    return place_scene(task.scene_id, list(task.episodes), task.env_cfg)
+
+
+def prepare_file_episodes(env_cfg: EnvConfig, run_cfg, upto: int | None, progress: bool = True
+                          ) -> list[ObjectNavEpisode]:
+    """``prepare_episodes`` for a habitat-lab episode file (``env.dataset.data_path``): the
+    scenes of episodes ``0:upto`` not placed yet are placed on ``run_cfg``'s backend, then the
+    placed episodes are read (``envs.file_episodes``)."""
+    from calnav.envs import file_episodes as fe
+    from calnav.envs.episode_datasets import read_dataset
+    from calnav.eval.runner import run_tasks
+
+    dataset = read_dataset(env_cfg.dataset.data_path, env_cfg.split)
+    root = fe.placement_dir(dataset.source, env_cfg)
+    fe.write_index(root, dataset)
+    _, todo = fe.scenes_to_place(dataset, env_cfg, upto)
+    if todo:
+        tasks = [PlaceTask(s, tuple(fe.scene_episodes(dataset, s)), env_cfg) for s in todo]
+        failures = run_tasks(place_scene_task, tasks, run_cfg,
+                             save=lambda task, result: fe.write_placed(root, task.scene_id, *result),
+                             desc=f"placing {env_cfg.split} episodes", unit="scene", progress=progress)
+        if failures:
+            _raise_scene_failures(failures, env_cfg.split)
+    return fe.load_dataset_split(env_cfg, progress=False, upto=upto)
+
+
+def _raise_scene_failures(failures: list, split: str) -> None:
+    """The first failed scene task's one-line reason (deterministic for the config: no "rerun
+    to retry"), or its worker's traceback for an unexpected error."""
+    failure = failures[0][1]
+    kind, _, message = failure.error.partition(": ")
+    more = f" ({len(failures) - 1} more scene(s) of {split} failed too)" if len(failures) > 1 else ""
+    if kind in ("ValueError", "ConfigError"):
+        raise ValueError(message + more)
+    raise RuntimeError(f"preparing {failures[0][0].scene_id} failed{more}; the worker's traceback:\n"
+                       f"{failure.traceback}")
+
+
 def range_end(spec: str) -> int:
     """The end (exclusive) of an episode range 'N' or 'A:B', before any scene is generated;
     malformed or reversed ranges are refused here, with the valid forms."""
@@ -47,6 +98,8 @@ def prepare_episodes(env_cfg: EnvConfig, run_cfg, upto: int | None, progress: bo
     from calnav.envs.episodes import check_read_back, scenes_needed, split_prefix, write_scene
     from calnav.eval.runner import run_tasks
 
+    if env_cfg.dataset.data_path:
+        return prepare_file_episodes(env_cfg, run_cfg, upto, progress)
     split, generated = env_cfg.split, set()
     while True:   # ends: every pass generates scenes not generated before, of finitely many
         needed, todo = scenes_needed(split, env_cfg, upto)
@@ -56,14 +109,8 @@ def prepare_episodes(env_cfg: EnvConfig, run_cfg, upto: int | None, progress: bo
         failures = run_tasks(generate_scene_task, [SceneTask(split, s, env_cfg) for s in todo], run_cfg,
                              save=lambda task, result: write_scene(split, task.scene_id, env_cfg, *result), desc=f"generating {split} episodes", unit="scene",
                              progress=progress)
-        if failures:   # deterministic for the config: the scene's own one-line reason, no "rerun to retry"
-            failure = failures[0][1]
-            kind, _, message = failure.error.partition(": ")
-            more = f" ({len(failures) - 1} more scene(s) of {split} failed too)" if len(failures) > 1 else ""
-            if kind in ("ValueError", "ConfigError"):
-                raise ValueError(message + more)
-            raise RuntimeError(f"generating {failures[0][0].scene_id} failed{more}; the worker's traceback:\n"
-                               f"{failure.traceback}")
+        if failures:
+            _raise_scene_failures(failures, split)
         generated.update(todo)
 
 
@@ -73,6 +120,39 @@ def episode_indices(spec: str, env_cfg: EnvConfig, run_cfg, progress: bool = Tru
     the split's size."""
     from calnav.envs.episodes import check_split_capacity, parse_episode_range
 
-    check_split_capacity(str(spec), env_cfg.split, env_cfg)   # before generating scenes for nothing
+    if not env_cfg.dataset.data_path:   # (a file's size is known once it is read, below)
+        check_split_capacity(str(spec), env_cfg.split, env_cfg)   # before generating scenes for nothing
     episodes = prepare_episodes(env_cfg, run_cfg, range_end(spec), progress)
     return parse_episode_range(str(spec), len(episodes))
+
+
+def refused_episodes(env_cfg: EnvConfig, indices: list[int]) -> dict[int, str]:
+    """{index: "<scene id>: <why>"} of the ``indices`` an episode file holds but calnav's navmesh cannot run
+    (``envs.file_episodes``); {} for calnav's generated episodes (none is ever refused)."""
+    if not env_cfg.dataset.data_path or not indices:
+        return {}
+    from calnav.envs.episodes import load_split
+
+    episodes = load_split(env_cfg.split, env_cfg, progress=False, upto=max(indices) + 1)
+    return {i: f"{episodes[i].scene_id}: {episodes[i].refused}" for i in indices if episodes[i].refused}
+
+
+def check_file_scenes(cfg, indices: list[int]) -> None:
+    """Refuse, in one line, a run of an episode file's ``indices`` whose agent needs what one of
+    their scenes lacks (``envs.file_episodes``' per-scene ``lacks``): ground-truth semantics
+    for a segmenter that reads them, RGB (Basis textures) for any other map agent's segmenter."""
+    env_cfg = cfg.env
+    if not env_cfg.dataset.data_path or not indices or getattr(cfg.run, "agent", "") != "peanut":
+        return
+    from calnav.agent.segmenters import segmenter_needs_semantic
+    from calnav.envs.episode_datasets import read_dataset
+    from calnav.envs.file_episodes import placement_report
+
+    needs = "semantics" if segmenter_needs_semantic(cfg.agent.segmenter) else "rgb"
+    dataset = read_dataset(env_cfg.dataset.data_path, env_cfg.split)
+    reports = placement_report(dataset, env_cfg)
+    for scene_id in dict.fromkeys(dataset.episodes[i].scene_id for i in indices if i < len(dataset.episodes)):
+        why = reports.get(scene_id, {}).get("lacks", {}).get(needs)
+        if why:
+            what = "ground-truth semantics" if needs == "semantics" else "RGB"
+            raise ValueError(f"agent.segmenter={cfg.agent.segmenter} needs {what}, which scene {scene_id} lacks: {why}")

@@ -21,6 +21,11 @@ lists every file the config reads, with its sha256:
   empty, and the target predictor
   (``agent.exploration: prediction``) when ``agent.predictor_weights`` is empty.
 
+- a habitat-lab episode dataset (``env.dataset.data_path``): every file of the split, by content,
+  and every scene file its episodes name with the files of its scene beside it (semantic mesh,
+  annotations) by path, size and modification time -- a scan is up to a gigabyte, and hashing a
+  split's scans at every resume would take minutes.
+
 Other directories (a recorded sequence, a scene folder) are not hashed. Hashes are cached per
 process by the file's stat, so a multirun hashes each file once.
 """
@@ -58,6 +63,13 @@ def sha256_file(path: Path) -> str:
 # they are resolved whatever the value looks like (``pred`` without a suffix is still a file).
 FILE_KEYS: tuple[str, ...] = ("weights", "model", "label_map", "predictor_weights", "glfs_params")
 DIRECTORY_KEYS: tuple[str, ...] = ("model",)   # of those, the ones that may name a directory (hf)
+
+
+@dataclass(frozen=True)
+class StatFile:
+    """A file fingerprinted by its path, size and modification time (a large scene file)."""
+
+    path: Path
 
 
 @dataclass(frozen=True)
@@ -147,6 +159,25 @@ def input_files(cfg_dict: dict, neutral_keys: tuple[str, ...] = (),
             out[f"segmenter.weights ({name} default)"] = default_weights_path(name)
     if agent.get("exploration") == "prediction" and not agent.get("predictor_weights"):
         out["agent.predictor_weights (default)"] = DEFAULT_PREDICTOR
+    out.update(_dataset_inputs(cfg_dict.get("env") or {}))
+    return out
+
+
+def _dataset_inputs(env: dict) -> dict[str, Path | StatFile]:
+    """The files of the habitat-lab dataset ``env.dataset.data_path`` names (module docstring)."""
+    dataset = env.get("dataset") or {}
+    if not dataset.get("data_path"):
+        return {}
+    from calnav.envs.episode_datasets import read_dataset
+    from calnav.envs.file_episodes import scene_file_key
+
+    split, data_path, scene_dir = env.get("split", "val"), dataset["data_path"], dataset.get("scene_dir", "")
+    source = read_dataset(data_path, split)
+    out: dict[str, Path | StatFile] = {f"env.dataset.data_path ({p.name})": p
+                                       for p in dict.fromkeys((source.source.path, *source.source.files))}
+    for scene_id in source.scene_ids():
+        for path, _, _ in scene_file_key(scene_id, scene_dir):
+            out[f"env.dataset.scene_dir ({Path(path).name})"] = StatFile(Path(path))
     return out
 
 
@@ -164,6 +195,10 @@ def fingerprint(found: Path | InputDir) -> dict:
     sha256}}, its sha256 being that of the sorted list of (relative path, sha256) pairs."""
     if isinstance(found, Path):
         return {"path": str(found), "sha256": sha256_file(found)}
+    if isinstance(found, StatFile):
+        st = found.path.stat()
+        key = f"{found.path.resolve()}\0{st.st_size}\0{st.st_mtime_ns}"
+        return {"path": str(found.path), "sha256": hashlib.sha256(key.encode()).hexdigest(), "by": "path, size, mtime"}
     files = {str(p.relative_to(found.path)): sha256_file(p) for p in _dir_files(found.path)}
     listing = "".join(f"{rel}\0{sha}\n" for rel, sha in files.items())
     return {"path": str(found.path), "sha256": hashlib.sha256(listing.encode()).hexdigest(), "files": files}
@@ -174,7 +209,11 @@ def input_fingerprints(cfg_dict: dict, neutral_keys: tuple[str, ...] = (),
     """{label: ``fingerprint``} of ``input_files`` (a missing default file is left out: the
     command itself reports it)."""
     return {key: fingerprint(found) for key, found in input_files(cfg_dict, neutral_keys, segmenters).items()
-            if isinstance(found, InputDir) or found.is_file()}
+            if _present(found)}
+
+
+def _present(found: Path | InputDir | StatFile) -> bool:
+    return True if isinstance(found, InputDir) else (found.path if isinstance(found, StatFile) else found).is_file()
 
 
 def changed_inputs(saved: dict, now: dict) -> list[str]:

@@ -62,6 +62,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--output", default=None, help="results directory (default: run.output_dir)")
     p.add_argument("--force", action="store_true", help="discard results of a different config in --output")
 
+    p = sub.add_parser("export-habitat", help="write a split's houses and episodes in HM3D v0.2's layout with "
+                                              "habitat-lab ObjectNav episode files (for habitat-sim; read back "
+                                              "with env.dataset.data_path)")
+    _add_config_args(p, "configs/objectnav.yaml")
+    p.add_argument("--split", default=None, help="shorthand for env.split (default: the config's, val)")
+    p.add_argument("--scenes", type=int, default=None, metavar="N",
+                   help="only the split's first N houses (default: all of env.dataset.<split>_scenes)")
+    p.add_argument("--output", required=True, help="the dataset's root, habitat-lab's data/ (must be empty unless --force)")
+    p.add_argument("--force", action="store_true", help="write into a non-empty --output")
+
     p = sub.add_parser("view-episode", help="top-down map PNG and a frame strip of one episode")
     _add_config_args(p, "configs/objectnav.yaml")
     p.add_argument("--episode", type=int, default=0, help="episode index within the split")

@@ -64,15 +64,18 @@ def check_run_resources(cfg: Any, checks: tuple[str, ...] = CHECKS) -> None:
     names = None
     agent = getattr(cfg, "agent", None) if "agent" in checks else None
     if agent is not None:
-        from calnav.agent.segmenters.base import goal_categories
+        from calnav.agent.segmenters.base import task_goal_categories
 
+        goals = task_goal_categories(agent)
+        if cfg.env.dataset.data_path:
+            check_episode_file(cfg.env, goals)
         names = check_segmenter(agent.segmenter, cfg.segmenter, run.device if run else None,
-                                probe_size=tuple(cfg.env.resolution), goals=goal_categories())
+                                probe_size=tuple(cfg.env.resolution), goals=goals)
         if agent.exploration == "prediction" and getattr(run, "agent", "peanut") == "peanut":
             from calnav.agent.prediction import DEFAULT_PREDICTOR, check_predictor
 
             check_predictor(agent.predictor_weights or DEFAULT_PREDICTOR, names,
-                            tuple(g for g in goal_categories() if g in names), agent.cell_m)
+                            tuple(g for g in goals if g in names), agent.cell_m)
         _check_sensors_feed_the_segmenter(cfg)
         if not agent.stop_margin_m < cfg.env.view_point_radius_m:
             raise ValueError(f"agent.stop_margin_m ({agent.stop_margin_m} m) must be below env.view_point_radius_m "
@@ -81,7 +84,7 @@ def check_run_resources(cfg: Any, checks: tuple[str, ...] = CHECKS) -> None:
             raise ValueError(f"agent.collision_min_move_m ({agent.collision_min_move_m:g} m) must be below "
                              f"env.forward_step_m ({cfg.env.forward_step_m:g} m): every forward step would count as a "
                              "collision")
-        if cfg.env.dataset.scene_dir:
+        if cfg.env.dataset.scene_dir and not cfg.env.dataset.data_path:
             from calnav.envs.scenes import split_scene_ids
 
             split_scene_ids(cfg.env.split, cfg.env.dataset)
@@ -104,6 +107,22 @@ def check_run_resources(cfg: Any, checks: tuple[str, ...] = CHECKS) -> None:
         from calnav.eval.calibration.record import role_scene_ids
 
         role_scene_ids(cfg)
+
+
+def check_episode_file(env_cfg: Any, goals: tuple[str, ...]) -> None:
+    """A habitat-lab episode file (``env.dataset.data_path``) is read whole before anything is
+    written: every file of the split parses, its categories are the agent's ``goals`` (by
+    objectgoal id), and every scene it names resolves under ``env.dataset.scene_dir``."""
+    from calnav.envs.episode_datasets import read_dataset, resolve_scene
+
+    dataset = read_dataset(env_cfg.dataset.data_path, env_cfg.split)
+    names = dataset.source.category_names
+    if names != tuple(goals):
+        raise ValueError(f"{dataset.source.path}: its objectgoal ids name {', '.join(names)}, but the agent's goal "
+                         f"categories are {', '.join(goals)}; set agent.goal_categories=[{','.join(names)}] (and a "
+                         "segmenter that predicts them)")
+    for scene_id in dataset.scene_ids():
+        resolve_scene(scene_id, env_cfg.dataset.scene_dir)
 
 
 def _check_sensors_feed_the_segmenter(cfg: Any) -> None:

@@ -68,3 +68,29 @@ def load_with_habitat_lab(data_path: str, split: str, scenes_dir: str):
     cfg = OmegaConf.structured(DatasetConfig(type="ObjectNav-v1", split=split, data_path=data_path,
                                              scenes_dir=scenes_dir))
     return ObjectNavDatasetV1(cfg)
+
+
+def rewrite_with_habitat_lab(data_path: str, split: str, scenes_dir: str, out_root: Path) -> str:
+    """The dataset at ``data_path`` loaded by habitat-lab and written again by habitat-lab
+    (``to_json``, one content file per scene, as its releases are laid out) under
+    ``out_root/{split}``; returns the new ``data_path``."""
+    ds = load_with_habitat_lab(data_path, split, scenes_dir)
+    base = out_root / split
+    (base / "content").mkdir(parents=True, exist_ok=True)
+    from habitat.datasets.object_nav.object_nav_dataset import ObjectNavDatasetV1
+
+    head = ObjectNavDatasetV1()
+    head.category_to_task_category_id = ds.category_to_task_category_id
+    head.category_to_scene_annotation_category_id = ds.category_to_scene_annotation_category_id
+    with gzip.open(base / f"{split}.json.gz", "wt") as f:
+        f.write(head.to_json())
+    for scene in sorted({ep.scene_id for ep in ds.episodes}):
+        part = ObjectNavDatasetV1()
+        part.category_to_task_category_id = ds.category_to_task_category_id
+        part.category_to_scene_annotation_category_id = ds.category_to_scene_annotation_category_id
+        part.episodes = [ep for ep in ds.episodes if ep.scene_id == scene]
+        part.goals_by_category = {k: v for k, v in ds.goals_by_category.items()
+                                  if k.startswith(Path(scene).name + "_")}
+        with gzip.open(base / "content" / f"{Path(scene).name.split('.')[0]}.json.gz", "wt") as f:
+            f.write(part.to_json())
+    return str(out_root / "{split}" / "{split}.json.gz")

@@ -151,6 +151,13 @@ def default_class_names() -> tuple[str, ...]:
         raise FileNotFoundError(f"class list {CLASSES_FILE} is missing; pass class_names explicitly") from None
 
 
+def task_goal_categories(agent_cfg) -> tuple[str, ...]:
+    """What the task's objectgoal ids name, by id: ``agent.goal_categories`` when set (an episode
+    file's categories), else calnav's (``goal_categories``)."""
+    names = tuple(getattr(agent_cfg, "goal_categories", ()) or ())
+    return names or goal_categories()
+
+
 def goal_categories() -> tuple[str, ...]:
     """calnav's ObjectNav goal categories, shipped beside the class list (``classes.json``)."""
     try:

@@ -11,11 +11,12 @@ from pathlib import Path
 from typing import Callable
 
 from calnav.common.atomic import undefined_as_null, write_json_atomic
-from calnav.eval.bench import adapter, agent, backends, env, fusion, scan, segmenter, sequence, start_pose
+from calnav.eval.bench import adapter, agent, backends, env, fusion, hm3d, scan, segmenter, sequence, start_pose
 from calnav.eval.bench.context import BenchContext
 
 SECTIONS: dict[str, Callable[[BenchContext], dict[str, float]]] = {
     "env": env.run,
+    "hm3d": hm3d.run,
     "fusion": fusion.run,
     "segmenter": segmenter.run,
     "adapter": adapter.run,

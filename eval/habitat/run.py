@@ -148,9 +148,14 @@ def habitat_benchmark_configs(args) -> list:
     from calnav.common.habitat_import import HabitatMissing
 
     try:
-        return list(load_configs(args, args.overrides))
+        configs = list(load_configs(args, args.overrides))
     except HabitatMissing as exc:
         raise ConfigError(str(exc)) from None
+    if configs[0].env.dataset.data_path:   # CalnavSim-v0 serves calnav's own houses by their split directory
+        raise ConfigError("habitat-benchmark runs calnav's generated episodes on CalnavSim-v0; env.dataset.data_path "
+                          "names a habitat-lab episode file: run it with calnav objectnav (calnav's simulator), or "
+                          "with habitat-lab on habitat-sim")
+    return configs
 
 
 def main_habitat_benchmark(args, configs) -> None:

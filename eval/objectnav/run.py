@@ -207,15 +207,25 @@ def run_jobs(jobs: list[EpisodeJob], force: bool = False, progress: bool = True,
 
             require_rerun("--rerun")   # the install command, before anything is written
     check_backend(run_cfg.backend, run_cfg.ray_address)   # before anything is written
+    from calnav.eval.episodes import check_file_scenes, refused_episodes
+
+    for job in jobs:
+        check_file_scenes(job.cfg, job.indices)   # a scene without what the agent reads: before anything is written
+
+    refusals = [refused_episodes(job.cfg.env, job.indices) for job in jobs]   # an episode file's, on calnav's navmesh
+    for job, refused in zip(jobs, refusals):
+        if refused and len(refused) == len(job.indices):
+            raise ValueError(f"every episode of {job.out}'s range is refused on calnav's navmesh; the first, "
+                             f"{min(refused)}: {refused[min(refused)]}")
     with ExitStack() as stack:
         dirs, files, records, duplicates, tasks = [], [], [], [], []
-        for j, job in enumerate(jobs):
+        for j, (job, refused) in enumerate(zip(jobs, refusals)):
             results = stack.enter_context(ResultsDir(job.out, job.cfg, force=force, discard=RUN_RESULTS,
                                                      neutral_keys=EPISODE_NEUTRAL_KEYS))
             records_file = results.records()
             # crashed episodes of this range are dropped from the file, so they run again
             resumed = records_file.resume(retry=crashed, indices=job.indices)
-            wanted = set(job.indices)
+            wanted = set(job.indices) - set(refused)
             done = {i: r for i, r in resumed.records.items() if i in wanted}
             dirs.append(results)
             files.append(stack.enter_context(records_file))
@@ -227,8 +237,12 @@ def run_jobs(jobs: list[EpisodeJob], force: bool = False, progress: bool = True,
                                              str(job.out / "videos") if i in videos else None,
                                              str(job.out / "rerun") if i in recorded else None, job.env_maker,
                                              job.env_args, max(job.indices) + 1)
-                              for i in job.indices if i not in done], job.cfg)
-        total = sum(len(job.indices) for job in jobs)
+                              for i in job.indices if i not in done and i not in refused], job.cfg)
+        total = sum(len(job.indices) - len(refused) for job, refused in zip(jobs, refusals))
+        for job, refused in zip(jobs, refusals):
+            if refused and progress:
+                tqdm.write(f"{job.out}: {len(refused)} of {len(job.indices)} episodes refused on calnav's navmesh "
+                           f"(not run; summary.json lists them): {refusal_counts(refused)}")
         name = jobs[0].cfg.run.agent if len(jobs) == 1 else f"{len(jobs)} configs"
         if progress and not tasks:   # a rerun of a finished range: say so, rather than a bare 100% bar
             tqdm.write(f"nothing to run: all {total} episodes are recorded in "
@@ -247,9 +261,13 @@ def run_jobs(jobs: list[EpisodeJob], force: bool = False, progress: bool = True,
         run_tasks(run_episode_task, tasks, run_cfg, save=save, failed=lambda t, f: save(t, error_record(t, f)),
                   desc=f"objectnav[{name}]", unit="ep", total=total, progress=progress, postfix=postfix)
         summaries, ordered_all = [], []
-        for job, results, recs, dup in zip(jobs, dirs, records, duplicates):
+        for job, results, recs, dup, refused in zip(jobs, dirs, records, duplicates, refusals):
             ordered = [recs[i] for i in job.indices if i in recs]
             summary = summarize(ordered)
+            if refused:   # an episode file's episodes calnav cannot run: counted, never averaged in
+                summary["refused"] = {"episodes": len(refused), "by_reason": refusal_counts(refused),
+                                      "by_scene": refusal_counts(refused, by_scene=True),
+                                      "indices": {str(i): why for i, why in sorted(refused.items())}}
             summary["failures"] = failure_modes(ordered, job.cfg.env.max_episode_steps)
             summary["agent"] = job.cfg.run.agent
             summary["duplicates"] = dup  # found (and dropped) in the records file
@@ -264,6 +282,17 @@ def run_jobs(jobs: list[EpisodeJob], force: bool = False, progress: bool = True,
     for ordered in ordered_all:
         check_not_all_failed(ordered)
     return summaries
+
+
+def refusal_counts(refused: dict[int, str], by_scene: bool = False) -> dict[str, int]:
+    """{reason kind (the text before its colon): episodes} of ``refused`` ({index: "<scene>:
+    <reason>"}), or {scene: episodes} with ``by_scene``."""
+    out: dict[str, int] = {}
+    for text in refused.values():
+        scene, _, why = text.partition(": ")
+        kind = scene if by_scene else why.split(":")[0]
+        out[kind] = out.get(kind, 0) + 1
+    return dict(sorted(out.items()))
 
 
 def feed_order(tasks: list[EpisodeTask], cfg: Config) -> list[EpisodeTask]:

@@ -121,7 +121,7 @@ def main_view_episode(args, configs) -> None:
 
     cfg = configs[0]
     check_output_dir(args.output)
-    if args.episode >= 0:   # past the split's most episodes: refused before its houses are generated
+    if args.episode >= 0 and not cfg.env.dataset.data_path:   # past the split's most episodes: refused before its houses are generated
         check_split_capacity(str(args.episode + 1), cfg.env.split, cfg.env)
     env = gym.make("calnav/ObjectNav-v0", split=cfg.env.split, config=cfg.env)
     n = len(env.unwrapped.episodes)

@@ -130,5 +130,17 @@ def test_scene_ids_resolve_as_habitat_lab_resolves_them(tmp_path):
     with pytest.raises(ValueError, match=r"scene 'hm3d/val/00899-ZZZ/ZZZ.basis.glb' of the episode file is missing"
                                          r".*tried .*ZZZ.basis.glb, .*ZZZ.glb"):
         resolve_scene("hm3d/val/00899-ZZZ/ZZZ.basis.glb", str(scenes))
-    assert len(scene_candidates("mp3d/X/X.glb", str(scenes))) == 1
+    assert len(scene_candidates("mp3d/X/X.glb", str(scenes))) == 2   # under scenes_dir, then as it stands
+
+
+def test_an_id_habitat_lab_wrote_back_joined_to_a_relative_scenes_dir_resolves(tmp_path, monkeypatch):
+    """habitat-lab loads ``calnav/x.glb`` with scenes_dir ``runs/e/scene_datasets`` and writes it
+    back as ``runs/e/scene_datasets/calnav/x.glb``: joined again it names nothing, as it stands it
+    is the scene (tried last)."""
+    monkeypatch.chdir(tmp_path)
+    glb = tmp_path / "runs" / "e" / "scene_datasets" / "calnav" / "x.glb"
+    glb.parent.mkdir(parents=True)
+    glb.write_bytes(b"glTF")
+    assert resolve_scene("runs/e/scene_datasets/calnav/x.glb", "runs/e/scene_datasets").resolve() == glb
+    assert resolve_scene("calnav/x.glb", "runs/e/scene_datasets").resolve() == glb
     assert scene_name("mp3d/17DRP5sb8fy/17DRP5sb8fy.glb") == "17DRP5sb8fy"

@@ -193,16 +193,18 @@ def test_old_episode_files_get_the_iou_key_and_nothing_else_changes(small_env_co
 
 
 def test_view_points_parse_to_the_same_array_as_one_by_one():
-    """The vectorised view-point parse gives exactly ``_from_habitat`` of each point (and an
-    empty (0, 2) array for none)."""
+    """The vectorised view-point parse gives exactly ``_from_habitat`` of each point and its
+    height (and empty (0, 2), (0,) arrays for none)."""
     import numpy as np
 
     from calnav.envs.episode_files import _from_habitat, _view_points_from_habitat
 
     pts = [[1.25, 0.0, -3.5], [0.1, 0.2, 0.30000000000000004], [-7.0, 1.0, 2.0]]
     vps = [{"agent_state": {"position": p}} for p in pts]
-    np.testing.assert_array_equal(_view_points_from_habitat(vps), np.array([_from_habitat(p) for p in pts]))
-    assert _view_points_from_habitat([]).shape == (0, 2)
+    xy, heights = _view_points_from_habitat(vps)
+    np.testing.assert_array_equal(xy, np.array([_from_habitat(p) for p in pts]))
+    np.testing.assert_array_equal(heights, [0.0, 0.2, 1.0])   # Habitat's y: the points' heights
+    assert _view_points_from_habitat([])[0].shape == (0, 2) and _view_points_from_habitat([])[1].shape == (0,)
     for bad in ([[1.0, 2.0, 3.0, 4.0]] * 3, [[1.0, 2.0]], [[1.0, 2.0, 3.0], [1.0]], [[]]):
         with pytest.raises(ValueError):
             _view_points_from_habitat([{"agent_state": {"position": q}} for q in bad])
@@ -234,12 +236,12 @@ def _episodes_equal(a, b) -> bool:
     """Two parsed episode lists hold the same values (dtypes and bytes included)."""
     def goal(g):
         return (g.object_id, type(g.object_id), g.object_category, g.position.dtype, g.position.tobytes(),
-                g.view_points.dtype, g.view_points.shape, g.view_points.tobytes())
+                g.view_points.dtype, g.view_points.shape, g.view_points.tobytes(), g.heights().tobytes())
 
     def episode(e):
         return (e.episode_id, e.scene_id, e.object_category, e.start_rotation, e.start_position.dtype,
                 e.start_position.tobytes(), repr(e.geodesic_distance), repr(e.euclidean_distance),
-                [goal(g) for g in e.goals])
+                repr(e.start_height), [goal(g) for g in e.goals])
 
     return [episode(e) for e in a] == [episode(e) for e in b]
 
@@ -254,9 +256,11 @@ def test_the_parsed_sidecar_replaces_the_json_parse_until_anything_is_off(tmp_pa
     from calnav.envs.episode_files import GoalObject, ObjectNavEpisode, episodes_to_habitat, write_json_gz
 
     rng = np.random.default_rng(0)
-    goals = {c: [GoalObject(i, c, rng.normal(size=3), rng.normal(size=(int(rng.integers(0, 5)), 2)))
-                 for i in range(2)] for c in ("chair", "bed")}
-    eps = [ObjectNavEpisode(episode_id=str(i), scene_id="s", start_position=rng.normal(size=2),
+    def goal(i, c, n):   # view points at heights other than 0: a second storey's
+        return GoalObject(i, c, rng.normal(size=3), rng.normal(size=(n, 2)), rng.normal(size=n))
+
+    goals = {c: [goal(i, c, int(rng.integers(0, 5))) for i in range(2)] for c in ("chair", "bed")}
+    eps = [ObjectNavEpisode(episode_id=str(i), scene_id="s", start_position=rng.normal(size=2), start_height=0.25 * i,
                             start_rotation=[0.0, float(np.sin(i)), 0.0, float(np.cos(i))], object_category=c,
                             geodesic_distance=float(i) + 0.1, euclidean_distance=float("nan") if i == 2 else 1.5,
                             goals=goals[c]) for i, c in enumerate(["chair", "bed", "chair", "chair"])]

@@ -108,7 +108,7 @@ def test_texture_semantics_and_colours(tmp_path):
     assert s.textured and s.tri_material[:2].tolist() == [0, 0] and (s.tri_material[2:] == -1).all()
     np.testing.assert_array_equal(s.textures[0][0, 1], [10, 200, 10])
     np.testing.assert_array_equal(s.tri_albedo[2], [204, 26, 26])       # the chair's base colour factor
-    assert s.meta["lighting"] == "baked" and s.meta["closed_solids"] is False
+    assert s.meta["lighting"] == "baked" and s.meta["closed_solids"] is True
 
 
 def test_texel_majority_and_centroid_tie_break(tmp_path):

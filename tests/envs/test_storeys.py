@@ -231,8 +231,7 @@ def test_episodes_cross_storeys_and_keep_heights(house):
 
 
 def test_sidecar_keeps_storeys(tmp_path, house):
-    from calnav.envs.episode_files import STOREY_SIDECAR_FORMAT, _stat_key, read_sidecar, sidecar_path, \
-        write_json_gz, write_sidecar
+    from calnav.envs.episode_files import _stat_key, read_sidecar, sidecar_path, write_json_gz, write_sidecar
     from calnav.envs.render import Camera, Renderer
     from calnav.envs.storey_episodes import generate_layered_episodes
 
@@ -244,7 +243,7 @@ def test_sidecar_keeps_storeys(tmp_path, house):
     write_json_gz(path, episodes_to_habitat(eps))
     write_sidecar(path, _stat_key(path), eps)
     with np.load(sidecar_path(path)) as z:
-        assert int(z["format"][0]) == STOREY_SIDECAR_FORMAT
+        assert z["storeys"].shape == (4, 2)   # (a single-storey sidecar has none: both 0)
     back = read_sidecar(path, _stat_key(path))
     assert [(e.start_height, e.start_storey, e.goal_storey) for e in back] == \
         [(e.start_height, e.start_storey, e.goal_storey) for e in eps]

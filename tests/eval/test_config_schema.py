@@ -117,6 +117,7 @@ def _conflicts() -> list[tuple[str, str, str, list[str], str]]:
         ("scan-houses", "", "env.dataset.style", [], "env.dataset.style=clean"),
         ("check-scene", "target", "env.dataset.scene_dir", [], "env.dataset.scene_dir=elsewhere"),
         ("collect-maps", "--split", "env.split", ["--split", "val"], "env.split=train"),
+        ("export-habitat", "--split", "env.split", ["--split", "val", "--output", "out"], "env.split=train"),
         ("collect-maps", "--steps", "env.max_episode_steps", ["--steps", "40"], "env.max_episode_steps=10"),
         ("train-predictor", "--epochs", "predictor_train.epochs", ["--epochs", "2"], "predictor_train.epochs=3"),
         ("train-predictor", "--pos-weight", "predictor_train.pos_weight", ["--pos-weight", "2"],

@@ -75,3 +75,14 @@ def test_the_gpu_figures_are_the_gpu_runs_rendering():
     for page in GPU_PAGES:
         text = (REPO / page).read_text(encoding="utf-8")
         assert render_page(text, figures, page) == text, f"{page}: rerun calnav bench --from ... --page {page}"
+
+
+def test_the_hm3d_figures_are_the_hm3d_runs_rendering():
+    """docs/datasets.md's size table is `calnav bench --from docs/datasets/bench_hm3d.json
+    --page docs/datasets.md`'s rendering of the run its manifest names."""
+    output = REPO / "docs" / "datasets" / "bench_hm3d.json"
+    figures = json.loads(output.read_text())
+    assert json.loads(manifest_path(output).read_text())["command"].startswith("calnav bench --only hm3d")
+    assert figures["hm3d.scene_triangles"] >= 1e6   # HM3D's size, not the house's
+    text = (REPO / "docs" / "datasets.md").read_text(encoding="utf-8")
+    assert render_page(text, figures, "docs/datasets.md") == text
