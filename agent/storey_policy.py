@@ -27,8 +27,11 @@ from calnav.agent.watchdog import ProgressWatchdog
 from calnav.envs.task import Action, camera_pose
 
 
-CLIMB_PATIENCE = 40     # actions a climb may take without a step further before it is given up
+CLIMB_PATIENCE = 60     # actions a climb may take without a step further before it is given up
 STOREY_MIN_STEPS = 60   # a storey is explored this many actions after arriving (or a failed climb) before leaving it
+# ... and after this many, stairs to a storey not yet seen win over the frontiers left here (the
+# step limit is 500: a goal upstairs is not found by exploring every corner downstairs first)
+STOREY_EXPLORE_STEPS = 150
 
 
 class StoreyPeanutAgent(PeanutAgent):
@@ -52,6 +55,7 @@ class StoreyPeanutAgent(PeanutAgent):
         self.current, self.floor_z = 0, 0.0
         self.climb, self.climb_from, self.look_turns, self.climb_steps = 0, 0, 0, 0
         self.climb_after = 0   # no climb starts before this step (just arrived, or a climb just failed)
+        self.arrived_at = 0    # the step the agent came onto the current storey
         self.left_at = {0: 0}   # storey -> the step the agent last left it (0: never left)
 
     # ------------------------------------------------------------------ floor and storey
@@ -74,8 +78,11 @@ class StoreyPeanutAgent(PeanutAgent):
             return
         direction = 1 if away > 0 else -1
         ahead = [i for i, s in enumerate(self.storeys) if direction * (s.z_ref - st.z_ref) > 0]
-        if ahead:
-            self._switch(min(ahead, key=lambda i: abs(self.storeys[i].z_ref - self.floor_z)))
+        if ahead:   # a storey it knows: once its floor is nearer than the switch distance (a landing
+            # half-way between two storeys belongs to the one the agent was on: no flip-flop)
+            near = min(ahead, key=lambda i: abs(self.storeys[i].z_ref - self.floor_z))
+            if abs(self.storeys[near].z_ref - self.floor_z) <= STOREY_SWITCH_M:
+                self._switch(near)
             return
         state = MapState.empty(self.start_xy, cfg, self.num_classes, self.mapper.new_voxels(),
                                lattice_m=self.mapper.voxel_size_m)
@@ -93,18 +100,22 @@ class StoreyPeanutAgent(PeanutAgent):
         self.detector = GoalDetector(self.cfg, n)
         self.watchdog = ProgressWatchdog(self.cfg, self.detector.deferral)
         self.selector.reset(n, self.goal_name)
-        self.look_turns = 0
+        self.look_turns, self.climb_steps = 0, 0
         self.climb_after = self.steps + STOREY_MIN_STEPS
+        self.arrived_at = self.steps
 
     def _map(self, frame, pose: np.ndarray) -> None:
         """Map the frame into the current storey; the mapper registers its height, which is
         the agent's floor from now (``agent.storeys.StoreyMapBuilder.register``)."""
         self.mapper.storey, self.mapper.floor_z = self.storeys[self.current], self.floor_z
+        self.mapper.prev_xy = None if self.last_action is None else self.prev_xy
         self.mapper.update(self.state, frame, pose)
         self.floor_z = self.mapper.floor_z
 
     # ------------------------------------------------------------------ stairs
     def _explore(self, agent_rc, yaw: float, free: np.ndarray, det: GoalDetection) -> int:
+        if not self.climb and self.steps - self.arrived_at >= STOREY_EXPLORE_STEPS:
+            self._start_climb(free, unvisited_only=True)   # a storey never seen may hold the goal
         if not self.climb:
             goal = self.selector.select(self.state, self.window, agent_rc, free)
             if goal is not None or not self._start_climb(free):
@@ -115,19 +126,21 @@ class StoreyPeanutAgent(PeanutAgent):
         return self._explore_goal(self.selector.select(self.state, self.window, agent_rc, free), agent_rc, yaw, free,
                                   det)
 
-    def _start_climb(self, free: np.ndarray) -> bool:
-        """No frontier left here: commit to the stairs it knows (module docstring); False
-        when it knows none."""
+    def _start_climb(self, free: np.ndarray, unvisited_only: bool = False) -> bool:
+        """Commit to the stairs it knows (module docstring): when no frontier is left here, or
+        (``unvisited_only``) to a storey it has not been on yet; False when it knows none."""
         if self.steps < self.climb_after:
             return False
         st = self.storeys[self.current]
-        options = [d for d in (1, -1) if st.flights(free, self.window, d, self.cfg.cell_m).any()]
-        if not options:
-            return False
 
         def last_left(d: int) -> int:   # the storey that way: never visited first, else the longest left
             ahead = [i for i, s in enumerate(self.storeys) if d * (s.z_ref - st.z_ref) > 0]
             return -1 if not ahead else self.left_at.get(min(ahead, key=lambda i: abs(self.storeys[i].z_ref - st.z_ref)), 0)
+
+        options = [d for d in (1, -1) if st.flights(free, self.window, d, self.cfg.cell_m).any()
+                   and (not unvisited_only or last_left(d) < 0)]
+        if not options:
+            return False
 
         self.climb, self.climb_from, self.look_turns = min(options, key=last_left), self.current, 0
         self.climb_steps, self.climb_z, self.climb_best = 0, self.floor_z, 0.0

@@ -149,6 +149,7 @@ class StoreyMapBuilder(FusedMapBuilder):
 
     storey: Storey | None = None
     floor_z: float = 0.0
+    prev_xy: np.ndarray | None = None   # where the camera was at the last frame (``floor_ahead``)
 
     def new_voxels(self) -> SemanticVoxelMap:
         """A fresh voxel map (another storey's: the builder's own one is the start storey's)."""
@@ -159,6 +160,10 @@ class StoreyMapBuilder(FusedMapBuilder):
         corrected by the offset found: ``register``), then map it."""
         pose = pose.copy()
         dz = self.register(state, frame.depth, frame.k, pose)
+        if dz is None:   # nothing to register on (going down a flight): the floor seen ahead
+            ahead = floor_ahead(self.storey, self.prev_xy, pose[:2, 3], self.floor_z, self.cfg.cell_m) \
+                if self.prev_xy is not None else None
+            dz = 0.0 if ahead is None else float(np.clip(self.floor_z - ahead, -FLOOR_STEP_M, FLOOR_STEP_M))
         pose[2, 3] -= dz
         self.floor_z -= dz
         self._full_depth = frame.depth
@@ -171,25 +176,26 @@ class StoreyMapBuilder(FusedMapBuilder):
             keep = ((z >= lo) & (z <= hi)).reshape(frame.depth.shape)
         super().update(state, replace(frame, depth=np.where(keep, frame.depth, 0).astype(np.float32)), pose)
 
-    def register(self, state: MapState, depth: np.ndarray, intrinsics: np.ndarray, pose: np.ndarray) -> float:
+    def register(self, state: MapState, depth: np.ndarray, intrinsics: np.ndarray, pose: np.ndarray) -> float | None:
         """The camera's height error, metres: the median, over the cells where this frame sees a
         flat surface below the camera that the storey's map holds too (``Storey.reg``: floors,
         treads, seats, table tops; a wall's foot is not flat), of (height now - height on the
-        map); 0 with fewer than ``REGISTER_MIN_CELLS`` of them. Up a flight the treads ahead seem a rise
+        map); None with fewer than ``REGISTER_MIN_CELLS`` of them (then ``update`` reads the
+        floor ahead instead: ``floor_ahead``). Up a flight the treads ahead seem a rise
         lower after each step up: this is how the agent knows it climbed (gps has no height)."""
         cfg, st = self.cfg, self.storey
         points, _ = pj.backproject(depth, intrinsics, pose)
         cells, inside = pj.cell_of(points[:, :2], state.origin, cfg.cell_m, state.size)
         cand = inside & (points[:, 2] <= pose[2, 3] - REGISTER_BELOW_CAMERA_M)
         if not cand.any():
-            return 0.0
+            return None
         u, low, flat = _cell_floors(cells[cand], points[cand, 2])
         with np.errstate(invalid="ignore"):
             # the same cell of another storey (seen through a stair opening) is no match
             diff = low - st.reg.reshape(-1)[u]
             known = flat & (np.abs(diff) <= REGISTER_GATE_M)
         if known.sum() < REGISTER_MIN_CELLS:
-            return 0.0
+            return None
         return float(np.median(diff[known]))
 
     def project_geometry(self, state: MapState, depth: np.ndarray, intrinsics: np.ndarray, pose: np.ndarray):
