@@ -1,9 +1,10 @@
 """Typed configuration of the simulator and task (loaded from YAML by ``eval.config``)."""
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Any, ClassVar, Literal
 
 from calnav.common.ranges import Range, check_ranges
 from calnav.envs.scanning.config import ScanningConfig
@@ -49,11 +50,10 @@ DATASET_RANGES = {
     # calnav's navmeshes differ by centimetres; beyond 2 m (habitat-sim's own snap box) it is
     # another task
     "max_snap_m": Range(0.0, 2.0, METRES),
+    # one storey is every calnav house before storeys existed; three keep a house's stairs and
+    # floors within the ~9 m that the renderer's and the map's height ranges were sized for
+    "storeys": Range(1, 3, "storeys"),
 }
-
-# keys that exist only for habitat-lab episode files: left out of the dataset's fingerprint at
-# these values, so the caches and records of generated houses keep their keys
-FILE_DATASET_DEFAULTS = {"data_path": "", "max_snap_m": 0.5}
 
 # Size-like keys of the agent, its sensor and its task (``env``), and why their bounds:
 ENV_RANGES = {
@@ -102,6 +102,11 @@ class DatasetConfig:
     scanning: ScanningConfig = field(default_factory=ScanningConfig)  # scan settings (style scanned only)
     data_path: str = ""              # habitat-lab ObjectNav episode file, {split} for the split (HM3D / MP3D); "" = generated episodes
     max_snap_m: float = 0.5          # a file's start farther than this from calnav's navmesh is refused, metres
+    storeys: int = 1                 # storeys per procedural house, joined by staircases (envs.stairs), storeys
+
+    # Left out of every key, fingerprint and saved config while at these values (``plain_dict``):
+    # the keys and records made before the fields existed stay valid.
+    OMIT_AT_DEFAULT: ClassVar[dict[str, Any]] = {"data_path": "", "max_snap_m": 0.5, "storeys": 1}
 
     def __post_init__(self) -> None:
         check_ranges(self, "env.dataset", DATASET_RANGES)
@@ -110,6 +115,10 @@ class DatasetConfig:
         if self.data_path and not self.scene_dir:
             raise ValueError(f"env.dataset.data_path {self.data_path!r} needs env.dataset.scene_dir: the folder its "
                              "scene ids resolve under (habitat-lab's scenes_dir, e.g. data/scene_datasets)")
+        if self.storeys > 1 and (self.scene_dir or self.style == "scanned"):
+            raise ValueError(f"env.dataset.storeys={self.storeys} builds calnav's procedural houses with stairs; it "
+                             f"does not apply to {'user scenes (env.dataset.scene_dir)' if self.scene_dir else 'scans'}"
+                             ": use storeys=1 there")
         if not self.min_geodesic_m < self.max_geodesic_m:
             raise ValueError(f"env.dataset.max_geodesic_m ({self.max_geodesic_m:g} m) must be above "
                              f"env.dataset.min_geodesic_m ({self.min_geodesic_m:g} m): no start distance lies between "
@@ -209,14 +218,23 @@ class EnvConfig:
             raise ValueError(f"env.max_episode_steps must be >= 1 actions, got {self.max_episode_steps}")
 
 
-def dataset_fingerprint(dataset: DatasetConfig) -> dict:
-    """``dataset`` as a dict for cache and record keys, without the keys of
-    ``FILE_DATASET_DEFAULTS`` at their defaults (those keys did not exist when most keys were
-    computed)."""
-    from dataclasses import asdict
+def require_single_storey(env_cfg: EnvConfig, what: str) -> None:
+    """Refuse a house with storeys where ``what`` (a command or a simulator front end) only
+    knows one storey, naming what does run them (the gym env behind ``calnav objectnav``)."""
+    if env_cfg.dataset.storeys > 1:
+        raise ValueError(f"{what} runs single-storey houses only; env.dataset.storeys={env_cfg.dataset.storeys} "
+                         "runs in calnav objectnav (calnav's gym env): use env.dataset.storeys=1 here")
 
-    out = asdict(dataset)
-    for key, default in FILE_DATASET_DEFAULTS.items():
-        if out[key] == default:
-            del out[key]
-    return out
+
+def plain_dict(obj) -> Any:
+    """``dataclasses.asdict`` of a config, without the fields a config class lists in its
+    ``OMIT_AT_DEFAULT`` while they hold those values (cache keys, fingerprints, saved configs)."""
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        omit = getattr(type(obj), "OMIT_AT_DEFAULT", {})
+        return {f.name: plain_dict(getattr(obj, f.name)) for f in dataclasses.fields(obj)
+                if not (f.name in omit and getattr(obj, f.name) == omit[f.name])}
+    if isinstance(obj, (list, tuple)):
+        return type(obj)(plain_dict(x) for x in obj)
+    if isinstance(obj, dict):
+        return {k: plain_dict(v) for k, v in obj.items()}
+    return obj

@@ -27,73 +27,25 @@ from __future__ import annotations
 
 import hashlib
 import json
-import math
 from dataclasses import asdict, replace
 from pathlib import Path
 
 import numpy as np
-from scipy import ndimage
 
 from calnav.common.atomic import write_json_atomic
-from calnav.envs.config import EnvConfig, dataset_fingerprint
+from calnav.envs.config import EnvConfig, plain_dict
 from calnav.envs.episode_files import (goal_mask, view_point_mask,  # noqa: F401 (importable here too)
                                        GoalObject, ObjectNavEpisode, cached_episodes, episodes_from_habitat,
                                        episodes_to_habitat, write_json_gz)
+from calnav.envs.episode_rules import (MAX_START_TRIES, MAX_UNSOLVABLE_TRIES, START_DISTANCE_POWER,  # noqa: F401
+                                       SURFACE_SAMPLE_SPACING_M, TRIVIAL_REJECT_PROB, VISIBILITY_TARGETS,
+                                       find_view_points)
 from calnav.envs.oracle import oracle_solves
-from calnav.envs.scene import Scene, cache_dir, sample_surface
+from calnav.envs.scene import Scene, cache_dir
 from calnav.envs.semantics import GOAL_CATEGORIES
 from calnav.envs.task import yaw_to_habitat_quaternion
 
 GENERATOR_VERSION = 4  # 2: walls block in the nav grid; 3: starts weighted by distance^1; 4: navmesh, islands, oracle check
-TRIVIAL_REJECT_PROB = 0.98        # habitat-lab's rejection rate for near-straight episodes
-SURFACE_SAMPLE_SPACING_M = 0.03   # spacing of object surface samples for footprints, metres
-VISIBILITY_TARGETS = 48           # object surface points tested for visibility per view point
-MAX_START_TRIES = 200             # start-pose draws per episode before giving up
-MAX_UNSOLVABLE_TRIES = 10         # ... of which at most this many the oracle cannot solve (each costs a full search)
-START_DISTANCE_POWER = 1.0        # start cells are drawn with probability ∝ geodesic^power
-
-
-# ---------------------------------------------------------------- geometry helpers
-def _vertical_half_fov(env_cfg: EnvConfig) -> float:
-    w, h = env_cfg.resolution
-    return math.atan(math.tan(math.radians(env_cfg.hfov_deg) / 2) * h / w)
-
-
-def find_view_points(scene: Scene, navgrid, raycasting_scene, instance_id: int, env_cfg: EnvConfig,
-                     rng: np.random.Generator) -> np.ndarray:
-    """(M, 2) world xy of the view points of one instance (may be empty)."""
-    import open3d as o3d
-
-    surface = sample_surface(scene.instance_triangles(instance_id).astype(np.float64),
-                             SURFACE_SAMPLE_SPACING_M, rng)
-    cells = navgrid.to_cell(surface[:, :2])
-    h, w = navgrid.navigable.shape
-    inside = (cells[:, 0] >= 0) & (cells[:, 0] < h) & (cells[:, 1] >= 0) & (cells[:, 1] < w)
-    footprint = np.zeros((h, w), dtype=bool)
-    footprint[cells[inside, 0], cells[inside, 1]] = True
-    dist = ndimage.distance_transform_edt(~footprint, sampling=navgrid.cell_m)
-    candidates = np.argwhere(navgrid.navigable & (dist <= env_cfg.view_point_radius_m))
-    if len(candidates) == 0:
-        return np.zeros((0, 2))
-    targets = surface[rng.choice(len(surface), size=min(VISIBILITY_TARGETS, len(surface)), replace=False)]
-    eyes_xy = navgrid.to_world(candidates)
-    feet = scene.floor_z if navgrid.floor_heights is None else navgrid.floor_heights[candidates[:, 0], candidates[:, 1]]
-    eyes = np.column_stack([eyes_xy, feet + env_cfg.camera_height_m])   # the camera rides the floor
-    direction = targets[None, :, :] - eyes[:, None, :]                       # (C, P, 3)
-    length = np.linalg.norm(direction, axis=2)
-    elevation = np.arcsin(np.clip(direction[..., 2] / np.maximum(length, 1e-9), -1, 1))
-    in_fov = np.abs(elevation) <= _vertical_half_fov(env_cfg)
-    rays = np.concatenate([np.repeat(eyes[:, None, :], targets.shape[0], axis=1),
-                           direction / np.maximum(length, 1e-9)[..., None]], axis=2)
-    hits = raycasting_scene.cast_rays(o3d.core.Tensor(rays.reshape(-1, 6).astype(np.float32)))
-    prim = hits["primitive_ids"].numpy().astype(np.int64).reshape(length.shape)
-    valid = prim != o3d.t.geometry.RaycastingScene.INVALID_ID
-    hit_instance = np.full(prim.shape, -1, dtype=np.int64)
-    hit_instance[valid] = scene.tri_instance[prim[valid]]
-    visible = ((hit_instance == instance_id) & in_fov).any(axis=1)
-    return eyes_xy[visible]
-
-
 def find_goal_objects(scene: Scene, navgrid, raycasting_scene, env_cfg: EnvConfig,
                       rng: np.random.Generator) -> dict[str, list[GoalObject]]:
     """Goal categories present in the scene -> their instances that have view points."""
@@ -194,7 +146,7 @@ def generate_scene_episodes(scene_id: str, scene: Scene, navgrid, raycasting_sce
 def dataset_key(env_cfg: EnvConfig) -> str:
     """Hash of everything that changes the generated episodes."""
     relevant = {
-        "version": GENERATOR_VERSION, "dataset": dataset_fingerprint(env_cfg.dataset), "navmesh": asdict(env_cfg.navmesh),
+        "version": GENERATOR_VERSION, "dataset": plain_dict(env_cfg.dataset), "navmesh": asdict(env_cfg.navmesh),
         "nav": [env_cfg.agent_radius_m, env_cfg.agent_height_m, env_cfg.nav_cell_m, env_cfg.view_point_radius_m,
                 env_cfg.camera_height_m, env_cfg.hfov_deg, list(env_cfg.resolution)],
         # the oracle check runs the task's actions (its step limit is the dataset's oracle_max_steps)
@@ -220,9 +172,11 @@ def generate_scene(split: str, scene_id: str, env_cfg: EnvConfig) -> tuple[dict,
     renderer = Renderer(scene, Camera.from_config(env_cfg))
     navgrid = NavGrid.build(scene, env_cfg, renderer.raycasting_scene)
     counts: dict = {}
-    eps = generate_scene_episodes(scene_id, scene, navgrid, renderer.raycasting_scene, env_cfg,
-                                  env_cfg.dataset.episodes_per_scene, generation_seed(scene_id, env_cfg.dataset.seed),
-                                  report=counts)
+    generate = generate_scene_episodes
+    if navgrid.layered:
+        from calnav.envs.storey_episodes import generate_layered_episodes as generate
+    eps = generate(scene_id, scene, navgrid, renderer.raycasting_scene, env_cfg, env_cfg.dataset.episodes_per_scene,
+                   generation_seed(scene_id, env_cfg.dataset.seed), report=counts)
     if not eps:
         raise ValueError(f"scene {scene_id!r}: every episode drawn was rejected ({counts['unsolvable']} "
                          f"unsolvable by the oracle, {counts['no_start']} category draws without a start "

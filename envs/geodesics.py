@@ -22,6 +22,10 @@ from scipy.sparse.csgraph import dijkstra
 
 from calnav.common.jit import compiled
 
+# Shared by the single-storey and the layered grid (``envs.navigation``, ``envs.layered_navigation``):
+FIELD_CACHE_SIZE = 8        # geodesic fields kept per grid (LRU)
+MOVE_SAMPLE_FRACTION = 0.5  # move_forward checks the segment every this many cells
+
 # Grid graph moves (d_row, d_col): 8 neighbours and 8 knight moves.
 GRAPH_OFFSETS: tuple[tuple[int, int], ...] = tuple(
     (dr, dc) for dr in range(-2, 3) for dc in range(-2, 3)

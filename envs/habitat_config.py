@@ -20,7 +20,7 @@ from dataclasses import asdict, replace
 from pathlib import Path
 
 from calnav.common.atomic import write_text_atomic
-from calnav.envs.config import DatasetConfig, EnvConfig, NavMeshConfig
+from calnav.envs.config import DatasetConfig, EnvConfig, NavMeshConfig, plain_dict
 from calnav.envs.scanning.config import ScanningConfig
 from calnav.envs.episodes import dataset_key, load_split, split_dir
 
@@ -111,7 +111,7 @@ def prepare_habitat_dataset(env_cfg: EnvConfig, progress: bool = True) -> Path:
     load_split(env_cfg.split, env_cfg, progress=progress)  # also adds the iou key to old files
     root = split_dir(env_cfg.split, env_cfg)
     path = root / DESCRIPTOR
-    text = json.dumps({"format": DESCRIPTOR_FORMAT, "version": DESCRIPTOR_VERSION, "env": asdict(env_cfg)},
+    text = json.dumps({"format": DESCRIPTOR_FORMAT, "version": DESCRIPTOR_VERSION, "env": plain_dict(env_cfg)},
                       indent=1, sort_keys=True)
     if not path.exists() or path.read_text() != text:
         write_text_atomic(path, text)

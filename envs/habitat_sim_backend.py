@@ -45,7 +45,7 @@ from habitat.core.simulator import (AgentState, DepthSensor, RGBSensor, Semantic
                                     Simulator)
 from habitat.sims.habitat_simulator.actions import HabitatSimActions  # noqa: E402
 
-from calnav.envs.config import EnvConfig  # noqa: E402
+from calnav.envs.config import EnvConfig, require_single_storey  # noqa: E402
 from calnav.envs.episode_files import habitat_quaternion_to_yaw  # noqa: E402
 from calnav.envs.episodes import view_point_mask  # noqa: E402
 from calnav.envs.task import yaw_to_habitat_quaternion  # noqa: E402
@@ -180,6 +180,7 @@ class CalnavSim(Simulator):
         from calnav.envs.render import Camera, Renderer
         from calnav.envs.scenes import load_scene
 
+        require_single_storey(env, "habitat-lab's CalnavSim-v0")
         self.scene = load_scene(scene_id, env.dataset)
         self.camera = Camera.from_config(env)
         self.renderer = Renderer(self.scene, self.camera, min_depth_m=0.0, max_depth_m=RAW_MAX_DEPTH_M)

@@ -9,7 +9,8 @@ What differs from habitat-lab:
   ``softspl``; habitat-lab's ``SoftSPL.cls_uuid`` is ``soft_spl``. The other uuids
   (``distance_to_goal``, ``success``, ``spl``) are habitat-lab's.
 - positions are the agent's 2D floor position, so L sums 2D step lengths (habitat-lab: 3D agent
-  positions; the same on a single floor).
+  positions; the same on a single floor). In a house with storeys the env hands (x, y, floor
+  height), so L counts the climb as habitat-lab's does.
 - where habitat-lab divides by zero (start distance d_0 = 0: SoftSPL always, SPL when L = 0
   too), calnav's SPL and SoftSPL are 0.
 
@@ -37,7 +38,8 @@ import numpy as np
 class TaskState:
     """What the measures read after each step.
 
-    position: (2,) float64 agent floor position, metres. stop_called: STOP was the last action.
+    position: (2,) float64 agent floor position, metres ((3,) with the floor height in a house
+    with storeys). stop_called: STOP was the last action.
     distance_fn: position (2,) -> geodesic DistanceToGoal in metres (inf if unreachable).
     goal_in_view: some pixel of the current frame shows a goal instance.
     """

@@ -39,3 +39,14 @@ def apply_action(navgrid, env_cfg, position: np.ndarray, yaw: float, pitch: floa
     elif action == Action.LOOK_DOWN:
         pitch = tilt(pitch, -env_cfg.tilt_angle_deg)
     return position, yaw, pitch, collided
+
+
+def apply_layered_action(navgrid, env_cfg, position: np.ndarray, layer: int, yaw: float, pitch: float,
+                         action: Action) -> tuple[np.ndarray, int, float, float, bool]:
+    """``apply_action`` on a ``LayeredNavGrid``: (position, layer, yaw, pitch, collided);
+    MOVE_FORWARD may change the layer (stairs), every other action is ``apply_action``'s."""
+    if action == Action.MOVE_FORWARD:
+        position, layer, moved = navgrid.move_forward(position, layer, yaw, env_cfg.forward_step_m)
+        return position, layer, yaw, pitch, not moved
+    position, yaw, pitch, collided = apply_action(navgrid, env_cfg, position, yaw, pitch, action)
+    return position, layer, yaw, pitch, collided

@@ -15,12 +15,10 @@ import numpy as np
 from scipy import sparse
 
 from calnav.common.jit import compiled
-from calnav.envs.geodesics import GeodesicField, grid_graph
+from calnav.envs.geodesics import FIELD_CACHE_SIZE, MOVE_SAMPLE_FRACTION, GeodesicField, grid_graph
 from calnav.envs.navmesh import build_navmesh
 from calnav.envs.scene import Scene
 
-FIELD_CACHE_SIZE = 8        # geodesic fields kept per NavGrid (LRU)
-MOVE_SAMPLE_FRACTION = 0.5  # move_forward checks the segment every this many cells
 # Peak memory of a scene's navigation per grid cell, bytes: the span heightfield, the navmesh's
 # (H, W) layers, the cell graph and the geodesic fields of episode generation. Measured (numpy's
 # peak under tracemalloc, NavGrid.build + generating 5 episodes of house_val_0001): 415 B/cell at
@@ -76,6 +74,8 @@ class NavGrid:
     _fields: OrderedDict = field(default_factory=OrderedDict, init=False, repr=False)
     _graph: tuple | None = field(default=None, init=False, repr=False)
 
+    layered = False   # one storey; ``envs.layered_navigation.LayeredNavGrid`` (True) has a layer per storey
+
     @property
     def graph(self) -> tuple[sparse.csr_matrix, np.ndarray, np.ndarray]:
         """(CSR graph over navigable cells, (H, W) node index, (N, 2) node cells); built on
@@ -90,11 +90,16 @@ class NavGrid:
 
     # ------------------------------------------------------------- building
     @classmethod
-    def build(cls, scene: Scene, env_cfg, raycasting_scene=None) -> "NavGrid":
+    def build(cls, scene: Scene, env_cfg, raycasting_scene=None):
         """The navigable grid of ``scene`` for the agent of ``env_cfg`` (``nav_cell_m``,
         ``agent_radius_m``, ``agent_height_m``, ``navmesh``): ``envs.navmesh.build_navmesh``.
         ``raycasting_scene`` is accepted for callers that hold one; the navmesh does not cast
-        rays. Raises ValueError if nothing is navigable."""
+        rays. A house with storeys (``scene.meta["storey_z"]``, more than one) gets a
+        ``LayeredNavGrid`` instead. Raises ValueError if nothing is navigable."""
+        if len(scene.meta.get("storey_z", ())) > 1:
+            from calnav.envs.layered_navigation import LayeredNavGrid
+
+            return LayeredNavGrid.build(scene, env_cfg)
         mesh = build_navmesh(scene, env_cfg)
         return cls(navigable=mesh.navigable, origin_xy=mesh.origin_xy, cell_m=mesh.cell_m,
                    floor_z=float(scene.floor_z), free=mesh.ground, floor_heights=mesh.floor_z,

@@ -11,7 +11,8 @@
     navigable   = ground eroded by the agent radius, islands below region_min_size^2 cells dropped
 
 Semantic labels play no part: an unlabelled floor is floor. What differs from habitat-sim: the
-result is a 2D grid (one storey; calnav's houses have one) rather than polygons, and the
+result is a 2D grid (one storey; calnav's houses with storeys get one layer per storey from
+``envs.navmesh_layers``, which reuses ``build_heightfield``) rather than polygons, and the
 erosion is the Euclidean clearance ``agent_radius_m + cell / 2`` from any cell that is not
 ground (Recast's chamfer erosion by ceil(radius / cell) cells keeps the same cells along the
 axes), so the agent's planner, which dilates its obstacles by that clearance, sees the same gaps.

@@ -10,7 +10,13 @@ start pose; ``compass`` (1,) float32 radians relative to the start heading (ccw 
 simulated segmenters only (Habitat gives neither).
 
 ``info`` carries habitat-lab's metrics at every step: ``distance_to_goal``, ``success``,
-``spl``, ``softspl`` (plus ``episode_id``, ``steps``, ``collisions``, ``path_length``).
+``spl``, ``softspl`` (plus ``episode_id``, ``steps``, ``collisions``, ``path_length``, and
+``start_storey``, ``goal_storey``, ``storey``: the storey the agent started on, the one of the
+nearest goal, the one it is on; all 0 in a single-storey house). In a house with storeys
+(``env.dataset.storeys``) the agent moves on a ``LayeredNavGrid``: MOVE_FORWARD takes the
+stairs, the camera rides the floor under the agent (steps included), DistanceToGoal is the
+geodesic through the stairs and the path length L sums 3-D steps (habitat-lab's agent
+positions), the climb included.
 An episode terminates on STOP and is truncated after ``max_episode_steps`` actions (the
 agent, like PEANUT, should STOP on its last step to have a chance of success).
 ``gym.make(ENV_ID, max_episode_steps=N)`` sets that limit: gymnasium's ``TimeLimit`` is applied
@@ -31,7 +37,7 @@ from gymnasium import spaces
 from calnav.envs.config import EnvConfig
 from calnav.envs.episodes import ObjectNavEpisode, goal_mask, load_split
 from calnav.envs.measures import TaskState, objectnav_measurements
-from calnav.envs.motion import apply_action
+from calnav.envs.motion import apply_action, apply_layered_action
 from calnav.envs.episode_datasets import task_categories
 from calnav.envs.semantics import NUM_CLASSES
 from calnav.envs.task import (CAMERA_INTRINSICS, CAMERA_POSE, COMPASS, DEPTH, GPS, OBJECTGOAL, RGB, SEMANTIC, Action,
@@ -123,13 +129,17 @@ class ObjectNavEnv(gym.Env):
         self._episode = ep
         self.goal_field = self.navgrid.geodesic_field(goal_mask(self.navgrid, ep.goals))
         self.position = np.array(ep.start_position, dtype=np.float64)
+        self.layer = 0   # the storey (the navigation layer) the agent stands on
+        if self.navgrid.layered:
+            found = self.navgrid.locate(self.position, ep.start_height)
+            self.layer = int(ep.start_storey) if found is None else found
         self.yaw = float(ep.start_yaw)
         self.pitch = 0.0
         self.steps = 0
         self.collisions = 0
         self._noise_rng = np.random.default_rng(None if seed is None else seed + 1)
         self._goal_instances = np.array([g.object_id for g in ep.goals], dtype=np.int64)
-        self._task = TaskState(position=self.position.copy(), distance_fn=self.goal_field.distance)
+        self._task = TaskState(position=self._task_position(), distance_fn=self._distance_fn())
         self._measurements = objectnav_measurements(self.config.success_distance_m)
         self._last_obs = self._observe()
         self._measurements.reset(self._task)
@@ -177,11 +187,15 @@ class ObjectNavEnv(gym.Env):
         a = check_action(action, self.config.enable_look)
         cfg = self.config
         d_before = self._measurements["distance_to_goal"].metric
-        self.position, self.yaw, self.pitch, collided = apply_action(self.navgrid, cfg, self.position, self.yaw,
-                                                                     self.pitch, a)
+        if self.navgrid.layered:
+            self.position, self.layer, self.yaw, self.pitch, collided = apply_layered_action(
+                self.navgrid, cfg, self.position, self.layer, self.yaw, self.pitch, a)
+        else:
+            self.position, self.yaw, self.pitch, collided = apply_action(self.navgrid, cfg, self.position, self.yaw,
+                                                                         self.pitch, a)
         self.collisions += int(collided)
         self.steps += 1
-        self._task.position = self.position.copy()
+        self._task.position = self._task_position()
         self._task.stop_called = a == Action.STOP
         self._last_obs = self._observe()
         self._measurements.update(self._task)
@@ -201,6 +215,20 @@ class ObjectNavEnv(gym.Env):
         return None
 
     # ---------------------------------------------------------------- helpers
+    def _task_position(self) -> np.ndarray:
+        """What the measures read: (2,) xy on one storey; (3,) xy and floor height on a
+        layered grid (the climb counts in the path length, as habitat-lab's 3-D positions)."""
+        if not self.navgrid.layered:
+            return self.position.copy()
+        return np.append(self.position, self.navgrid.floor_height(self.position, self.layer))
+
+    def _distance_fn(self):
+        """DistanceToGoal of a task position: the goal field at it (on the agent's layer)."""
+        if not self.navgrid.layered:
+            return self.goal_field.distance
+        field = self.goal_field
+        return lambda p: field.distance(np.asarray(p)[:2], self.layer)
+
     def simulator_handle(self) -> SimulatorHandle:
         """Privileged access for an oracle agent (``envs.task.SimulatorHandle``): the
         shortest-path follower on this env's navigation grid, from its true pose to the
@@ -208,14 +236,15 @@ class ObjectNavEnv(gym.Env):
         from calnav.envs.oracle import FollowerHandle
 
         return FollowerHandle(lambda: self.navgrid, lambda: self.config, lambda: (self.position, self.yaw),
-                              lambda: self.goal_field)
+                              lambda: self.goal_field, layer=lambda: self.layer)
 
     def camera_pose(self) -> np.ndarray:
         from calnav.envs.render import camera_pose
 
         # the agent stands on the navmesh, as in habitat-sim: the camera rides the floor under it
-        return camera_pose(self.position, self.yaw, self.navgrid.floor_height(self.position) + self.config.camera_height_m,
-                           self.pitch)
+        floor = (self.navgrid.floor_height(self.position, self.layer) if self.navgrid.layered
+                 else self.navgrid.floor_height(self.position))
+        return camera_pose(self.position, self.yaw, floor + self.config.camera_height_m, self.pitch)
 
     def _observe(self) -> dict:
         pose = self.camera_pose()
@@ -245,6 +274,8 @@ class ObjectNavEnv(gym.Env):
         return {
             **m, "episode_id": self.episode.episode_id, "steps": self.steps,
             "collisions": self.collisions, "path_length": self._measurements["spl"].path_length,
+            "start_storey": int(self.episode.start_storey), "goal_storey": int(self.episode.goal_storey),
+            "storey": int(self.layer),
         }
 
 

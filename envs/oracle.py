@@ -16,7 +16,8 @@ import numpy as np
 
 from calnav.envs.config import EnvConfig
 from calnav.envs.lattice import lattice_search
-from calnav.envs.motion import apply_action
+from calnav.envs.layered_lattice import layered_lattice_search
+from calnav.envs.motion import apply_action, apply_layered_action
 from calnav.envs.task import Action
 
 STOP_RADIUS_FRACTION = 0.99   # STOP once DistanceToGoal < this fraction of the success distance
@@ -111,6 +112,76 @@ class ShortestPathFollower:
         return out
 
 
+class LayeredFollower(ShortestPathFollower):
+    """The follower on a ``LayeredNavGrid``: the layer joins the state (``envs.layered_lattice``);
+    next_action(xy, layer, yaw, field: LayeredGeodesicField) -> Action."""
+
+    def plan(self, xy: np.ndarray, layer: int, yaw: float, field) -> list[Action] | None:
+        g = self.navgrid
+        for bin_m, weight, budget in SEARCH_TIERS:
+            moves, found = layered_lattice_search(
+                g.navigable, g.floor_heights, float(g.climb_m), float(g.origin_xy[0]), float(g.origin_xy[1]),
+                float(g.cell_m), field.distances_m, field.goal_mask, float(xy[0]), float(xy[1]), int(layer), float(yaw),
+                float(self.step_m), float(self.turn_rad), int(self.n_headings), float(self.stop_distance), float(bin_m),
+                float(weight), int(budget), TURN_COST_M)
+            if found:
+                return [Action(int(m)) for m in moves] + [Action.STOP]
+        return None
+
+    def _greedy_layered(self, xy: np.ndarray, layer: int, yaw: float, field) -> Action:
+        best = (field.distance(xy, layer), None)
+        for k in range(self.n_headings):
+            new_xy, new_layer, moved = self.navgrid.move_forward(xy, layer, yaw + k * self.turn_rad, self.step_m)
+            if moved and field.distance(new_xy, new_layer) < best[0]:
+                best = (field.distance(new_xy, new_layer), k)
+        if best[1] == 0:
+            return Action.MOVE_FORWARD
+        return Action.TURN_RIGHT if best[1] is not None and best[1] > self.n_headings // 2 else Action.TURN_LEFT
+
+    def next_action(self, xy: np.ndarray, layer: int, yaw: float, field) -> Action:  # type: ignore[override]
+        if field.distance(xy, layer) < self.stop_distance:
+            return Action.STOP
+        state = (float(xy[0]), float(xy[1]), int(layer), float(yaw))
+        if field is not self._field or not self._plan or self._plan[0][1] != state:
+            self._field = field
+            actions = self.plan(xy, layer, yaw, field)
+            self._plan = [] if actions is None else self._layered_states(xy, layer, yaw, actions)
+            if not self._plan:
+                return self._greedy_layered(xy, layer, yaw, field)
+        return self._plan.pop(0)[0]
+
+    def _layered_states(self, xy, layer: int, yaw: float, actions: list[Action]) -> list[tuple[Action, tuple]]:
+        out = []
+        pos, lay, heading = np.array(xy, dtype=np.float64), int(layer), float(yaw)
+        for a in actions:
+            out.append((a, (float(pos[0]), float(pos[1]), lay, heading)))
+            if a == Action.MOVE_FORWARD:
+                pos, lay, moved = self.navgrid.move_forward(pos, lay, heading, self.step_m)
+                if not moved:
+                    return []
+            elif a in (Action.TURN_LEFT, Action.TURN_RIGHT):
+                heading = self._turned(heading, 1 if a == Action.TURN_LEFT else -1)
+        return out
+
+
+def follower_for(navgrid, env_cfg: EnvConfig) -> ShortestPathFollower:
+    """The follower that plans on ``navgrid``: ``LayeredFollower`` on a layered grid."""
+    return (LayeredFollower if getattr(navgrid, "layered", False) else ShortestPathFollower)(navgrid, env_cfg)
+
+
+def layered_oracle_solves(navgrid, env_cfg: EnvConfig, start_xy: np.ndarray, start_layer: int, start_yaw: float,
+                          field) -> bool:
+    """``oracle_solves`` on a ``LayeredNavGrid`` from (start_xy, start_layer, start_yaw)."""
+    actions = LayeredFollower(navgrid, env_cfg).plan(np.asarray(start_xy, dtype=np.float64), int(start_layer),
+                                                     float(start_yaw), field)
+    if actions is None or len(actions) > env_cfg.dataset.oracle_max_steps:
+        return False
+    xy, layer, yaw = np.array(start_xy, dtype=np.float64), int(start_layer), float(start_yaw)
+    for action in actions[:-1]:
+        xy, layer, yaw, _, _ = apply_layered_action(navgrid, env_cfg, xy, layer, yaw, 0.0, action)
+    return bool(field.distance(xy, layer) < env_cfg.success_distance_m)
+
+
 def oracle_solves(navgrid, env_cfg: EnvConfig, start_xy: np.ndarray, start_yaw: float, field) -> bool:
     """Whether the follower's plan from (start_xy (2,) metres, start_yaw radians), executed with
     the env's own motion (``envs.motion``), calls STOP within the success distance of
@@ -179,8 +250,10 @@ class FollowerHandle:
     ``GeodesicField``) at every action."""
 
     def __init__(self, navgrid: Callable[[], Any], env_config: Callable[[], EnvConfig],
-                 pose: Callable[[], tuple[np.ndarray, float]], goal_field: Callable[[], Any]):
+                 pose: Callable[[], tuple[np.ndarray, float]], goal_field: Callable[[], Any],
+                 layer: Callable[[], int] | None = None):
         self._navgrid, self._env_config, self._pose, self._goal_field = navgrid, env_config, pose, goal_field
+        self._layer = layer   # the storey the agent is on (read on a layered grid only)
         self.follower: ShortestPathFollower | None = None
 
     @property
@@ -188,12 +261,14 @@ class FollowerHandle:
         return int(self._env_config().max_episode_steps)
 
     def reset(self) -> None:
-        self.follower = ShortestPathFollower(self._navgrid(), self._env_config())
+        self.follower = follower_for(self._navgrid(), self._env_config())
 
     def shortest_path_action(self) -> Action:
         if self.follower is None:
             raise RuntimeError("the simulator handle was not reset for this episode: call reset() first")
         xy, yaw = self._pose()
+        if isinstance(self.follower, LayeredFollower):
+            return self.follower.next_action(xy, self._layer(), yaw, self._goal_field())
         return self.follower.next_action(xy, yaw, self._goal_field())
 
 

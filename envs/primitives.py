@@ -114,6 +114,18 @@ class MeshBuilder:
         self._tex.append(np.full(n, int(texture), dtype=np.uint8))
         self._n_verts += len(verts)
 
+    def mark(self) -> int:
+        """How many parts were added so far (``lift`` moves the parts added after a mark)."""
+        return len(self._verts)
+
+    def lift(self, mark: int, dz: float) -> None:
+        """Raise every part added since ``mark`` by ``dz`` metres (an upper storey is built at
+        floor level, then lifted onto its slab)."""
+        for i in range(mark, len(self._verts)):
+            v = self._verts[i].copy()   # parts may share arrays with the furniture models
+            v[:, 2] += np.float32(dz)
+            self._verts[i] = v
+
     def add_box(self, center, size, cls: str | None, instance: int, albedo,
                 texture: Texture = Texture.PLAIN, yaw: float = 0.0, faces: str = "all") -> None:
         self.add_mesh(*box_mesh(center, size, yaw, faces), cls, instance, albedo, texture)

@@ -60,6 +60,7 @@ from calnav.envs.config import DatasetConfig
 from calnav.envs.house import HouseSpec, generate_house
 from calnav.envs.scene import Scene, cache_dir
 from calnav.envs.scene_files import cached_scene, load_scene_file, save_atomic, scene_files_in
+from calnav.envs.stairs import StairSpec
 
 SPLITS = ("train", "val", "test", "calib")
 STYLES = ("clean", "scanned")               # DatasetConfig.style choices (envs.config.StyleName)
@@ -165,7 +166,10 @@ def scene_cache_path(scene_id: str, dataset_cfg: DatasetConfig | None = None, sp
     """Where the procedural scene ``scene_id`` is (or will be) cached."""
     cfg, spec = dataset_cfg or DatasetConfig(), spec or HouseSpec()
     seed = scene_seed(scene_id, cfg.seed)
-    key = hashlib.sha1(f"{spec.digest()}:{seed}".encode()).hexdigest()[:12]
+    text = f"{spec.digest()}:{seed}"
+    if cfg.storeys > 1:   # (a single-storey house keeps the key it had before storeys existed)
+        text += ":" + json.dumps({"storeys": cfg.storeys, "stairs": StairSpec().digest_items()}, sort_keys=True)
+    key = hashlib.sha1(text.encode()).hexdigest()[:12]
     return cache_dir() / "scenes" / f"{scene_id}_{key}.npz"
 
 
@@ -217,7 +221,7 @@ def load_scene(scene_id: str, dataset_cfg: DatasetConfig | None = None, spec: Ho
         seed = scene_seed(scene_id, cfg.seed)
         clean_path = scene_cache_path(scene_id, cfg, spec)
         key = ("house", str(clean_path))
-        loader = lambda: _load_procedural(scene_id, clean_path, seed, spec)  # noqa: E731
+        loader = lambda: _load_procedural(scene_id, clean_path, seed, spec, cfg.storeys)  # noqa: E731
         if cfg.style == "scanned":
             clean_loader, scan_path = loader, scanned_cache_path(scene_id, cfg, spec)
             key = ("scanned", str(scan_path))
@@ -233,10 +237,12 @@ def load_scene(scene_id: str, dataset_cfg: DatasetConfig | None = None, spec: Ho
     return scene
 
 
-def procedural_identity(scene_id: str, seed: int, spec: HouseSpec) -> dict:
+def procedural_identity(scene_id: str, seed: int, spec: HouseSpec, storeys: int = 1) -> dict:
     """The metadata that makes a generated house's cache file this house's (``generate_house``
-    writes ``seed`` and ``spec_digest``, ``_load_procedural`` the ``scene_id``)."""
-    return {"scene_id": scene_id, "seed": int(seed), "spec_digest": spec.digest()}
+    writes ``seed``, ``spec_digest`` and, above one storey, ``storeys``; ``_load_procedural``
+    the ``scene_id``)."""
+    out = {"scene_id": scene_id, "seed": int(seed), "spec_digest": spec.digest()}
+    return out if storeys == 1 else {**out, "storeys": int(storeys)}
 
 
 def scanned_identity(scene_id: str, seed: int, spec: HouseSpec, cfg: DatasetConfig) -> dict:
@@ -249,11 +255,11 @@ def scanned_identity(scene_id: str, seed: int, spec: HouseSpec, cfg: DatasetConf
             "scanning": scanning}
 
 
-def _load_procedural(scene_id: str, path: Path, seed: int, spec: HouseSpec) -> Scene:
-    scene = cached_scene(path, procedural_identity(scene_id, seed, spec))
+def _load_procedural(scene_id: str, path: Path, seed: int, spec: HouseSpec, storeys: int = 1) -> Scene:
+    scene = cached_scene(path, procedural_identity(scene_id, seed, spec, storeys))
     if scene is not None:
         return scene
-    scene = generate_house(seed, spec)
+    scene = generate_house(seed, spec, storeys=storeys)
     scene.name = scene_id
     scene.meta["scene_id"] = scene_id
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -325,7 +325,9 @@ def to_dict(cfg: Any) -> dict:
     sections it holds (the command's)."""
     def conv(v):
         if dataclasses.is_dataclass(v):
-            return {f.name: conv(getattr(v, f.name)) for f in dataclasses.fields(v)}
+            omit = getattr(type(v), "OMIT_AT_DEFAULT", {})   # (envs.config.plain_dict: older configs stay equal)
+            return {f.name: conv(getattr(v, f.name)) for f in dataclasses.fields(v)
+                    if not (f.name in omit and getattr(v, f.name) == omit[f.name])}
         if isinstance(v, (list, tuple)):
             return [conv(x) for x in v]
         if isinstance(v, dict):

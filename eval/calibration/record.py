@@ -76,12 +76,14 @@ class HouseScan:
     from the house mesh. ``RecordedScan`` is the same for a recording."""
 
     def __init__(self, cfg: Config, scene_id: str, seed: int):
+        from calnav.envs.config import require_single_storey
         from calnav.envs.navigation import NavGrid
         from calnav.envs.render import Camera, Renderer
         from calnav.envs.scenes import load_scene
         from calnav.envs.trajectories import scan_poses
 
         env = cfg.env
+        require_single_storey(env, "the map-calibration scans")
         self.scene = scene = load_scene(scene_id, dataset_for(cfg))
         w, h = env.resolution
         camera = Camera(width=w, height=h, hfov_deg=env.hfov_deg)

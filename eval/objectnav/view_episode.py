@@ -47,7 +47,10 @@ def draw_episode(env, path_xy: np.ndarray, frames: list[dict], out_dir: Path) ->
 
     from calnav.envs.semantics import CLASS_NAMES, colorize
 
+    from calnav.envs.config import require_single_storey
+
     e = env.unwrapped
+    require_single_storey(e.config, "calnav view-episode's top-down map")
     nav, ep = e.navgrid, e.episode
     out_dir.mkdir(parents=True, exist_ok=True)
     cls = top_down_class_map(e.scene, nav)
