@@ -178,3 +178,21 @@ def test_a_scene_whose_floor_is_not_at_zero_keeps_its_episodes(tmp_path):
     for a, b in zip(episodes, placed):
         np.testing.assert_allclose(a.start_position, b.start_position, atol=1e-9)
         assert abs(b.start_height) < 0.01
+
+
+def test_a_house_with_storeys_round_trips_its_stairs(tmp_path):
+    """A two-storey house exported and read back: its storeys are found from the geometry
+    (``envs.storey_detect``), so the navmesh is layered again and the oracle takes the same
+    actions, across the stairs too; the records name both storeys."""
+    small = ["env.resolution=32x24", "env.dataset.val_scenes=1", "env.dataset.episodes_per_scene=6", "run.workers=1"]
+    out, own, back = tmp_path / "data", tmp_path / "own", tmp_path / "back"
+    assert main(["export-habitat", "--output", str(out), *small, "env.dataset.storeys=2"]) == 0
+    assert main(["objectnav", "--agent", "oracle", "--episodes", "0:6", "--output", str(own), *small,
+                 "env.dataset.storeys=2"]) == 0
+    assert main(["objectnav", "--agent", "oracle", "--episodes", "0:6", "--output", str(back), *small,
+                 *_file_args(out)]) == 0
+    a, b = read_records(own), read_records(back)
+    for i in a:
+        assert (a[i]["success"], a[i]["steps"]) == (b[i]["success"], b[i]["steps"])
+        assert (a[i]["start_storey"], a[i]["goal_storey"]) == (b[i]["start_storey"], b[i]["goal_storey"])
+    assert any(r["start_storey"] != r["goal_storey"] for r in b.values())
