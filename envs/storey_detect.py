@@ -56,6 +56,9 @@ def detect_storeys(scene: Scene, max_slope_deg: float = 45.0, seed: int = 0) -> 
         height = float(np.average(z[near], weights=area[near]))
         if all(abs(height - h) >= MIN_STOREY_GAP_M for h, _ in chosen):
             chosen.append((height, a))
+    if not chosen:   # no floor as large as a storey (a closet, a scan fragment): one storey, its largest floor
+        near = np.abs(bins - int(np.argmax(smooth))) <= 1
+        return [float(np.average(z[near], weights=area[near]))]
     rng = np.random.default_rng(seed)
     storeys = [h for h, _ in chosen if len(chosen) == 1 or _covered(scene, tris, area, z, h, rng) >= MIN_COVERED]
     return sorted(storeys) or [chosen[0][0]]
