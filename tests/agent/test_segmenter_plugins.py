@@ -12,7 +12,7 @@ import pytest
 
 from calnav.agent.segmenters import SegmenterConfig, check_segmenter_spec, make_segmenter
 from calnav.eval.cli import main
-from tests.conftest import assert_same_records, read_records
+from tests.conftest import assert_same_records, read_records, small_or_full
 from tests.sequence_data import write_scannet
 
 PLUGINS = "tests.agent.segmenter_plugins"
@@ -310,7 +310,7 @@ def test_fit_glfs_and_tune_for_a_plugged_in_segmenter(onnx_file, sequence, tmp_p
 
     glfs = tmp_path / "glfs_onnx.json"
     tiny = ["study.calib_train_scenes=1", "study.calib_val_scenes=1", "scan.frames=40", "study.glfs_max_voxels=5000",
-            "glfs.epochs=2", f"segmenter.model={onnx_file}"]
+            "glfs.epochs=2", f"segmenter.model={onnx_file}", small_or_full("run.workers=1", "run.workers=0")]
     assert main(["fit-glfs", "--segmenter", "onnx", "--output", str(glfs), "--work-dir", str(tmp_path / "w"), *tiny]) == 0
     assert len(json.loads(glfs.read_text())["tau"]) == 18
     assert _map(sequence, tmp_path / "map", "onnx", f"segmenter.model={onnx_file}", "mapping.fusion=glfs",
