@@ -14,7 +14,7 @@ The parts chosen by name are checked against their registries (``agent.registry`
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, ClassVar, Literal
 
 from calnav.agent.registry import GOAL_SELECTORS, MAP_BUILDERS
 from calnav.agent.segmenters import check_segmenter_spec
@@ -129,6 +129,10 @@ class AgentConfig:
     uncertain_low: float = 0.3          # goal confidence band [uncertain_low, goal_threshold) counts as a candidate
                                         # (must lie below goal_threshold when uncertainty_aware)
     verify_distance_m: float = 1.0      # approach candidates to this range and re-observe, metres
+
+    # Left out of saved configs while at these values (``envs.config.plain_dict``): configs saved
+    # before the field existed stay equal
+    OMIT_AT_DEFAULT: ClassVar[dict[str, Any]] = {"goal_categories": ()}
 
     def __post_init__(self) -> None:
         check_segmenter_spec(self.segmenter)   # a misspelt name fails here, importing nothing of it

@@ -55,10 +55,6 @@ DATASET_RANGES = {
     "storeys": Range(1, 3, "storeys"),
 }
 
-# keys that exist only for habitat-lab episode files: left out of the dataset's fingerprint at
-# these values, so the caches and records of generated houses keep their keys
-FILE_DATASET_DEFAULTS = {"data_path": "", "max_snap_m": 0.5}
-
 # Size-like keys of the agent, its sensor and its task (``env``), and why their bounds:
 ENV_RANGES = {
     # the camera stands inside one storey (calnav's walls are 2.5-3 m high; HM3D's camera 0.88 m);
@@ -109,8 +105,8 @@ class DatasetConfig:
     storeys: int = 1                 # storeys per procedural house, joined by staircases (envs.stairs), storeys
 
     # Left out of every key, fingerprint and saved config while at these values (``plain_dict``):
-    # the keys and records made before the field existed stay valid.
-    OMIT_AT_DEFAULT: ClassVar[dict[str, Any]] = {"storeys": 1}
+    # the keys and records made before the fields existed stay valid.
+    OMIT_AT_DEFAULT: ClassVar[dict[str, Any]] = {"data_path": "", "max_snap_m": 0.5, "storeys": 1}
 
     def __post_init__(self) -> None:
         check_ranges(self, "env.dataset", DATASET_RANGES)
@@ -242,14 +238,3 @@ def plain_dict(obj) -> Any:
     if isinstance(obj, dict):
         return {k: plain_dict(v) for k, v in obj.items()}
     return obj
-
-
-def dataset_fingerprint(dataset: DatasetConfig) -> dict:
-    """``dataset`` as a dict for cache and record keys, without the keys of
-    ``FILE_DATASET_DEFAULTS`` at their defaults (those keys did not exist when most keys were
-    computed)."""
-    out = plain_dict(dataset)   # (without the OMIT_AT_DEFAULT keys at their values too)
-    for key, default in FILE_DATASET_DEFAULTS.items():
-        if out[key] == default:
-            del out[key]
-    return out

@@ -33,9 +33,8 @@ VIEW_POINT_IOU = None             # habitat-lab's ObjectViewLocation.iou: not co
 class GoalObject:
     """One instance of a goal category. position: (3,) world centroid, metres.
     view_points: (M, 2) float64 world xy of the view-point cell centres, metres.
-    view_point_heights: (M,) float64 the view points' heights (Habitat's y), metres: the floor
-    under each, which in a house with storeys is its storey's; None reads as zeros (calnav's
-    single-storey houses: their floors lie at z = 0)."""
+    view_point_heights: (M,) float64 floor height under each view point, metres (Habitat's
+    view point y), or None: all on the single storey's floor (a file's y = 0)."""
 
     object_id: int
     object_category: str
@@ -44,7 +43,7 @@ class GoalObject:
     view_point_heights: np.ndarray | None = None
 
     def heights(self) -> np.ndarray:
-        """(M,) float64 the view points' heights, metres (zeros when none are stored)."""
+        """(M,) float64 view point floor heights, metres (zeros on a single storey)."""
         if self.view_point_heights is None:
             return np.zeros(len(self.view_points))
         return np.asarray(self.view_point_heights, np.float64)
@@ -55,11 +54,11 @@ class ObjectNavEpisode:
     """start_position: (2,) world xy metres; start_rotation: Habitat [x, y, z, w] start
     quaternion, kept as the episode file stores it (habitat-lab's GPS / compass read these very
     numbers); ``start_yaw``: the same heading in radians, counter-clockwise from +x.
-    start_height: the start's height (Habitat's y), metres (0 in calnav's single-storey houses).
-    refused: why the episode cannot run on calnav's navmesh ("" when it can): an episode of a
-    habitat-lab dataset (``envs.file_episodes``) keeps its index and is listed, not run. In a
-    house with storeys: ``start_storey`` the storey of the start and ``goal_storey`` that of the
-    nearest goal view point (geodesically); both 0 on one storey."""
+    ``start_height``: the floor height under the start, metres (Habitat's start y); in a house
+    with storeys ``start_storey`` its storey and ``goal_storey`` the storey of the nearest goal
+    view point (geodesically); all 0 on one storey. refused: why the episode cannot run on
+    calnav's navmesh ("" when it can): an episode of a habitat-lab dataset
+    (``envs.file_episodes``) keeps its index and is listed, not run."""
 
     episode_id: str
     scene_id: str
@@ -89,18 +88,22 @@ class ObjectNavEpisode:
 
 # ------------------------------------------------------------------- goals on a grid
 def goal_mask(navgrid, goals: list[GoalObject]) -> np.ndarray:
-    """(H, W) bool: the view-point cells of all given goal instances; on a layered grid (a house
-    with storeys, ``envs.layered_navigation``) (L, H, W), each view point on the layer of its
-    height (``storey_at``)."""
+    """(H, W) bool: the view-point cells of all given goal instances; (L, H, W) on a layered
+    grid (``layered_goal_mask``)."""
     if getattr(navgrid, "layered", False):
-        mask = np.zeros(navgrid.navigable.shape, dtype=bool)
-        for g in goals:
-            rc = navgrid.to_cell(np.asarray(g.view_points, np.float64).reshape(-1, 2))
-            layers = np.array([navgrid.storey_at(z) for z in g.heights()], np.int64)
-            inside = navgrid.in_grid(rc)
-            mask[layers[inside], rc[inside, 0], rc[inside, 1]] = True
-        return mask
+        return layered_goal_mask(navgrid, goals)
     return view_point_mask(navgrid, np.concatenate([g.view_points for g in goals]))
+
+
+def layered_goal_mask(grid, goals: list[GoalObject]) -> np.ndarray:
+    """(L, H, W) bool: the view-point cells of ``goals``, each on the layer of its height."""
+    mask = np.zeros(grid.navigable.shape, dtype=bool)
+    for g in goals:
+        rc = grid.to_cell(np.asarray(g.view_points, np.float64).reshape(-1, 2))
+        layers = np.array([grid.storey_at(z) for z in g.heights()], np.int64)
+        inside = grid.in_grid(rc)
+        mask[layers[inside], rc[inside, 0], rc[inside, 1]] = True
+    return mask
 
 
 def view_point_mask(navgrid, points_xy: np.ndarray) -> np.ndarray:
@@ -152,7 +155,7 @@ def episodes_to_habitat(episodes: list[ObjectNavEpisode]) -> dict:
                                  "iou": VIEW_POINT_IOU} for v, h in zip(g.view_points, g.heights())],
             } for g in ep.goals]
         info = {"geodesic_distance": ep.geodesic_distance, "euclidean_distance": ep.euclidean_distance}
-        if ep.start_storey or ep.goal_storey:   # (one storey: the file as before storeys)
+        if ep.start_storey or ep.goal_storey or ep.start_height:   # (one storey: the file as before storeys)
             info.update(start_storey=int(ep.start_storey), goal_storey=int(ep.goal_storey))
         out.append({
             "episode_id": ep.episode_id, "scene_id": ep.scene_id,
@@ -175,7 +178,7 @@ def _goal_from_habitat(g: dict) -> GoalObject:
     xy, heights = _view_points_from_habitat(g["view_points"])
     return GoalObject(int(g["object_id"]), g["object_category"],
                       np.array([g["position"][0], -g["position"][2], g["position"][1]], dtype=np.float64),
-                      xy, heights)
+                      xy, heights if heights.any() else None)   # (all 0: one storey, None as before storeys)
 
 
 def episodes_from_habitat(data: dict) -> list[ObjectNavEpisode]:
@@ -294,9 +297,11 @@ def cached_episodes(path: Path) -> list[ObjectNavEpisode] | None:
 # ``SIDECAR_FORMAT``, and anything that does not match, cannot be read, or does not hold
 # consistent arrays is ignored (the JSON is parsed instead and the sidecar rewritten). No
 # pickles: ``np.load(allow_pickle=False)``; strings travel as one JSON text.
-SIDECAR_FORMAT = 2   # bump when ObjectNavEpisode / GoalObject change what they hold
-# Episodes in a house with storeys also store (start_storey, goal_storey) as ``storeys`` (E, 2);
-# a sidecar without it holds single-storey episodes (both 0), so no format bump was needed.
+SIDECAR_FORMAT = 1   # bump when ObjectNavEpisode / GoalObject change what they hold
+# A house with storeys also stores heights and storeys (``STOREY_ARRAYS``); single-storey sidecars
+# keep format 1 and their bytes.
+STOREY_SIDECAR_FORMAT = 2
+STOREY_ARRAYS = ("start_height", "storeys", "vp_heights")
 
 
 def sidecar_path(content_file: Path) -> Path | None:
@@ -327,7 +332,6 @@ def write_sidecar(content_file: Path, source_key: tuple[int, int, int], episodes
         "format": np.array([SIDECAR_FORMAT, *source_key], np.int64),
         "strings": np.array(json.dumps(strings)),
         "start_position": np.array([e.start_position for e in episodes], np.float64).reshape(-1, 2),
-        "start_height": np.array([e.start_height for e in episodes], np.float64),
         "start_rotation": np.array([e.start_rotation for e in episodes], np.float64).reshape(-1, 4),
         "distances": np.array([[e.geodesic_distance, e.euclidean_distance] for e in episodes],
                               np.float64).reshape(-1, 2),
@@ -338,10 +342,13 @@ def write_sidecar(content_file: Path, source_key: tuple[int, int, int], episodes
         "vp_offsets": np.cumsum([0] + [len(g.view_points) for g in goals]).astype(np.int64),
         "view_points": np.concatenate([np.asarray(g.view_points, np.float64).reshape(-1, 2) for g in goals]
                                       or [np.zeros((0, 2))]),
-        "view_point_heights": np.concatenate([g.heights() for g in goals] or [np.zeros(0)]),
     }
-    if any(e.start_storey or e.goal_storey for e in episodes):
+    if any(e.start_storey or e.goal_storey or e.start_height for e in episodes) or any(
+            g.view_point_heights is not None for g in goals):
+        arrays["format"][0] = STOREY_SIDECAR_FORMAT
+        arrays["start_height"] = np.array([e.start_height for e in episodes], np.float64)
         arrays["storeys"] = np.array([[e.start_storey, e.goal_storey] for e in episodes], np.int64).reshape(-1, 2)
+        arrays["vp_heights"] = np.concatenate([g.heights() for g in goals] or [np.zeros(0)])
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         with atomic_path(path) as tmp:
@@ -359,8 +366,10 @@ def read_sidecar(content_file: Path, source_key: tuple[int, int, int]) -> list |
     try:
         with np.load(path, allow_pickle=False) as z:
             a = {k: z[k] for k in z.files}
-        if a["format"].tolist() != [SIDECAR_FORMAT, *source_key]:
+        fmt = int(a["format"][0])
+        if a["format"].tolist()[1:] != [*source_key] or fmt not in (SIDECAR_FORMAT, STOREY_SIDECAR_FORMAT):
             return None
+        storeyed = fmt == STOREY_SIDECAR_FORMAT
         s = json.loads(str(a["strings"]))
         n, ng = len(s["episode_id"]), len(s["goal_category"])
         eo, vo = a["ep_goal_offsets"], a["vp_offsets"]
@@ -369,15 +378,15 @@ def read_sidecar(content_file: Path, source_key: tuple[int, int, int]) -> list |
                      and eo[0] == 0 and (np.diff(eo) >= 0).all() and eo[-1] == len(a["ep_goals"])
                      and ((a["ep_goals"] >= 0) & (a["ep_goals"] < ng)).all() and len(a["goal_id"]) == ng
                      and a["goal_position"].shape == (ng, 3) and len(vo) == ng + 1 and vo[0] == 0
-                     and (np.diff(vo) >= 0).all() and vo[-1] == len(a["view_points"])
-                     and a["start_height"].shape == (n,) and a["view_point_heights"].shape == (vo[-1],)
-                     and ("storeys" not in a or a["storeys"].shape == (n, 2)))
+                     and (np.diff(vo) >= 0).all() and vo[-1] == len(a["view_points"]))
+        if storeyed:
+            shapes_ok = shapes_ok and a["start_height"].shape == (n,) and a["storeys"].shape == (n, 2) \
+                and a["vp_heights"].shape == (len(a["view_points"]),)
         if not shapes_ok:
             return None
         goals = [GoalObject(int(a["goal_id"][i]), s["goal_category"][i], a["goal_position"][i].copy(),
-                            a["view_points"][vo[i]:vo[i + 1]].copy(), a["view_point_heights"][vo[i]:vo[i + 1]].copy())
-                 for i in range(ng)]
-        storeys = a["storeys"] if "storeys" in a else np.zeros((n, 2), np.int64)
+                            a["view_points"][vo[i]:vo[i + 1]].copy(),
+                            a["vp_heights"][vo[i]:vo[i + 1]].copy() if storeyed else None) for i in range(ng)]
         shared: dict[tuple, list] = {}   # episodes with the same goals share one list, as parsed from JSON
         episodes = []
         for i in range(n):
@@ -386,8 +395,9 @@ def read_sidecar(content_file: Path, source_key: tuple[int, int, int]) -> list |
                 episode_id=s["episode_id"][i], scene_id=s["scene_id"][i], start_position=a["start_position"][i].copy(),
                 start_rotation=a["start_rotation"][i].tolist(), object_category=s["object_category"][i],
                 geodesic_distance=float(a["distances"][i, 0]), euclidean_distance=float(a["distances"][i, 1]),
-                goals=shared.setdefault(ids, [goals[j] for j in ids]), start_height=float(a["start_height"][i]),
-                start_storey=int(storeys[i, 0]), goal_storey=int(storeys[i, 1])))
+                goals=shared.setdefault(ids, [goals[j] for j in ids]),
+                **({"start_height": float(a["start_height"][i]), "start_storey": int(a["storeys"][i, 0]),
+                    "goal_storey": int(a["storeys"][i, 1])} if storeyed else {})))
         return episodes
     except Exception:  # noqa: BLE001 -- any damage to a cache file means: parse the JSON instead
         return None

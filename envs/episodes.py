@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from calnav.common.atomic import write_json_atomic
-from calnav.envs.config import EnvConfig, dataset_fingerprint
+from calnav.envs.config import EnvConfig, plain_dict
 from calnav.envs.episode_files import (goal_mask, view_point_mask,  # noqa: F401 (importable here too)
                                        GoalObject, ObjectNavEpisode, cached_episodes, episodes_from_habitat,
                                        episodes_to_habitat, write_json_gz)
@@ -146,7 +146,7 @@ def generate_scene_episodes(scene_id: str, scene: Scene, navgrid, raycasting_sce
 def dataset_key(env_cfg: EnvConfig) -> str:
     """Hash of everything that changes the generated episodes."""
     relevant = {
-        "version": GENERATOR_VERSION, "dataset": dataset_fingerprint(env_cfg.dataset), "navmesh": asdict(env_cfg.navmesh),
+        "version": GENERATOR_VERSION, "dataset": plain_dict(env_cfg.dataset), "navmesh": asdict(env_cfg.navmesh),
         "nav": [env_cfg.agent_radius_m, env_cfg.agent_height_m, env_cfg.nav_cell_m, env_cfg.view_point_radius_m,
                 env_cfg.camera_height_m, env_cfg.hfov_deg, list(env_cfg.resolution)],
         # the oracle check runs the task's actions (its step limit is the dataset's oracle_max_steps)

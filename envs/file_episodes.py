@@ -73,42 +73,62 @@ def _is_yaw(q) -> bool:
     return n > 0 and math.isfinite(n) and abs(q[0]) / n <= ROTATION_TOLERANCE and abs(q[2]) / n <= ROTATION_TOLERANCE
 
 
-def place_points(navgrid, xy, heights) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Points as habitat-sim places them on its navmesh (module docstring).
+def place_points(navgrid, xy, heights) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Points as habitat-sim places them on its navmesh (module docstring), on one storey's
+    ``NavGrid`` or a ``LayeredNavGrid``.
 
     xy: (N, 2) world xy, metres; heights: (N,) their heights (Habitat's y), metres. Returns
-    ((N, 2) placed xy, (N,) bool placed, (N,) float64 distance moved in 3-D, metres): a point on
-    a navigable cell whose floor lies within ``MAX_Y_DELTA_M`` stays; any other moves to the
-    nearest navigable cell centre (floor height included) inside ``SNAP_BOX_M``, or is not placed.
+    ((N, 2) placed xy, (N,) int64 layers, (N,) bool placed, (N,) float64 distance moved in 3-D,
+    metres): a point on a navigable cell whose floor lies within ``MAX_Y_DELTA_M`` stays; any
+    other moves to the nearest navigable cell centre (floor height included) inside
+    ``SNAP_BOX_M``, or is not placed.
     """
     from scipy.spatial import cKDTree
 
     xy = np.asarray(xy, np.float64).reshape(-1, 2)
     heights = np.asarray(heights, np.float64).reshape(-1)
     out, moved = xy.copy(), np.zeros(len(xy))
-    floor = np.array([navgrid.floor_height(p) for p in xy]) if len(xy) else np.zeros(0)
-    stays = navgrid.is_navigable(xy) & (np.abs(floor - heights) <= MAX_Y_DELTA_M) if len(xy) else np.zeros(0, bool)
-    placed = stays.copy()
-    todo = np.flatnonzero(~stays)
+    layers, placed = np.zeros(len(xy), np.int64), np.zeros(len(xy), bool)
+    for i, (p, h) in enumerate(zip(xy, heights)):
+        if navgrid.layered:
+            k = navgrid.locate(p, h, MAX_Y_DELTA_M)
+            placed[i] = k is not None and navgrid.is_navigable(p, k)
+            layers[i] = k or 0
+        else:
+            placed[i] = navgrid.is_navigable(p) and abs(navgrid.floor_height(p) - h) <= MAX_Y_DELTA_M
+    todo = np.flatnonzero(~placed)
     if len(todo):
-        cells = np.argwhere(navgrid.navigable)
-        centres = navgrid.to_world(cells)
-        floors = navgrid.floor_heights[cells[:, 0], cells[:, 1]] if navgrid.floor_heights is not None \
-            else np.full(len(cells), navgrid.floor_z)
-        floors = np.where(np.isfinite(floors), floors, navgrid.floor_z)
+        cells = np.argwhere(navgrid.navigable)                  # (N, 2) rows, cols, or (N, 3) layer first
+        cells = cells if navgrid.layered else np.column_stack([np.zeros(len(cells), np.int64), cells])
+        centres = navgrid.to_world(cells[:, 1:])
+        grid_floors = navgrid.floor_heights if navgrid.floor_heights is not None else None
+        if grid_floors is None:
+            floors = np.full(len(cells), navgrid.floor_z)
+        else:
+            floors = (grid_floors[cells[:, 0], cells[:, 1], cells[:, 2]] if navgrid.layered
+                      else grid_floors[cells[:, 1], cells[:, 2]]).astype(np.float64)
+            floors = np.where(np.isfinite(floors), floors, navgrid.floor_z)
         tree = cKDTree(np.column_stack([centres, floors]))
-        query = np.column_stack([xy[todo], heights[todo]])
         k = min(SNAP_CANDIDATES, len(cells))
-        dist, idx = tree.query(query, k=k)
+        dist, idx = tree.query(np.column_stack([xy[todo], heights[todo]]), k=k)
         dist, idx = dist.reshape(len(todo), k), idx.reshape(len(todo), k)
         for row, i in enumerate(todo):   # the nearest candidate inside habitat-sim's search box
             for d, j in zip(dist[row], idx[row]):
                 if not np.isfinite(d):
                     break
                 if (np.abs(centres[j] - xy[i]) <= SNAP_BOX_M[0]).all() and abs(floors[j] - heights[i]) <= SNAP_BOX_M[1]:
-                    out[i], moved[i], placed[i] = centres[j], d, True
+                    out[i], layers[i], moved[i], placed[i] = centres[j], cells[j, 0], d, True
                     break
-    return out, placed, moved
+    return out, layers, placed, moved
+
+
+def _floor(navgrid, xy, layer: int) -> float:
+    """The floor height under ``xy`` on ``layer`` (one storey: its floor), metres."""
+    return navgrid.floor_height(xy, int(layer)) if navgrid.layered else navgrid.floor_height(xy)
+
+
+def _distance(navgrid, field, xy, layer: int) -> float:
+    return float(field.distance(xy, int(layer)) if navgrid.layered else field.distance(xy))
 
 
 def place_scene_episodes(navgrid, episodes: list[ObjectNavEpisode], env_cfg: EnvConfig
@@ -122,12 +142,12 @@ def place_scene_episodes(navgrid, episodes: list[ObjectNavEpisode], env_cfg: Env
 
     def place_goal(g: GoalObject) -> GoalObject:
         if id(g) not in placed_goals:
-            xy, ok, moved = place_points(navgrid, g.view_points, g.heights())
+            xy, layers, ok, moved = place_points(navgrid, g.view_points, g.heights())
             counts["view_points"] += len(ok)
             counts["view_points_dropped"] += int((~ok).sum())
             counts["view_points_snapped"] += int((moved[ok] > 0).sum())
-            kept = xy[ok]
-            placed_goals[id(g)] = replace(g, view_points=kept, view_point_heights=_floors(navgrid, kept))
+            floors = np.array([_floor(navgrid, p, k) for p, k in zip(xy[ok], layers[ok])], np.float64)
+            placed_goals[id(g)] = replace(g, view_points=xy[ok], view_point_heights=floors)
         return placed_goals[id(g)]
 
     out = []
@@ -156,23 +176,25 @@ def _place_episode(navgrid, ep: ObjectNavEpisode, goals: list[GoalObject], env_c
 
     if not _is_yaw(ep.start_rotation):
         return None, f"tilted start: start_rotation {list(ep.start_rotation)} is not a turn about the up axis"
-    xy, ok, moved = place_points(navgrid, ep.start_position, [ep.start_height])
+    xy, layers, ok, moved = place_points(navgrid, ep.start_position, [ep.start_height])
     if not ok[0]:
         return None, "start off the navmesh: no navigable cell within habitat-sim's snap box (2 m, 4 m)"
-    xy, moved = xy[0], float(moved[0])
+    xy, layer, moved = xy[0], int(layers[0]), float(moved[0])
     if moved > env_cfg.dataset.max_snap_m:
         return None, (f"start off the navmesh: the nearest navigable cell is {moved:.2f} m away, beyond "
                       f"env.dataset.max_snap_m ({env_cfg.dataset.max_snap_m:g} m)")
     if not any(len(g.view_points) for g in goals):
         return None, f"no view point: none of the {ep.object_category} view points lies on calnav's navmesh"
-    if not math.isfinite(navgrid.geodesic_field(goal_mask(navgrid, [g for g in goals if len(g.view_points)])).distance(xy)):
+    mask = goal_mask(navgrid, [g for g in goals if len(g.view_points)])
+    if not math.isfinite(_distance(navgrid, navgrid.geodesic_field(mask), xy, layer)):
         return None, f"unreachable: no {ep.object_category} view point is reachable from the start on calnav's navmesh"
-    return (replace(ep, start_position=xy, start_height=navgrid.floor_height(xy), goals=goals), moved), ""
-
-
-def _floors(navgrid, xy: np.ndarray) -> np.ndarray:
-    """(N,) float64 the floor heights under (N, 2) points, metres: where a placed point stands."""
-    return np.array([navgrid.floor_height(p) for p in xy], np.float64)
+    goal_storey = 0
+    if navgrid.layered:   # the storey of the nearest view point (geodesically), as generated episodes name it
+        per = [_distance(navgrid, navgrid.geodesic_field(mask & (np.arange(navgrid.n_layers) == k)[:, None, None]),
+                         xy, layer) if mask[k].any() else math.inf for k in range(navgrid.n_layers)]
+        goal_storey = int(np.argmin(per))
+    return (replace(ep, start_position=xy, start_height=_floor(navgrid, xy, layer), start_storey=layer,
+                    goal_storey=goal_storey, goals=goals), moved), ""
 
 
 # --------------------------------------------------------------------------- per scene

@@ -60,6 +60,8 @@ def with_floor_heights(navgrid, episodes: list[ObjectNavEpisode]) -> list[Object
     habitat-sim's navmesh puts an agent; a scanned house's floor is not at 0)."""
     import numpy as np
 
+    if navgrid.layered:   # a house with storeys: its generator stored each floor height already
+        return episodes
     goals: dict[int, object] = {}
 
     def lifted(g):

@@ -35,7 +35,7 @@ from calnav.envs.scene import RGB_UNAVAILABLE, SEMANTICS_UNAVAILABLE, Scene, Sce
 from calnav.envs.scene_frame import find_dataset_configs
 
 PLY_CONVERSION_VERSION = 2                  # converted-PLY cache key (2: meta closed_solids = False)
-GLB_CONVERSION_VERSION = 2                  # converted HM3D / MP3D cache key (2: the winding decides walkability)
+GLB_CONVERSION_VERSION = 3                  # converted HM3D / MP3D cache key (2: the winding decides walkability; 3: storeys)
 SCENE_SUFFIXES = (".npz", ".ply", ".glb")
 SEMANTIC_GLB_SUFFIX = ".semantic.glb"
 
@@ -119,13 +119,22 @@ def load_scene_file(path: str | Path, root: str | Path | None = None, dataset_co
         # the render file, not the path asked for: <id>.basis.glb and <id>.glb beside it are one scene
         identity = {"converted_from": {kind: str(inputs[0].resolve()), "key": key}}
         loader = load_hm3d_scene if kind == "hm3d" else load_mp3d_scene
-        convert = lambda: loader(path, root=root, config=config, name=scene_id)  # noqa: E731
+        convert = lambda: with_storeys(loader(path, root=root, config=config, name=scene_id))  # noqa: E731
     cached = cache_dir() / "scenes" / f"user_{scene_id}_{key}.npz"
     scene = cached_scene(cached, identity)
     if scene is None:
         scene = convert()
         scene.meta.update(identity)
         save_atomic(scene, cached)
+    return scene
+
+
+def with_storeys(scene: Scene) -> Scene:
+    """``scene`` with the storeys its geometry holds in its meta (``envs.storey_detect``), so that
+    a scan with stairs gets one navigation layer per storey."""
+    from calnav.envs.storey_detect import storey_meta
+
+    scene.meta.update(storey_meta(scene))
     return scene
 
 

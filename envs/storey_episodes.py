@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from calnav.envs.config import EnvConfig
-from calnav.envs.episode_files import GoalObject, ObjectNavEpisode, goal_mask
+from calnav.envs.episode_files import GoalObject, ObjectNavEpisode, layered_goal_mask
 from calnav.envs.episode_rules import (MAX_START_TRIES, MAX_UNSOLVABLE_TRIES, START_DISTANCE_POWER,
                                        TRIVIAL_REJECT_PROB, find_view_points)
 from calnav.envs.oracle import layered_oracle_solves
@@ -94,8 +94,8 @@ def generate_layered_episodes(scene_id: str, scene: Scene, grid, raycasting_scen
     categories = sorted(goals_by_category)
     fields, storey_fields = {}, {}
     for c in categories:
-        fields[c] = grid.geodesic_field(goal_mask(grid, goals_by_category[c]))
-        per = [grid.geodesic_field(goal_mask(grid, goals_by_category[c]) & (np.arange(grid.n_layers) == k)
+        fields[c] = grid.geodesic_field(layered_goal_mask(grid, goals_by_category[c]))
+        per = [grid.geodesic_field(layered_goal_mask(grid, goals_by_category[c]) & (np.arange(grid.n_layers) == k)
                                    [:, None, None]).values for k in range(grid.n_layers)]
         storey_fields[c] = np.argmin(np.stack(per), axis=0)   # (L, H, W) storey of the nearest goal
     free = np.argwhere(grid.navigable)                         # (N, 3) layer, row, col

@@ -51,10 +51,6 @@ NEUTRAL_KEYS: tuple[str, ...] = ("run.workers", "run.output_dir", "run.backend",
 # houses without rerunning the episodes it has. Not neutral elsewhere (training reads them).
 SPLIT_SIZE_KEYS: tuple[str, ...] = tuple(f"env.dataset.{split}_scenes" for split in ("train", "val", "test", "calib"))
 EPISODE_NEUTRAL_KEYS: tuple[str, ...] = NEUTRAL_KEYS + SPLIT_SIZE_KEYS
-# Keys added after results were first written, with the value a saved config without them
-# meant: such a config reads as holding the default, so committed results stay resumable
-ADDED_KEYS: dict[str, object] = {"env.dataset.data_path": "", "env.dataset.max_snap_m": 0.5,
-                                 "agent.goal_categories": []}
 LOCK_NAME = ".lock"
 CONFIG_NAME = "config.yaml"
 
@@ -108,9 +104,6 @@ def config_differences(saved: dict, current: dict) -> str:
     """The dotted keys in which two resolved configs differ, each with both values ('mapping.fusion:
     averaging there, rbu here'), the first few named and the rest counted."""
     a, b = flatten(saved), flatten(current)
-    for key, default in ADDED_KEYS.items():   # a config saved before the key existed meant its default
-        if key in b and key not in a:
-            a[key] = default
     keys = sorted(k for k in a.keys() | b.keys() if a.get(k, "(absent)") != b.get(k, "(absent)"))
     named = [f"{k}: {a.get(k, '(absent)')} there, {b.get(k, '(absent)')} here" for k in keys[:MAX_NAMED_DIFFERENCES]]
     more = f"; {len(keys) - MAX_NAMED_DIFFERENCES} more key(s)" if len(keys) > MAX_NAMED_DIFFERENCES else ""
@@ -263,8 +256,7 @@ class ResultsDir:
         except ConfigError:   # a key at its old and its new place: not a config calnav wrote
             return "a key at both its old and its new place: not a config calnav wrote"
         old, new = strip_neutral(old, self.neutral_keys), strip_neutral(self._cfg_dict(), self.neutral_keys)
-        differences = config_differences(old, new) if old != new else ""
-        return differences or None
+        return config_differences(old, new) if old != new else None
 
     def _other_inputs(self) -> list[str]:
         """The labels of the input files that differ from the ones the directory's results were

@@ -150,7 +150,10 @@ def contrast(runs: list[tuple[list[dict], float]], metric: str) -> tuple[float, 
     ``paired_difference`` scores them (two runs weighted -1, +1 are that difference; four
     weighted +1, -1, -1, +1 are a difference of differences). Returns the mean, the SEM (NaN
     with fewer than 2 episodes) and the number of episodes."""
-    values, _ = contrast_values(runs, metric)
+    return _contrast_of(contrast_values(runs, metric)[0])
+
+
+def _contrast_of(values: list[float]) -> tuple[float, float, int]:
     m, sem = mean_sem(values)
     return m, (sem if len(values) >= 2 else math.nan), len(values)
 
@@ -161,10 +164,20 @@ HOUSE_KEY = "scene"   # the record key naming an episode's house: episodes of on
 def house_sem(runs: list[tuple[list[dict], float]], metric: str) -> float:
     """``clustered_sem`` of ``contrast``'s per-episode values, clustered by house (the records'
     ``HOUSE_KEY``); NaN when a record names no house or fewer than 2 houses hold the episodes."""
-    values, recs = contrast_values(runs, metric)
+    return _house_sem_of(*contrast_values(runs, metric))
+
+
+def _house_sem_of(values: list[float], recs: list[dict]) -> float:
     if not values or any(HOUSE_KEY not in r for r in recs):
         return math.nan
     return clustered_sem(values, [r[HOUSE_KEY] for r in recs])
+
+
+def contrast_and_house_sem(runs: list[tuple[list[dict], float]], metric: str) -> tuple[float, float, int, float]:
+    """``contrast`` and ``house_sem`` of the same runs and metric, the records scored once:
+    (mean, SEM, N, house SEM)."""
+    values, recs = contrast_values(runs, metric)
+    return (*_contrast_of(values), _house_sem_of(values, recs))
 
 
 def governing_sem(sem: float, by_house: float) -> float:

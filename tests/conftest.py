@@ -88,3 +88,20 @@ def small_env_config():
         "env.resolution=64x48", "env.dataset.val_scenes=2", "env.dataset.test_scenes=2",
         "env.dataset.episodes_per_scene=4",
     ]).env
+
+
+@pytest.fixture(scope="session")
+def local_ray():
+    """A small local Ray instance (2 CPUs) for the session's Ray tests (eval backends and the
+    runner): started once, not once per module; its workers import this checkout and read the
+    session's cache. Tests that need a Ray instance of their own (a killed driver, a two-node
+    cluster) start it in a subprocess or by address."""
+    ray = pytest.importorskip("ray", reason="the ray extra is installed by `make test`")
+    from pathlib import Path
+
+    repo = Path(__file__).resolve().parents[1]
+    env = {k: os.environ[k] for k in ("CALNAV_CACHE", "OMP_WAIT_POLICY") if k in os.environ}
+    env["PYTHONPATH"] = os.pathsep.join([str(repo), os.environ.get("PYTHONPATH", "")]).rstrip(os.pathsep)
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, runtime_env={"env_vars": env})
+    yield ray
+    ray.shutdown()

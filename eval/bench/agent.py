@@ -87,6 +87,18 @@ class LoopTimer(Hook):
         self.wall_s = time.perf_counter() - self.t0
 
 
+def val_env(env_cfg, upto: int):
+    """The gym env over the ``val`` episodes ``0:upto`` only (``envs.episodes.load_split``'s
+    prefix: the same indices as the whole split's), so a fresh cache generates the houses those
+    episodes lie in, not every house of the split."""
+    import gymnasium as gym
+
+    import calnav.envs  # noqa: F401  (registers the env)
+    from calnav.envs.episodes import load_split
+
+    return gym.make("calnav/ObjectNav-v0", split="val", config=env_cfg, episodes=load_split("val", env_cfg, upto=upto))
+
+
 def rss_mb() -> float:
     """Resident set size of this process, MiB (Linux /proc)."""
     import os
@@ -120,9 +132,6 @@ def agent_loop(ctx, overrides: tuple[str, ...] = (), predictor_calls: list[float
     the module docstring; ``overrides`` change the config (e.g. env.dataset.style=scanned).
     ``predictor_calls``: filled with the ms of each target-prediction call (exploration:
     prediction), the network and its input."""
-    import gymnasium as gym
-
-    import calnav.envs  # noqa: F401  (registers the env)
     from calnav.agent.policy import PeanutAgent
     from calnav.eval.config import load_config
 
@@ -130,7 +139,7 @@ def agent_loop(ctx, overrides: tuple[str, ...] = (), predictor_calls: list[float
     cfg.agent = dataclasses.replace(cfg.agent, goal_threshold=EXPLORE_ONLY_THRESHOLD)
     steps = QUICK_STEPS if ctx.quick else STEPS
     cfg.env = dataclasses.replace(cfg.env, max_episode_steps=steps)
-    env = gym.make("calnav/ObjectNav-v0", split="val", config=cfg.env)
+    env = val_env(cfg.env, EPISODE + 1)
     agent = PeanutAgent(cfg)
     if predictor_calls is not None and agent.predictor is not None:
         network = agent.predictor.probabilities   # its own name: ``timed`` below is the timed agent
@@ -190,14 +199,11 @@ def study_episodes(indices: list[int], steps_cap: int = 0) -> tuple[list[int], l
     """Run the study agent (``STUDY``) over ``val`` episodes ``indices`` in this process; returns
     the steps and the wall seconds (reset + every agent and env step) of each. ``steps_cap`` > 0
     shortens the episodes (quick runs)."""
-    import gymnasium as gym
-
-    import calnav.envs  # noqa: F401  (registers the env)
     from calnav.agent.policy import PeanutAgent
     from calnav.eval.config import load_config
 
     cfg = load_config(None, [*STUDY, *([f"env.max_episode_steps={steps_cap}"] if steps_cap else [])])
-    env = gym.make("calnav/ObjectNav-v0", split="val", config=cfg.env)
+    env = val_env(cfg.env, max(indices) + 1)
     agent = PeanutAgent(cfg)
     steps, walls = [], []
     for index in indices:
@@ -217,19 +223,17 @@ def rerun_figures(ctx) -> dict[str, float]:
     if importlib.util.find_spec("rerun") is None:
         print('[bench] agent: rerun-sdk is not installed (pip install -e ".[viz]"); Rerun figures skipped', flush=True)
         return {}
-    import gymnasium as gym
     import rerun  # noqa: F401  (imported once per worker process, not per episode: not timed)
 
-    import calnav.envs  # noqa: F401  (registers the env)
     from calnav.agent.policy import PeanutAgent
     from calnav.eval.config import load_config
     from calnav.eval.objectnav.run import run_one_episode
 
     cap = [f"env.max_episode_steps={QUICK_STEPS}"] if ctx.quick else []
     cfg = load_config(None, [*STUDY, *cap])
-    env = gym.make("calnav/ObjectNav-v0", split="val", config=cfg.env)
-    agent = PeanutAgent(cfg)
     episodes = QUICK_RERUN_EPISODES if ctx.quick else RERUN_EPISODES
+    env = val_env(cfg.env, max(episodes) + 1)
+    agent = PeanutAgent(cfg)
     run_one_episode(env, agent, episodes[0])   # warm-up: the voxel map's allocation grows once
     plain = recorded = 0.0
     sizes, steps = [], 0

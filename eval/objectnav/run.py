@@ -53,6 +53,8 @@ def run_one_episode(env, agent, index: int, video_dir: Path | None = None, rerun
     result = rollout(env, agent, index, [h for h in (video, recording) if h is not None])
     ep, info = env.unwrapped.episode, result.info
     extra = {"video": str(video.path)} if video is not None and video.path is not None else {}
+    if env.unwrapped.config.dataset.storeys > 1 or env.unwrapped.navgrid.layered:   # (one storey: records as before)
+        extra.update(start_storey=int(ep.start_storey), goal_storey=int(ep.goal_storey))
     if recording is not None:
         extra["rerun"] = str(recording.path)
     return finite_or_error({**extra,   # a non-finite metric makes it an error record (eval.stats)

@@ -34,8 +34,8 @@ from calnav.eval.config import ConfigError
 from calnav.eval.objectnav.study import UNRECORDED_COMMIT, record_commits
 from calnav.eval.objectnav.study_grids import edge_rows, grids_markdown, plot_curves, transfer_pairs
 from calnav.eval.results_dir import read_records
-from calnav.eval.stats import (FAILURES, METRIC_LABELS, contrast, failure_kind, governing_sem, house_sem, is_finished,
-                               mean_sem_cell, same_episode, summarize)
+from calnav.eval.stats import (FAILURES, METRIC_LABELS, contrast_and_house_sem, failure_kind, governing_sem,
+                               is_finished, mean_sem_cell, same_episode, summarize)
 
 RESOLVED_SEM = 2.0     # a difference is claimed only at this many paired SEMs or more (the larger of episode and house SEM)
 TABLE_METRICS: tuple[str, ...] = ("success", "spl", "softspl", "distance_to_goal")
@@ -124,8 +124,7 @@ def contrast_cells(names: list[str], weights: list[float], records: dict[str, li
     runs = [(records[n], float(w)) for n, w in zip(names, weights)]
     cells, first = [], None
     for m in PAIRED_METRICS:
-        d, sem, n = contrast(runs, m)
-        by_house = house_sem(runs, m)
+        d, sem, n, by_house = contrast_and_house_sem(runs, m)   # the runs' records scored once per metric
         first = first or (d, governing_sem(sem, by_house), n)
         cells.append(f"{d:+.3f} ({_sem_text(sem)}, {_sem_text(by_house)})")
     d, sem, n = first

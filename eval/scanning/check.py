@@ -65,6 +65,10 @@ def check_one(scene_id: str, env, episodes: int) -> dict:
     out: dict = {"scene_id": scene_id}
     scene = load_scene(scene_id, env.dataset)
     out["scene"], out["triangles"] = scene, len(scene.triangles)
+    from calnav.envs.storey_detect import detect_storeys
+
+    out["storeys"] = [round(float(z), 3) for z in (scene.meta.get("storey_z") or
+                                                   detect_storeys(scene, env.navmesh.agent_max_slope_deg))]
     try:
         mesh = build_navmesh(scene, env)
     except ValueError as exc:
@@ -94,6 +98,9 @@ def check_one(scene_id: str, env, episodes: int) -> dict:
 def scene_markdown(r: dict) -> str:
     """One scene's section of report.md."""
     lines = [f"## {r['scene_id']}", ""]
+    if len(r.get("storeys", ())) > 1:
+        lines.append(f"- storeys: {len(r['storeys'])}, floors at {', '.join(f'{z:.2f}' for z in r['storeys'])} m "
+                     "(the run walks all of them; the figures below are the largest storey's)")
     f = r.get("figures")
     if f is not None:
         kept = ", ".join(f"{a:.1f}" for a in f["island_m2"])
@@ -120,7 +127,7 @@ def scene_markdown(r: dict) -> str:
 
 
 def _json_row(r: dict) -> dict:
-    keep = ("scene_id", "triangles", "figures", "passages", "generation", "error")
+    keep = ("scene_id", "triangles", "storeys", "figures", "passages", "generation", "error")
     return {k: r[k] for k in keep if k in r}
 
 

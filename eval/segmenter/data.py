@@ -39,7 +39,7 @@ from typing import Iterator
 import numpy as np
 
 from calnav.common.atomic import atomic_path
-from calnav.envs.config import EnvConfig, dataset_fingerprint, require_single_storey
+from calnav.envs.config import EnvConfig, plain_dict, require_single_storey
 from calnav.envs.semantics import STRUCTURE_CLASSES as STRUCTURE_NAMES
 from calnav.eval.sections import SegDataConfig
 
@@ -171,7 +171,7 @@ def cache_path(env_cfg: EnvConfig, data_cfg: SegDataConfig, split: str, frames: 
         data_part.pop("scanned_fraction")   # keys (and caches) of sets without scans are unchanged
     blob = json.dumps({"v": DATA_VERSION, "split": split, "frames": frames, "seed": seed, "inst": with_instance,
                        "rebalance": rebalance, "data": data_part,
-                       "env": env_part, "dataset": dataset_fingerprint(env_cfg.dataset)}, sort_keys=True, default=list)
+                       "env": env_part, "dataset": plain_dict(env_cfg.dataset)}, sort_keys=True, default=list)
     key = hashlib.sha1(blob.encode()).hexdigest()[:12]
     return cache_dir() / "segdata" / f"{split}_{frames}_{key}.npz"
 

@@ -35,7 +35,7 @@ def test_a_point_on_the_navmesh_stays_and_others_snap_to_the_nearest_cell_centre
                    [1.50, 0.45],     # 0.5 m east of the square: to the edge cell (0.95, 0.45)
                    [3.20, 0.45]])    # 2.25 m east of the edge: outside habitat-sim's 2 m search box
     heights = np.array([0.0, 0.3, 0.6, 0.0, 0.0])
-    placed, ok, moved = place_points(grid, xy, heights)
+    placed, _, ok, moved = place_points(grid, xy, heights)
     assert ok.tolist() == [True, True, True, True, False]
     np.testing.assert_array_equal(placed[:2], xy[:2])
     assert moved[0] == moved[1] == 0.0
@@ -47,7 +47,7 @@ def test_a_point_on_the_navmesh_stays_and_others_snap_to_the_nearest_cell_centre
 
 def test_a_point_more_than_4_m_above_the_floor_is_not_placed():
     grid = _room()
-    _, ok, _ = place_points(grid, [[0.5, 0.5], [0.5, 0.5]], [3.9, 4.2])   # 4.2 m: another storey's
+    _, _, ok, _ = place_points(grid, [[0.5, 0.5], [0.5, 0.5]], [3.9, 4.2])   # 4.2 m: another storey's
     assert ok.tolist() == [True, False]
 
 

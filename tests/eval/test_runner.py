@@ -10,8 +10,6 @@ import pytest
 from calnav.eval.results_dir import ResultsError
 from calnav.eval.runner import TaskFailed, raise_failures, run_tasks
 
-REPO = Path(__file__).resolve().parents[2]
-
 
 def square_unless_three(x: int) -> int:
     if x == 3:
@@ -59,14 +57,8 @@ def test_progress_total_and_postfix():
                   save=lambda t, r: None, desc="t", unit="task", total=1, progress=False)
 
 
-def test_a_failing_task_on_ray_leaves_the_others_saved():
-    ray = pytest.importorskip("ray", reason="the ray extra is installed by `make test`")
-    env = {"PYTHONPATH": os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")]).rstrip(os.pathsep)}
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, runtime_env={"env_vars": env})
-    try:
-        saved, failures = _run(SimpleNamespace(backend="ray", ray_address="", workers=0))
-    finally:
-        ray.shutdown()
+def test_a_failing_task_on_ray_leaves_the_others_saved(local_ray):
+    saved, failures = _run(SimpleNamespace(backend="ray", ray_address="", workers=0))
     assert saved == {1: 1, 2: 4, 4: 16}
     assert [(t, f.error) for t, f in failures] == [(3, "ValueError: task 3 is broken")]
 

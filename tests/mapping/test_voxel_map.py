@@ -426,12 +426,12 @@ def test_frame_voxels_are_exactly_the_voxels_a_frame_fused_into(room, tsdf):
     m = SemanticVoxelMap(kk, MappingConfig(fusion="glfs", initial_alloc_mb=SMALL_ALLOC_MB), tsdf=tsdf)
     rng = np.random.default_rng(3)
     for depth, pose, labels in frames[:3]:
-        before = dict(zip(*_counts_by_key(m)))
+        before = _counts_by_key(m)
         m.integrate(depth, k, pose, noisy_logits(labels, kk, rng, fp16=False))
         keys, flat = m.frame_voxels
-        after = dict(zip(*_counts_by_key(m)))
-        grew = {c for c, n in after.items() if n > before.get(c, 0)}
-        assert len(keys) == len(grew) > 0 and {tuple(c) for c in keys.tolist()} == grew
+        grew = _grown(before, _counts_by_key(m))
+        # the same keys, each once (grew is unique: one entry per allocated voxel)
+        assert len(keys) == len(grew) > 0 and np.array_equal(np.sort(_key_codes(keys)), grew)
         np.testing.assert_array_equal(m.flat_indices(keys), flat)
     m.integrate(frames[0][0], k, frames[0][1])   # geometry only
     assert len(m.frame_voxels[0]) == 0
@@ -439,8 +439,28 @@ def test_frame_voxels_are_exactly_the_voxels_a_frame_fused_into(room, tsdf):
     assert len(m.reset().frame_voxels[1]) == 0
 
 
-def _counts_by_key(m: SemanticVoxelMap) -> tuple[list, np.ndarray]:
-    """Integer keys (tuples) of every allocated voxel and its observation count (N,)."""
+_KEY_BITS, _KEY_OFFSET = 21, 1 << 20   # a voxel key's coordinates as one int64 (|key| < 2**20 voxels)
+
+
+def _key_codes(keys) -> np.ndarray:
+    """Integer voxel keys (N, 3) as one int64 each, the same code for the same key."""
+    k = np.asarray(keys, np.int64) + _KEY_OFFSET
+    assert ((k >= 0) & (k < 1 << _KEY_BITS)).all()
+    return (k[:, 0] << (2 * _KEY_BITS)) | (k[:, 1] << _KEY_BITS) | k[:, 2]
+
+
+def _counts_by_key(m: SemanticVoxelMap) -> tuple[np.ndarray, np.ndarray]:
+    """(the key codes of every allocated voxel, sorted; their observation counts), (N,) each."""
     coords, flat = (a.numpy() for a in m.vbg.voxel_coordinates_and_flattened_indices())
-    keys = np.rint(coords / m.cfg.voxel_size_m).astype(np.int64)
-    return [tuple(c) for c in keys.tolist()], m.observation_counts(flat)
+    codes = _key_codes(np.rint(coords / m.cfg.voxel_size_m))
+    order = np.argsort(codes, kind="stable")
+    return codes[order], m.observation_counts(flat)[order]
+
+
+def _grown(before: tuple[np.ndarray, np.ndarray], after: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """The sorted key codes whose count went up from ``before`` to ``after`` (absent before: 0)."""
+    (cb, nb), (ca, na) = before, after
+    assert (np.diff(ca) > 0).all()   # sorted: one entry per allocated voxel
+    at = np.minimum(np.searchsorted(cb, ca), max(len(cb) - 1, 0))
+    prev = np.where(cb[at] == ca, nb[at], 0) if len(cb) else np.zeros_like(na)
+    return ca[na > prev]

@@ -15,7 +15,11 @@ from calnav.eval.cli import main
 pytestmark = pytest.mark.e2e
 
 FRAMES = small_or_full(40, 300)
-TINY = [
+# the houses recorded in this process (small: the process pool's start-up, two interpreters
+# importing torch, cost more than the three houses; tests/eval/test_backends.py records them on
+# the pool); full size on the pool, as a user runs the study
+WORKERS = small_or_full("run.workers=1", "run.workers=0")
+TINY = [WORKERS, 
     "study.segmenters=[learned_rgb]", "study.strategies=[rbu,histogram,glfs]",
     "study.calib_train_scenes=1", "study.calib_val_scenes=1", "study.test_scenes=1", f"scan.frames={FRAMES}",
     "study.fit_max_voxels=3000", "study.grid_points=7", "study.refine_iters=3", "study.vector_sweeps=1",

@@ -178,3 +178,49 @@ def test_a_scene_whose_floor_is_not_at_zero_keeps_its_episodes(tmp_path):
     for a, b in zip(episodes, placed):
         np.testing.assert_allclose(a.start_position, b.start_position, atol=1e-9)
         assert abs(b.start_height) < 0.01
+
+
+def test_a_house_with_storeys_round_trips_its_stairs(tmp_path):
+    """A two-storey house exported and read back: its storeys are found from the geometry
+    (``envs.storey_detect``), so the navmesh is layered again and the oracle takes the same
+    actions, across the stairs too; the records name both storeys."""
+    small = ["env.resolution=32x24", "env.dataset.val_scenes=1", "env.dataset.episodes_per_scene=6", "run.workers=1"]
+    out, own, back = tmp_path / "data", tmp_path / "own", tmp_path / "back"
+    assert main(["export-habitat", "--output", str(out), *small, "env.dataset.storeys=2"]) == 0
+    assert main(["objectnav", "--agent", "oracle", "--episodes", "0:6", "--output", str(own), *small,
+                 "env.dataset.storeys=2"]) == 0
+    assert main(["objectnav", "--agent", "oracle", "--episodes", "0:6", "--output", str(back), *small,
+                 *_file_args(out)]) == 0
+    a, b = read_records(own), read_records(back)
+    for i in a:
+        assert (a[i]["success"], a[i]["steps"]) == (b[i]["success"], b[i]["steps"])
+        assert (a[i]["start_storey"], a[i]["goal_storey"]) == (b[i]["start_storey"], b[i]["goal_storey"])
+    assert any(r["start_storey"] != r["goal_storey"] for r in b.values())
+
+
+MP3D_21 = ("chair", "table", "picture", "cabinet", "cushion", "sofa", "bed", "chest_of_drawers", "plant", "sink",
+           "toilet", "stool", "towel", "tv_monitor", "shower", "bathtub", "counter", "fireplace", "gym_equipment",
+           "seating", "clothes")
+
+
+def test_a_category_the_segmenter_lacks_is_refused_naming_it(exported, tmp_path, capsys):
+    """An MP3D-style file (21 categories): with agent.goal_categories set to them, the gt
+    segmenter (calnav's classes) is refused, naming the categories it cannot see."""
+    split = exported / "datasets" / "objectnav" / "calnav" / "v1" / "val"
+    data = tmp_path / "mp3d"
+    (data / "val" / "content").mkdir(parents=True)
+    for f in (split / "content").iterdir():
+        (data / "val" / "content" / f.name).write_bytes(f.read_bytes())
+    ids = {c: i for i, c in enumerate(MP3D_21)}
+    with gzip.open(data / "val" / "val.json.gz", "wt") as f:
+        json.dump({"episodes": [], "category_to_task_category_id": ids,
+                   "category_to_scene_annotation_category_id": ids}, f)
+    out = tmp_path / "run"
+    args = ["objectnav", "--episodes", "0:2", "--output", str(out), *SMALL,
+            f"env.dataset.data_path={data}/{{split}}/{{split}}.json.gz", f"env.dataset.scene_dir={exported}/scene_datasets"]
+    assert main(args) == 2
+    assert "set agent.goal_categories=[chair,table,picture" in capsys.readouterr().err
+    assert main([*args, f"agent.goal_categories=[{','.join(MP3D_21)}]"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "cushion" in err and "gym_equipment" in err, err
+    assert not out.exists()
