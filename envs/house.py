@@ -23,6 +23,7 @@ Scene.meta holds the seed, the spec, the doorways and one record per object inst
 """
 from __future__ import annotations
 
+import copy
 import dataclasses
 import hashlib
 import json
@@ -383,7 +384,7 @@ def _storey_cells(cells: list[_Cell], storey: int, stairs: list[tuple[int, Stair
     and a bathroom upstairs (``UPPER_KINDS``), a landing hall where a staircase arrives."""
     if storey == 0:
         return cells
-    out = [dataclasses.replace(c) for c in cells]
+    out = [copy.copy(c) for c in cells]   # (a shallow copy each: their kinds change, the walls stay shared)
     _assign_kinds(out, rng, dataclasses.replace(spec, kind_sequence=UPPER_KINDS))
     for ci, st in stairs:
         if st.lower == storey - 1:
