@@ -13,6 +13,8 @@ straight legs (``path_length``: within about a cell of the continuous geodesic).
 """
 from __future__ import annotations
 
+import hashlib
+
 import math
 from typing import Protocol
 
@@ -129,6 +131,26 @@ def _point_distance(dist, goal, ox, oy, cell, x, y):
         return 0.0
     return out
 
+
+
+def cached_field(cache: "OrderedDict", goal_mask: np.ndarray, shape: tuple, compute, use_cache: bool = True):
+    """The geodesic field ``compute(goal_mask)`` of a grid whose navigable array has ``shape``,
+    from ``cache`` (LRU of FIELD_CACHE_SIZE fields keyed by a hash of the mask) when it holds it;
+    ValueError when the mask has another shape. One mechanism for every grid (one storey or
+    layered): the same goal set is asked for on every step of an episode."""
+    goal_mask = np.asarray(goal_mask, dtype=bool)
+    if goal_mask.shape != shape:
+        raise ValueError(f"goal_mask must have the grid's shape {shape}, got {goal_mask.shape}")
+    key = hashlib.blake2b(np.packbits(goal_mask).tobytes(), digest_size=16).digest()
+    if use_cache and key in cache:
+        cache.move_to_end(key)
+        return cache[key]
+    result = compute(goal_mask)
+    if use_cache:
+        cache[key] = result
+        while len(cache) > FIELD_CACHE_SIZE:
+            cache.popitem(last=False)
+    return result
 
 class GeodesicField:
     """Geodesic distance to a goal set over a ``NavGrid`` (any ``GridLike``).

@@ -12,7 +12,6 @@ transitions (8-neighbour moves between layers). Single-storey scenes keep ``NavG
 """
 from __future__ import annotations
 
-import hashlib
 import math
 from collections import OrderedDict
 from dataclasses import dataclass, field
@@ -22,7 +21,7 @@ from scipy import sparse
 from scipy.sparse.csgraph import dijkstra
 
 from calnav.common.jit import compiled
-from calnav.envs.geodesics import FIELD_CACHE_SIZE, MOVE_SAMPLE_FRACTION, _point_distance, grid_graph
+from calnav.envs.geodesics import MOVE_SAMPLE_FRACTION, _point_distance, cached_field, grid_graph
 from calnav.envs.navmesh_layers import NEIGHBOURS_8, build_layered_navmesh, transitions
 
 
@@ -228,20 +227,8 @@ class LayeredNavGrid:
 
     def geodesic_field(self, goal_mask: np.ndarray, use_cache: bool = True) -> "LayeredGeodesicField":
         """Distance-to-goal field for ``goal_mask`` ((L, H, W) bool); cached by its hash."""
-        goal_mask = np.asarray(goal_mask, dtype=bool)
-        if goal_mask.shape != self.navigable.shape:
-            raise ValueError(f"goal_mask must have the layered grid's shape {self.navigable.shape}, got {goal_mask.shape}")
-        key = hashlib.blake2b(np.packbits(goal_mask).tobytes(), digest_size=16).digest()
-        if use_cache and key in self._fields:
-            self._fields.move_to_end(key)
-            return self._fields[key]
-        result = LayeredGeodesicField.compute(self, goal_mask)
-        if use_cache:
-            self._fields[key] = result
-            while len(self._fields) > FIELD_CACHE_SIZE:
-                self._fields.popitem(last=False)
-        return result
-
+        return cached_field(self._fields, goal_mask, self.navigable.shape,
+                            lambda m: LayeredGeodesicField.compute(self, m), use_cache)
 
 class LayeredGeodesicField:
     """Geodesic distance to a goal set over a ``LayeredNavGrid``. distances_m (alias

@@ -7,7 +7,6 @@ fields live in ``envs.geodesics``.
 """
 from __future__ import annotations
 
-import hashlib
 from collections import OrderedDict
 from dataclasses import dataclass, field
 
@@ -15,7 +14,7 @@ import numpy as np
 from scipy import sparse
 
 from calnav.common.jit import compiled
-from calnav.envs.geodesics import FIELD_CACHE_SIZE, MOVE_SAMPLE_FRACTION, GeodesicField, grid_graph
+from calnav.envs.geodesics import MOVE_SAMPLE_FRACTION, GeodesicField, cached_field, grid_graph
 from calnav.envs.navmesh import build_navmesh
 from calnav.envs.scene import Scene
 
@@ -176,19 +175,8 @@ class NavGrid:
     def geodesic_field(self, goal_mask: np.ndarray, use_cache: bool = True) -> "GeodesicField":
         """Distance-to-goal field for ``goal_mask`` ((H, W) bool; only its navigable cells are
         goals). Cached (LRU, FIELD_CACHE_SIZE fields) by a hash of the mask."""
-        goal_mask = np.asarray(goal_mask, dtype=bool)
-        if goal_mask.shape != self.navigable.shape:
-            raise ValueError(f"goal_mask must have the grid's shape {self.navigable.shape}, got {goal_mask.shape}")
-        key = hashlib.blake2b(np.packbits(goal_mask).tobytes(), digest_size=16).digest()
-        if use_cache and key in self._fields:
-            self._fields.move_to_end(key)
-            return self._fields[key]
-        result = GeodesicField.compute(self, goal_mask)
-        if use_cache:
-            self._fields[key] = result
-            while len(self._fields) > FIELD_CACHE_SIZE:
-                self._fields.popitem(last=False)
-        return result
+        return cached_field(self._fields, goal_mask, self.navigable.shape,
+                            lambda m: GeodesicField.compute(self, m), use_cache)
 
     def geodesic_distance(self, a_xy, b_xy) -> float:
         """Geodesic distance (metres) from a to b's cell; inf if either is not navigable."""
