@@ -9,6 +9,8 @@ holding the folder's JPEG bytes), depth (raw ``16UC1`` millimetres, raw ``32FC1`
 (``16UC1`` class id + 1), and TF: ``map -> base_link`` on ``/tf`` at the frame stamps (the
 camera pose times the inverse of the mounting), ``base_link -> camera_link -> <optical frame>``
 on ``/tf_static``; or a ``nav_msgs/Odometry`` / ``geometry_msgs/PoseStamped`` pose topic of the camera itself.
+Faults a real recording has, on request (``BagOptions``): dropped or NaN pose samples, two frames at
+one stamp, a frame's messages written twice.
 """
 from __future__ import annotations
 
@@ -193,10 +195,11 @@ def _write_frame(b: BagWriter, opt: BagOptions, folder: Path, i: int, stamp: int
 
     top = opt.topics
     pose = np.loadtxt(folder / "pose" / f"{i}.txt")
-    if i not in opt.drop_poses and (np.isfinite(pose).all() or opt.bad_pose == "nan"):
-        m = pose @ unmount if opt.pose == "tf" else pose
+    finite = bool(np.isfinite(pose).all())
+    if i not in opt.drop_poses and (finite or opt.bad_pose == "nan"):
+        m = pose @ unmount if opt.pose == "tf" and finite else pose
         # a non-finite pose (ScanNet's -inf) is written as a NaN sample: what a tracker that lost itself sends
-        t, quat = (m[:3, 3], Rotation.from_matrix(m[:3, :3]).as_quat()) if np.isfinite(m).all() else \
+        t, quat = (m[:3, 3], Rotation.from_matrix(m[:3, :3]).as_quat()) if finite else \
             (np.full(3, np.nan), np.full(4, np.nan))
         if opt.pose == "tf":
             b.tf("/tf", stamp, [b.transform(stamp, "map", opt.tf_child, t, quat)], opt.tf_type)

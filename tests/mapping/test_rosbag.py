@@ -176,8 +176,8 @@ def test_bad_bags_are_one_line_errors(seq_dir, tmp_path):
     _raises(good, bag_config(color_topic="/tf"), "colour image topic /tf is tf2_msgs/msg/TFMessage; expected "
             "sensor_msgs/msg/Image or sensor_msgs/msg/CompressedImage")
     no_poses = bag(seq_dir, "no_poses", drop_poses=(0, 1))
-    with pytest.raises(ValueError, match="no frames to read: 2 colour images after frame_stride 1 / max_frames 2, 0 with "
-                                         "no depth image within 0.02 s .*, 2 with no pose"):
+    with pytest.raises(ValueError, match="no frames to read: 2 colour images after frame_stride 1 / max_frames 2, 2 with "
+                                         "no pose \\(the pose samples around it"):
         Sequence(no_poses, "rosbag", replace(bag_config(), max_frames=2))
     _raises(tmp_path / "nothing.bag", bag_config(), "rosbag not found")
     (tmp_path / "notes.bag").write_text("not a bag")
