@@ -183,7 +183,7 @@ def _write_results(out: Path, cfg, seq, res: MappedSequence, names, ply, gt, arg
         from calnav.eval.calibration.plots import plot_reliability, plot_reliability_per_class
 
         stats = score(probs, labels, len(names))
-        results.update({"labels_ply": str(ply), "label_map": label_map_source(cfg.sequence, seq.root),
+        results.update({"labels_ply": str(ply), "label_map": label_map_source(cfg.sequence, seq.root, ply),
                         "labelled_voxels": int((labels >= 0).sum()), "miou": stats.miou(),
                         "ece": stats.ece(), "tl_ece": stats.tl_ece(), "mece": stats.mece(), "brier": stats.brier()})
         table = {cfg.mapping.fusion: stats.reliability()}

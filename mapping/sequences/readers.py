@@ -54,7 +54,7 @@ class SequenceConfig:
     frame_stride: int = 1            # use every N-th frame of the recording, frames
     max_frames: int = 0              # use at most this many frames (after the stride); 0 = all, frames
     label_distance_m: float = 0.05   # voxel ground truth: nearest labelled vertex within this distance, metres
-    label_map: str = ""              # raw PLY label -> class name (.json / .tsv / .csv); "" = <seq>/label_map.json if present, else NYU40 names
+    label_map: str = ""              # raw PLY label -> class name (.json / .tsv / .csv); "" = the label_map.json beside the PLY or in <seq>, else NYU40 names
     label_property: str = "label"    # integer vertex property of the labelled PLY holding the raw label
     frame_label_map: str = ""        # raw id -> class name table (.tsv/.csv/.json) of ScanNet's label-filt/N.png; "" = label-filt not read
     rosbag: RosbagConfig = field(default_factory=RosbagConfig)   # the rosbag layout's topics, frames, tolerances

@@ -94,6 +94,27 @@ def test_shared_stamps_repeats_and_nan_poses_map_as_the_folder(recorded, tmp_pat
     np.testing.assert_array_equal(got["probs"], want["probs"])
 
 
+def test_the_label_map_beside_the_labels_ply_is_used_when_none_is_configured(recorded, tmp_path, capsys):
+    """A bag file has no sequence folder: the mesh's raw labels are read through the
+    label_map.json beside ``--labels-ply`` (not NYU40's ids); two different ones, beside the mesh
+    and in the sequence's directory, are a one-line refusal."""
+    seq, ply, folder_out = recorded
+    path = bag(seq, "cli_label_map")
+    out = tmp_path / "bag_map"
+    assert main(["map", str(path), "--layout", "rosbag", "--segmenter", "gt", "--labels-ply", str(ply),
+                 "--output", str(out), *overrides()]) == 0
+    (_, want), (_, got) = _map(folder_out), _map(out)
+    assert got["label_map"] == str(seq / "label_map.json") and got["miou"] == want["miou"] > 0.5
+    # a ROS 2 bag directory holding its own, different, label map, and the mesh's beside it
+    ros2 = bag(seq, "cli_label_map2", storage="sqlite3")
+    (ros2 / "label_map.json").write_text(json.dumps({"1": "wall"}))
+    capsys.readouterr()
+    _fails(["map", str(ros2), "--layout", "rosbag", "--segmenter", "gt", "--labels-ply", str(ply), *overrides()],
+           capsys, f"two different label maps for {ply}: {seq / 'label_map.json'} (beside it) and "
+                   f"{ros2 / 'label_map.json'} (in the sequence's directory); set sequence.label_map to the one "
+                   "its labels are read through", tmp_path / "ambiguous")
+
+
 def _fails(args, capsys, message: str, out) -> str:
     assert main([*args, "--output", str(out)]) == 2
     err = capsys.readouterr().err
