@@ -61,6 +61,18 @@ def test_a_stamp_with_two_different_samples_is_ambiguous_and_a_repeated_one_is_n
     assert status.tolist() == [POSE_OK, POSE_OK] and poses[0][0, 3] == 1.0 and poses[1][0, 3] == 0.5
 
 
+def test_messages_sharing_a_stamp_are_repeats_or_clashes():
+    """Same stamp and pixels: a repeat (the first kept); same stamp, other pixels: every message
+    of the stamp clashes (none can be told from the others)."""
+    from calnav.mapping.sequences.rosbag_sync import digest, stamp_clashes
+
+    a, b = (SimpleNamespace(data=np.full(4, v, np.uint8)) for v in (1, 2))
+    repeat, shared = stamp_clashes([0, 5, 5, 9, 9, 9, 12], [digest(m) for m in (a, a, a, a, b, a, b)])
+    assert repeat.tolist() == [False, False, True, False, False, False, False]
+    assert shared.tolist() == [False, False, False, True, True, True, False]
+    assert not any(stamp_clashes([0, 1, 2], [1, 1, 1])[0])
+
+
 def test_the_tf_chain_composes_parent_transforms_from_the_fixed_frame_down():
     """map -> base (moving along x, turned 90 deg), base -> cam (static: 1 m ahead of the base,
     turned 90 deg more): the camera sits at base + R_z90 (1, 0, 0) = base + (0, 1, 0) in map,
