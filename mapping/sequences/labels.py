@@ -103,9 +103,10 @@ def label_map_source(cfg: SequenceConfig, seq_root=None, ply=None) -> str:
 def vertex_ground_truth(ply_path, class_names, cfg: SequenceConfig, seq_root=None) -> tuple[np.ndarray, np.ndarray]:
     """(vertices (V, 3) float64 m, class per vertex (V,) int64 index into ``class_names``, -1
     void) of a labelled PLY. Raw labels (``cfg.label_property``) map to names through
-    ``cfg.label_map``: a .json / .tsv / .csv file, ``nyu40`` (ScanNet's NYU40 ids), or "" =
-    the ``label_map.json`` beside the PLY or in ``seq_root`` (``label_map_source``), else ``nyu40``; names match ``class_names``
-    exactly, then by synonym (``common.ply_labels``). Raises ValueError when nothing maps."""
+    ``cfg.label_map``: a .json / .tsv / .csv file, ``nyu40`` (ScanNet's NYU40 ids), or "" = the
+    ``label_map.json`` beside the PLY or in ``seq_root`` (``label_map_source``), else ``nyu40``;
+    names match ``class_names`` exactly, then by synonym (``common.ply_labels``). Raises
+    ValueError when nothing maps."""
     from calnav.common.ply_labels import NYU40_NAMES, class_ids_of, class_index, int_keyed, read_label_table, read_vertex_labels
 
     vertices, raw = read_vertex_labels(ply_path, cfg.label_property)

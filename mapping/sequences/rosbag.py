@@ -8,10 +8,10 @@ camera pose of the depth image's stamp: from TF (the chain from ``fixed_frame`` 
 camera's optical frame; ``/tf_static`` edges constant, ``/tf`` edges interpolated) or from a
 pose topic and ``camera_extrinsic``. Colour frames without a depth image in tolerance or
 without a pose (the pose track has no samples around the stamp at most ``pose_max_gap_s``
-apart), with a NaN pose sample at or across its stamp, sharing its stamp with another colour image,
-repeating an earlier message, or read at a stamp holding two different depth images or pose samples
-are skipped and counted (``skips``: ``mapping.sequences.skips``, the folders' rule). Depth must be registered to the
-colour camera (same optical frame; another resolution / K is resampled by ``Registration``);
+apart), with a NaN pose sample at or across its stamp, sharing its stamp with another colour
+image, repeating an earlier message, or read at a stamp holding two different depth images or
+pose samples are skipped and counted (``skips``: ``mapping.sequences.skips``, the folders'
+rule). Depth must be registered to the colour camera (same optical frame; another resolution / K is resampled by ``Registration``);
 depth in another optical frame is refused. Images with distortion (CameraInfo ``D`` not zero)
 are undistorted onto K (``rosbag_camera``). See ``docs/sequences.md``.
 
