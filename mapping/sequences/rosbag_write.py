@@ -50,6 +50,7 @@ class BagOptions:
     bad_pose: Literal["drop", "nan"] = "drop"   # a frame whose folder pose is not finite: no sample, or a NaN one
     shared_stamp: tuple[int, ...] = ()   # frames stamped as the frame before them: two frames, two TF poses, one stamp
     repeat: tuple[int, ...] = ()      # frames whose messages (images, TF / odometry) are written twice, identical
+    second_depth: tuple[int, ...] = ()   # frames with a second, different raw depth image at their stamp (1 cm farther)
     pose: Literal["tf", "odometry", "pose_stamped"] = "tf"   # TF, or the camera's pose on pose_topic
     pose_topic: str = "/odom"
     distortion: tuple[float, ...] = ()   # CameraInfo D written (plumb_bob); the images are written as they are
@@ -210,6 +211,9 @@ def _write_frame(b: BagWriter, opt: BagOptions, folder: Path, i: int, stamp: int
     log = stamp + LATENCY_NS
     _write_color(b, opt, top.color, stamp, log, folder / "color" / f"{i}.jpg")
     _write_depth(b, opt, top.depth, stamp, log, folder / "depth" / f"{i}.png")
+    if i in opt.second_depth:
+        mm = cv2.imread(str(folder / "depth" / f"{i}.png"), cv2.IMREAD_UNCHANGED)
+        b.write(top.depth, "sensor_msgs/msg/Image", log, b.image(stamp, opt.depth_frame, "16UC1", mm + np.uint16(10)))
     sem = folder / "semantic" / f"{i}.png"
     if opt.semantic_topic and sem.exists():
         b.write(opt.semantic_topic, "sensor_msgs/msg/Image", log,
