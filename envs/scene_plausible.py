@@ -6,7 +6,8 @@ Units
     A horizontal extent above ``MAX_EXTENT_M`` or a height above ``MAX_HEIGHT_M`` is no building
     in metres: a house 15 m across in centimetres spans 1.5 km, and a 0.05 m navmesh grid over it
     would take tens of GB. The likely unit is the one (centimetres: scale 0.01, millimetres:
-    0.001) that brings the horizontal extent nearest a house's (``TYPICAL_HOUSE_M``).
+    0.001) that brings the extent nearest a house's (``TYPICAL_HOUSE_M`` across,
+    ``TYPICAL_HEIGHT_M`` high; the sum of the two log ratios).
 Up axis
     In a valid frame at least ``MIN_HORIZONTAL_FLOOR`` of the labelled floor's area is
     horizontal (normals within 30 degrees of z), the labelled furniture (every non-structure
@@ -31,7 +32,8 @@ from calnav.envs.semantics import CLASS_ID, STRUCTURE_IDS, VOID
 
 MAX_EXTENT_M = 200.0        # horizontal extent above any house's (HM3D's and MP3D's largest are ~50 m), metres
 MAX_HEIGHT_M = 100.0        # height above any house's (HM3D's four-storey scenes are ~15 m), metres
-TYPICAL_HOUSE_M = 20.0      # a house's horizontal extent, for guessing the unit, metres
+TYPICAL_HOUSE_M = 15.0      # a house's horizontal extent, for guessing the unit, metres
+TYPICAL_HEIGHT_M = 5.0      # ... and its height (one or two storeys), metres
 UNITS = ((0.01, "centimetres"), (0.001, "millimetres"))   # (scale to metres, unit) guessed for an oversized scene
 HORIZONTAL_COS = np.cos(np.deg2rad(30.0))   # a floor face tilted less than 30 degrees counts as horizontal
 MIN_HORIZONTAL_FLOOR = 0.5                  # share of floor area that must be horizontal in a valid frame
@@ -101,7 +103,11 @@ def _units(verts: np.ndarray) -> Implausible | None:
     across = float(max(size[0], size[1]))
     if across <= MAX_EXTENT_M and size[2] <= MAX_HEIGHT_M:
         return None
-    scale, unit = min(UNITS, key=lambda u: abs(np.log(max(across, 1e-9) * u[0] / TYPICAL_HOUSE_M)))
+    def misfit(unit: tuple[float, str]) -> float:
+        return float(sum(abs(np.log(max(m, 1e-9) * unit[0] / typical))
+                         for m, typical in ((across, TYPICAL_HOUSE_M), (size[2], TYPICAL_HEIGHT_M))))
+
+    scale, unit = min(UNITS, key=misfit)
     return Implausible(f"it is {size[0]:.0f} x {size[1]:.0f} m across and {size[2]:.0f} m high, beyond any building "
                        f"(> {MAX_EXTENT_M:.0f} m across or > {MAX_HEIGHT_M:.0f} m high): its coordinates are likely "
                        f"{unit} (scale {scale}), and calnav reads them as metres", scale=scale)
