@@ -98,9 +98,16 @@ def test_scene_in_centimetres_or_millimetres_is_refused_at_once(tmp_path, capsys
     assert time.perf_counter() - start < 10.0
     assert f"beyond any building (> 200 m across or > 100 m high): its coordinates are likely {unit}" in err
     assert "calnav has no scale setting: convert the file to metres" in err
-    ply = _write_ply(house, tmp_path / "big.ply", house.vertices * scale)
+    (tmp_path / "scans").mkdir()
+    ply = _write_ply(house, tmp_path / "scans" / "big.ply", house.vertices * scale)
     with pytest.raises(SceneError, match=rf"likely {unit.split()[0]}.*every vertex coordinate x {1 / scale}"):
         load_scene_file(ply)
+    # objectnav meets it in a worker generating episodes: the same one line, nothing written
+    run = tmp_path / "run"
+    assert main(["objectnav", "--agent", "oracle", "--episodes", "1", "--output", str(run),
+                 f"env.dataset.scene_dir={tmp_path / 'scans'}"]) == 2
+    last = capsys.readouterr().err.strip().splitlines()[-1]
+    assert last.startswith(f"calnav objectnav: error: {ply}: it is ") and unit in last and not run.exists()
 
 
 def test_plausible_scenes_pass(tmp_path):
