@@ -97,12 +97,12 @@ def refuse_implausible(scene: Scene, kind: str, path: Path) -> None:
                "every vertex coordinate x {s}, in the tool that wrote it or e.g. trimesh's apply_scale({s})")
         raise SceneError(f"{path}: {found.problem}; calnav has no scale setting: convert the file to metres "
                          f"({how.format(s=found.scale)})")
-    frame = scene.meta.get("frame")
     if kind == "ply":
-        rot, read_with = up_axis_rotation(scene.meta.get("up_axis", "z")), ""
-    elif kind in ("hm3d", "mp3d") and frame:
+        rot, read_with = up_axis_rotation(scene.meta["up_axis"]), ""
+    elif kind in ("hm3d", "mp3d"):
+        frame = scene.meta["frame"]
         rot, read_with = frame_rotation(frame["up"], frame["front"]), f" (read with up {frame['up']} from {frame['source']})"
-    else:
+    else:   # a calnav scene file: read as it is
         rot, read_with = np.eye(3), ""
     up = rot.T @ found.up   # the direction that should be +z, in the file's coordinates
     if kind == "ply":
