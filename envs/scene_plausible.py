@@ -10,12 +10,13 @@ Units
     ``TYPICAL_HEIGHT_M`` high; the sum of the two log ratios).
 Up axis
     In a valid frame at least ``MIN_HORIZONTAL_FLOOR`` of the labelled floor's area is
-    horizontal (normals within 30 degrees of z), the labelled furniture (every non-structure
-    class) stands above the floor (its median face height above ``envs.scan.floor_height``,
-    the lowest floor's: ``floor_height``) and the labelled ceiling too. A vertical floor says which axis is up
-    (the one its normals lie along, pointing the way the furniture stands); furniture or a
-    ceiling below the floor says the scene is upside down. Scenes without a labelled floor
-    (or without furniture and ceiling) cannot tell, and pass.
+    horizontal (normals within 30 degrees of z), most of the labelled furniture's area (every
+    non-structure class) lies above its nearest floor level (a storey's floor: a height holding
+    ``MIN_LEVEL_SHARE`` of the floor's area), and the labelled ceiling's median height lies above
+    the lowest floor (``floor_height``). A vertical floor says which axis is up (the one its
+    normals lie along, pointing the way the furniture stands); furniture or a ceiling below the
+    floor says the scene is upside down. Scenes without a labelled floor (or without furniture
+    and ceiling) cannot tell, and pass.
 
 ``check_plausible(verts, tris, tri_class)`` returns the first problem (``Implausible``: what is
 wrong, and the scale or the up vector that would fix it) or None; the loader turns it into a
@@ -37,6 +38,9 @@ TYPICAL_HEIGHT_M = 5.0      # ... and its height (one or two storeys), metres
 UNITS = ((0.01, "centimetres"), (0.001, "millimetres"))   # (scale to metres, unit) guessed for an oversized scene
 HORIZONTAL_COS = np.cos(np.deg2rad(30.0))   # a floor face tilted less than 30 degrees counts as horizontal
 MIN_HORIZONTAL_FLOOR = 0.5                  # share of floor area that must be horizontal in a valid frame
+LEVEL_BIN_M = 0.1           # height bins of the floor levels, metres
+MIN_LEVEL_SHARE = 0.05      # a floor level holds at least this share of the labelled floor's area
+MOSTLY = 0.5                # share of the furniture's area that must stand above its nearest floor level
 FLOOR_PERCENTILE = 2.0      # floor height = this percentile of floor-vertex z (robust to stray points), percent
 AXES = ("x", "y", "z")
 
@@ -86,15 +90,38 @@ def floor_height(verts: np.ndarray, tris: np.ndarray, tri_class: np.ndarray) -> 
     return float(np.percentile(floor_vz, FLOOR_PERCENTILE))
 
 
-def _stands_above(z: np.ndarray, tris: np.ndarray, tri_class: np.ndarray) -> bool | None:
-    """Whether the labelled furniture and ceiling stand above the labelled floor along the
-    heights ``z`` (V,); None when there is no floor, or neither furniture nor ceiling, to tell."""
-    if not (tri_class == CLASS_ID["floor"]).any():
+def _floor_levels(height: np.ndarray, area: np.ndarray) -> np.ndarray:
+    """(L,) the heights holding at least ``MIN_LEVEL_SHARE`` of the floor's area (``LEVEL_BIN_M``
+    bins; bin centres), of floor faces at ``height`` (F,) with ``area`` (F,): the storeys' floors,
+    not a stair tread or a stray floor label."""
+    bins = np.floor((height - height.min()) / LEVEL_BIN_M).astype(np.int64)
+    per_bin = np.bincount(bins, weights=area)
+    keep = np.flatnonzero(per_bin >= MIN_LEVEL_SHARE * per_bin.sum())
+    return height.min() + (keep + 0.5) * LEVEL_BIN_M
+
+
+def _stands_above(verts: np.ndarray, tris: np.ndarray, tri_class: np.ndarray, axis: int) -> bool | None:
+    """Whether the labelled furniture and ceiling stand above the labelled floor along ``axis``
+    of ``verts`` (V, 3); None when there is no floor, or neither furniture nor ceiling, to tell.
+    Furniture: most of its area (``MOSTLY``) lies above its nearest floor level (``_floor_levels``:
+    each storey's, so a house upside down is told storey by storey). Ceiling: its median face
+    height lies above the lowest floor (``floor_height``)."""
+    floor = tri_class == CLASS_ID["floor"]
+    if not floor.any():
         return None
-    base = floor_height(np.stack([z, z, z], axis=1), tris, tri_class)
+    v = verts[tris]
+    height = v[:, :, axis].mean(axis=1)
+    area = np.linalg.norm(np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]), axis=1) / 2
+    above = []
     furniture = (tri_class != VOID) & ~np.isin(tri_class, STRUCTURE_IDS)
-    above = [float(np.median(z[tris[part]].mean(axis=1))) > base
-             for part in (furniture, tri_class == CLASS_ID["ceiling"]) if part.any()]
+    if furniture.any() and area[furniture].sum() > 0:
+        levels = _floor_levels(height[floor], area[floor])
+        nearest = levels[np.argmin(np.abs(height[furniture, None] - levels[None, :]), axis=1)]
+        above.append(area[furniture][height[furniture] > nearest].sum() >= MOSTLY * area[furniture].sum())
+    ceiling = tri_class == CLASS_ID["ceiling"]
+    if ceiling.any():
+        base = floor_height(verts[:, [0, 1, axis]], tris, tri_class)
+        above.append(float(np.median(height[ceiling])) > base)
     return all(above) if above else None
 
 
@@ -129,10 +156,10 @@ def check_plausible(verts: np.ndarray, tris: np.ndarray, tri_class: np.ndarray) 
         if area.sum() > 0 and area[flat].sum() < MIN_HORIZONTAL_FLOOR * area.sum():
             axis = int(np.argmax(np.abs(n).sum(axis=0)))
             up = np.eye(3)[axis]
-            if _stands_above(verts[:, axis], tris, tri_class) is False:
+            if _stands_above(verts, tris, tri_class, axis) is False:
                 up = -up
             return Implausible(f"its labelled floor is not horizontal (it faces the {AXES[axis]} axis)", up=up)
-    if _stands_above(verts[:, 2], tris, tri_class) is False:
+    if _stands_above(verts, tris, tri_class, 2) is False:
         return Implausible("its labelled furniture or ceiling lies below its floor", up=np.array([0.0, 0.0, -1.0]))
     return None
 

@@ -110,10 +110,13 @@ def test_scene_in_centimetres_or_millimetres_is_refused_at_once(tmp_path, capsys
     assert last.startswith(f"calnav objectnav: error: {ply}: it is ") and unit in last and not run.exists()
 
 
-def test_plausible_scenes_pass(tmp_path):
-    for scene in (sofa_step_house(), warped_floor_house(), generate_house(2_000_000, HouseSpec()),
-                  generate_house(2_000_001, HouseSpec(), storeys=2)):
+def test_plausible_scenes_pass_and_storeys_upside_down_do_not(tmp_path):
+    two_storeys = generate_house(2_000_001, HouseSpec(), storeys=2)
+    for scene in (sofa_step_house(), warped_floor_house(), generate_house(2_000_000, HouseSpec()), two_storeys):
         assert check_plausible(scene.vertices, scene.triangles, scene.tri_class) is None, scene.name
+    # each storey's furniture hangs below its own floor, though above the lowest floor of the house
+    found = check_plausible(two_storeys.vertices * [1.0, 1.0, -1.0], two_storeys.triangles, two_storeys.tri_class)
+    assert found is not None and found.up.tolist() == [0.0, 0.0, -1.0]
     flat = sofa_step_house()   # a scan without furniture, ceiling or floor labels cannot tell: it passes
     flat.tri_class[:] = -1
     assert check_plausible(flat.vertices, flat.triangles, flat.tri_class) is None
