@@ -32,12 +32,6 @@ STOREY_MIN_STEPS = 60   # a storey is explored this many actions after arriving 
 # ... and after this many, stairs to a storey not yet seen win over the frontiers left here (the
 # step limit is 500: a goal upstairs is not found by exploring every corner downstairs first)
 STOREY_EXPLORE_STEPS = 150
-# Down a flight the camera loses the treads ahead within a few steps: a 30-degree flight falls
-# away about as fast as the lowest ray of a level camera (half a 63-degree vertical field), so
-# the treads below are hit beyond the depth range. The agent then walks on blind along the
-# flight while the cell this far ahead is free, until it is blocked (the landing's wall) or
-# sees a floor below (the landing, the storey at the foot of the flight).
-BLIND_AHEAD_M = 0.3
 
 
 class StoreyPeanutAgent(PeanutAgent):
@@ -157,7 +151,6 @@ class StoreyPeanutAgent(PeanutAgent):
 
         self.climb, self.climb_from, self.look_turns = min(options, key=last_left), self.current, 0
         self.climb_steps, self.climb_z, self.climb_best = 0, self.floor_z, 0.0
-        self.blind_yaw = None   # the heading of the last step down a flight (walking on blind: BLIND_AHEAD_M)
         return True
 
     def _climb(self, agent_rc, yaw: float, free: np.ndarray, det: GoalDetection) -> int | None:
@@ -168,10 +161,6 @@ class StoreyPeanutAgent(PeanutAgent):
         progress = self.climb * (self.floor_z - self.climb_z)
         if progress > self.climb_best + STAIR_MIN_M:
             self.climb_best, self.climb_steps = progress, 0
-            if self.climb < 0 and self.last_action == Action.MOVE_FORWARD:
-                self.blind_yaw = yaw
-        if self.collided:
-            self.blind_yaw = None
         if self.climb_steps >= CLIMB_PATIENCE:
             return self._end_climb()   # no step further in all that time: no (more) stairs there
         steps = st.next_steps(free, self.window, self.floor_z, self.climb, any_lower=True)
@@ -181,23 +170,11 @@ class StoreyPeanutAgent(PeanutAgent):
                 self.look_turns = 0
                 self.info = StepInfo("stairs", det, plan, None, self.selector.frontiers, self.window)
                 return plan.action
-        if self.blind_yaw is not None:   # down a flight whose treads ahead the camera no longer sees
-            if abs(np.angle(np.exp(1j * (yaw - self.blind_yaw)))) < self.planner.turn_rad / 2 \
-                    and self._free_ahead(agent_rc, yaw, free):
-                self.info = StepInfo("stairs", det, None, None, self.selector.frontiers, self.window)
-                return int(Action.MOVE_FORWARD)
-            self.blind_yaw = None
         if self.look_turns < self.spin_turns:   # a landing hides the next flight until the agent turns
             self.look_turns += 1
             self.info = StepInfo("stairs", det, None, None, self.selector.frontiers, self.window)
             return int(Action.TURN_LEFT)
         return self._end_climb()
-
-    def _free_ahead(self, agent_rc, yaw: float, free: np.ndarray) -> bool:
-        """Whether the window cell ``BLIND_AHEAD_M`` ahead of the agent is free (unseen is free)."""
-        d = BLIND_AHEAD_M / self.cfg.cell_m
-        r, c = int(round(agent_rc[0] + d * np.sin(yaw))), int(round(agent_rc[1] + d * np.cos(yaw)))
-        return 0 <= r < free.shape[0] and 0 <= c < free.shape[1] and bool(free[r, c])
 
     def _end_climb(self) -> None:
         """The climb is over: back to exploring (a climb that left no storey waits
