@@ -12,6 +12,8 @@ unreachable (``unreachable``) and, for a predicted goal, once its cell is explor
 (``prediction_replan_seen``: the prediction was for an unseen instance). Frontier cells around a
 goal given up (reached, unreachable, or abandoned on the watchdog's word: ``give_up``) are
 never chosen again (``excluded``) until nothing is left to explore (``forget_exclusions``).
+Cells the agent keeps out of exploration for a while (``elsewhere``: the stairs of a storey,
+``agent.storey_policy``) are not chosen while they are set.
 Goals in and out of ``select`` / ``unreachable`` are (row, col) cells of the planning window
 ``win``; ``free`` (h, w) bool is its planning map, ``agent_rc`` the agent's window cell.
 """
@@ -47,6 +49,7 @@ class FrontierSelector:
         self.left: Cell | None = None            # the predicted goal given up for the current one
         self.frontiers: np.ndarray | None = None  # (n, n) bool frontier cells of the last frontier choice
         self.excluded = np.zeros((map_cells, map_cells), bool)   # frontier cells not to choose again
+        self.elsewhere: np.ndarray | None = None   # (n, n) bool cells not to choose now (set by the agent)
 
     # ------------------------------------------------------------------ giving goals up
     def exclude_around(self, rc: Cell) -> None:
@@ -69,6 +72,10 @@ class FrontierSelector:
         """Nothing reachable to explore: every frontier may be chosen again, from scratch."""
         self.excluded[:] = False
         self.goal = None
+
+    def _excluded(self, win: tuple[slice, slice]) -> np.ndarray:
+        """(h, w) bool: the window's cells not to choose (given up, or ``elsewhere``)."""
+        return self.excluded[win] if self.elsewhere is None else self.excluded[win] | self.elsewhere[win]
 
     # ------------------------------------------------------------------ choosing
     def select(self, state: MapState, win: tuple[slice, slice], agent_rc: Cell, free: np.ndarray) -> Cell | None:
@@ -106,7 +113,7 @@ class FrontierSelector:
         cfg = self.cfg
         prior = prior_mask(state.semantic[:, win[0], win[1]], self.goal_name, self.class_names, cfg)
         choice = choose_frontier(state.channels[MapChannels.EXPLORED][win], state.traversable(cfg, win), agent_rc,
-                                 cfg, prior=prior, exclude=self.excluded[win])
+                                 cfg, prior=prior, exclude=self._excluded(win))
         self.age, self.predicted = 0, False
         if choice is None:
             self.goal = self.frontiers = None
@@ -173,7 +180,7 @@ class PredictionSelector(FrontierSelector):
         source[agent_rc] = True
         explored = ch[MapChannels.EXPLORED][win]
         near = near_explored(explored, int(round(self.predictor.spec.near_m / cfg.cell_m)))
-        candidates = free & ~explored & near & ~self.excluded[win]
+        candidates = free & ~explored & near & ~self._excluded(win)
         choice = predicted_goal(prob, corner, win, geodesic_distance(free, source), candidates,
                                 cfg.prediction_distance_m, cfg.cell_m)
         return None if choice is None else choice[0]

@@ -114,11 +114,18 @@ class StoreyPeanutAgent(PeanutAgent):
 
     # ------------------------------------------------------------------ stairs
     def _explore(self, agent_rc, yaw: float, free: np.ndarray, det: GoalDetection) -> int:
+        """Explore the storey's own floor (``Storey.off_floor``: not its stairs); take the stairs
+        when it has no frontier left (or a storey not seen yet is due); explore toward the
+        stairs when the agent knows no flight there yet (it saw their foot only)."""
+        self.selector.elsewhere = self.storeys[self.current].off_floor(self.window, self.cfg.cell_m)
         if not self.climb and self.steps - self.arrived_at >= STOREY_EXPLORE_STEPS:
             self._start_climb(free, unvisited_only=True)   # a storey never seen may hold the goal
         if not self.climb:
             goal = self.selector.select(self.state, self.window, agent_rc, free)
-            if goal is not None or not self._start_climb(free):
+            if goal is None and not self._start_climb(free):
+                self.selector.elsewhere = None
+                goal = self.selector.select(self.state, self.window, agent_rc, free)
+            if not self.climb:
                 return self._explore_goal(goal, agent_rc, yaw, free, det)
         action = self._climb(agent_rc, yaw, free, det)
         if action is not None:

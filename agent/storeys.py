@@ -53,6 +53,8 @@ STOREY_SWITCH_M = 1.2       # another storey once the floor is this far from the
 STAIR_MIN_M = 0.08          # a free cell this far above / below the storey's floor is stairs, metres
 FLIGHT_M = 0.6              # a first step leads to a flight when a second step lies within this, metres
 STOREY_BAND_M = (-0.5, 2.4)  # fused into a storey's semantic map: points this far from its floor, metres
+OFF_FLOOR_M = 0.15          # a seen floor this far from the storey's is another level (stairs, a landing), metres
+OFF_FLOOR_MARGIN_M = 0.5    # ... and the cells this near it are not explored either (a stairwell's unseen treads), metres
 
 
 @dataclass
@@ -85,6 +87,16 @@ class Storey:
         z = self.elev[off[:, 0], off[:, 1]]
         z = z[np.isfinite(z)]
         return float(np.median(z)) if len(z) else None
+
+    def off_floor(self, window: tuple[slice, slice], cell_m: float) -> np.ndarray:
+        """(n, n) bool: the cells of ``window`` within ``OFF_FLOOR_MARGIN_M`` of a seen floor
+        ``OFF_FLOOR_M`` or more from the storey's (stairs, a landing between storeys, a seat
+        top): not explored from this storey. A frontier in a stairwell would walk the agent off
+        the storey it explores; the stairs are taken by a climb (``agent.storey_policy``)."""
+        out = np.zeros((self.state.size, self.state.size), bool)
+        with np.errstate(invalid="ignore"):
+            out[window] = pj.dilate(np.abs(self.elev[window] - self.z_ref) >= OFF_FLOOR_M, OFF_FLOOR_MARGIN_M / cell_m)
+        return out
 
     def flights(self, free: np.ndarray, window: tuple[slice, slice], direction: int, cell_m: float) -> np.ndarray:
         """(h, w) bool: the first steps of flights up (``direction`` +1) or down (-1) from the

@@ -97,3 +97,25 @@ def test_the_agent_climbs_and_knows_its_height():
         storeys.append(info["storey"])
     assert 1 in storeys, "the agent never went up the stairs"
     assert np.percentile(np.abs(errors), 90) < 0.4
+
+
+def test_stairs_are_kept_out_of_a_storeys_exploration():
+    """Frontiers on the stairs (and near them) walk the agent off the storey it explores: the
+    selector keeps them out while the storey's own floor has frontiers."""
+    from calnav.agent.goal_selection import FrontierSelector
+    from calnav.agent.storeys import OFF_FLOOR_MARGIN_M
+
+    st = _storey()
+    _staircase(st)
+    win = (slice(0, N), slice(0, N))
+    off = st.off_floor(win, 0.05)
+    margin = int(OFF_FLOOR_MARGIN_M / 0.05)
+    assert off[10:30, 40:76].all() and off[20, 40 - margin + 1] and not off[20, 40 - margin - 2]
+    assert off[50:60, 10:20].all()     # a seat top is another level too
+    assert not off[40, 30] and not off[75, 30]   # the storey's own floor
+    sel = FrontierSelector(AgentConfig(map_size_m=N * 0.05), ("floor",), ("chair",))
+    sel.reset(N, "chair")
+    sel.elsewhere = off
+    assert (sel._excluded(win) == off).all()
+    sel.elsewhere = None
+    assert not sel._excluded(win).any()
