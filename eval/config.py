@@ -145,6 +145,11 @@ PREDICTOR_SECTIONS: tuple[str, ...] = ("predictor_train",)   # train-predictor
 MOVED_KEYS: dict[str, str] = {
     "agent.segmenter_config": "segmenter",   # the segmenter's settings: one top-level section for every command
 }
+# Command-line flags that were renamed, old -> new: refused in one line naming the new flag (a flag
+# is typed, not stored, so nothing has to be read at the new place).
+MOVED_FLAGS: dict[str, str] = {
+    "--model": "--segmenter",   # the segmenter is spelled --segmenter on every command
+}
 _NOTED: set[tuple[str, str]] = set()   # (source, old key) already noted in this process
 _ABSENT = object()
 
@@ -158,6 +163,12 @@ def migrate_key(dotted: str) -> str:
     """``dotted`` at its new place when it is, or lies under, a moved key (``MOVED_KEYS``)."""
     old = _moved_from(dotted)
     return dotted if old is None else MOVED_KEYS[old] + dotted[len(old):]
+
+
+def moved_flag(word: str) -> str | None:
+    """The new spelling of a renamed flag (``MOVED_FLAGS``) that command-line word ``word`` is
+    (``--model`` or ``--model=NAME``), or None."""
+    return MOVED_FLAGS.get(word.partition("=")[0]) if word.startswith("--") else None
 
 
 def _note_moved(source: str, old: str) -> None:
