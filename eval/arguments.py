@@ -20,6 +20,7 @@ the ``KEY=VALUE`` overrides are not fields: ``Command.config`` / ``Command.overr
 from __future__ import annotations
 
 import dataclasses
+import sys
 import types
 import typing
 from dataclasses import dataclass, field
@@ -70,6 +71,15 @@ class Command:
     fixed: tuple[Shorthand, ...] = ()   # values it always sets (eval.shorthands.fixed)
     status: bool = False        # main returns the exit status (0 / 1: a check that found a difference)
 
+    # The loader and the main are looked up in their module when called (a module attribute
+    # patched after the registry loaded this Command, as a test does, is the one that runs).
+    def load_configs(self, args: Any) -> list:
+        """Every config the command runs (all multirun combinations); [] when it reads none."""
+        return _current(self.configs)(args) if self.configs is not None else []
+
+    def run_main(self, args: Any, configs: list) -> Any:
+        return _current(self.main)(args, configs)
+
     def fields(self) -> tuple[dataclasses.Field, ...]:
         return dataclasses.fields(self.args)
 
@@ -82,6 +92,11 @@ class Command:
         return (*(Shorthand(spelling(f), f.metadata["sets"], f.metadata["convert"], f.metadata["sets_default"],
                             f.metadata["preset"])
                   for f in self.fields() if f.metadata["sets"] or f.metadata["preset"]), *self.fixed)
+
+
+def _current(function: Callable[..., Any]) -> Callable[..., Any]:
+    """``function`` as its module holds it now."""
+    return getattr(sys.modules[function.__module__], function.__name__, function)
 
 
 def spelling(f: dataclasses.Field) -> str:

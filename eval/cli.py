@@ -48,9 +48,9 @@ def main(argv: list[str] | None = None) -> int:
 
             command = COMMANDS.get(args.command)
             check_args(command, args)   # its flags' declared ranges
-            configs = command.configs(args) if command.configs else []   # every config it runs (all multirun combinations)
+            configs = command.load_configs(args)   # every config it runs (all multirun combinations)
             check_configs(configs, command.checks)   # every file and service they name, before anything is written
-            status = command.main(args, configs)
+            status = command.run_main(args, configs)
             if command.status and status:
                 return int(status)
     except (ConfigError, ValueError, FileNotFoundError, ResultsError) as exc:

@@ -160,7 +160,7 @@ def test_missing_weights_name_path_and_command(tmp_path):
     with pytest.raises(FileNotFoundError) as info:
         make_segmenter("learned_rgb", SegmenterConfig(weights=str(missing)))
     assert str(missing) in str(info.value)
-    assert f"calnav train-segmenter --model learned_rgb --output {missing}" in str(info.value)
+    assert f"calnav train-segmenter --segmenter learned_rgb --output {missing}" in str(info.value)
 
 
 def test_weights_for_the_other_model_are_refused(weight_files):

@@ -24,8 +24,8 @@ def _argv(command: str, tmp_path) -> list[str]:
     out = tmp_path / "out"
     return [str(a).replace(OUT, str(out)) for a in {
         "check-scene": ["check-scene", "house_val_0000", "--output", OUT],
-        "train-segmenter": ["train-segmenter", "--model", "learned_rgb", "--output", f"{OUT}/w.pt"],
-        "eval-segmenter": ["eval-segmenter", "--model", "gt", "--output", f"{OUT}/m.json"],
+        "train-segmenter": ["train-segmenter", "--segmenter", "learned_rgb", "--output", f"{OUT}/w.pt"],
+        "eval-segmenter": ["eval-segmenter", "--segmenter", "gt", "--output", f"{OUT}/m.json"],
         "train-predictor": ["train-predictor", "--data", tmp_path, "--output", f"{OUT}/p.pt"],
         "fit-glfs": ["fit-glfs", "--segmenter", "gt", "--output", f"{OUT}/g.json", "--work-dir", OUT],
         "map": ["map", tmp_path, "--layout", "scannet", "--segmenter", "gt", "--output", OUT],
