@@ -27,10 +27,11 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     argv = sys.argv[1:] if argv is None else list(argv)
     name = next((word for word in argv if not word.startswith("-")), None)
     parser = build_parser(name if name in COMMANDS else None)
-    args, _ = parser.parse_known_args(argv)   # the command (and --help / a bad command exit here)
     sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    if name in COMMANDS:   # before argparse reads the words, which would misread a renamed flag
+        refuse_moved_flags(sub.choices[name], argv[argv.index(name) + 1:])
+    args, _ = parser.parse_known_args(argv)   # the command (and --help / a bad command exit here)
     rest = argv[argv.index(args.command) + 1:]
-    refuse_moved_flags(sub.choices[args.command], rest)
     # schema: the command's sections and shorthands, for its config loader (eval.shorthands.load_command_config)
     namespace = argparse.Namespace(command=args.command, schema=COMMANDS.get(args.command).schema(args.command))
     return sub.choices[args.command].parse_intermixed_args(rest, namespace=namespace)

@@ -102,7 +102,61 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
 
 
 def refuse_moved_flags(p: argparse.ArgumentParser, argv: list[str]) -> None:
-    """A flag that was renamed (``eval.config.MOVED_FLAGS``) is refused in one line naming the new one."""
-    for word in argv:
+    """A flag that was renamed (``eval.config.MOVED_FLAGS``) is refused in one line (exit 2)
+    naming the new one, the value given with it."""
+    for i, word in enumerate(argv):
         if (new := moved_flag(word)) is not None:
-            p.error(f"{word.partition('=')[0]} is now {new}; write {new} instead")
+            old, eq, value = word.partition("=")
+            value = value if eq else (argv[i + 1] if i + 1 < len(argv) and not argv[i + 1].startswith("-") else "")
+            p.exit(2, f"{p.prog}: error: {old} is now {new}: write {' '.join(filter(None, (new, value)))}\n")
+
+
+# ------------------------------------------------------------------- docs/cli.md's reference table
+PAGE_BEGIN, PAGE_END = "<!-- calnav commands -->", "<!-- /calnav commands -->"
+
+
+def _cell(text: str) -> str:
+    """Help text as a Markdown table cell (argparse's %% is %; |, <, * would be Markdown)."""
+    return text.replace("%%", "%").replace("|", "\\|").replace("<", "&lt;").replace("*", "\\*")
+
+
+def commands_table() -> str:
+    """Every command and argument as a Markdown table (command | argument | default | what it is),
+    from the same declarations ``--help`` prints."""
+    rows = ["| command | argument | default | what it is |", "|---|---|---|---|"]
+    for name, help in COMMANDS.describe().items():
+        command = COMMANDS.get(name)
+        ranges = {f.name: f.metadata["range"] for f in command.fields() if f.metadata["range"] is not None}
+        rows.append(f"| `calnav {name}` | | | {_cell(help)} |")
+        for action in command_parser(argparse.ArgumentParser(prog=f"calnav {name}"), command)._actions:
+            if isinstance(action, argparse._HelpAction):
+                continue
+            spelled = " / ".join(action.option_strings) or action.metavar or action.dest
+            if action.option_strings and action.metavar:
+                spelled += f" {action.metavar}"
+            unset = action.default is None or action.default is False or action.default == [] or action.required
+            default = "" if unset else f"`{action.default}`"
+            what = _cell(action.help) + (" (required)" if action.required and action.option_strings else "")
+            if action.choices:
+                what += f"; one of {', '.join(map(str, action.choices))}"
+            if action.dest in ranges:
+                what += f"; in {ranges[action.dest].text()}"
+            rows.append(f"| | `{spelled}` | {default} | {what} |")
+    return "\n".join(rows) + "\n"
+
+
+def render_page(text: str, path: str = "docs/cli.md") -> str:
+    """``text`` with its ``PAGE_BEGIN`` ... ``PAGE_END`` block replaced by ``commands_table()``."""
+    head, begin, rest = text.partition(PAGE_BEGIN)
+    _, end, tail = rest.partition(PAGE_END)
+    if not begin or not end:
+        raise ValueError(f"{path} has no '{PAGE_BEGIN}' ... '{PAGE_END}' block")
+    return f"{head}{PAGE_BEGIN}\n{commands_table()}{PAGE_END}{tail}"
+
+
+if __name__ == "__main__":   # python -m calnav.eval.parser docs/cli.md: re-render the page's table
+    import sys
+    from pathlib import Path
+
+    page = Path(sys.argv[1])
+    page.write_text(render_page(page.read_text(), str(page)))
