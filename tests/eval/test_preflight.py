@@ -151,10 +151,10 @@ def assert_runs_the_checked_configs(argv: list[str], monkeypatch) -> list:
     import calnav.eval.preflight as preflight
     from calnav.eval.cli import COMMANDS
 
-    entry = COMMANDS[argv[0]]
+    entry = COMMANDS.get(argv[0])
     checked, received = [], []
     monkeypatch.setattr(preflight, "check_run_resources", lambda cfg, checks=(): checked.append(cfg))
-    monkeypatch.setattr(importlib.import_module(entry.module), entry.main,
+    monkeypatch.setattr(importlib.import_module(entry.main.__module__), entry.main.__name__,
                         lambda args, configs: received.append(configs))
     assert main(argv) == 0
     assert len(received) == 1 and [id(c) for c in received[0]] == [id(c) for c in checked]
