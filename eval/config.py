@@ -5,7 +5,7 @@ dotted CLI overrides.
 returns a ``Config``; an unknown key or a bad value raises ``ConfigError`` naming the key and
 the valid keys / choices. Every section's defaults live in its package's dataclass, so a YAML
 file only states what it changes. A command uses some of the sections (``sections``; the
-command table ``eval.cli.COMMANDS`` names them per command): those are filled, a file or
+command declarations ``eval.parser.COMMANDS`` name them per command): those are filled, a file or
 override setting another is refused, the rest stay None. Keys that moved (``MOVED_KEYS``) are
 read at their new place wherever a config is read (a file, an override, a results directory's
 stored ``config.yaml``).
@@ -129,7 +129,7 @@ class Config:
 
 
 SECTIONS: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(Config))
-# The sections a kind of command uses (``eval.cli.COMMANDS`` gives each command one of them):
+# The sections a kind of command uses (``eval.parser.COMMANDS``: each command's ``Command.sections``):
 EPISODE_SECTIONS: tuple[str, ...] = ("env", "mapping", "run", "agent", "segmenter")   # ObjectNav episodes (the default)
 CALIBRATION_SECTIONS: tuple[str, ...] = ("env", "mapping", "run", "segmenter", "scan", "study", "glfs", "sequences",
                                          "sequence")   # calibrate-map, fit-glfs, export-sequence

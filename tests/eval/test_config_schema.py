@@ -96,7 +96,7 @@ def _parser_options(command: str) -> set[str]:
     """The options ``calnav COMMAND`` takes."""
     from calnav.eval.parser import build_parser
 
-    parser = build_parser()
+    parser = build_parser(command)
     sub = next(a for a in parser._actions if a.__class__.__name__ == "_SubParsersAction")
     return {o for a in sub.choices[command]._actions for o in a.option_strings}
 

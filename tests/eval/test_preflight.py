@@ -1,5 +1,5 @@
 """Every file a config names is opened and validated before a run writes anything or starts a
-worker (``eval.preflight``), for every command of the registry ``eval.cli.COMMANDS``, on exactly
+worker (``eval.preflight``), for every command of the registry ``eval.parser.COMMANDS``, on exactly
 the configs the command then runs."""
 from __future__ import annotations
 
