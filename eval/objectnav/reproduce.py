@@ -23,19 +23,14 @@ from __future__ import annotations
 import math
 import tempfile
 from numbers import Real
+from dataclasses import dataclass
 from pathlib import Path
 
 from calnav.eval.config import Config, ConfigError, parse_override
-<<<<<<< HEAD
-from calnav.eval.results_dir import (CONFIG_NAME, EPISODE_NEUTRAL_KEYS, NEUTRAL_KEYS, RECORDS_NAME, AllEpisodesFailed,
-                                     ResultsDir, ResultsError, read_records)
-from dataclasses import dataclass
-from calnav.common.ranges import Range
-from calnav.eval.arguments import REQUIRED, Command, arg
-=======
 from calnav.eval.results_dir import (CONFIG_NAME, EPISODE_NEUTRAL_KEYS, NEUTRAL_KEYS, RECORD_PROVENANCE, RECORDS_NAME,
                                      AllEpisodesFailed, ResultsDir, ResultsError, read_records)
->>>>>>> main
+from calnav.common.ranges import Range
+from calnav.eval.arguments import REQUIRED, Command, arg
 
 # overrides a reproduction may take: those that cannot change a result (its output is --output)
 ALLOWED_OVERRIDES: tuple[str, ...] = tuple(k for k in NEUTRAL_KEYS if k != "run.output_dir")

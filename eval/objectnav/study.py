@@ -31,20 +31,16 @@ import hashlib
 import math
 import shlex
 from collections import Counter
+from dataclasses import dataclass
 from pathlib import Path
 
 from calnav.eval.config import ConfigError, load_config, parse_override, to_dict
 from calnav.eval.inputs import INPUTS_NAME, sha256_file
 from calnav.eval.objectnav.study_config import StudyConfig, StudyRow, load_study
-<<<<<<< HEAD
-from calnav.eval.results_dir import NEUTRAL_KEYS, ResultsDir, read_records, strip_neutral
-from dataclasses import dataclass
-from calnav.eval.arguments import REQUIRED, Command, arg
-=======
 from calnav.eval.objectnav.tune import point_name, summary_row
 from calnav.eval.results_dir import RECORDS_NAME, NEUTRAL_KEYS, ResultsDir, ResultsError, read_records, strip_neutral
 from calnav.eval.stats import METRICS, summarize
->>>>>>> main
+from calnav.eval.arguments import REQUIRED, Command, arg
 
 MANIFEST_NAME = "manifest.json"
 MANIFEST_VERSION = 1
