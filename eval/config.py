@@ -5,7 +5,7 @@ dotted CLI overrides.
 returns a ``Config``; an unknown key or a bad value raises ``ConfigError`` naming the key and
 the valid keys / choices. Every section's defaults live in its package's dataclass, so a YAML
 file only states what it changes. A command uses some of the sections (``sections``; the
-command table ``eval.cli.COMMANDS`` names them per command): those are filled, a file or
+command declarations ``eval.parser.COMMANDS`` name them per command): those are filled, a file or
 override setting another is refused, the rest stay None. Keys that moved (``MOVED_KEYS``) are
 read at their new place wherever a config is read (a file, an override, a results directory's
 stored ``config.yaml``).
@@ -129,7 +129,7 @@ class Config:
 
 
 SECTIONS: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(Config))
-# The sections a kind of command uses (``eval.cli.COMMANDS`` gives each command one of them):
+# The sections a kind of command uses (``eval.parser.COMMANDS``: each command's ``Command.sections``):
 EPISODE_SECTIONS: tuple[str, ...] = ("env", "mapping", "run", "agent", "segmenter")   # ObjectNav episodes (the default)
 CALIBRATION_SECTIONS: tuple[str, ...] = ("env", "mapping", "run", "segmenter", "scan", "study", "glfs", "sequences",
                                          "sequence")   # calibrate-map, fit-glfs, export-sequence
@@ -145,6 +145,11 @@ PREDICTOR_SECTIONS: tuple[str, ...] = ("predictor_train",)   # train-predictor
 MOVED_KEYS: dict[str, str] = {
     "agent.segmenter_config": "segmenter",   # the segmenter's settings: one top-level section for every command
 }
+# Command-line flags that were renamed, old -> new: refused in one line naming the new flag (a flag
+# is typed, not stored, so nothing has to be read at the new place).
+MOVED_FLAGS: dict[str, str] = {
+    "--model": "--segmenter",   # the segmenter is spelled --segmenter on every command
+}
 _NOTED: set[tuple[str, str]] = set()   # (source, old key) already noted in this process
 _ABSENT = object()
 
@@ -158,6 +163,12 @@ def migrate_key(dotted: str) -> str:
     """``dotted`` at its new place when it is, or lies under, a moved key (``MOVED_KEYS``)."""
     old = _moved_from(dotted)
     return dotted if old is None else MOVED_KEYS[old] + dotted[len(old):]
+
+
+def moved_flag(word: str) -> str | None:
+    """The new spelling of a renamed flag (``MOVED_FLAGS``) that command-line word ``word`` is
+    (``--model`` or ``--model=NAME``), or None."""
+    return MOVED_FLAGS.get(word.partition("=")[0]) if word.startswith("--") else None
 
 
 def _note_moved(source: str, old: str) -> None:

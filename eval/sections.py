@@ -23,7 +23,7 @@ CALIBRATIONS: tuple[str, ...] = ("none", "temperature_2d", "temperature_3d", "ve
 LEARNED_SEGMENTERS: tuple[str, ...] = ("learned_rgb", "learned_rgbd")
 TAU_CURVE_RANGE = (0.01, 300.0)   # the mECE-vs-temperature curve's span (authors' RBU optimum: 80-131)
 # ``calibrate-map --quick``: a <= 5 minute smoke run of the whole pipeline on 2 cores, as the
-# (key, value) pairs the flag sets (a shorthand of ``eval.cli.COMMANDS``)
+# (key, value) pairs the flag sets (the shorthand ``calibrate-map --quick``, declared in ``eval.calibration.study``)
 QUICK_PRESET: tuple[tuple[str, Any], ...] = (
     ("study.calib_train_scenes", 3), ("study.calib_val_scenes", 1), ("study.test_scenes", 3), ("scan.frames", 200),
     ("study.fit_max_voxels", 8000), ("study.grid_points", 11), ("study.refine_iters", 5), ("study.vector_sweeps", 1),

@@ -1,6 +1,6 @@
 """Command-line arguments that set config keys (``--agent NAME`` is ``run.agent=NAME``), declared
-once per command in the command table (``eval.cli.COMMANDS``: ``Command.shorthands``) and set by
-one function, ``apply_shorthands``.
+once per command on its flag (``eval.arguments.arg(..., sets=KEY)``; ``Command.shorthands()``) and
+set by one function, ``apply_shorthands``.
 
 A shorthand given next to an override of a key it sets is refused, one line naming both (the
 shorthand never silently replaces the override, nor the override the shorthand). A shorthand's

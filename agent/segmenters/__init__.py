@@ -25,6 +25,7 @@ from typing import Callable
 
 from calnav.agent.segmenters.base import Segmenter, SegmenterConfig, default_class_names, segmenter_device, softmax
 from calnav.common.interrupt import UserCodeExit, user_code
+from calnav.common.registry import Registry
 
 __all__ = ["BUILTIN_SEGMENTERS", "ENTRY_POINT_GROUP", "Segmenter", "SegmenterConfig", "check_segmenter",
            "check_segmenter_spec", "make_segmenter", "segmenter_needs_semantic", "softmax"]
@@ -56,12 +57,20 @@ def _adapter(module: str, cls: str) -> Callable[..., Segmenter]:
     return build
 
 
-# The built-in registry: name -> builder(name, cfg, device, class_names, key); device: the
-# validated device string; key: the segmenter section as the command spells it (for messages).
-BUILTIN_SEGMENTERS: dict[str, Callable[..., Segmenter]] = {
-    "gt": _ground_truth, "noisy": _ground_truth, "learned_rgb": _learned, "learned_rgbd": _learned,
-    "hf": _adapter("hf", "HFSegmenter"), "onnx": _adapter("onnx", "ONNXSegmenter"),
-}
+# The built-in segmenters (agent.segmenter): name -> builder(name, cfg, device, class_names, key);
+# device: the validated device string; key: the segmenter section as the command spells it (for messages).
+BUILTIN_SEGMENTERS: Registry[Callable[..., Segmenter]] = Registry("segmenter", key="agent.segmenter")
+BUILTIN_SEGMENTERS.add("gt", _ground_truth, "ground truth with a fixed confidence (needs the semantic observation)")
+BUILTIN_SEGMENTERS.add("noisy", _ground_truth, "ground truth with a view-correlated, overconfident error model")
+BUILTIN_SEGMENTERS.add("learned_rgb", _learned, "calnav's RGB network trained in the simulator")
+BUILTIN_SEGMENTERS.add("learned_rgbd", _learned, "calnav's RGB-D network trained in the simulator")
+BUILTIN_SEGMENTERS.add("hf", _adapter("hf", "HFSegmenter"), "a transformers model (segmenter.model)")
+BUILTIN_SEGMENTERS.add("onnx", _adapter("onnx", "ONNXSegmenter"), "an ONNX model (segmenter.model)")
+
+
+def _builder(spec: str) -> Callable[..., Segmenter] | None:
+    """The built-in builder of ``spec``, or None for a plugin."""
+    return BUILTIN_SEGMENTERS.get(spec) if spec in BUILTIN_SEGMENTERS else None
 
 
 def _entry_points() -> dict:
@@ -104,7 +113,7 @@ def segmenter_needs_semantic(spec: str) -> bool:
     """Whether segmenter ``spec`` reads the ground-truth ``semantic`` observation (its class's
     ``needs_semantic``), so a run without that sensor cannot use it."""
     check_segmenter_spec(spec)
-    if BUILTIN_SEGMENTERS.get(spec) is not _ground_truth:
+    if _builder(spec) is not _ground_truth:
         return False   # networks and plugins read rgb (and depth)
     from calnav.agent.segmenters.ground_truth import GroundTruthSegmenter
     from calnav.agent.segmenters.noisy import NoisySegmenter
@@ -129,8 +138,8 @@ def check_segmenter(spec: str, cfg: SegmenterConfig | None = None, device: str |
     cfg = cfg or SegmenterConfig()
     check_segmenter_spec(spec)
     device = segmenter_device(cfg, device, key)
-    if BUILTIN_SEGMENTERS.get(spec) in (_ground_truth, _learned):
-        if BUILTIN_SEGMENTERS[spec] is _ground_truth:
+    if _builder(spec) in (_ground_truth, _learned):
+        if _builder(spec) is _ground_truth:
             names = default_class_names()
         else:
             from calnav.agent.segmenters.learned import check_weights, default_weights_path
@@ -160,7 +169,7 @@ def make_segmenter(spec: str, cfg: SegmenterConfig | None = None, device: str | 
     check_segmenter_spec(spec)
     dev = segmenter_device(cfg, device, key)
     if spec in BUILTIN_SEGMENTERS:
-        return BUILTIN_SEGMENTERS[spec](spec, cfg, dev, class_names, key)
+        return BUILTIN_SEGMENTERS.get(spec)(spec, cfg, dev, class_names, key)
     from calnav.agent.segmenters.adapter import PluginSegmenter
 
     factory = _load_factory(spec)

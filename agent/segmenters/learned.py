@@ -46,7 +46,7 @@ def train_command(model: str, path: Path | str) -> str:
     out = Path(path)
     default = default_weights_path(model)
     suffix = "" if out.resolve() == default.resolve() else f" --output {out}"
-    return f"calnav train-segmenter --model {model}{suffix}"
+    return f"calnav train-segmenter --segmenter {model}{suffix}"
 
 
 def load_weights(path: Path | str, model: str | None = None) -> dict:

@@ -13,6 +13,9 @@ from typing import Callable
 from calnav.common.atomic import undefined_as_null, write_json_atomic
 from calnav.eval.bench import adapter, agent, backends, env, fusion, hm3d, scan, segmenter, sequence, start_pose
 from calnav.eval.bench.context import BenchContext
+from dataclasses import dataclass
+from calnav.common.ranges import Range
+from calnav.eval.arguments import Command, arg
 
 SECTIONS: dict[str, Callable[[BenchContext], dict[str, float]]] = {
     "env": env.run,
@@ -77,3 +80,20 @@ def main_bench(args, configs=()) -> None:
     for path, text in pages.items():
         path.write_text(text, encoding="utf-8")
         print(f"rendered {path}")
+
+
+@dataclass
+class BenchArgs:
+    """``calnav bench``'s flags."""
+
+    output: str = arg("bench.json", "JSON output path")
+    only: str = arg("", "comma-separated sections (default: all)")
+    quick: bool = arg(False, "short run (indicative numbers only)")
+    scene_seed: int = arg(7, "procedural house seed to measure on", range=Range(0, 2**32 - 1))   # numpy's seeds
+    page: list[str] = arg([], "a Markdown page whose '| figure | meaning | measured | target |' tables get this "
+                              "run's figures (repeatable)", metavar="FILE", repeat=True)
+    source: str = arg("", "render --page from this earlier bench output instead of measuring", metavar="JSON",
+                      option="--from")
+
+
+COMMAND = Command(BenchArgs, main_bench, sections=(), overrides=None)   # fixed workloads, no config

@@ -41,6 +41,11 @@ from calnav.mapping.calibration.fit import MapObjective, fit_temperature_2d, fit
 from calnav.mapping.calibration.flat_obs import FlatObservations
 from calnav.mapping.glfs import GLFSParams
 from calnav.mapping.calibration.glfs_train import GLFSModel, train_glfs
+from dataclasses import dataclass
+from calnav.eval.arguments import REQUIRED, Command, arg
+from calnav.eval.config import CALIBRATION_SECTIONS
+from calnav.eval.sections import QUICK_PRESET
+from calnav.eval.shorthands import fixed
 
 VOID = -1   # label of void voxels in the observation caches
 
@@ -322,3 +327,40 @@ def main_fit_glfs(args, configs: list[Config]) -> None:
         print(f"kept: validation check {k} of {len(hist['val_miou']) - 1} (epoch {hist['best_epoch']:.2f}, "
               f"glfs.selection={cfg.glfs_configs()[name].selection}): "
               f"validation mIoU {hist['val_miou'][k]:.3f}, mECE {hist['val_mece'][k]:.3f}")
+
+
+@dataclass
+class CalibrateMapArgs:
+    """``calnav calibrate-map``'s flags."""
+
+    quick: bool = arg(False, "small preset (3/1/3 houses, short fits), <= 5 minutes: sets the study / scan / glfs "
+                             "keys of eval.sections.QUICK_PRESET", preset=QUICK_PRESET)
+    output: str | None = arg(None, "results directory (default: run.output_dir)")
+    force: bool = arg(False, "discard results of a different config in --output")
+    sequences: str | None = arg(None, "recorded sequences instead of calnav's houses: a list file of '<role> <dir> "
+                                      "[layout]' lines (role: calib_train | calib_val | test); shorthand for "
+                                      "sequences.list=LIST", metavar="LIST", sets="sequences.list",
+                                convert=lambda path: str(Path(path).resolve()))   # relative to where calnav started
+    page: list[str] = arg([], "render FILE's '<!-- calnav calibrate-map DIR -->' tables from the committed records "
+                              "under DIR (DIR/clean/results.csv, DIR/scanned/results.csv) instead of running the "
+                              "study; repeatable", metavar="FILE", repeat=True)
+
+
+@dataclass
+class FitGlfsArgs:
+    """``calnav fit-glfs``'s flags."""
+
+    segmenter: str = arg(REQUIRED, "segmenter whose observations GLFS is fitted to (any agent.segmenter spec; "
+                                   "segmenter section); shorthand for study.segmenters=[SEGMENTER]",
+                         metavar="SEGMENTER", sets="study.segmenters", convert=lambda name: f"[{name}]")
+    output: str = arg(REQUIRED, "GLFS parameter file (.json / .npz) for mapping.glfs_params")
+    work_dir: str | None = arg(None, "where scans are kept (default: run.output_dir)")
+    variant: str | None = arg(None, "GLFS variant of study.glfs_variants to train (default: the first, 'learned' = "
+                                    "the glfs section)")
+
+
+CALIBRATE_MAP = Command(CalibrateMapArgs, main_calibrate_map, calibrate_map_configs,
+                        config="configs/calibrate_map.yaml", sections=CALIBRATION_SECTIONS)
+FIT_GLFS = Command(FitGlfsArgs, main_fit_glfs, fit_glfs_configs, config="configs/calibrate_map.yaml",
+                   sections=CALIBRATION_SECTIONS,
+                   fixed=(fixed("study.strategies", "[glfs]"),))   # it fits GLFS only

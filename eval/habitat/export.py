@@ -11,14 +11,15 @@ disk). ``--output`` must be empty unless ``--force`` (an earlier export's files 
 from __future__ import annotations
 
 from pathlib import Path
+from dataclasses import dataclass
+from calnav.common.ranges import Range
+from calnav.eval.arguments import REQUIRED, Command, arg
 
 
 def export_habitat_configs(args) -> list:
     """The one config the export runs (``--split`` is ``env.split``)."""
     from calnav.eval.shorthands import load_command_config
 
-    if args.scenes is not None and args.scenes < 1:
-        raise ValueError(f"--scenes must be >= 1, got {args.scenes}")
     cfg = load_command_config(args)
     if cfg.env.dataset.data_path:
         raise ValueError("export-habitat writes calnav's generated houses; env.dataset.data_path names an episode "
@@ -74,3 +75,18 @@ def main_export_habitat(args, configs: list) -> None:
           f"env.dataset.scene_dir={where['scene_dir']}")
     print(f"habitat-lab: habitat.dataset.data_path='{where['data_path']}' habitat.dataset.scenes_dir="
           f"{where['scene_dir']} habitat.simulator.scene_dataset={config}")
+
+
+@dataclass
+class ExportHabitatArgs:
+    """``calnav export-habitat``'s flags."""
+
+    split: str | None = arg(None, "shorthand for env.split (default: the config's, val)", sets="env.split")
+    scenes: int | None = arg(None, "only the split's first N houses (default: all of env.dataset.<split>_scenes)",
+                             metavar="N", range=Range(1, 1_000_000, "houses"))
+    output: str = arg(REQUIRED, "the dataset's root, habitat-lab's data/ (must be empty unless --force)")
+    force: bool = arg(False, "write into a non-empty --output")
+
+
+COMMAND = Command(ExportHabitatArgs, main_export_habitat, export_habitat_configs, config="configs/objectnav.yaml",
+                  checks=("run",))   # runs no agent: generates episodes, writes files

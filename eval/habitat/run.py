@@ -24,6 +24,8 @@ from calnav.eval.config import ConfigError
 from calnav.eval.objectnav.run import RUN_RESULTS, check_not_all_failed, crashed
 from calnav.eval.results_dir import EPISODE_NEUTRAL_KEYS, ResultsDir, writing
 from calnav.eval.stats import format_metrics_table, run_label, summarize
+from dataclasses import dataclass
+from calnav.eval.arguments import Command, arg
 
 HABITAT_PREFIX = "habitat."
 HABITAT_CONFIG_FILE = "habitat_config.yaml"
@@ -169,3 +171,20 @@ def main_habitat_benchmark(args, configs) -> None:
     summary = run_habitat_benchmark(cfg, habitat_cfg, indices, out, force=args.force)
     print(format_metrics_table([(f"{run_label(cfg)} (habitat-lab)", summary)], first_header="Agent"))
     print(f"results: {out}/episodes.jsonl, {out}/summary.json, {out}/plots/")
+
+
+@dataclass
+class HabitatBenchmarkArgs:
+    """``calnav habitat-benchmark``'s flags."""
+
+    habitat_config: str = arg("configs/habitat_objectnav.yaml",
+                              "habitat-lab config (task, sensors, split); habitat.* overrides apply to it")
+    agent: str | None = arg(None, "shorthand for run.agent=NAME (default: the config's, peanut)", metavar="NAME",
+                            sets="run.agent")
+    episodes: str = arg("10", "N (first N) or A:B (a range) of the split's episodes")
+    output: str | None = arg(None, "results directory (default: run.output_dir)")
+    force: bool = arg(False, "discard results of a different config in --output")
+
+
+COMMAND = Command(HabitatBenchmarkArgs, main_habitat_benchmark, habitat_benchmark_configs,
+                  config="configs/objectnav.yaml")

@@ -28,6 +28,8 @@ from calnav.eval.config import ConfigError, migrate_tree
 from calnav.eval.results_dir import NEUTRAL_KEYS, flatten, read_records
 from calnav.eval.stats import (LINGER_STEPS, METRIC_LABELS, failure_modes, governing_sem, house_sem, is_finished,
                                paired_difference, same_episode, summarize)
+from dataclasses import dataclass
+from calnav.eval.arguments import REQUIRED, Command, arg
 
 PAIRED_METRICS: tuple[str, ...] = ("spl", "success")
 
@@ -218,3 +220,17 @@ def main_compare(args, configs=()) -> None:
     print()
     print(failures)
     print(f"results: {out}/comparison.md, comparison.csv, comparison.png, paired.md, paired.csv, failures.md")
+
+
+@dataclass
+class CompareArgs:
+    """``calnav compare``'s flags."""
+
+    runs: list[str] = arg(REQUIRED, "run directories (each with config.yaml and episodes.jsonl)", positional=True)
+    keys: str = arg("", "comma-separated config keys as columns (default: the keys that differ)")
+    # its range is the runs given: main_compare checks it against them
+    baseline: int = arg(0, "position of the run the paired differences are taken against")
+    output: str = arg(REQUIRED, "directory for comparison.md/.csv/.png and paired.md/.csv")
+
+
+COMMAND = Command(CompareArgs, main_compare, sections=(), overrides=None)   # reads the runs' configs

@@ -8,6 +8,8 @@ from pathlib import Path
 
 from calnav.eval.shorthands import load_command_config
 from calnav.eval.stats import format_metrics_table, run_label
+from dataclasses import dataclass
+from calnav.eval.arguments import Command, arg
 
 def demo_configs(args) -> list:
     """The config ``calnav demo`` runs: ``configs/demo.yaml`` and the overrides, writing to
@@ -31,3 +33,16 @@ def main_demo(args, configs) -> None:
     print(f"plots:   {out}/plots/")
     if videos:
         print(f"video:   {videos[0]}")
+
+
+@dataclass
+class DemoArgs:
+    """``calnav demo``'s flags."""
+
+    episodes: int = arg(5, "number of val episodes")   # checked against the split by episode_indices
+    output: str | None = arg(None, "results directory; shorthand for run.output_dir (default runs/demo)",
+                             sets="run.output_dir", sets_default="runs/demo")
+
+
+COMMAND = Command(DemoArgs, main_demo, demo_configs,
+                  overrides="dotted config overrides of configs/demo.yaml, e.g. run.workers=2")

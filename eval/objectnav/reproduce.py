@@ -23,11 +23,14 @@ from __future__ import annotations
 import math
 import tempfile
 from numbers import Real
+from dataclasses import dataclass
 from pathlib import Path
 
 from calnav.eval.config import Config, ConfigError, parse_override
 from calnav.eval.results_dir import (CONFIG_NAME, EPISODE_NEUTRAL_KEYS, NEUTRAL_KEYS, RECORD_PROVENANCE, RECORDS_NAME,
                                      AllEpisodesFailed, ResultsDir, ResultsError, read_records)
+from calnav.common.ranges import Range
+from calnav.eval.arguments import REQUIRED, Command, arg
 
 # overrides a reproduction may take: those that cannot change a result (its output is --output)
 ALLOWED_OVERRIDES: tuple[str, ...] = tuple(k for k in NEUTRAL_KEYS if k != "run.output_dir")
@@ -70,8 +73,6 @@ def reproduce_configs(args) -> list[Config]:
     """The source directory's config (its ``config.yaml``), with only result-neutral overrides."""
     from calnav.eval.shorthands import load_command_config
 
-    if not (math.isfinite(args.tol) and args.tol >= 0):
-        raise ValueError(f"--tol must be a finite number >= 0 (absolute, in each field's unit), got {args.tol}")
     cfg = load_command_config(args, config=_source(args) / CONFIG_NAME)
     for text in args.overrides:
         key = parse_override(text)[0]
@@ -129,3 +130,20 @@ def main_reproduce(args, configs: list[Config]) -> int:
     print(f"reproduce: {len(indices)} episode(s) of {src} (recorded by {', '.join(commits)}) rerun into {out}: "
           f"{verdict} (tolerance {args.tol + 0.0:g}; {', '.join(RECORD_PROVENANCE)} aside)")
     return 1 if differing else 0
+
+
+@dataclass
+class ReproduceArgs:
+    """``calnav reproduce``'s flags."""
+
+    dir: str = arg(REQUIRED, "a calnav objectnav results directory (config.yaml, episodes.jsonl), e.g. a study "
+                             "row's eval/<row>/", positional=True)
+    episodes: str = arg(REQUIRED, "N (first N) or A:B of the split's episodes; each must have a record in DIR")
+    output: str = arg("", "results directory of the rerun (default: a new temporary one)")
+    force: bool = arg(False, "discard results of a different config in --output")
+    tol: float = arg(1e-9, "absolute tolerance of float fields (default 1e-9)",
+                     range=Range(0, 1e9))   # absolute, in each field's unit
+
+
+COMMAND = Command(ReproduceArgs, main_reproduce, reproduce_configs, status=True,
+                  overrides="only run.workers, run.backend, run.ray_address (a reproduction runs DIR's config)")

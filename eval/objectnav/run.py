@@ -29,6 +29,8 @@ from calnav.common.provenance import running_commit
 from calnav.eval.config import Config, build_dataclass, to_dict
 from calnav.eval.results_dir import EPISODE_NEUTRAL_KEYS, RECORDS_NAME, AllEpisodesFailed, ResultsDir, writing
 from calnav.eval.stats import failure_modes, finite_or_error, format_metrics_table, run_label, summarize
+from calnav.common.ranges import Range
+from calnav.eval.arguments import Command, arg
 
 # What --force deletes from a directory that holds another config's results.
 RUN_RESULTS: tuple[str, ...] = (RECORDS_NAME, "summary.json", "plots", "videos", "rerun")
@@ -362,3 +364,25 @@ def main_objectnav(args, configs: list[Config]) -> None:
             table = write_comparison(keys, list(zip(values, summaries)), root)
     print(table)
     print(f"results: {root}/<combination>/, {root}/comparison.md, {root}/comparison.csv, {root}/comparison.png")
+
+
+@dataclass
+class ObjectnavArgs:
+    """``calnav objectnav``'s flags."""
+
+    agent: str | None = arg(None, "shorthand for run.agent=NAME (default: the config's, peanut)", metavar="NAME",
+                            sets="run.agent")
+    episodes: str = arg("10", "N (first N) or A:B (a range) of the split's episodes")
+    output: str | None = arg(None, "results directory (default: run.output_dir)")
+    force: bool = arg(False, "discard results of a different config in --output")
+    # a video / a recording per episode, of the range's first N (0 = none)
+    video: int = arg(0, "write <output>/videos/<episode_id>.mp4 for the first N episodes of the range (peanut)",
+                     metavar="N", range=Range(0, 1_000_000, "episodes"))
+    rerun: int = arg(0, "write <output>/rerun/<episode_id>.rrd (Rerun: camera, frames, 3D and 2D maps, metrics) for "
+                        "the first N episodes of the range (peanut; needs the [viz] extra)",
+                     metavar="N", range=Range(0, 1_000_000, "episodes"))
+    multirun: bool = arg(False, "cross product of comma-separated overrides (KEY=a,b), one subdirectory of --output "
+                                "each, then comparison.md/.csv/.png", short="-m")
+
+
+COMMAND = Command(ObjectnavArgs, main_objectnav, objectnav_configs, config="configs/objectnav.yaml")

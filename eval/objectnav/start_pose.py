@@ -32,6 +32,7 @@ from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
+from calnav.eval.arguments import Command, arg
 
 POSE_BASES = ("start", "world")
 
@@ -361,3 +362,19 @@ def main_start_pose(args, configs) -> None:
     for name, s in summary.items():
         print(f"| {name} | {s['successes']}/{s['n']} | {s['spl']:.3f} | {s['n']} |")
     print(f"results: {out}/summary.json, {out}/summary.csv, {out}/episodes.jsonl")
+
+
+@dataclass
+class StartPoseArgs:
+    """``calnav start-pose``'s flags."""
+
+    episodes: str = arg("0:14", "N (first N) or A:B (a range) of the split's episodes")
+    variants: str = arg("world,start,start_offset,start_rotated,house_yaw37",
+                        "comma-separated variants (eval.objectnav.start_pose.VARIANTS)")
+    workers: int | None = arg(None, "worker processes (shorthand for run.workers; default: the config's)",
+                              sets="run.workers")
+    output: str = arg("runs/start_pose", "results directory")
+    force: bool = arg(False, "discard results of a different config in --output")
+
+
+COMMAND = Command(StartPoseArgs, main_start_pose, start_pose_configs, config="configs/objectnav.yaml")

@@ -31,6 +31,7 @@ import hashlib
 import math
 import shlex
 from collections import Counter
+from dataclasses import dataclass
 from pathlib import Path
 
 from calnav.eval.config import ConfigError, load_config, parse_override, to_dict
@@ -39,6 +40,7 @@ from calnav.eval.objectnav.study_config import StudyConfig, StudyRow, load_study
 from calnav.eval.objectnav.tune import point_name, summary_row
 from calnav.eval.results_dir import RECORDS_NAME, NEUTRAL_KEYS, ResultsDir, ResultsError, read_records, strip_neutral
 from calnav.eval.stats import METRICS, summarize
+from calnav.eval.arguments import REQUIRED, Command, arg
 
 MANIFEST_NAME = "manifest.json"
 MANIFEST_VERSION = 1
@@ -341,3 +343,16 @@ def main_study(args, configs) -> None:
                    f"{s['spl']:.3f} ({s['spl_sem']:.3f})  {s['count']}") if s else e.get("reason", "")
         print(f"{name.ljust(width)}  {e['status']:<8}  {figures}")
     print(f"manifest: {out / MANIFEST_NAME}")
+
+
+@dataclass
+class StudyArgs:
+    """``calnav study``'s flags."""
+
+    study: str = arg(REQUIRED, "study config (YAML; e.g. configs/study.yaml)", positional=True)
+    output: str = arg("runs/study", "results directory (tune/, eval/, manifest.json)")
+    rows: str = arg("", "comma-separated row names to run (default: every row)")
+    force: bool = arg(False, "discard results of a different config in --output")
+
+
+COMMAND = Command(StudyArgs, main_study, study_configs, overrides="config overrides of every row, e.g. run.workers=2")

@@ -36,6 +36,8 @@ from calnav.eval.objectnav.study_grids import edge_rows, grids_markdown, plot_cu
 from calnav.eval.results_dir import read_records
 from calnav.eval.stats import (FAILURES, METRIC_LABELS, contrast_and_house_sem, failure_kind, governing_sem,
                                is_finished, mean_sem_cell, same_episode, summarize)
+from dataclasses import dataclass
+from calnav.eval.arguments import REQUIRED, Command, arg
 
 RESOLVED_SEM = 2.0     # a difference is claimed only at this many paired SEMs or more (the larger of episode and house SEM)
 TABLE_METRICS: tuple[str, ...] = ("success", "spl", "softspl", "distance_to_goal")
@@ -397,3 +399,17 @@ def main_report(args, configs=()) -> None:
     print(text)
     print(f"report: {out / RESULTS_NAME}" + (f", {figure}" if figure else "")
           + "".join(f", {page}" for page in pages))
+
+
+@dataclass
+class ReportArgs:
+    """``calnav report``'s flags."""
+
+    manifest: str = arg(REQUIRED, "the manifest.json `calnav study` wrote", positional=True)
+    output: str = arg("", "directory for results.md (default: the manifest's)")
+    page: list[str] = arg([], "a Markdown file whose '<!-- calnav report -->' ... '<!-- /calnav report -->' block "
+                              "becomes the headline (metrics table and conclusions); repeatable, e.g. README.md",
+                          metavar="FILE", repeat=True)
+
+
+COMMAND = Command(ReportArgs, main_report, sections=(), overrides=None)   # reads records

@@ -23,6 +23,9 @@ from typing import Any
 
 from calnav.eval.config import Config, ConfigError, dump_yaml, load_config, parse_override
 from calnav.eval.results_dir import ResultsDir
+from dataclasses import dataclass
+from typing import Literal
+from calnav.eval.arguments import Command, arg
 
 TUNE_METRICS: tuple[str, ...] = ("spl", "success", "softspl")  # all higher-is-better
 TUNED_KEYS: tuple[str, ...] = ("agent.goal_threshold", "agent.goal_min_area_cells")
@@ -263,3 +266,20 @@ def main_tune(args, configs) -> None:
           f"success={best['success']:.3f}, n={best['n']})")
     print(f"results: {out}/tune.csv, {out}/best.yaml (tuned on episodes {args.episodes}; "
           "evaluate on a disjoint range)")
+
+
+@dataclass
+class TuneArgs:
+    """``calnav tune``'s flags."""
+
+    episodes: str = arg("0:100", "tuning range of the split's episodes: N or A:B")
+    thresholds: str = arg("0.5,0.6,0.7,0.8,0.9", "comma-separated goal confidence thresholds, each in (0, 1]")
+    min_areas: str = arg("2,4,8", "comma-separated minimum goal areas, map cells (>= 1)")
+    metric: Literal["spl", "success", "softspl"] = arg("spl", "selection metric")
+    # >= 0: run_tune checks it (it is run_tune's argument too)
+    extend: int = arg(0, "while the best threshold is on the grid's edge, try up to this many more beyond it")
+    output: str = arg("runs/tune", "results directory (one subdirectory per grid point)")
+    force: bool = arg(False, "discard results of a different config in --output")
+
+
+COMMAND = Command(TuneArgs, main_tune, tune_configs, config="configs/objectnav.yaml")

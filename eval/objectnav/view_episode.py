@@ -7,6 +7,8 @@ import math
 from pathlib import Path
 
 import numpy as np
+from dataclasses import dataclass
+from calnav.eval.arguments import Command, arg
 
 N_STRIP_FRAMES = 4
 TOP_VIEW_CUT_M = 2.0  # the floor plan shows surfaces below this height (no ceilings), metres
@@ -134,3 +136,18 @@ def main_view_episode(args, configs) -> None:
     print(f"episode {info['episode_id']}: success {info['success']:.0f}, spl {info['spl']:.3f}, "
           f"steps {info['steps']}")
     print(f"wrote {top} and {strip}")
+
+
+@dataclass
+class ViewEpisodeArgs:
+    """``calnav view-episode``'s flags."""
+
+    # its range is the split's episodes: main_view_episode checks it against the split
+    episode: int = arg(0, "episode index within the split")
+    agent: str | None = arg(None, "agent whose path is drawn: oracle (default; the shortest path) or peanut; "
+                                  "shorthand for run.agent=NAME", metavar="NAME", sets="run.agent",
+                            sets_default="oracle")
+    output: str = arg("runs/view", "output directory")
+
+
+COMMAND = Command(ViewEpisodeArgs, main_view_episode, view_episode_configs, config="configs/objectnav.yaml")

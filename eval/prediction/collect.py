@@ -21,6 +21,8 @@ import numpy as np
 
 from calnav.eval.results_dir import ResultsDir
 from calnav.eval.rollout import Hook
+from typing import Literal
+from calnav.eval.arguments import REQUIRED, Command, arg
 
 MAPS_FORMAT = 1
 
@@ -157,3 +159,21 @@ def main_collect_maps(args, configs) -> None:
                              total=len(indices))
     raise_failures(failures, "episode", name=lambda task: f"episode {task.index}")
     print(f"maps: {len(indices)} episodes in {out} ({len(todo)} collected now)")
+
+
+@dataclass
+class CollectMapsArgs:
+    """``calnav collect-maps``'s flags."""
+
+    split: Literal["train", "val"] | None = arg(None, "houses explored (val: held-out maps); shorthand for env.split "
+                                                      "(default train)", sets="env.split", sets_default="train")
+    episodes: str = arg("0:200", "the split's episodes: N or A:B (default 0:200)")
+    # the rollout's STEPS steps fit the limit; STEPS and --every are checked together by main_collect_maps
+    steps: int | None = arg(None, "steps per episode (default 250); shorthand for env.max_episode_steps=STEPS+1",
+                            sets="env.max_episode_steps", convert=lambda n: n + 1, sets_default=250)
+    every: int = arg(25, "a snapshot every this many steps (default 25, PEANUT's)")
+    output: str = arg(REQUIRED, "results directory (episodes/<index>.npz; resumable)")
+    force: bool = arg(False, "discard the maps of a different config in --output")
+
+
+COMMAND = Command(CollectMapsArgs, main_collect_maps, collect_configs, config="configs/objectnav.yaml")

@@ -23,6 +23,9 @@ import numpy as np
 
 from calnav.common.atomic import undefined_as_null, write_json_atomic
 from calnav.eval.sections import PredictorTrainConfig
+from dataclasses import dataclass
+from calnav.eval.arguments import REQUIRED, Command, arg
+from calnav.eval.config import PREDICTOR_SECTIONS
 
 EXPLORED = 1         # input channel of the explored fraction (agent.prediction.INPUT_CHANNELS)
 
@@ -223,3 +226,33 @@ def main_train_predictor(args, configs) -> None:
     print(f"mean AUC {v['mean_auc']:.3f}, mean AP {v['mean_ap']:.3f} (distance-to-explored baseline: AUC "
           f"{v['mean_baseline_auc']:.3f}, AP {v['mean_baseline_ap']:.3f}); {len(episodes)} episodes, "
           f"{wall / 60:.1f} min -> {out}")
+
+
+@dataclass
+class TrainPredictorArgs:
+    """``calnav train-predictor``'s flags (the numbers are shorthands of predictor_train keys, whose ranges
+    the config checks)."""
+
+    data: list[str] = arg(REQUIRED, "collect-maps directories (mixed)", metavar="DIR")
+    output: str | None = arg(None, "weight file (default: agent/weights/predictor.pt)")
+    val_data: list[str] | None = arg(None, "collect-maps directories of held-out houses (--split val) for the "
+                                           "metrics; default: --val-fraction of the training houses", metavar="DIR")
+    val_fraction: float | None = arg(None, "houses held out when there is no --val-data; shorthand for "
+                                           "predictor_train.val_fraction (default 0.15)",
+                                     sets="predictor_train.val_fraction")
+    epochs: int | None = arg(None, "passes over the training maps; shorthand for predictor_train.epochs "
+                                   "(default 12)", sets="predictor_train.epochs")
+    pos_weight: float | None = arg(None, "BCE weight of goal cells, [1, 1000]; shorthand for "
+                                         "predictor_train.pos_weight (default 20; PEANUT's released script 1, its "
+                                         "weighted runs inverse frequency): goal cells are ~0.1-1 %% of the "
+                                         "unexplored cells", sets="predictor_train.pos_weight")
+    seed: int | None = arg(None, "seed of the split, the initialisation and the batches; shorthand for "
+                                 "predictor_train.seed (default 0)", sets="predictor_train.seed")
+
+
+COMMAND = Command(TrainPredictorArgs, main_train_predictor, train_predictor_configs, config="",
+                  config_help="YAML config (default: none, the predictor_train defaults)",
+                  overrides="dotted config overrides, e.g. predictor_train.lr=5e-4 (before --data, or after "
+                            "another option: --data takes every word that follows it)",
+                  checks=(),   # trains on collect-maps output: the config names no file or service
+                  sections=PREDICTOR_SECTIONS)

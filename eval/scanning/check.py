@@ -19,6 +19,9 @@ import traceback
 from pathlib import Path
 
 from calnav.eval.shorthands import load_command_config
+from dataclasses import dataclass
+from calnav.common.ranges import Range
+from calnav.eval.arguments import REQUIRED, Command, arg
 
 _PROCEDURAL = re.compile(r"^house_(train|val|test|calib)_\d+$")
 SCENE_SUFFIXES = (".ply", ".npz")
@@ -142,8 +145,6 @@ def main_check_scene(args, configs) -> None:
     _, ids = resolve_target(args.target)
     if not ids:   # a directory: every split's scenes, once
         ids = sorted({s for split in ("train", "val", "test") for s in _split_ids(split_scene_ids, split, env)})
-    if args.episodes < 1:
-        raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
     rerun = _has_rerun()
     out = Path(args.output)
     rows, problems = [], []
@@ -188,3 +189,19 @@ def _has_rerun() -> bool:
     import importlib.util
 
     return importlib.util.find_spec("rerun") is not None
+
+
+@dataclass
+class CheckSceneArgs:
+    """``calnav check-scene``'s flags."""
+
+    target: str = arg(REQUIRED, "a scene file (.ply / .npz), a directory of them, or a calnav scene id "
+                                "(house_val_0003; with env.dataset.style=scanned its scan)", positional=True,
+                      sets="env.dataset.scene_dir", convert=target_scene_dir)   # a scene file's or directory's
+    episodes: int = arg(20, "episodes to generate per scene (default 20)", range=Range(1, 100_000, "episodes"))
+    output: str = arg("runs/check_scene", "results directory")
+    force: bool = arg(False, "discard results of a different config in --output")
+
+
+COMMAND = Command(CheckSceneArgs, main_check_scene, check_scene_configs, config="configs/objectnav.yaml",
+                  checks=("run",))   # runs no agent: loads scenes, builds navmeshes, draws episodes

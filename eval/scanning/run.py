@@ -21,6 +21,10 @@ import numpy as np
 from calnav.eval.config import to_dict
 from calnav.eval.shorthands import load_command_config
 from calnav.eval.results_dir import ResultsDir, writing
+from dataclasses import dataclass
+from calnav.common.ranges import Range
+from calnav.eval.arguments import Command, arg
+from calnav.eval.shorthands import fixed
 
 # a real labelled ScanNet apartment (_vh_clean_2, kept out of the repository): 153k triangles over
 # 8 x 9 m, 40 % of them unlabelled; ~25 m^2 of walkable floor of which a label rule (labelled floor
@@ -126,8 +130,6 @@ def main_scan_houses(args, configs) -> None:
     for split in splits:
         ids += split_scene_ids(split, cfg.env.dataset)
     if args.houses is not None:
-        if args.houses < 1:
-            raise ValueError(f"--houses must be >= 1, got {args.houses}")
         ids = [i for s in splits for i in split_scene_ids(s, cfg.env.dataset)[: args.houses]]
     check_backend(cfg.run.backend, cfg.run.ray_address)   # ray without Ray: the install command, before writing
     cfg_dict = to_dict(cfg)
@@ -153,3 +155,19 @@ def main_scan_houses(args, configs) -> None:
     print(markdown(means), end="")
     print(f"results: {out}/quality.csv, {out}/quality.md")
     raise_failures(failures, "house", name=lambda item: item[0])   # after the others' rows are written
+
+
+@dataclass
+class ScanHousesArgs:
+    """``calnav scan-houses``'s flags."""
+
+    splits: str = arg("val", "comma-separated splits: train, val, test, calib (default: val)")
+    houses: int | None = arg(None, "only the first N houses of each split", metavar="N",
+                             range=Range(1, 1_000_000, "houses"))
+    output: str = arg("runs/scan_quality", "results directory")
+    force: bool = arg(False, "discard results of a different config in --output")
+
+
+COMMAND = Command(ScanHousesArgs, main_scan_houses, scan_houses_configs, config="configs/objectnav.yaml",
+                  checks=("run",),   # runs no agent: builds scans (splits checked by it)
+                  fixed=(fixed("env.dataset.style", "scanned"),))

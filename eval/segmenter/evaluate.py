@@ -1,6 +1,6 @@
 """`calnav eval-segmenter`: pixel accuracy, mIoU and calibration of a segmenter on held-out frames.
 
-    calnav eval-segmenter --model learned_rgb --split test --frames 500 --output runs/seg_rgb.json
+    calnav eval-segmenter --segmenter learned_rgb --split test --frames 500 --output runs/seg_rgb.json
 
 Frames: ``--frames`` frames rendered from ``--split``'s houses (default: test, never seen in
 training) with the pose seed ``data.seed + EVAL_SEED_OFFSET`` (different walks from the
@@ -21,6 +21,11 @@ from calnav.eval.results_dir import check_output_file, writing
 from calnav.eval.config import Config
 from calnav.eval.segmenter.data import EVAL_SEED_OFFSET, load_or_render
 from calnav.mapping.metrics import CalibrationStats
+from dataclasses import dataclass
+from typing import Literal
+from calnav.eval.arguments import REQUIRED, Command, arg
+from calnav.eval.config import SEGMENTER_SECTIONS
+from calnav.eval.segmenter.data import segmenter_configs
 
 BATCH = 16                     # frames per segment_batch call
 
@@ -88,7 +93,7 @@ def main_eval_segmenter(args, configs: list[Config]) -> None:
     cfg = configs[0]
     if args.output:
         check_output_file(args.output)
-    metrics = evaluate(cfg, args.model, args.split, args.frames)
+    metrics = evaluate(cfg, args.segmenter, args.split, args.frames)
     print(format_report(metrics))
     if args.output:
         out = Path(args.output)
@@ -96,3 +101,19 @@ def main_eval_segmenter(args, configs: list[Config]) -> None:
             out.parent.mkdir(parents=True, exist_ok=True)
             write_json_atomic(out, undefined_as_null(metrics), indent=1)
         print(f"wrote {out}")
+
+
+@dataclass
+class EvalSegmenterArgs:
+    """``calnav eval-segmenter``'s flags."""
+
+    segmenter: str = arg(REQUIRED, "segmenter to score: gt | noisy | learned_rgb | learned_rgbd | hf | onnx | "
+                                   "package.module:factory | a calnav.segmenters plugin (configured by the segmenter "
+                                   "section)", metavar="SEGMENTER")
+    split: Literal["train", "val", "test"] = arg("test", "split whose houses are rendered")
+    frames: int = arg(500, "number of frames scored")   # >= 1: evaluate() checks it
+    output: str | None = arg(None, "metrics JSON path (default: print only)")
+
+
+COMMAND = Command(EvalSegmenterArgs, main_eval_segmenter, segmenter_configs, config="configs/segmenter.yaml",
+                  sections=SEGMENTER_SECTIONS)

@@ -1,7 +1,7 @@
 """``calnav export-onnx``: calnav's learned segmenters as ONNX models for the ``onnx`` adapter
 (``onnxruntime``; the usual way to ship a model to a robot).
 
-    calnav export-onnx --model learned_rgb --output learned_rgb.onnx
+    calnav export-onnx --segmenter learned_rgb --output learned_rgb.onnx
     calnav objectnav agent.segmenter=onnx segmenter.model=learned_rgb.onnx ...
 
 The graph holds the network with its BatchNorm folded at the training resolution (fixed H x W,
@@ -27,6 +27,9 @@ import torch
 
 from calnav.common.atomic import atomic_path
 from calnav.eval.results_dir import check_output_file, writing
+from dataclasses import dataclass
+from typing import Literal
+from calnav.eval.arguments import REQUIRED, Command, arg
 
 ATOL = 1e-4
 
@@ -118,6 +121,18 @@ def _compare(torch_seg, onnx_seg, atol: float) -> dict:
 def main_export_onnx(args, configs) -> None:
     out = Path(args.output)
     check_output_file(out)
-    result = export(args.model, args.weights or "", out)
-    print(f"{args.model} -> {out} (input {result['resolution'][0]}x{result['resolution'][1]}, logits equal to "
+    result = export(args.segmenter, args.weights or "", out)
+    print(f"{args.segmenter} -> {out} (input {result['resolution'][0]}x{result['resolution'][1]}, logits equal to "
           f"torch within {result['max_abs_diff']:.1e} on {result['frames']} frames)")
+
+
+@dataclass
+class ExportOnnxArgs:
+    """``calnav export-onnx``'s flags."""
+
+    segmenter: Literal["learned_rgb", "learned_rgbd"] = arg(REQUIRED, "network to export")
+    weights: str | None = arg(None, "weight file (default: the shipped agent/weights/<segmenter>.pt)")
+    output: str = arg(REQUIRED, "the .onnx file to write")
+
+
+COMMAND = Command(ExportOnnxArgs, main_export_onnx, sections=(), overrides=None)   # reads a weight file, no config

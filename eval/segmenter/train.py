@@ -1,6 +1,6 @@
 """`calnav train-segmenter`: train ``learned_rgb`` / ``learned_rgbd`` on simulator frames.
 
-    calnav train-segmenter --model learned_rgb [--config configs/segmenter.yaml] [KEY=VALUE ...]
+    calnav train-segmenter --segmenter learned_rgb [--config configs/segmenter.yaml] [KEY=VALUE ...]
                            [--output agent/weights/learned_rgb.pt] [--resume]
 
 Data: ``data.frames`` frames rendered from the *train* split only (``eval.segmenter.data``,
@@ -41,6 +41,11 @@ from calnav.eval.results_dir import check_output_file
 from calnav.eval.sections import TrainConfig
 from calnav.eval.segmenter.data import VAL_SEED_OFFSET, SegData, load_or_render
 from calnav.mapping.metrics import CalibrationStats
+from dataclasses import dataclass
+from typing import Literal
+from calnav.eval.arguments import REQUIRED, Command, arg
+from calnav.eval.config import SEGMENTER_SECTIONS
+from calnav.eval.segmenter.data import segmenter_configs
 
 ENET_C = 1.02                 # ENet class weights 1 / ln(c + frequency)
 LOSS_EMA = 0.95               # smoothing of the loss shown in the progress bar
@@ -257,7 +262,7 @@ def train(cfg: Config, model: str, output: Path | str, resume: bool = False,
             return None
     wall_train = history[-1]["wall_s"] if history else 0.0
     card = {
-        "model": model, "command": command or f"calnav train-segmenter --model {model} --output {output}",
+        "model": model, "command": command or f"calnav train-segmenter --segmenter {model} --output {output}",
         "seed": seed, "train_frames": n, "train_split": "train", "train_scenes": int(len(np.unique(data.scene))),
         "val_frames": len(val) if val is not None else 0, "resolution": list(data.resolution),
         "epochs": tc.epochs, "batch_size": b, "parameters": count_parameters(net),
@@ -277,9 +282,22 @@ def train(cfg: Config, model: str, output: Path | str, resume: bool = False,
 def main_train_segmenter(args, configs: list[Config]) -> None:
     """``configs``: ``eval.segmenter.data.segmenter_configs(args)``, checked by the preflight."""
     cfg = configs[0]
-    output = Path(args.output) if args.output else default_weights_path(args.model)
+    output = Path(args.output) if args.output else default_weights_path(args.segmenter)
     check_output_file(output)   # written after training: a bad path fails now, not after 20 minutes
-    parts = ["calnav", "train-segmenter", "--model", args.model, "--config", str(args.config), *args.overrides]
+    parts = ["calnav", "train-segmenter", "--segmenter", args.segmenter, "--config", str(args.config), *args.overrides]
     if args.output:
         parts += ["--output", str(args.output)]
-    train(cfg, args.model, output, resume=args.resume, command=shlex.join(parts))
+    train(cfg, args.segmenter, output, resume=args.resume, command=shlex.join(parts))
+
+
+@dataclass
+class TrainSegmenterArgs:
+    """``calnav train-segmenter``'s flags."""
+
+    segmenter: Literal["learned_rgb", "learned_rgbd"] = arg(REQUIRED, "network to train")
+    output: str | None = arg(None, "weight file (default: agent/weights/<segmenter>.pt)")
+    resume: bool = arg(False, "continue from this config's last epoch checkpoint")
+
+
+COMMAND = Command(TrainSegmenterArgs, main_train_segmenter, segmenter_configs, config="configs/segmenter.yaml",
+                  sections=SEGMENTER_SECTIONS)

@@ -19,6 +19,10 @@ import numpy as np
 
 from calnav.common.atomic import write_json_atomic
 from calnav.mapping.sequences import SEMANTIC_OFFSET
+from dataclasses import dataclass
+from calnav.common.ranges import Range
+from calnav.eval.arguments import REQUIRED, Command, arg
+from calnav.eval.config import CALIBRATION_SECTIONS
 
 DEFAULT_SCENE = "house_val_0000"
 DEFAULT_RESOLUTION = "640x480"
@@ -169,8 +173,6 @@ def main_export_sequence(args, configs) -> None:
     from calnav.eval.results_dir import check_output_dir
 
     cfg = configs[0]
-    if not args.max_edge > 0:
-        raise ValueError(f"--max-edge must be > 0 metres, got {args.max_edge}")
     out = check_output_dir(args.output)
     if out.exists() and any(out.iterdir()) and not args.force:
         raise ValueError(f"{out} is not empty; pass --force to write into it or choose another --output")
@@ -180,3 +182,24 @@ def main_export_sequence(args, configs) -> None:
     n = export_house(cfg, args.scene, out, scene_seed(args.scene, cfg.run.seed), args.max_edge)
     w, h = cfg.env.resolution
     print(f"wrote {n} frames of {args.scene} ({w}x{h}) in ScanNet layout to {out}")
+
+
+@dataclass
+class ExportSequenceArgs:
+    """``calnav export-sequence``'s flags."""
+
+    scene: str = arg("house_val_0000", "scene id (default: house_val_0000)")
+    frames: int | None = arg(None, "scan length, frames; shorthand for scan.frames (default: the config's; 0 = the "
+                                   "config's)", sets="scan.frames", convert=lambda n: n or None)   # 0: the config's
+    resolution: str | None = arg(None, "frame size WxH, pixels; shorthand for env.resolution (default 640x480)",
+                                 sets="env.resolution", sets_default="640x480")
+    max_edge: float = arg(0.05, "ground-truth mesh: longest edge after subdivision, metres (default 0.05)",
+                          range=Range(0, 10, "metres", lo_open=True))   # > 0: subdivision must end
+    output: str = arg(REQUIRED, "output directory (must be empty unless --force)")
+    force: bool = arg(False, "write into a non-empty --output")
+
+
+COMMAND = Command(ExportSequenceArgs, main_export_sequence, export_sequence_configs,
+                  config="configs/calibrate_map.yaml",
+                  checks=("run",),   # segments nothing; its --scene is loaded first
+                  sections=CALIBRATION_SECTIONS)

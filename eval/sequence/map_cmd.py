@@ -27,6 +27,9 @@ from calnav.eval.config import Config
 from calnav.common.prefetch import prefetched
 from calnav.eval.sequence.source import PrecomputedLogits, SegmenterLogits, fuse_frames, map_frames
 from calnav.mapping.sequences import LogitsDir, Sequence, label_map_source, vertex_ground_truth
+from calnav.eval.arguments import REQUIRED, Command, arg
+from calnav.eval.config import MAP_SECTIONS
+from calnav.mapping.registry import LAYOUTS
 
 DEFAULT_CONFIG = "configs/map_sequence.yaml"
 MAP_FORMAT_VERSION = 1
@@ -204,3 +207,29 @@ def _write_results(out: Path, cfg, seq, res: MappedSequence, names, ply, gt, arg
                 f"{results['label_map']})")
     print(f"wrote {out / 'map.npz'}, {out / 'map.ply'}, {out / 'results.json'}"
           + (f", {out / 'map.rrd'} (calnav view {out / 'map.rrd'})" if frame_log is not None else ""))
+
+
+@dataclass
+class MapArgs:
+    """``calnav map``'s flags."""
+
+    sequence_dir: str = arg(REQUIRED, "the recording's directory, or a ROS bag (--layout rosbag)", positional=True)
+    layout: str = arg(REQUIRED, "file layout of the recording", choices=LAYOUTS.names())
+    segmenter: str | None = arg(None, "segmenter run on every frame: gt | noisy | learned_rgb | learned_rgbd | hf | "
+                                      "onnx | package.module:factory | a calnav.segmenters plugin (segmenter "
+                                      "section)", metavar="SEGMENTER")
+    logits: str | None = arg(None, "precomputed logits DIR/N.npy|.npz (H, W, K)", metavar="DIR")
+    classes: str | None = arg(None, "class list of --logits (.json list or one name per line; default "
+                                    "DIR/classes.json|.txt)", metavar="FILE")
+    labels_ply: str | None = arg(None, "labelled ground-truth mesh (default: *_vh_clean_2.labels.ply in the "
+                                       "sequence directory); its labels read through sequence.label_map, else the "
+                                       "label_map.json beside it", metavar="PLY")
+    output: str = arg(REQUIRED, "results directory")
+    force: bool = arg(False, "replace the results of another config in --output")
+    rerun: bool = arg(False, "also write <output>/map.rrd (Rerun: frames, poses, the map by class / confidence, "
+                             "correct vs wrong voxels, the mesh; needs the [viz] extra)")
+
+
+COMMAND = Command(MapArgs, main_map, map_configs, config="", sections=MAP_SECTIONS,
+                  config_help="YAML config (default: configs/map_sequence.yaml)",
+                  overrides="dotted config overrides, e.g. mapping.fusion=glfs sequence.frame_stride=2")

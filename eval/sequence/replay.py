@@ -33,6 +33,11 @@ import numpy as np
 
 from calnav.eval.config import Config, ConfigError
 from calnav.eval.results_dir import ResultsDir, writing
+from dataclasses import dataclass
+from calnav.eval.arguments import REQUIRED, Command, arg
+from calnav.eval.config import EPISODE_SECTIONS
+from calnav.mapping.registry import LAYOUTS
+from calnav.eval.shorthands import fixed
 
 DEFAULT_CONFIG = "configs/objectnav.yaml"
 REPLAY_FILES: tuple[str, ...] = ("frames.jsonl", "summary.json", "map.npz", "replay.rrd")
@@ -229,3 +234,28 @@ def _print(summary: dict, out: Path, rerun: bool) -> None:
         print(f"note: {note}")
     print(f"wrote {out / 'frames.jsonl'}, {out / 'summary.json'}, {out / 'map.npz'}"
           + (f", {out / 'replay.rrd'} (calnav view {out / 'replay.rrd'})" if rerun else ""))
+
+
+@dataclass
+class ReplayArgs:
+    """``calnav replay``'s flags."""
+
+    recording: str = arg(REQUIRED, "a ROS bag (--layout rosbag, the default) or a recording's directory",
+                         positional=True)
+    goal: str = arg(REQUIRED, "the goal category searched (name or id: chair, bed, plant, ...)")
+    layout: str = arg("rosbag", "file layout of the recording", choices=LAYOUTS.names())
+    segmenter: str | None = arg(None, "shorthand for agent.segmenter (default learned_rgb: a recording has no "
+                                      "ground-truth labels)", metavar="SEGMENTER", sets="agent.segmenter",
+                                sets_default="learned_rgb")
+    output: str = arg(REQUIRED, "results directory")
+    force: bool = arg(False, "replace the results of another config in --output")
+    rerun: bool = arg(False, "also write <output>/replay.rrd (Rerun: frames, camera, maps, goals; needs the [viz] "
+                             "extra)")
+
+
+COMMAND = Command(ReplayArgs, main_replay, replay_configs, config="",
+                  config_help="YAML config of the agent (default: configs/objectnav.yaml)",
+                  overrides="dotted config overrides, e.g. agent.goal_threshold=0.9 sequence.frame_stride=2",
+                  checks=("run", "agent", "mapping"),   # the agent's segmenter and files; no study
+                  sections=(*EPISODE_SECTIONS, "sequence"),
+                  fixed=(fixed("env.normalize_depth", "false"),))   # the recording's depth is metres

@@ -16,6 +16,8 @@ import zipfile
 from pathlib import Path
 
 from calnav.common.rerun_io import check_recording
+from dataclasses import dataclass
+from calnav.eval.arguments import REQUIRED, Command, arg
 
 MAX_LISTED = 50   # recordings of one results directory handed to one viewer
 
@@ -91,3 +93,14 @@ def main_view(args, configs=()) -> None:
         return
     subprocess.Popen(cmd, start_new_session=True)   # the viewer outlives this command
     print(f"opened {len(files)} recording(s) in the Rerun viewer")
+
+
+@dataclass
+class ViewArgs:
+    """``calnav view``'s flags."""
+
+    path: str = arg(REQUIRED, "an .rrd file, a calnav map map.npz, or a results directory", positional=True)
+    print: bool = arg(False, "print the viewer command instead of starting it")
+
+
+COMMAND = Command(ViewArgs, main_view, sections=(), overrides=None)   # reads recordings, no config

@@ -289,13 +289,13 @@ def test_onnx_export_equals_torch(onnx_file, sequence, tmp_path, builtin_records
 
 def test_export_onnx_cli(tmp_path, capsys):
     out = tmp_path / "rgbd.onnx"
-    assert main(["export-onnx", "--model", "learned_rgbd", "--output", str(out)]) == 0
+    assert main(["export-onnx", "--segmenter", "learned_rgbd", "--output", str(out)]) == 0
     assert "logits equal to torch within" in capsys.readouterr().out
     seg = make_segmenter("onnx", SegmenterConfig(model=str(out)))
     assert seg.needs_depth and seg.num_classes == 18
     with pytest.raises(ValueError, match="needs depth"):
         seg(np.zeros((48, 64, 3), np.uint8))
-    assert main(["export-onnx", "--model", "learned_rgb", "--output", str(tmp_path)]) == 2
+    assert main(["export-onnx", "--segmenter", "learned_rgb", "--output", str(tmp_path)]) == 2
     assert "is a directory" in capsys.readouterr().err
     (tmp_path / "bad.onnx").write_bytes(b"not a model")
     with pytest.raises(ValueError, match="cannot load ONNX model"):

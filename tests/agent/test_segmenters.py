@@ -11,6 +11,7 @@ import pytest
 import torch
 
 from calnav.agent.segmenters import BUILTIN_SEGMENTERS, SegmenterConfig, make_segmenter
+from calnav.common.registry import Registry
 
 SEGMENTER_NAMES = ("gt", "noisy", "learned_rgb", "learned_rgbd")   # the built-ins in the simulator's classes
 from calnav.agent.segmenters.base import WEIGHTS_DIR, default_class_names
@@ -60,6 +61,9 @@ def inputs(frames, i=0):
 # ---------------------------------------------------------------------------------- registry
 def test_registry_names_and_unknown_name():
     assert tuple(BUILTIN_SEGMENTERS) == (*SEGMENTER_NAMES, "hf", "onnx")
+    # the shared Registry, as every other named part: one description per built-in, the key it is chosen by
+    assert isinstance(BUILTIN_SEGMENTERS, Registry) and BUILTIN_SEGMENTERS.key == "agent.segmenter"
+    assert all(BUILTIN_SEGMENTERS.describe().values())
     with pytest.raises(ValueError, match="unknown segmenter 'segformer'; valid: gt, noisy, learned_rgb, learned_rgbd, "
                                          "hf, onnx, or a factory as package.module:function"):
         make_segmenter("segformer")
@@ -160,7 +164,7 @@ def test_missing_weights_name_path_and_command(tmp_path):
     with pytest.raises(FileNotFoundError) as info:
         make_segmenter("learned_rgb", SegmenterConfig(weights=str(missing)))
     assert str(missing) in str(info.value)
-    assert f"calnav train-segmenter --model learned_rgb --output {missing}" in str(info.value)
+    assert f"calnav train-segmenter --segmenter learned_rgb --output {missing}" in str(info.value)
 
 
 def test_weights_for_the_other_model_are_refused(weight_files):

@@ -259,8 +259,8 @@ def test_ctrl_c_is_one_line_that_says_how_to_resume(tmp_path, capsys, monkeypatc
 
 @pytest.mark.parametrize("command", [
     ["fit-glfs", "--segmenter", "gt"],
-    ["train-segmenter", "--model", "learned_rgb"],
-    ["eval-segmenter", "--model", "gt", "--split", "test", "--frames", "1"],
+    ["train-segmenter", "--segmenter", "learned_rgb"],
+    ["eval-segmenter", "--segmenter", "gt", "--split", "test", "--frames", "1"],
 ])
 def test_output_file_under_a_file_fails_before_any_work(tmp_path, capsys, command):
     """--output under a file, or a directory, fails before any work (not after training with "File exists")."""

@@ -24,8 +24,8 @@ def _argv(command: str, tmp_path) -> list[str]:
     out = tmp_path / "out"
     return [str(a).replace(OUT, str(out)) for a in {
         "check-scene": ["check-scene", "house_val_0000", "--output", OUT],
-        "train-segmenter": ["train-segmenter", "--model", "learned_rgb", "--output", f"{OUT}/w.pt"],
-        "eval-segmenter": ["eval-segmenter", "--model", "gt", "--output", f"{OUT}/m.json"],
+        "train-segmenter": ["train-segmenter", "--segmenter", "learned_rgb", "--output", f"{OUT}/w.pt"],
+        "eval-segmenter": ["eval-segmenter", "--segmenter", "gt", "--output", f"{OUT}/m.json"],
         "train-predictor": ["train-predictor", "--data", tmp_path, "--output", f"{OUT}/p.pt"],
         "fit-glfs": ["fit-glfs", "--segmenter", "gt", "--output", f"{OUT}/g.json", "--work-dir", OUT],
         "map": ["map", tmp_path, "--layout", "scannet", "--segmenter", "gt", "--output", OUT],
@@ -34,17 +34,22 @@ def _argv(command: str, tmp_path) -> list[str]:
     }.get(command, [command, "--output", OUT])]
 
 
+def _commands():
+    """(name, its declaration) of every registered command."""
+    return [(name, COMMANDS.get(name)) for name in COMMANDS]
+
+
 # the commands whose loader reads a config (study's reads a plan file: tests/eval/objectnav/test_study.py)
-LOADED = sorted(name for name, c in COMMANDS.items() if c.configs is not None and name != "study")
+LOADED = sorted(name for name, c in _commands() if c.configs is not None and name != "study")
 
 
 def test_every_command_declares_sections_of_the_root_config():
     """A command with a config loader declares a non-empty subset of the root's sections; one
     without declares none; every section is some command's."""
-    for name, c in COMMANDS.items():
+    for name, c in _commands():
         assert set(c.sections) <= set(SECTIONS), name
         assert bool(c.sections) == (c.configs is not None), name
-    assert {s for c in COMMANDS.values() for s in c.sections} == set(SECTIONS)
+    assert {s for c in (c for _, c in _commands()) for s in c.sections} == set(SECTIONS)
 
 
 @pytest.mark.parametrize("command", [c for c in LOADED if c != "habitat-benchmark"])   # needs habitat-lab's venv
@@ -52,17 +57,17 @@ def test_a_command_loads_exactly_its_sections(command, tmp_path):
     """The loaded config holds the command's sections (the others are None) and its dump --
     the results directory's config.yaml -- exactly them."""
     (tmp_path / "out").mkdir()
-    cfg = COMMANDS[command].load()[1](parse_args(_argv(command, tmp_path)))[0]
-    assert isinstance(cfg, Config) and cfg.sections == COMMANDS[command].sections
+    cfg = COMMANDS.get(command).load_configs(parse_args(_argv(command, tmp_path)))[0]
+    assert isinstance(cfg, Config) and cfg.sections == COMMANDS.get(command).sections
     assert all(getattr(cfg, s) is None for s in SECTIONS if s not in cfg.sections)
-    assert list(yaml.safe_load(dump_yaml(cfg))) == list(COMMANDS[command].sections)
+    assert list(yaml.safe_load(dump_yaml(cfg))) == list(COMMANDS.get(command).sections)
 
 
 @pytest.mark.parametrize("command", LOADED)
 def test_a_section_the_command_does_not_use_is_one_line(command, tmp_path, capsys):
     """An override or a config file setting a section of the root config the command does not
     use is refused in one line naming the command's sections, before anything is written."""
-    sections = COMMANDS[command].sections
+    sections = COMMANDS.get(command).sections
     unused = next(s for s in SECTIONS if s not in sections)
     key = f"{unused}.{dataclasses.fields(_section(unused))[0].name}"
     expected = f"which calnav {command} does not use; its sections: {', '.join(sections)}"
@@ -91,7 +96,7 @@ def _parser_options(command: str) -> set[str]:
     """The options ``calnav COMMAND`` takes."""
     from calnav.eval.parser import build_parser
 
-    parser = build_parser()
+    parser = build_parser(command)
     sub = next(a for a in parser._actions if a.__class__.__name__ == "_SubParsersAction")
     return {o for a in sub.choices[command]._actions for o in a.option_strings}
 
@@ -142,7 +147,8 @@ CONFLICTS = _conflicts()
 
 
 def test_every_shorthand_of_the_command_table_has_a_conflict_case():
-    declared = {(name, sh.option, key) for name, c in COMMANDS.items() for sh in c.shorthands for key in sh.keys()}
+    declared = {(name, sh.option, key) for name, c in _commands()
+                for sh in c.shorthands() for key in sh.keys()}
     assert declared == {case[:3] for case in CONFLICTS}
 
 
@@ -168,7 +174,7 @@ def test_a_shorthand_and_an_override_of_its_key_are_one_line(command, option, ke
 
 def _loaded(argv: list[str]) -> Config:
     args = parse_args(argv)
-    return COMMANDS[args.command].load()[1](args)[0]
+    return COMMANDS.get(args.command).load_configs(args)[0]
 
 
 def test_shorthand_defaults_lie_under_the_overrides(tmp_path):

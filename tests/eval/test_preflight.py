@@ -1,5 +1,5 @@
 """Every file a config names is opened and validated before a run writes anything or starts a
-worker (``eval.preflight``), for every command of the registry ``eval.cli.COMMANDS``, on exactly
+worker (``eval.preflight``), for every command of the registry ``eval.parser.COMMANDS``, on exactly
 the configs the command then runs."""
 from __future__ import annotations
 
@@ -127,9 +127,9 @@ def _argv(command: str, tmp_path) -> list[str]:
         "map": ["map", str(tmp_path), "--layout", "scannet", "--segmenter", "gt", "--output", out],
         "replay": ["replay", str(tmp_path / "x.bag"), "--goal", "chair", "--output", out],
         "fit-glfs": ["fit-glfs", "--segmenter", "gt", "--output", str(tmp_path / "g.json")],
-        "train-segmenter": ["train-segmenter", "--model", "learned_rgb"],
-        "eval-segmenter": ["eval-segmenter", "--model", "gt"],
-        "export-onnx": ["export-onnx", "--model", "learned_rgb", "--output", str(tmp_path / "m.onnx")],
+        "train-segmenter": ["train-segmenter", "--segmenter", "learned_rgb"],
+        "eval-segmenter": ["eval-segmenter", "--segmenter", "gt"],
+        "export-onnx": ["export-onnx", "--segmenter", "learned_rgb", "--output", str(tmp_path / "m.onnx")],
         "train-predictor": ["train-predictor", "--data", str(tmp_path), "--output", str(tmp_path / "p.pt")],
         "export-sequence": ["export-sequence", "--output", out],
         "compare": ["compare", out, "--output", out],
@@ -151,10 +151,10 @@ def assert_runs_the_checked_configs(argv: list[str], monkeypatch) -> list:
     import calnav.eval.preflight as preflight
     from calnav.eval.cli import COMMANDS
 
-    entry = COMMANDS[argv[0]]
+    entry = COMMANDS.get(argv[0])
     checked, received = [], []
     monkeypatch.setattr(preflight, "check_run_resources", lambda cfg, checks=(): checked.append(cfg))
-    monkeypatch.setattr(importlib.import_module(entry.module), entry.main,
+    monkeypatch.setattr(importlib.import_module(entry.main.__module__), entry.main.__name__,
                         lambda args, configs: received.append(configs))
     assert main(argv) == 0
     assert len(received) == 1 and [id(c) for c in received[0]] == [id(c) for c in checked]

@@ -81,7 +81,7 @@ def test_reproduce_matches_finds_a_change_and_refuses_bad_input(tmp_path, capsys
     assert main(["reproduce", str(run), "--episodes", "0:1", "--output", str(tmp_path / "a")]) == 2
     assert "already holds records" in capsys.readouterr().err   # a resumed rerun would compare nothing rerun
     assert main(["reproduce", str(run), "--episodes", "0:1", "--tol", "nan"]) == 2
-    assert "--tol must be a finite number" in capsys.readouterr().err
+    assert "--tol must be in [0, 1000000000], got nan" in capsys.readouterr().err
     assert main(["reproduce", str(tmp_path / "nope"), "--episodes", "0:1"]) == 2
     assert "nope is not a directory" in capsys.readouterr().err
     (tmp_path / "empty").mkdir()

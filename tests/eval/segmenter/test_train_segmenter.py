@@ -84,7 +84,7 @@ def test_eval_segmenter_cli_writes_metrics(tmp_path):
     from calnav.eval.cli import main
 
     out = tmp_path / "gt.json"
-    rc = main(["eval-segmenter", "--model", "gt", "--split", "test", "--frames", "3", "--output", str(out),
+    rc = main(["eval-segmenter", "--segmenter", "gt", "--split", "test", "--frames", "3", "--output", str(out),
                *[o for o in TINY if o.startswith(("data.", "env."))], "segmenter.gt_confidence=0.8"])
     assert rc == 0
     m = json.loads(out.read_text())
