@@ -14,7 +14,7 @@ An agent splits it once, where it receives it (``split_observation``):
   just what the part's *class* declares (``privileged = (CAMERA_POSE, ...)``): today the
   ``noisy`` segmenter (its world-anchored errors), nothing else of the PEANUT-like agent;
 - the simulator itself (``SIMULATOR``: ``envs.task.SimulatorHandle``, the env's privileged
-  handle) is handed at construction, by ``agent.registry.build_agent``, to an agent class that
+  handle) is handed at construction, by ``agent.setup.build_agent``, to an agent class that
   declares it: the oracle (``agent.oracle``).
 """
 from __future__ import annotations

@@ -1,9 +1,11 @@
 """The ObjectNav agent as a library: ``Navigator``, the one entry point a robot program imports.
 
-    from calnav.eval.config import load_config
+    from calnav.agent.config import AgentConfig
     from calnav.agent.navigator import Navigator
+    from calnav.agent.setup import AgentSetup, SensorSetup
 
-    nav = Navigator(load_config("configs/objectnav.yaml", ["agent.segmenter=learned_rgb"]))
+    nav = Navigator(AgentSetup(agent=AgentConfig(segmenter="learned_rgb"),
+                               sensor=SensorSetup(resolution=(640, 480), hfov_deg=79.0, camera_height_m=0.88)))
     nav.reset("chair")
     while True:
         decision = nav.act(rgb, depth, pose=camera_pose)   # or gps=..., compass=...
@@ -16,9 +18,9 @@ objectnav`` (its workers drive a Navigator through the episode loop, ``eval.roll
 ``EpisodeAgent``), ``calnav habitat-benchmark`` (``agent.habitat_agent.HabitatAgent`` wraps
 one), ``calnav view-episode``, ``calnav collect-maps`` and ``calnav replay`` (``calnav bench``
 times the agent's stages and ``calnav start-pose`` steps several agents in lockstep: both reach
-inside it). It builds the agent of ``cfg.run.agent`` with ``agent.registry.build_agent`` from
-the same config (sections env, mapping, run, agent, segmenter: the keys of
-``configs/objectnav.yaml``); every step is ``observe(obs)`` on a Habitat observation (rgb,
+inside it). It builds the agent ``setup.name`` with ``agent.setup.build_agent`` from its
+typed setup (``agent.setup.AgentSetup``: the agent, segmenter and mapping sections, the sensor's
+facts, the device; a command makes it from its config with ``eval.config.agent_setup``); every step is ``observe(obs)`` on a Habitat observation (rgb,
 depth, gps, compass, objectgoal; ``semantic`` and the privileged keys when an env gives them),
 which ``act`` builds from a robot's inputs (the goal's id, gps and compass from a pose). It
 reads the agent's step back in metres (``Decision``); the map is read and saved with ``map`` /
@@ -26,9 +28,10 @@ reads the agent's step back in metres (``Decision``); the map is read and saved 
 
 Inputs of ``act`` (shapes, units): ``rgb`` (H, W, 3) uint8; ``depth`` (H, W) or (H, W, 1)
 float32 at the same size, metres (0 = invalid), or Habitat's normalised [0, 1] depth when
-``env.normalize_depth`` is true; (H, W) must be ``env.resolution`` and the camera a pinhole of
-``env.hfov_deg`` with its principal point at the image centre, level (no pitch, no roll), at
-``env.camera_height_m`` above the floor -- the agent's sensor model (``agent.sensors``).
+``sensor.normalize_depth`` is true; (H, W) must be ``sensor.resolution`` and the camera a pinhole
+of ``sensor.hfov_deg`` with its principal point at the image centre, level (no pitch, no roll), at
+``sensor.camera_height_m`` above the floor -- the agent's sensor model (``agent.sensors``;
+``env.*`` of the same names in a calnav config).
 
 The pose, one of:
 
@@ -56,6 +59,7 @@ import numpy as np
 from calnav.agent.navigator_map import AgentMap
 from calnav.agent.sensors import check_depth
 from calnav.agent.segmenters.base import task_goal_categories
+from calnav.agent.setup import AgentSetup, build_agent
 from calnav.envs.task import (COMPASS, DEPTH, GPS, OBJECTGOAL, RGB, SEMANTIC, Action, gps_compass_to_xy_yaw,
                               xy_yaw_to_gps_compass, yaw_to_habitat_quaternion)
 
@@ -165,20 +169,17 @@ class Decision:
 
 
 class Navigator:
-    """The agent of ``cfg`` (an ``eval.config.Config`` with the sections env, mapping, run, agent,
-    segmenter: ``eval.config.load_config(path, overrides)``) as a library (module docstring).
+    """The agent of ``setup`` (an ``agent.setup.AgentSetup``) as a library (module docstring).
     ``reset(goal)`` starts a search; ``act(rgb, depth, pose=... | gps=..., compass=...)`` returns
-    a ``Decision``; ``map()`` / ``save_map(path)`` read and save the map at any time. ``agent``:
-    the ``run.agent`` name (default ``cfg.run.agent``); ``simulator``: an env's privileged handle
-    (``envs.task.SimulatorHandle``), for an agent that declares it (the oracle)."""
+    a ``Decision``; ``map()`` / ``save_map(path)`` read and save the map at any time.
+    ``simulator``: an env's privileged handle (``envs.task.SimulatorHandle``), for an agent that
+    declares it (the oracle)."""
 
-    def __init__(self, cfg: Any, *, agent: str | None = None, simulator=None):
-        from calnav.agent.registry import build_agent
-
-        self.cfg = cfg
-        self.agent_name = agent or cfg.run.agent
-        self.agent = build_agent(self.agent_name, cfg, simulator=simulator)
-        self.goal_categories = task_goal_categories(cfg.agent)   # what objectgoal ids index (the task's contract)
+    def __init__(self, setup: AgentSetup, *, simulator=None):
+        self.setup = setup
+        self.agent_name = setup.name
+        self.agent = build_agent(setup, simulator=simulator)
+        self.goal_categories = task_goal_categories(setup.agent)   # what objectgoal ids index (the task's contract)
         self._goal_id: int | None = None           # reset's goal; None: the first observation's
         self._start: StartFrame | None = None
         self._last_gps: np.ndarray | None = None   # the last act's gps (float64 m): the motion check
@@ -264,7 +265,7 @@ class Navigator:
         if depth.shape[:2] != rgb.shape[:2] or depth.ndim not in (2, 3) or depth.shape[2:] not in ((), (1,)):
             raise ValueError(f"depth must be (H, W) or (H, W, 1) at the rgb's size {rgb.shape[1]}x{rgb.shape[0]}; "
                              f"got shape {depth.shape}")
-        check_depth(depth, self.cfg.env.normalize_depth)
+        check_depth(depth, self.setup.sensor.normalize_depth)
         if not self._started:
             self.begin(obs)
         action = self.agent.act(obs)
@@ -351,7 +352,7 @@ class Navigator:
         if not self._started or self.agent.state is None:
             raise ValueError("the agent has no map yet: call reset(goal) and act() first")
         agent = self.agent
-        return AgentMap.of_state(agent.state, agent.cfg.cell_m, agent.class_names, self.cfg.mapping.voxel_size_m,
+        return AgentMap.of_state(agent.state, agent.cfg.cell_m, agent.class_names, self.setup.mapping.voxel_size_m,
                                  agent.goal_name, agent.steps, agent.cfg.map_type)
 
     def save_map(self, path: str | Path) -> Path:

@@ -1,14 +1,15 @@
 """``OracleAgent`` (``run.agent=oracle``): the shortest path to the goal, for validating
 episodes, geodesics and metrics. It is privileged by declaration (``privileged = (SIMULATOR,)``,
-``agent.contract``): ``agent.registry.build_agent`` hands it the env's ``SimulatorHandle``
+``agent.contract``): ``agent.setup.build_agent`` hands it the env's ``SimulatorHandle``
 (``envs.task``: the simulator's shortest-path follower on its true pose), and it reads nothing
 of the observations. Like PEANUT, it calls STOP on the episode's last step.
 """
 from __future__ import annotations
 
-from typing import Any, Mapping
+from typing import Mapping
 
 from calnav.agent.contract import SIMULATOR
+from calnav.agent.setup import AgentSetup
 from calnav.envs.task import Action, SimulatorHandle
 
 
@@ -24,12 +25,12 @@ class OracleAgent:
         self.steps = 0
 
     @classmethod
-    def from_config(cls, cfg: Any, simulator: SimulatorHandle) -> "OracleAgent":
-        """The registry's builder (``agent.registry.build_agent``); the config sets only the task's
+    def from_setup(cls, setup: AgentSetup, simulator: SimulatorHandle) -> "OracleAgent":
+        """The registry's builder (``agent.setup.build_agent``); the setup sets only the task's
         goal categories (``agent.goal_categories``)."""
         from calnav.agent.segmenters.base import task_goal_categories
 
-        return cls(simulator, task_goal_categories(getattr(cfg, "agent", None)))
+        return cls(simulator, task_goal_categories(setup.agent))
 
     def goal_names(self) -> tuple[str, ...]:
         """The goal categories it can be asked for: every ObjectNav goal (it reads the scene)."""

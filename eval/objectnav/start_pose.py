@@ -293,9 +293,10 @@ class Lockstep:
 
     def __init__(self, cfg, env, variants: list[PoseVariant]):
         from calnav.agent.policy import PeanutAgent
+        from calnav.eval.config import agent_setup
 
         self.env, self.variants = env, variants
-        self.agents = [PeanutAgent(cfg) for _ in variants]
+        self.agents = [PeanutAgent(agent_setup(cfg, "peanut")) for _ in variants]
         self.rows: list[dict] = []
 
     def _views(self, obs: dict) -> list[dict]:

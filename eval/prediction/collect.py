@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from calnav.eval.config import Config
 from calnav.eval.results_dir import ResultsDir
 from calnav.eval.rollout import Hook
 
@@ -27,7 +28,7 @@ MAPS_FORMAT = 1
 
 @dataclass
 class CollectTask:
-    cfg_dict: dict
+    cfg: Config   # the run's config, validated where it was loaded: it pickles to the worker as it is
     index: int
     steps: int
     every: int
@@ -107,12 +108,12 @@ def collect_episode(task: CollectTask) -> dict:
     returns its arrays (see the module docstring)."""
     from calnav.agent.prediction import PredictorSpec
     from calnav.agent.segmenters.base import goal_categories
-    from calnav.eval.config import Config, build_dataclass
+    from calnav.eval.config import agent_setup
     from calnav.eval.objectnav.run import _warm_env_agent
     from calnav.eval.rollout import rollout
 
-    cfg = build_dataclass(Config, task.cfg_dict)
-    env, agent = _warm_env_agent(task.cfg_dict, "peanut", upto=task.upto)
+    cfg = task.cfg
+    env, agent = _warm_env_agent(cfg, agent_setup(cfg, "peanut"), upto=task.upto)
     goals = goal_categories()
     spec = PredictorSpec(class_names=tuple(agent.class_names), goal_categories=goals)
     sampler = MapSampler(cfg, spec, goals, task.every)
@@ -136,7 +137,6 @@ def main_collect_maps(args, configs) -> None:
     """``configs``: ``collect_configs(args)``, checked by the preflight."""
     from calnav.common.npz import save_versioned_npz
     from calnav.eval.runner import raise_failures, run_tasks
-    from calnav.eval.config import to_dict
     from calnav.eval.episodes import episode_indices
 
     cfg = configs[0]
@@ -147,7 +147,7 @@ def main_collect_maps(args, configs) -> None:
     indices = episode_indices(str(args.episodes), cfg.env, cfg.run)
     with ResultsDir(out, cfg, force=args.force, discard=("episodes",), files=()):
         todo = [i for i in indices if not episode_file(out, i).exists()]
-        tasks = [CollectTask(to_dict(cfg), i, steps, args.every, max(indices) + 1) for i in todo]
+        tasks = [CollectTask(cfg, i, steps, args.every, max(indices) + 1) for i in todo]
 
         def save(task: CollectTask, res: dict) -> None:
             save_versioned_npz(episode_file(out, task.index), {k: res[k] for k in ("inputs", "targets", "steps")},

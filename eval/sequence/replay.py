@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from calnav.eval.config import Config, ConfigError
+from calnav.eval.config import Config, ConfigError, agent_setup
 from calnav.eval.results_dir import ResultsDir, writing
 
 DEFAULT_CONFIG = "configs/objectnav.yaml"
@@ -166,7 +166,7 @@ def main_replay(args, configs: list[Config]) -> None:
     seq = Sequence(args.recording, args.layout, configs[0].sequence)
     cfg, notes = sensor_config(configs[0], seq)
     seq.check_scale(cfg.mapping.depth_min_m, cfg.mapping.depth_max_m, cfg.mapping.voxel_size_m)   # units, frame
-    nav = Navigator(cfg)
+    nav = Navigator(agent_setup(cfg))
     goal = int(args.goal) if args.goal.isdigit() else args.goal   # a name, or its id
     nav.goal_id(goal)   # an unknown goal: one line naming the valid ones
     if nav.needs_semantic and not seq.has_semantic:

@@ -14,7 +14,7 @@ require_habitat()
 
 from calnav.envs.task import Action, depth_to_metres  # noqa: E402
 from calnav.eval.cli import main  # noqa: E402
-from calnav.eval.config import load_config  # noqa: E402
+from calnav.eval.config import agent_setup, load_config  # noqa: E402
 
 pytestmark = pytest.mark.habitat
 
@@ -82,7 +82,7 @@ def test_reset_waits_for_the_first_observations(setup):
     hcfg, env_cfg = setup
     cfg = load_config(None, ["agent.segmenter=gt"])
     cfg.env = env_cfg
-    agent = HabitatPeanutAgent(cfg)
+    agent = HabitatPeanutAgent(agent_setup(cfg))
     agent.reset()
     assert agent.agent.state is None  # nothing known before the first observations
     obs = {"rgb": np.zeros((H, W, 3), np.uint8), "depth": np.zeros((H, W, 1), np.float32),

@@ -8,6 +8,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
+from calnav.eval.config import agent_setup
 from tests.conftest import small_or_full
 
 pytestmark = pytest.mark.e2e
@@ -67,7 +68,7 @@ def test_the_agent_finishes_its_approach(scan_worlds, category):
     from calnav.eval.stats import LINGER_STEPS
 
     cfg, env = scan_worlds
-    agent = PeanutAgent(cfg)
+    agent = PeanutAgent(agent_setup(cfg))
     indices = [i for i, e in enumerate(env.unwrapped.episodes) if e.object_category == category]
     assert indices, f"no {category} episode"
     for i in indices:
