@@ -28,7 +28,6 @@ from calnav.agent.config import AgentConfig
 from calnav.agent.planner import heading_to
 from calnav.agent.projection import dilate
 from calnav.agent.semantic_map import MapChannels, MapState
-from calnav.agent.setup import SensorSetup
 from calnav.envs.task import Action
 
 MIN_VIEW_HALF_DEG = 1.0      # the STOP's facing tolerance never narrows below this, degrees
@@ -84,7 +83,7 @@ class GoalApproach:
     """The approach to an accepted goal (module docstring). ``env``: the task's facts
     (``agent.setup.SensorSetup``: ``view_point_radius_m``, ``hfov_deg``)."""
 
-    def __init__(self, cfg: AgentConfig, env: SensorSetup):
+    def __init__(self, cfg: AgentConfig, env):
         self.cfg = cfg
         # the task's view points reach view_point_radius_m from the goal: STOP inside that, less
         # the map's error (or less only blocked_stop_margin_m once a step toward it is blocked)

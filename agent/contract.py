@@ -21,7 +21,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, fields, replace
-from typing import Any, Iterator, Protocol
+from typing import TYPE_CHECKING, Any, Iterator, Protocol
 
 import numpy as np
 
@@ -110,12 +110,17 @@ def handed(part: Any, privileged: Privileged | None) -> Privileged:
     return privileged.only(declared_privileged(part))
 
 
+if TYPE_CHECKING:
+    from calnav.agent.step import Step
+
+
 class Agent(Protocol):
     """An ObjectNav agent: ``reset(obs)`` on an episode's first observation, then
-    ``act(obs) -> int`` (an ``envs.task.Action`` id) per step. ``obs`` is the env's observation
+    ``act(obs) -> Step`` per step (``agent.step.Step``: its ``envs.task.Action`` id and what it
+    decided it from). ``obs`` is the env's observation
     dict; the agent splits it (``split_observation``). A class may declare
     ``privileged = (SIMULATOR,)`` to be built with the env's ``SimulatorHandle``."""
 
     def reset(self, obs: Mapping) -> None: ...
 
-    def act(self, obs: Mapping) -> int: ...
+    def act(self, obs: Mapping) -> "Step": ...

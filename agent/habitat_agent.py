@@ -59,23 +59,23 @@ def from_habitat_observations(observations) -> dict:
 
 class HabitatAgent(habitat.Agent):
     """A ``Navigator`` behind habitat-lab's ``Agent`` interface (see the module docstring);
-    ``navigator`` is the wrapped one, ``agent`` its registry agent."""
+    ``navigator`` is the wrapped one, ``decision`` its last step (``agent.navigator.Decision``,
+    with the agent's ``agent.step.Step``; None before the first)."""
 
     def __init__(self, navigator: Navigator):
         self.navigator = navigator
         self.navigator.reset()
-
-    @property
-    def agent(self):
-        return self.navigator.agent
+        self.decision = None
 
     def reset(self) -> None:
         """Start a new episode: goal and start pose come with the first observations."""
         self.navigator.reset()
+        self.decision = None
 
     def act(self, observations) -> dict:
         """habitat-lab's action dict ``{"action": name}`` for these observations."""
-        return {"action": habitat_action(self.navigator.observe(from_habitat_observations(observations)).action)}
+        self.decision = self.navigator.observe(from_habitat_observations(observations))
+        return {"action": habitat_action(self.decision.action)}
 
 
 class HabitatPeanutAgent(HabitatAgent):

@@ -10,14 +10,18 @@ from typing import Mapping
 
 from calnav.agent.contract import SIMULATOR
 from calnav.agent.setup import AgentSetup
+from calnav.agent.step import Step
 from calnav.envs.task import Action, SimulatorHandle
 
 
 class OracleAgent:
-    """``OracleAgent(simulator)``; ``reset(obs)`` / ``act(obs) -> int`` (``agent.contract.Agent``)."""
+    """``OracleAgent(simulator)``; ``reset(obs)`` / ``act(obs) -> Step`` (``agent.contract.Agent``:
+    the action alone, a map-less ``agent.step.Step``)."""
 
     name = "oracle"
     privileged = (SIMULATOR,)
+    class_names: tuple[str, ...] = ()   # it keeps no map
+    needs_semantic = False
 
     def __init__(self, simulator: SimulatorHandle, categories: tuple[str, ...] = ()):
         self.simulator = simulator
@@ -42,8 +46,8 @@ class OracleAgent:
         self.simulator.reset()
         self.steps = 0
 
-    def act(self, obs: Mapping) -> int:
+    def act(self, obs: Mapping) -> Step:
         self.steps += 1   # this action is the episode's steps-th
         if self.steps >= self.simulator.max_episode_steps:
-            return int(Action.STOP)  # forced STOP on the last step, as PEANUT does
-        return int(self.simulator.shortest_path_action())
+            return Step(int(Action.STOP), self.steps)  # forced STOP on the last step, as PEANUT does
+        return Step(int(self.simulator.shortest_path_action()), self.steps)

@@ -18,9 +18,10 @@ import numpy as np
 
 from calnav.agent.collision import CollisionMarks
 from calnav.agent.goal_detection import GoalDetection, GoalDetector
-from calnav.agent.policy import PeanutAgent, StepInfo
+from calnav.agent.policy import PeanutAgent
 from calnav.agent.semantic_map import MapState
 from calnav.agent.setup import AgentSetup
+from calnav.agent.step import StepInfo
 from calnav.agent.storeys import STAIR_MIN_M, STOREY_SWITCH_M, Storey, StoreyMapBuilder
 from calnav.agent.watchdog import ProgressWatchdog
 from calnav.envs.task import Action, camera_pose

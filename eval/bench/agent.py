@@ -64,11 +64,11 @@ class TimedAct:
     def reset(self, obs: dict) -> None:
         self.agent.reset(obs)
 
-    def act(self, obs: dict) -> int:
+    def act(self, obs: dict):
         t = time.perf_counter()
-        action = self.agent.act(obs)
+        step = self.agent.act(obs)
         self.act_ms.append((time.perf_counter() - t) * 1e3)
-        return action
+        return step
 
 
 class LoopTimer(Hook):
@@ -78,7 +78,7 @@ class LoopTimer(Hook):
     def on_reset(self, env, agent, obs, info) -> None:
         self.t0, self.rss0, self.wall_s = time.perf_counter(), None, 0.0
 
-    def before_step(self, env, agent, obs, action: int) -> int:
+    def before_step(self, env, step, obs, action: int) -> int:
         if self.rss0 is None:
             self.rss0 = rss_mb()
         return action

@@ -79,19 +79,20 @@ class MapSampler(Hook):
         self.targets: list[np.ndarray] = []
         self.steps: list[int] = []
 
-    def before_step(self, env, agent, obs, action: int) -> int:
+    def before_step(self, env, step, obs, action: int) -> int:
         from calnav.envs.task import Action
 
         return int(Action.TURN_LEFT) if action == int(Action.STOP) else action
 
-    def after_step(self, env, agent, action: int, obs, info, step: int) -> None:
+    def after_step(self, env, step, action: int, obs, info, n: int) -> None:
         from calnav.agent.prediction import crop_origin, map_input, pool_factor
         from calnav.agent.semantic_map import MapChannels
+        from calnav.envs.task import COMPASS, GPS, gps_compass_to_xy_yaw
 
-        if step % self.every:
+        if n % self.every:
             return
-        cell_m, st = self.cfg.agent.cell_m, agent.state
-        xy, _ = agent.sensors.xy_yaw(obs)
+        cell_m, st = step.cell_m, step.state
+        xy, _ = gps_compass_to_xy_yaw(obs[GPS], obs[COMPASS])   # where the move took it
         rc = st.to_cell(xy, cell_m)
         maps = {"obstacle": st.obstacles(), "explored": st.channels[MapChannels.EXPLORED],
                 "visited": st.channels[MapChannels.VISITED]}
@@ -100,7 +101,7 @@ class MapSampler(Hook):
         corner = crop_origin(rc, self.spec, pool_factor(self.spec, cell_m))
         ep, scene = env.unwrapped.episode, env.unwrapped.scene
         self.targets.append(goal_targets(scene, ep, st.origin, corner, self.spec, cell_m, self.goals))
-        self.steps.append(step)
+        self.steps.append(n)
 
 
 def collect_episode(task: CollectTask) -> dict:
@@ -115,7 +116,7 @@ def collect_episode(task: CollectTask) -> dict:
     cfg = task.cfg
     env, agent = _warm_env_agent(cfg, agent_setup(cfg, "peanut"), upto=task.upto)
     goals = goal_categories()
-    spec = PredictorSpec(class_names=tuple(agent.class_names), goal_categories=goals)
+    spec = PredictorSpec(class_names=agent.class_names, goal_categories=goals)
     sampler = MapSampler(cfg, spec, goals, task.every)
     rollout(env, agent, task.index, [sampler], max_steps=task.steps)
     ep = env.unwrapped.episode

@@ -149,7 +149,7 @@ def replay(seq, nav, goal: str, recording=None, progress: bool = True) -> tuple[
         records.append(frame_record(fr.index, decision, nav.frame, nav.class_names, nav.goal))
         heights.append(float(fr.pose[2, 3]))
         if recording is not None:
-            recording.step(nav.agent, int(decision.action), {})
+            recording.step(decision.agent_step, int(decision.action), {})
     return records, heights
 
 
@@ -182,7 +182,7 @@ def main_replay(args, configs: list[Config]) -> None:
             from calnav.agent.recording import EpisodeRecording
 
             # (the recording's name: Rerun's application ids take no dots, so not the file's name)
-            recording = EpisodeRecording(Path(tmp) / "replay.rrd", nav.agent, f"replay {goal}")
+            recording = EpisodeRecording(Path(tmp) / "replay.rrd", nav.class_names, f"replay {goal}")
         t0 = time.perf_counter()
         records, heights = replay(seq, nav, goal, recording)
         seconds = time.perf_counter() - t0

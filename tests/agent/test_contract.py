@@ -140,7 +140,7 @@ def test_the_registered_oracle_takes_the_env_oracles_actions(small_env_config):
         theirs.reset(obs)
         done, actions = False, []
         while not done:
-            action = ours.act(obs)
+            action = ours.act(obs).action
             assert action == theirs.act(obs), len(actions)
             actions.append(action)
             obs, _, terminated, truncated, info = env.step(action)

@@ -84,7 +84,7 @@ def test_reset_waits_for_the_first_observations(setup):
     cfg.env = env_cfg
     agent = HabitatPeanutAgent(agent_setup(cfg))
     agent.reset()
-    assert agent.agent.state is None  # nothing known before the first observations
+    assert agent.decision is None and agent.navigator.goal is None  # nothing known before the first observations
     obs = {"rgb": np.zeros((H, W, 3), np.uint8), "depth": np.zeros((H, W, 1), np.float32),
            "gps": np.zeros(2, np.float32), "compass": np.zeros(1, np.float32), "objectgoal": np.array([2]),
            "semantic": -np.ones((H, W, 1), np.int32)}

@@ -78,7 +78,12 @@ def test_an_episode_through_the_library_takes_calnav_objectnavs_actions(setup, l
     _, agent = _warm_env_agent(cfg, agent_setup(cfg, "peanut"))   # what a worker of calnav objectnav builds
     assert isinstance(agent, EpisodeAgent) and isinstance(agent.navigator, Navigator)
     actions, act = [], agent.act
-    agent.act = lambda obs: actions.append(act(obs)) or actions[-1]   # what objectnav's loop sends, step by step
+
+    def recorded(obs):
+        step = act(obs)
+        actions.append(step.action)   # what objectnav's loop sends, step by step
+        return step
+    agent.act = recorded
     record = run_one_episode(env, agent, index)
     for name, got in decisions.items():
         assert [int(d.action) for d in got] == actions, name

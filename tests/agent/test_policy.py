@@ -84,7 +84,7 @@ def test_agent_finds_goal_in_small_house(small_setup):
     agent.reset(obs)
     done = False
     while not done:
-        obs, _, terminated, truncated, info = env.step(agent.act(obs))
+        obs, _, terminated, truncated, info = env.step(agent.act(obs).action)
         done = terminated or truncated
     assert info["success"], f"episode {index}: distance to goal {info['distance_to_goal']:.2f} m after {info['steps']} steps"
     assert info["steps"] < MAX_STEPS, info["steps"]
@@ -124,8 +124,8 @@ def test_agent_reads_only_habitat_observations(small_setup):
     reduced.reset({k: obs[k] for k in keep})
     done, steps = False, 0
     while not done:
-        action = full.act(obs)
-        assert reduced.act({k: obs[k] for k in keep}) == action, f"step {steps}"
+        action = full.act(obs).action
+        assert reduced.act({k: obs[k] for k in keep}).action == action, f"step {steps}"
         obs, _, terminated, truncated, _ = env.step(action)
         done, steps = terminated or truncated, steps + 1
     assert steps > cfg.env.turn_angle_deg and full.info.mode == "stop"
@@ -148,12 +148,13 @@ def test_ndf_uncertainty_aware_agent_and_video_panel_on_habitat_observations(sma
     full.reset(obs)
     reduced.reset({k: obs[k] for k in keep})
     for step in range(NDF_STEPS):
-        action = full.act(obs)
-        assert reduced.act({k: obs[k] for k in keep}) == action, f"step {step}"
+        action = full.act(obs).action
+        last = reduced.act({k: obs[k] for k in keep})
+        assert last.action == action, f"step {step}"
         obs, _, terminated, truncated, _ = env.step(action)
         if terminated or truncated:
             break
-    panel = render_panel(reduced)
+    panel = render_panel(last)
     assert panel.ndim == 3 and panel.shape[2] == 3 and panel.std() > 0
 
 
@@ -200,7 +201,7 @@ def test_agent_escapes_a_trap_it_cannot_see(open_heading_deg):
     world, agent = TrapWorld(cfg, open_heading_deg), PeanutAgent(agent_setup(cfg))
     agent.reset(world.obs())
     for i in range(200):
-        action = agent.act(world.obs())
+        action = agent.act(world.obs()).action
         assert action != Action.STOP, f"stopped at step {i}"
         world.step(action, i)
     a = cfg.agent

@@ -92,7 +92,7 @@ def test_the_agent_climbs_and_knows_its_height():
     a, errors, storeys, done = agent.navigator.agent, [], [], False
     start_floor = env.navgrid.floor_height(env.position, env.layer)
     while not done:
-        obs, _, terminated, truncated, info = env.step(agent.act(obs))
+        obs, _, terminated, truncated, info = env.step(agent.act(obs).action)
         done = terminated or truncated
         errors.append(a.floor_z - (env.navgrid.floor_height(env.position, env.layer) - start_floor))
         storeys.append(info["storey"])

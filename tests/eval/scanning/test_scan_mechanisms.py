@@ -38,7 +38,7 @@ def _run(env, agent, index: int) -> dict:
     agent.reset(obs)
     done = False
     while not done:
-        obs, _, terminated, truncated, info = env.step(agent.act(obs))
+        obs, _, terminated, truncated, info = env.step(agent.act(obs).action)
         done = terminated or truncated
     return info
 
