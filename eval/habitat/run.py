@@ -90,6 +90,7 @@ def run_habitat_benchmark(cfg, habitat_cfg, indices: list[int], out: Path, force
     from calnav.eval.habitat.recording import EnvBenchmark, RecordingEnv, episode_index
 
     habitat_text = OmegaConf.to_yaml(habitat_cfg, resolve=True)
+    agent_name = cfg.run.agent
     with ResultsDir(out, cfg, force=force, discard=RUN_RESULTS, neutral_keys=EPISODE_NEUTRAL_KEYS) as results:
         _check_habitat_config(out, habitat_text, force)
         results.write_text(HABITAT_CONFIG_FILE, habitat_text)
