@@ -89,10 +89,11 @@ def test_reset_waits_for_the_first_observations(setup):
            "gps": np.zeros(2, np.float32), "compass": np.zeros(1, np.float32), "objectgoal": np.array([2]),
            "semantic": -np.ones((H, W, 1), np.int32)}
     assert agent.act(obs) == {"action": "turn_left"}  # the opening spin
-    assert agent.agent.goal_id == 2 and agent.agent.steps == 1
+    goals = agent.navigator.goal_categories
+    assert agent.navigator.goal == goals[2] and agent.decision.step == agent.decision.agent_step.steps == 1
     agent.reset()
     agent.act({**obs, "objectgoal": np.array([4])})
-    assert agent.agent.goal_id == 4 and agent.agent.steps == 1  # a fresh episode
+    assert agent.navigator.goal == goals[4] and agent.decision.agent_step.steps == 1  # a fresh episode
 
 
 def test_peanut_through_habitat_benchmark_equals_objectnav(tmp_path, capsys):
