@@ -51,19 +51,19 @@ first step, on the floor; +x forward at that step, +y to its left, +z up; metres
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
 
 from calnav.agent.navigator_map import AgentMap
-from calnav.agent.sensors import check_depth
+from calnav.agent.sensors import check_depth, check_resolution
 from calnav.agent.segmenters.base import task_goal_categories
 from calnav.agent.setup import AgentSetup, build_agent
 from calnav.agent.step import Step
 from calnav.envs.task import (COMPASS, DEPTH, GPS, OBJECTGOAL, RGB, SEMANTIC, Action, gps_compass_to_xy_yaw,
-                              xy_yaw_to_gps_compass, yaw_to_habitat_quaternion)
+                              require_keys, xy_yaw_to_gps_compass, yaw_to_habitat_quaternion)
 
 # The agent maps with a level camera: a floor point 5 m away (env.max_depth_m's default) seen by a
 # camera tilted 2 degrees lands 0.17 m off the floor, still under agent.obstacle_min_height_m
@@ -170,7 +170,7 @@ class Decision:
     long_term_goal: tuple[float, float] | None
     short_term_goal: tuple[float, float] | None
     goal: GoalSighting | None
-    agent_step: Step
+    agent_step: Step = field(compare=False, repr=False)   # (the map it holds is no value to compare)
 
 
 class Navigator:
@@ -234,21 +234,73 @@ class Navigator:
             semantic: np.ndarray | None = None) -> Decision:
         """The agent's step on one frame (module docstring for the inputs). ``semantic``: (H, W)
         int class ids, -1 void, for the ``gt`` / ``noisy`` segmenters (a simulator's semantic
-        sensor). The Habitat observation these make goes to ``observe``."""
+        sensor). The Habitat observation these make is checked whole (``_check``) before
+        anything changes: a refused call leaves the navigator as it was."""
         if self._goal_id is None:
             raise ValueError("call reset(goal) before act()")
-        gps, compass = self._gps_compass(gps, compass, pose)
-        self._check_motion(gps)
+        start, gps, compass = self._gps_compass(gps, compass, pose)
         obs = {RGB: rgb, DEPTH: depth, GPS: gps, COMPASS: compass, OBJECTGOAL: np.array([self._goal_id], np.int64)}
         if semantic is not None:
             obs[SEMANTIC] = semantic
-        decision = self.observe(obs)
-        self._last_gps = np.asarray(gps, np.float64)   # only a step taken is the next one's reference
+        self._check(obs)
+        decision = self._step(obs)
+        self._start = start   # the first pose's frame, once its step is taken
         return decision
 
     def begin(self, obs: Mapping) -> None:
         """Start the episode on its first observation now (``observe`` does it on the first call
-        after ``reset``): the agent resets on it, as the episode loop resets an agent."""
+        after ``reset``): the agent resets on it, as the episode loop resets an agent. The
+        observation is checked whole first (``_check``)."""
+        self._check(obs)
+        self._begin(obs)
+
+    def observe(self, obs: Mapping) -> Decision:
+        """The agent's step on a Habitat observation ``obs`` (``envs.task.HABITAT_KEYS``: rgb (H, W, 3)
+        uint8, depth (H, W, 1) or (H, W), gps (2,), compass (1,), objectgoal (1,); ``semantic`` and
+        the privileged keys an env adds go to the parts that declare them, ``agent.contract``),
+        checked whole as ``act`` checks its inputs (``_check``) before anything changes. The
+        first call after ``reset`` starts the episode on it (``begin``)."""
+        self._check(obs)
+        return self._step(obs)
+
+    def _check(self, obs: Mapping) -> None:
+        """The one check of a step's input (``act``, ``observe``, ``begin``), before any state
+        changes; ValueError (one line): rgb (H, W, 3) uint8; depth (H, W) or (H, W, 1) at its
+        size, ``env.resolution``, float metres (``check_depth``); ``semantic`` when the segmenter
+        reads it; gps (2,) finite metres, compass one finite angle in
+        [-pi, pi] (not degrees); no jump over ``MAX_STEP_JUMP_M`` from the last step taken; on
+        the episode's first observation, a goal (``_first_goal``)."""
+        require_keys(obs, (RGB, DEPTH, GPS, COMPASS), "Navigator.observe")
+        rgb, depth = np.asarray(obs[RGB]), np.asarray(obs[DEPTH])
+        if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
+            raise ValueError(f"rgb must be (H, W, 3) uint8; got {rgb.dtype} of shape {rgb.shape}")
+        if depth.shape[:2] != rgb.shape[:2] or depth.ndim not in (2, 3) or depth.shape[2:] not in ((), (1,)):
+            raise ValueError(f"depth must be (H, W) or (H, W, 1) at the rgb's size {rgb.shape[1]}x{rgb.shape[0]}; "
+                             f"got shape {depth.shape}")
+        check_resolution(depth.shape[:2], self.setup.sensor.resolution)
+        check_depth(depth, self.setup.sensor.normalize_depth)
+        if self.needs_semantic:
+            require_keys(obs, (SEMANTIC,), f"the {self.agent.perception.segmenter.name!r} segmenter")
+        gps, compass = np.asarray(obs[GPS]), np.asarray(obs[COMPASS])
+        if gps.shape != (2,) or compass.size != 1 or not all(a.dtype.kind in "fiu" for a in (gps, compass)) or \
+                not (np.isfinite(gps).all() and np.isfinite(compass).all()):
+            raise ValueError(f"gps must be 2 finite numbers (forward, right) and compass one; got {gps.tolist()}, "
+                             f"{compass.tolist()}")
+        if abs(float(compass.reshape(-1)[0])) > math.pi + ANGLE_SLACK:
+            raise ValueError(f"compass {float(compass.reshape(-1)[0]):g} is not Habitat's EpisodicCompass, radians in "
+                             "[-pi, pi]: degrees?")
+        if self._started and self._last_gps is not None:
+            jump = float(np.hypot(*(gps.astype(np.float64) - self._last_gps)))
+            if jump > MAX_STEP_JUMP_M:
+                raise ValueError(f"the camera moved {jump:.4g} m between steps {self._steps} and {self._steps + 1} "
+                                 f"(more than {MAX_STEP_JUMP_M:g} m; a step is env.forward_step_m): poses in "
+                                 "millimetres? give metres")
+        if not self._started:
+            self._first_goal(obs)
+
+    def _first_goal(self, obs: Mapping) -> int:
+        """The goal id of the episode's first observation ``obs``: its ``objectgoal``, or
+        ``reset``'s goal; ValueError before a ``reset``, without a goal, or for another goal."""
         if not self._reset:
             raise ValueError("call reset() before the episode's first observation")
         goal = int(np.asarray(obs[OBJECTGOAL]).reshape(-1)[0]) if OBJECTGOAL in obs else self._goal_id
@@ -256,56 +308,36 @@ class Navigator:
             raise ValueError("no goal: give reset(goal) or an observation with objectgoal")
         if self._goal_id is not None and goal != self._goal_id:
             raise ValueError(f"the observation's objectgoal {goal} is not reset's goal {self._goal_id}")
-        self._goal_id = self.goal_id(goal)
-        self.agent.reset(obs if OBJECTGOAL in obs else {**obs, OBJECTGOAL: np.array([goal], np.int64)})
-        self._started = True
+        return self.goal_id(goal)
 
-    def observe(self, obs: Mapping) -> Decision:
-        """The agent's step on a Habitat observation ``obs`` (``envs.task.HABITAT_KEYS``: rgb (H, W, 3)
-        uint8, depth (H, W, 1) or (H, W), gps (2,), compass (1,), objectgoal (1,); ``semantic`` and
-        the privileged keys an env adds go to the parts that declare them, ``agent.contract``).
-        The first call after ``reset`` starts the episode on it (``begin``)."""
-        rgb, depth = np.asarray(obs[RGB]), np.asarray(obs[DEPTH])
-        if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
-            raise ValueError(f"rgb must be (H, W, 3) uint8; got {rgb.dtype} of shape {rgb.shape}")
-        if depth.shape[:2] != rgb.shape[:2] or depth.ndim not in (2, 3) or depth.shape[2:] not in ((), (1,)):
-            raise ValueError(f"depth must be (H, W) or (H, W, 1) at the rgb's size {rgb.shape[1]}x{rgb.shape[0]}; "
-                             f"got shape {depth.shape}")
-        check_depth(depth, self.setup.sensor.normalize_depth)
+    def _begin(self, obs: Mapping) -> None:
+        """The episode started on its (checked) first observation: the agent resets on it."""
+        goal = self._first_goal(obs)
+        self.agent.reset(obs if OBJECTGOAL in obs else {**obs, OBJECTGOAL: np.array([goal], np.int64)})
+        self._goal_id, self._started = goal, True
+
+    def _step(self, obs: Mapping) -> Decision:
+        """The agent's step on a checked observation (``_check``)."""
         if not self._started:
-            self.begin(obs)
+            self._begin(obs)
         step = self._last = self.agent.act(obs)
         self._steps += 1
+        self._last_gps = np.asarray(obs[GPS], np.float64)   # only a step taken is the next one's reference
         return self._decision(step, obs)
 
-    def _gps_compass(self, gps, compass, pose) -> tuple[np.ndarray, np.ndarray]:
+    def _gps_compass(self, gps, compass, pose) -> tuple[StartFrame | None, np.ndarray, np.ndarray]:
+        """(start frame, gps (2,), compass (1,)) of ``act``'s pose arguments, changing no state:
+        from ``pose`` relative to the start frame (the first pose after ``reset`` makes it;
+        ``act`` keeps it once its step is taken), else ``gps`` / ``compass`` (``_check``ed)."""
         if pose is not None:
             if gps is not None or compass is not None:
                 raise ValueError("give either pose or gps and compass, not both")
             xy, yaw = planar_pose(pose)
-            if self._start is None:
-                self._start = StartFrame(xy, yaw)
-            return self._start.gps_compass(xy, yaw)
+            start = self._start if self._start is not None else StartFrame(xy, yaw)
+            return start, *start.gps_compass(xy, yaw)
         if gps is None or compass is None:
             raise ValueError("act() needs the agent's pose: pose=(4, 4) or (x, y, yaw), or gps=(2,) and compass=(1,)")
-        gps, compass = np.asarray(gps, np.float32), np.asarray(compass, np.float32).reshape(1)
-        if gps.shape != (2,) or not np.isfinite(gps).all() or not np.isfinite(compass).all():
-            raise ValueError(f"gps must be 2 finite numbers (forward, right) and compass one; got {gps.tolist()}, "
-                             f"{compass.tolist()}")
-        if abs(float(compass[0])) > math.pi + ANGLE_SLACK:
-            raise ValueError(f"compass {float(compass[0]):g} is not Habitat's EpisodicCompass, radians in [-pi, pi]: "
-                             "degrees?")
-        return gps, compass
-
-    def _check_motion(self, gps: np.ndarray) -> None:
-        """Refuse a jump no robot makes between two steps (``MAX_STEP_JUMP_M``): poses in mm.
-        The reference is the last step the agent took (``act`` records it after the step)."""
-        if self._last_gps is not None:
-            jump = float(np.hypot(*(gps.astype(np.float64) - self._last_gps)))
-            if jump > MAX_STEP_JUMP_M:
-                raise ValueError(f"the camera moved {jump:.4g} m between steps {self._steps} and {self._steps + 1} "
-                                 f"(more than {MAX_STEP_JUMP_M:g} m; a step is env.forward_step_m): poses in "
-                                 "millimetres? give metres")
+        return self._start, np.asarray(gps, np.float32), np.asarray(compass, np.float32).reshape(-1)
 
     # ------------------------------------------------------------------ reading the step
     def _decision(self, step: Step, obs: dict) -> Decision:

@@ -53,11 +53,7 @@ class SensorModel:
     def check(self, obs: dict) -> None:
         """The observation has Habitat's keys and the configured resolution (one-line errors)."""
         require_keys(obs, HABITAT_KEYS)
-        shape = np.shape(obs[DEPTH])[:2]
-        w, h = self.resolution
-        if shape != (h, w):
-            raise ValueError(f"depth observation is {shape[1]}x{shape[0]} pixels but the agent is configured "
-                             f"for env.resolution={w}x{h}: build the agent with the env's config")
+        check_resolution(np.shape(obs[DEPTH])[:2], self.resolution)
 
     def xy_yaw(self, obs: dict) -> tuple[np.ndarray, float]:
         """Start-frame agent position (2,) metres and heading (rad, ccw from the start heading)."""
@@ -73,6 +69,15 @@ class SensorModel:
         d = np.asarray(obs[DEPTH], np.float32)
         d = d[..., 0] if d.ndim == 3 else d
         return depth_to_metres(d, self.normalize_depth, self.min_depth_m, self.max_depth_m)
+
+
+def check_resolution(shape: tuple[int, ...], resolution: tuple[int, int]) -> None:
+    """Refuse (ValueError, one line) a depth image of (H, W) ``shape`` that is not the sensor's
+    ``resolution`` (W, H) pixels (``env.resolution``): the agent's intrinsics are of that size."""
+    w, h = resolution
+    if tuple(shape) != (h, w):
+        raise ValueError(f"depth observation is {shape[1]}x{shape[0]} pixels but the agent is configured "
+                         f"for env.resolution={w}x{h}: build the agent with the env's config")
 
 
 # Depth a robot hands over in other units: metric depth past 100 m (the mapping's depth-range cap)

@@ -36,7 +36,7 @@ class StepInfo:
     window: tuple[slice, slice] | None = None
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)   # equal only to itself: it holds the agent's live map
 class Step:
     """One step of an agent. ``action``: the ``envs.task.Action`` id it sends; ``steps``: this
     action is the episode's steps-th (1 at the first). A map-less agent (the oracle) leaves the

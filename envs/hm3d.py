@@ -194,7 +194,8 @@ def load_hm3d_scene(path: str | Path, root: Path | None = None, config: Path | N
     """The HM3D scene whose ``<id>.glb`` or ``<id>.basis.glb`` is ``path`` (module docstring).
     root: the scene directory, the highest folder searched for a scene dataset config and a label
     map; config: an explicit ``*.scene_dataset_config.json``. SceneError for unreadable files,
-    txt grammar, colours the txt does not list, or a frame that puts the scene off its floor."""
+    txt grammar or colours the txt does not list (whether its frame leaves it on its floor is
+    ``envs.scene_plausible``'s check, as it loads through ``envs.scene_files``)."""
     path = Path(path)
     if not path.is_file():
         raise SceneError(f"HM3D scene file not found: {path}")
@@ -213,7 +214,7 @@ def load_hm3d_scene(path: str | Path, root: Path | None = None, config: Path | N
         if (tri_class == VOID).all():
             meta[SEMANTICS_UNAVAILABLE] = (f"{files['semantic_txt']}: none of its names maps to a calnav class; "
                                            "map them in a labels.json")
-    verts, floor_z = place_on_floor(render.positions, render.triangles, tri_class, frame, path)
+    verts, floor_z = place_on_floor(render.positions, render.triangles, tri_class, frame)
     colours = glb_colours(render)
     rgb_reason = colours.pop("rgb_unavailable")
     meta.update({"source": str(path), "format": "hm3d", "render_file": str(files["render"]),

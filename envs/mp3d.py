@@ -138,7 +138,7 @@ def load_mp3d_scene(path: str | Path, root: Path | None = None, config: Path | N
         if (tri_class == VOID).all():
             meta[SEMANTICS_UNAVAILABLE] = (f"{files['house']}: none of its categories maps to a calnav class; "
                                            "map them in a labels.json")
-    verts, floor_z = place_on_floor(render.positions, render.triangles, tri_class, frame, path)
+    verts, floor_z = place_on_floor(render.positions, render.triangles, tri_class, frame)
     colours = glb_colours(render)
     rgb_reason = colours.pop("rgb_unavailable")
     meta.update({"source": str(path), "format": "mp3d",

@@ -21,8 +21,11 @@ A scan's colours already hold its lighting: a PLY with colours is marked
 ``meta["closed_solids"] = False`` (open surfaces: ``envs.navigation.closed_solids``).
 
 Per-vertex labels become per-face by majority vote of the face's vertices (ties: the first
-vertex). The mesh is rotated to z-up (``up_axis="y"``) and shifted so that its floor lies at
-z = 0 (a low percentile of floor-class vertex heights; all vertices when nothing is floor).
+vertex). The mesh is rotated so that its ``up_axis`` (the file's axis pointing up: ``z``, ``y``,
+``x``, ``-z``, ``-y``, ``-x``; ``y`` as glTF / many exporters write, ``-z`` for an upside-down
+scan) becomes +z (``envs.scene_plausible.frame_rotation``, front as a habitat stage's) and
+shifted so that its floor lies at z = 0 (``envs.scene_plausible.floor_height``: a low percentile
+of floor-class vertex heights; all vertices when nothing is floor).
 Instances come from the file's instance property (split where an instance spans classes) or,
 without one, from connected components of same-class faces sharing a vertex.
 """
@@ -37,11 +40,12 @@ from scipy.sparse.csgraph import connected_components
 
 from calnav.common.ply_labels import class_ids_of, class_index, int_keyed, read_label_table
 from calnav.envs.scene import Scene, SceneError, Texture
-from calnav.envs.semantics import CLASS_ID, CLASS_NAMES, NUM_CLASSES, VOID
+from calnav.envs.scene_plausible import AXES, axis_vector, default_front, floor_height, frame_rotation
+from calnav.envs.semantics import CLASS_NAMES, NUM_CLASSES, VOID
 
 INSTANCE_PROPERTIES = ("instance", "objectId", "object_id", "instance_id", "objectid")
-FLOOR_PERCENTILE = 2.0     # floor height = this percentile of floor-vertex z (robust to stray points), percent
 DEFAULT_ALBEDO = 180       # grey level of faces when the file has no colours, uint8
+UP_AXES = AXES + tuple("-" + a for a in AXES)   # up_axis choices: the file's axis pointing up
 _CALNAV_IDS = class_ids_of(CLASS_NAMES)
 
 
@@ -94,13 +98,11 @@ def _faces(ply, path: Path) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(tris, dtype=np.int64), np.asarray(owner)
 
 
-def floor_height(verts: np.ndarray, tris: np.ndarray, tri_class: np.ndarray) -> float:
-    """The floor's height, metres: the ``FLOOR_PERCENTILE`` percentile of the z of the vertices of
-    floor-class faces (of all vertices when no face is floor). verts (V, 3) z-up, tris (F, 3),
-    tri_class (F,)."""
-    floor_faces = tri_class == CLASS_ID["floor"]
-    floor_vz = verts[np.unique(tris[floor_faces]), 2] if floor_faces.any() else verts[:, 2]
-    return float(np.percentile(floor_vz, FLOOR_PERCENTILE))
+def up_axis_rotation(up_axis: str) -> np.ndarray:
+    """(3, 3) calnav-from-file rotation of a PLY whose ``up_axis`` points up: that axis becomes
+    +z, the front a habitat stage's default (``y``: +90 degrees about x, (x, y, z) -> (x, -z, y))."""
+    up = axis_vector(up_axis)
+    return frame_rotation(up, default_front(up))
 
 
 def per_face_majority(vertex_values: np.ndarray, tris: np.ndarray) -> np.ndarray:
@@ -130,15 +132,16 @@ def load_labelled_ply(path, label_map=None, label_property: str = "label", up_ax
     """A labelled PLY mesh as a ``Scene`` (see the module docstring for the conventions).
 
     path: .ply file (ascii or binary). label_map: None, a dict, or a .json/.tsv/.csv path.
-    label_property: the vertex or face property holding integer labels. up_axis: "z" or "y".
+    label_property: the vertex or face property holding integer labels. up_axis: one of
+    ``UP_AXES``, the file's axis pointing up.
     Raises ``SceneError`` for a missing/corrupt file, no faces, no label property, or labels
     that map to no calnav class.
     """
     from plyfile import PlyData
 
     path = Path(path)
-    if up_axis not in ("z", "y"):
-        raise ValueError(f"up_axis must be 'z' or 'y', got {up_axis!r}")
+    if up_axis not in UP_AXES:
+        raise ValueError(f"up_axis must be one of {', '.join(UP_AXES)} (the file's axis pointing up), got {up_axis!r}")
     if not path.exists():
         raise SceneError(f"PLY file not found: {path}")
     try:
@@ -165,7 +168,8 @@ def load_labelled_ply(path, label_map=None, label_property: str = "label", up_ax
     raw = per_face_prop(label_property)
     if raw is None:
         raise SceneError(f"{path}: no {label_property!r} property; vertex properties: {list(vnames)}, "
-                         f"face properties: {list(fnames)} (pass label_property=...)")
+                         f"face properties: {list(fnames)}; name the one holding the labels in its labels.json: "
+                         '{"label_map": {...}, "label_property": "..."}')
     values, inverse = np.unique(raw, return_inverse=True)
     lut = _label_lut(values, label_map)
     tri_class = np.array([lut[v] for v in values.tolist()], dtype=np.int16)[inverse.ravel()]
@@ -173,8 +177,8 @@ def load_labelled_ply(path, label_map=None, label_property: str = "label", up_ax
         raise SceneError(f"{path}: none of its labels {sorted(lut)[:20]} maps to a calnav class "
                          f"({', '.join(CLASS_NAMES)}); check label_map")
 
-    if up_axis == "y":   # +90 degrees about x: (x, y, z) -> (x, -z, y), right-handed
-        verts = np.stack([verts[:, 0], -verts[:, 2], verts[:, 1]], axis=1)
+    if up_axis != "z":
+        verts = verts @ up_axis_rotation(up_axis).T
     floor_z = floor_height(verts, tris, tri_class)
     verts[:, 2] -= floor_z
 

@@ -16,6 +16,10 @@ Kinds, told apart by their files (no format flag):
 size (the mesh, its semantic files, the scene dataset configs and label map found) and the
 converter's version. Every cache file carries its identity (``converted_from``) and is checked on
 load: a damaged one, or one holding another scene, is rebuilt (with a warning naming it).
+Every scene file is checked as it loads, converted or cached, before anything sized by its extent
+is built (``envs.scene_plausible``: a building in metres standing on its floor); the refusal
+names the fix of the file's kind: a PLY's ``up_axis`` in its labels.json, a GLB's ``up`` in a
+scene dataset config, the conversion to metres (no file calnav reads holds a scale).
 ``scene_files_in(folder)`` lists a folder's scenes by id; ``check_scene_usable`` refuses, in one
 line, a scene that lacks the RGB or the semantics a command needs.
 """
@@ -26,13 +30,16 @@ import json
 import warnings
 from pathlib import Path
 
+import numpy as np
+
 from calnav.common.atomic import atomic_path, is_temp_file
 from calnav.envs.glb_scene import label_settings
 from calnav.envs.hm3d import hm3d_files, load_hm3d_scene, scene_id_of
 from calnav.envs.mp3d import load_mp3d_scene, mp3d_files
-from calnav.envs.scan import load_labelled_ply
+from calnav.envs.scan import UP_AXES, load_labelled_ply, up_axis_rotation
 from calnav.envs.scene import RGB_UNAVAILABLE, SEMANTICS_UNAVAILABLE, Scene, SceneError, cache_dir
-from calnav.envs.scene_frame import find_dataset_configs
+from calnav.envs.scene_frame import declare_frame, find_dataset_configs
+from calnav.envs.scene_plausible import axis_name, check_plausible, frame_rotation, misreading
 
 PLY_CONVERSION_VERSION = 2                  # converted-PLY cache key (2: meta closed_solids = False)
 GLB_CONVERSION_VERSION = 3                  # converted HM3D / MP3D cache key (2: the winding decides walkability; 3: storeys)
@@ -55,21 +62,58 @@ def scene_kind(path: Path) -> str:
     return "mp3d" if files["house"] or files["semantic_ply"] else "hm3d"
 
 
+def _ply_label_file(ply: Path) -> Path | None:
+    """The PLY's sibling label file: ``<stem>.labels.json``, else ``labels.json``; None if neither."""
+    return next((c for c in (ply.with_name(ply.stem + ".labels.json"), ply.with_name("labels.json")) if c.exists()),
+                None)
+
+
 def _ply_settings(ply: Path) -> dict:
     """load_labelled_ply keyword arguments from the PLY's sibling label file, if any."""
-    for cand in (ply.with_name(ply.stem + ".labels.json"), ply.with_name("labels.json")):
-        if cand.exists():
-            try:
-                data = json.loads(cand.read_text())
-            except ValueError as exc:
-                raise SceneError(f"unreadable label file {cand}: {exc}") from exc
-            if isinstance(data, dict) and "label_map" in data:
-                unknown = set(data) - {"label_map", "up_axis", "label_property"}
-                if unknown:
-                    raise SceneError(f"{cand}: unknown keys {sorted(unknown)}; valid: label_map, up_axis, label_property")
-                return dict(data)
-            return {"label_map": data}
-    return {}
+    cand = _ply_label_file(ply)
+    if cand is None:
+        return {}
+    try:
+        data = json.loads(cand.read_text())
+    except ValueError as exc:
+        raise SceneError(f"unreadable label file {cand}: {exc}") from exc
+    if isinstance(data, dict) and "label_map" in data:
+        unknown = set(data) - {"label_map", "up_axis", "label_property"}
+        if unknown:
+            raise SceneError(f"{cand}: unknown keys {sorted(unknown)}; valid: label_map, up_axis, label_property")
+        return dict(data)
+    return {"label_map": data}
+
+
+def refuse_implausible(scene: Scene, kind: str, path: Path) -> None:
+    """SceneError (one line) when the scene loaded from ``path`` ("npz" | "ply" | "hm3d" | "mp3d"
+    ``kind``) is no building in metres on its floor (``envs.scene_plausible``), naming the fix:
+    the up axis to declare, in the file's coordinates, or the conversion to metres."""
+    found = check_plausible(scene.vertices, scene.triangles, scene.tri_class)
+    if found is None:
+        return
+    if found.scale is not None:
+        how = ("Scene.vertices * {s}, then Scene.save" if kind == "npz" else
+               "every vertex coordinate x {s}, in the tool that wrote it or e.g. trimesh's apply_scale({s})")
+        raise SceneError(f"{path}: {found.problem}; calnav has no scale setting: convert the file to metres "
+                         f"({how.format(s=found.scale)})")
+    if kind == "ply":
+        rot, read_with = up_axis_rotation(scene.meta["up_axis"]), ""
+    elif kind in ("hm3d", "mp3d"):
+        frame = scene.meta["frame"]
+        rot, read_with = frame_rotation(frame["up"], frame["front"]), f" (read with up {frame['up']} from {frame['source']})"
+    else:   # a calnav scene file: read as it is
+        rot, read_with = np.eye(3), ""
+    up = rot.T @ found.up   # the direction that should be +z, in the file's coordinates
+    if kind == "ply":
+        label_file = _ply_label_file(path) or path.with_name(path.stem + ".labels.json")
+        fix = (f'set "up_axis": "{axis_name(up)}" in {label_file} ({{"label_map": {{...}}, "up_axis": '
+               f'"{axis_name(up)}"}}; up_axis is one of {", ".join(UP_AXES)})')
+    elif kind in ("hm3d", "mp3d"):
+        fix = declare_frame(up)
+    else:
+        fix = f"rotate its vertices so that its {axis_name(up)} axis is +z, then Scene.save"
+    raise SceneError(f"{path}{read_with}: {misreading(up, rot.T @ [0.0, 0.0, 1.0])}: {found.problem}; {fix}")
 
 
 def _stat_key(paths: list[Path]) -> list:
@@ -103,7 +147,9 @@ def load_scene_file(path: str | Path, root: str | Path | None = None, dataset_co
     if not path.is_file():
         raise SceneError(f"scene file not found: {path}")
     if kind == "npz":
-        return Scene.load(path)
+        scene = Scene.load(path)
+        refuse_implausible(scene, kind, path)
+        return scene
     if kind == "ply":
         settings = _ply_settings(path)
         st = path.stat()
@@ -112,6 +158,7 @@ def load_scene_file(path: str | Path, root: str | Path | None = None, dataset_co
         identity = {"converted_from": {"ply": str(path.resolve()), "key": key}}
         scene_id = path.stem
         convert = lambda: load_labelled_ply(path, name=scene_id, **settings)  # noqa: E731
+        finish = lambda scene: scene  # noqa: E731
     else:
         scene_id = scene_id_of(path) if kind == "hm3d" else path.stem
         inputs = _glb_inputs(path, kind, root, config)
@@ -119,11 +166,16 @@ def load_scene_file(path: str | Path, root: str | Path | None = None, dataset_co
         # the render file, not the path asked for: <id>.basis.glb and <id>.glb beside it are one scene
         identity = {"converted_from": {kind: str(inputs[0].resolve()), "key": key}}
         loader = load_hm3d_scene if kind == "hm3d" else load_mp3d_scene
-        convert = lambda: with_storeys(loader(path, root=root, config=config, name=scene_id))  # noqa: E731
+        convert = lambda: loader(path, root=root, config=config, name=scene_id)  # noqa: E731
+        finish = with_storeys
     cached = cache_dir() / "scenes" / f"user_{scene_id}_{key}.npz"
     scene = cached_scene(cached, identity)
-    if scene is None:
+    fresh = scene is None
+    if fresh:
         scene = convert()
+    refuse_implausible(scene, kind, path)   # a cache older than the check is checked too
+    if fresh:
+        scene = finish(scene)
         scene.meta.update(identity)
         save_atomic(scene, cached)
     return scene

@@ -12,8 +12,9 @@ that keeps calnav's frame the one habitat-lab's episodes were generated in.
 
 ``find_dataset_configs`` looks for configs in the scene's folder and each folder above it (up to
 ``root`` when given); the nearest folder holding any wins. ``place_on_floor`` rotates a labelled
-mesh, refuses a frame that leaves the labelled floor vertical or the furniture below the floor
-(naming the ``up`` / ``front`` to declare), and shifts the floor to z = 0 (``envs.scan.floor_height``).
+mesh into calnav's frame and shifts the floor to z = 0 (``envs.scene_plausible.floor_height``);
+whether the frame leaves the scene standing on its floor is ``envs.scene_plausible``'s check,
+whose refusal names the ``up`` / ``front`` to declare (``declare_frame``).
 """
 from __future__ import annotations
 
@@ -23,14 +24,10 @@ from pathlib import Path
 
 import numpy as np
 
-from calnav.envs.scan import floor_height
 from calnav.envs.scene import SceneError
-from calnav.envs.semantics import CLASS_ID, STRUCTURE_IDS, VOID
+from calnav.envs.scene_plausible import default_front, floor_height, frame_rotation
 
 CONFIG_SUFFIX = ".scene_dataset_config.json"
-HORIZONTAL_COS = np.cos(np.deg2rad(30.0))   # a floor face tilted less than 30 degrees counts as horizontal
-MIN_HORIZONTAL_FLOOR = 0.5                  # share of floor area that must be horizontal in a valid frame
-_AXES = ("x", "y", "z")
 
 
 @dataclass(frozen=True)
@@ -46,10 +43,7 @@ class SceneFrame:
 
     def rotation(self) -> np.ndarray:
         """(3, 3) float64 calnav-from-file rotation: up -> +z, front -> +y, front x up -> +x."""
-        up = np.asarray(self.up, dtype=np.float64)
-        front = np.asarray(self.front, dtype=np.float64)
-        up, front = up / np.linalg.norm(up), front / np.linalg.norm(front)
-        return np.stack([np.cross(front, up), front, up])
+        return frame_rotation(self.up, self.front)
 
 
 HABITAT_GLB_DEFAULT = SceneFrame(up=(0.0, 0.0, 1.0), front=(0.0, 1.0, 0.0),
@@ -121,61 +115,18 @@ def scene_frame(scene_file: Path, root: Path | None = None, config: Path | None 
                       has_semantic_textures=(True in flags) if flags else None)
 
 
-def _front_for(up: np.ndarray) -> list[float]:
-    """A front to declare with ``up``: glTF's -z for a y-up file, +y otherwise (HM3D's)."""
-    return [0.0, 0.0, -1.0] if abs(up[1]) > 0.5 else [0.0, 1.0, 0.0]
-
-
-def _fix(up: np.ndarray) -> str:
+def declare_frame(up) -> str:
+    """How to declare the file up ``up`` (3,) for a GLB scene: the scene dataset config to write."""
     up_list = [float(x) + 0.0 for x in up]   # + 0.0: no -0.0 in the message
     return (f'declare it in a {CONFIG_SUFFIX} beside the scene ("stages": {{"default_attributes": {{"up": {up_list}, '
-            f'"front": {_front_for(up)}}}}}; envs.hm3d_write.write_scene_dataset_config(folder, up=..., front=...))')
+            f'"front": {default_front(up)}}}}}; envs.hm3d_write.write_scene_dataset_config(folder, up=..., front=...))')
 
 
-def _floor_normal_axis(verts: np.ndarray, tris: np.ndarray, floor: np.ndarray) -> int:
-    """The coordinate axis the floor faces' (area-weighted) normals lie along."""
-    v = verts[tris[floor]]
-    n = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])   # |n| = 2 x area: area-weighted by construction
-    return int(np.argmax(np.abs(n).sum(axis=0)))
-
-
-def _above_floor(height: np.ndarray, tris: np.ndarray, tri_class: np.ndarray) -> bool | None:
-    """Whether the labelled furniture (non-structure classes) stands above the floor along
-    ``height`` (V,) per vertex; None when there is no floor or no furniture to tell."""
-    floor = tri_class == CLASS_ID["floor"]
-    furniture = (tri_class != VOID) & ~np.isin(tri_class, STRUCTURE_IDS)
-    if not floor.any() or not furniture.any():
-        return None
-    as_z = np.zeros((len(height), 3))
-    as_z[:, 2] = height
-    return float(np.median(height[tris[furniture]].mean(axis=1))) > floor_height(as_z, tris, tri_class)
-
-
-def place_on_floor(verts_file: np.ndarray, tris: np.ndarray, tri_class: np.ndarray, frame: SceneFrame,
-                   path: Path) -> tuple[np.ndarray, float]:
+def place_on_floor(verts_file: np.ndarray, tris: np.ndarray, tri_class: np.ndarray,
+                   frame: SceneFrame) -> tuple[np.ndarray, float]:
     """(vertices (V, 3) float64 in calnav's frame with the floor at z = 0, the floor's height
-    before the shift in metres). verts_file (V, 3) file coordinates, tris (F, 3), tri_class (F,).
-    SceneError naming the up axis to declare when the labelled floor is not horizontal or the
-    furniture lies below it in ``frame``."""
-    rot = frame.rotation()
-    verts = verts_file @ rot.T
-    floor = tri_class == CLASS_ID["floor"]
-    where = f"{path}: read with up {list(frame.up)} (from {frame.source})"
-    if floor.any():
-        v = verts[tris[floor]]
-        n = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
-        area = np.linalg.norm(n, axis=1)
-        flat = np.abs(n[:, 2]) >= HORIZONTAL_COS * area
-        if area.sum() > 0 and area[flat].sum() < MIN_HORIZONTAL_FLOOR * area.sum():
-            axis = _floor_normal_axis(verts_file, tris, floor)
-            up = np.eye(3)[axis]
-            if _above_floor(verts_file[:, axis], tris, tri_class) is False:
-                up = -up
-            raise SceneError(f"{where} the labelled floor is not horizontal (it faces the file's {_AXES[axis]} axis): "
-                             f"{_fix(up)}")
-    if _above_floor(verts[:, 2], tris, tri_class) is False:
-        raise SceneError(f"{where} the labelled furniture lies below the floor (the scene is upside down): "
-                         f"{_fix(-rot[2])}")
+    before the shift in metres). verts_file (V, 3) file coordinates, tris (F, 3), tri_class (F,)."""
+    verts = verts_file @ frame.rotation().T
     floor_z = floor_height(verts, tris, tri_class)
     verts[:, 2] -= floor_z
     return verts, floor_z

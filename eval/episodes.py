@@ -75,10 +75,9 @@ def _raise_scene_failures(failures: list, split: str) -> None:
     """The first failed scene task's one-line reason (deterministic for the config: no "rerun
     to retry"), or its worker's traceback for an unexpected error."""
     failure = failures[0][1]
-    kind, _, message = failure.error.partition(": ")
     more = f" ({len(failures) - 1} more scene(s) of {split} failed too)" if len(failures) > 1 else ""
-    if kind in ("ValueError", "ConfigError"):
-        raise ValueError(message + more)
+    if failure.refusal:
+        raise ValueError(failure.error.partition(": ")[2] + more)
     raise RuntimeError(f"preparing {failures[0][0].scene_id} failed{more}; the worker's traceback:\n"
                        f"{failure.traceback}")
 

@@ -191,7 +191,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--classes", default=None, metavar="FILE",
                    help="class list of --logits (.json list or one name per line; default DIR/classes.json|.txt)")
     p.add_argument("--labels-ply", default=None, metavar="PLY",
-                   help="labelled ground-truth mesh (default: *_vh_clean_2.labels.ply in the sequence directory)")
+                   help="labelled ground-truth mesh (default: *_vh_clean_2.labels.ply in the sequence directory); its "
+                        "labels read through sequence.label_map, else the label_map.json beside it")
     p.add_argument("--config", default=None, help="YAML config (default: configs/map_sequence.yaml)")
     p.add_argument("--output", required=True, help="results directory")
     p.add_argument("--force", action="store_true", help="replace the results of another config in --output")

@@ -1,10 +1,15 @@
 """Per-episode records files (``episodes.jsonl``) and the one-line errors of results directories.
 
 ``RecordsFile`` is a run's records file: one JSON object per line, keyed by ``index``, appended
-and flushed per record. ``read_records`` keeps the last valid record of each index, skips (with
-a warning naming the file and line) lines that are not JSON objects with an integer ``index``
-(a torn last line of a killed run, a stray ``5``), and counts duplicates. ``RecordsFile.resume``
-also drops the records to retry (crashed episodes) and rewrites the file atomically whenever it
+and flushed per record. ``read_records`` is the one reader of records files (every command that
+reads ``episodes.jsonl`` goes through it: resume, ``report``, ``study``, ``compare``,
+``reproduce``): it skips (with a warning naming the file and line) lines that are not JSON
+objects with an integer ``index`` (a torn last line of a killed run, a stray ``5``); two records
+of one index are one episode's result twice -- an exact duplicate (the same record, but for
+where and when it ran: ``RECORD_PROVENANCE``) counts once, with a warning and a ``duplicates``
+count, and two *different* records of one index are a ``ResultsError`` naming the episode and
+the directory, since no reader can tell which one is the result. ``RecordsFile.resume`` also
+drops the records to retry (crashed episodes) and rewrites the file atomically whenever it
 dropped anything, so the file never holds two records of one index.
 
 Every problem writing a results directory or its records (a read-only file system, a directory
@@ -26,6 +31,11 @@ from calnav.eval.stats import METRICS, finite_or_error
 
 RECORDS_NAME = "episodes.jsonl"
 RECORD_KEY = "index"  # the field that identifies an episode's record
+# Record fields saying where, when and by which code an episode ran, not what happened in it: two
+# records of one index that differ only here are duplicates, not a conflict; ``calnav reproduce``
+# compares every other field.
+RECORD_PROVENANCE: tuple[str, ...] = ("wall_time_s", "commit", "ray_node", "video", "rerun")
+MAX_NAMED_FIELDS = 3   # the differing fields a conflict names (the rest counted): one readable line
 
 
 class ResultsError(Exception):
@@ -34,11 +44,6 @@ class ResultsError(Exception):
 
 class AllEpisodesFailed(ResultsError):
     """Every episode of a run crashed: its numbers would be a table of zeros."""
-
-
-def warn(message: str) -> None:
-    """One warning line on stderr (kept out of stdout, which holds the results table)."""
-    print(f"calnav: warning: {message}", file=sys.stderr)
 
 
 def warn(message: str) -> None:
@@ -59,8 +64,9 @@ def writing(what: Path | str) -> Iterator[None]:
 # ----------------------------------------------------------------------------- records
 @dataclass
 class RecordsRead:
-    """What ``read_records`` found: the last valid record per index (in file order of their
-    first appearance), the number of duplicate records dropped, the damaged line numbers."""
+    """What ``read_records`` found: one record per index (in file order of their first
+    appearance; of exact duplicates the last), the number of duplicate records dropped, the
+    damaged line numbers."""
 
     records: dict[int, dict] = field(default_factory=dict)
     duplicates: int = 0
@@ -86,9 +92,31 @@ def _parse(line: str) -> tuple[dict | None, str]:
     return finite_or_error(rec), ""
 
 
+def _result(record: dict) -> dict:
+    """What a record says the episode did: the record without ``RECORD_PROVENANCE``."""
+    return {k: v for k, v in record.items() if k not in RECORD_PROVENANCE}
+
+
+def _same_result(a: dict, b: dict) -> bool:
+    """Whether two records of one index say the same (compared as JSON text: NaN equals NaN)."""
+    return json.dumps(_result(a), sort_keys=True) == json.dumps(_result(b), sort_keys=True)
+
+
+def _conflict(path: Path, index: int, lines: tuple[int, int], a: dict, b: dict) -> ResultsError:
+    """The one-line error of two different records of episode ``index`` in ``path``."""
+    ra, rb = _result(a), _result(b)
+    keys = sorted(k for k in ra.keys() | rb.keys() if ra.get(k, "(absent)") != rb.get(k, "(absent)"))
+    named = ", ".join(f"{k} {ra.get(k, '(absent)')} vs {rb.get(k, '(absent)')}" for k in keys[:MAX_NAMED_FIELDS])
+    more = f" and {len(keys) - MAX_NAMED_FIELDS} more field(s)" if len(keys) > MAX_NAMED_FIELDS else ""
+    return ResultsError(f"{path.parent}: episode {index} has two different records ({path.name} lines {lines[0]} and "
+                        f"{lines[1]}: {named}{more}); one episode has one result: delete the wrong line (or both, "
+                        "and rerun the same command to run the episode again)")
+
+
 def read_records(path: str | os.PathLike, quiet: bool = False) -> RecordsRead:
-    """The records of ``path`` (missing file: none). Damaged lines are skipped and duplicates
-    dropped (the last valid record of an index wins), each with a warning unless ``quiet``."""
+    """The records of ``path`` (missing file: none). Damaged lines are skipped and exact
+    duplicates dropped, each with a warning unless ``quiet``; two different records of one
+    index are a ResultsError (module docstring)."""
     path = Path(path)
     out = RecordsRead()
     if not path.exists():
@@ -100,7 +128,7 @@ def read_records(path: str | os.PathLike, quiet: bool = False) -> RecordsRead:
     except OSError as exc:
         raise ResultsError(f"cannot read {path}: {exc.strerror or exc}") from None
     out.clean_end = not text or text.endswith("\n")
-    dup_indices = []
+    dup_indices, first_line = [], {}
     for lineno, line in enumerate(text.splitlines(), start=1):
         if not line.strip():
             continue
@@ -112,13 +140,16 @@ def read_records(path: str | os.PathLike, quiet: bool = False) -> RecordsRead:
             continue
         i = rec[RECORD_KEY]
         if i in out.records:
+            if not _same_result(out.records[i], rec):
+                raise _conflict(path, i, (first_line[i], lineno), out.records[i], rec)
             out.duplicates += 1
             dup_indices.append(i)
+        first_line.setdefault(i, lineno)
         out.records[i] = rec
     if out.duplicates and not quiet:
         shown = ", ".join(str(i) for i in sorted(set(dup_indices)))
         warn(f"{path}: {out.duplicates} duplicate record(s) of episode(s) {shown}; each episode counts once "
-             "(its last valid record)")
+             "(the records are the same result)")
     return out
 
 

@@ -38,8 +38,8 @@ import yaml
 
 from calnav.common.atomic import json_text, write_text_atomic
 from calnav.eval.inputs import INPUTS_NAME, changed_inputs, input_fingerprints, read_saved_inputs
-from calnav.eval.records import (RECORD_KEY, RECORDS_NAME, AllEpisodesFailed, RecordsFile, RecordsRead,  # noqa: F401
-                                 ResultsError, read_records, warn, writing)   # (re-exported: the results API)
+from calnav.eval.records import (RECORD_KEY, RECORD_PROVENANCE, RECORDS_NAME, AllEpisodesFailed,  # noqa: F401
+                                 RecordsFile, RecordsRead, ResultsError, read_records, warn, writing)   # (re-exported: the results API)
 
 # Dotted config keys that do not change results: a rerun with other values may resume the same
 # directory, and `calnav compare` never makes them columns.

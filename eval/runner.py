@@ -47,6 +47,7 @@ class TaskFailed:
 
     error: str        # "ExceptionType: message"
     traceback: str    # the worker's formatted traceback
+    refusal: bool = False   # a ValueError (SceneError, ConfigError, ...): bad input, its message one line
 
 
 @dataclass(frozen=True)
@@ -64,7 +65,7 @@ class _Guarded:
         try:
             return self.fn(task)
         except Exception as exc:   # a failed task must not take the finished ones with it
-            return TaskFailed(f"{type(exc).__name__}: {exc}", traceback.format_exc())
+            return TaskFailed(f"{type(exc).__name__}: {exc}", traceback.format_exc(), isinstance(exc, ValueError))
 
 
 def run_tasks(fn: Callable[[Any], Any], tasks: Iterable, run_cfg, *, save: Callable[[Any, Any], None],

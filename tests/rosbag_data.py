@@ -12,6 +12,7 @@ from tests.sequence_data import write_scannet
 
 FRAMES, DROPPED = 6, 2
 SEMANTIC_TOPIC = "/camera/semantic/image_raw"
+ODOMETRY = {"pose_source": "topic", "pose_topic": "/odom"}   # sequence.rosbag keys of a bag's odometry poses
 SUFFIX = {"ros1": ".bag", "sqlite3": "", "mcap": ""}   # a ROS 2 bag is a directory
 
 

@@ -13,7 +13,8 @@ an episode that crashed, or has a non-finite metric, is a failure with Success /
 DTG pairs finished episodes only; ``failures.md`` counts the crashes); a run with no episode
 finished in both is refused (no paired difference exists), and a run holding other episodes under
 the same indices (``other_episodes``) is listed unpaired; each episode
-counts once (``eval.results_dir.read_records``: the last valid record of an index). Keys under ``mapping.`` are shown
+counts once (``eval.results_dir.read_records``: an exact duplicate once, two different records of one
+index refused). Keys under ``mapping.`` are shown
 as ``-`` for ``agent.map_type: ndf`` runs, which do not use the 3D map.
 """
 from __future__ import annotations
@@ -41,7 +42,7 @@ def load_run(path: Path) -> tuple[dict[str, object], list[dict]]:
     if not cfg_path.exists() or not eps.exists():
         raise FileNotFoundError(f"{path} is not a calnav objectnav run directory "
                                 "(needs config.yaml and episodes.jsonl)")
-    records = list(read_records(eps).records.values())  # each episode once (its last record)
+    records = list(read_records(eps).records.values())  # each episode once (different records: refused)
     if not records:
         raise ConfigError(f"{path} holds no finished episodes")
     saved = yaml.safe_load(cfg_path.read_text()) or {}

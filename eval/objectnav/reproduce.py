@@ -8,7 +8,7 @@ directory's episodes with its own ``config.yaml`` -- refused if the files it rea
 GLFS parameters, ...) are no longer the ones ``inputs.json`` recorded, since a difference would
 then prove nothing -- into a fresh results directory, and compares every field of every
 record with the directory's: equal, numbers within ``--tol``, where and how fast it ran
-(``IGNORED_FIELDS``) aside. Exit 0 when every episode matches, 1 when one differs (each
+(``RECORD_PROVENANCE``) aside. Exit 0 when every episode matches, 1 when one differs (each
 difference printed; a crash is a record like any other), 2 on bad input, like every command.
 
 The rerun goes to a new directory (``--output``, default a new temporary one): one that holds
@@ -26,11 +26,9 @@ from numbers import Real
 from pathlib import Path
 
 from calnav.eval.config import Config, ConfigError, parse_override
-from calnav.eval.results_dir import (CONFIG_NAME, EPISODE_NEUTRAL_KEYS, NEUTRAL_KEYS, RECORDS_NAME, AllEpisodesFailed,
-                                     ResultsDir, ResultsError, read_records)
+from calnav.eval.results_dir import (CONFIG_NAME, EPISODE_NEUTRAL_KEYS, NEUTRAL_KEYS, RECORD_PROVENANCE, RECORDS_NAME,
+                                     AllEpisodesFailed, ResultsDir, ResultsError, read_records)
 
-# record fields saying where, when and by which code an episode ran, not what happened in it
-IGNORED_FIELDS: tuple[str, ...] = ("wall_time_s", "commit", "ray_node", "video", "rerun")
 # overrides a reproduction may take: those that cannot change a result (its output is --output)
 ALLOWED_OVERRIDES: tuple[str, ...] = tuple(k for k in NEUTRAL_KEYS if k != "run.output_dir")
 
@@ -41,11 +39,11 @@ def _number(x) -> bool:
 
 def differences(old: dict, new: dict, tol: float) -> dict[str, tuple]:
     """{field: (old value, new value)} of two records of one episode: every field either holds
-    outside ``IGNORED_FIELDS``, numbers equal within ``tol`` (absolute; 40 and 40.0 are one
+    outside ``RECORD_PROVENANCE``, numbers equal within ``tol`` (absolute; 40 and 40.0 are one
     number), the rest exactly; a field one record lacks counts as a difference (``None`` on the
     side that lacks it)."""
     out: dict[str, tuple] = {}
-    for key in sorted((old.keys() | new.keys()) - set(IGNORED_FIELDS)):
+    for key in sorted((old.keys() | new.keys()) - set(RECORD_PROVENANCE)):
         a, b = old.get(key), new.get(key)
         if _number(a) and _number(b) and math.isfinite(a) and math.isfinite(b):
             if abs(a - b) > tol:
@@ -129,5 +127,5 @@ def main_reproduce(args, configs: list[Config]) -> int:
         print(f"episode {i} ({old[i].get('episode_id', '?')}): {fields}")
     verdict = "every record matches" if not differing else f"{len(differing)} of them differ"
     print(f"reproduce: {len(indices)} episode(s) of {src} (recorded by {', '.join(commits)}) rerun into {out}: "
-          f"{verdict} (tolerance {args.tol + 0.0:g}; {', '.join(IGNORED_FIELDS)} aside)")
+          f"{verdict} (tolerance {args.tol + 0.0:g}; {', '.join(RECORD_PROVENANCE)} aside)")
     return 1 if differing else 0

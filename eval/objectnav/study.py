@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import gzip
 import hashlib
+import math
 import shlex
 from collections import Counter
 from pathlib import Path
@@ -35,7 +36,9 @@ from pathlib import Path
 from calnav.eval.config import ConfigError, load_config, parse_override, to_dict
 from calnav.eval.inputs import INPUTS_NAME, sha256_file
 from calnav.eval.objectnav.study_config import StudyConfig, StudyRow, load_study
-from calnav.eval.results_dir import NEUTRAL_KEYS, ResultsDir, read_records, strip_neutral
+from calnav.eval.objectnav.tune import point_name, summary_row
+from calnav.eval.results_dir import RECORDS_NAME, NEUTRAL_KEYS, ResultsDir, ResultsError, read_records, strip_neutral
+from calnav.eval.stats import METRICS, summarize
 
 MANIFEST_NAME = "manifest.json"
 MANIFEST_VERSION = 1
@@ -80,6 +83,75 @@ def _tune_commits(tune_dir: Path) -> dict[str, int]:
     """``record_commits`` over every grid point's records of a tuning directory."""
     return record_commits(r for path in sorted(tune_dir.glob("*/episodes.jsonl"))
                     for r in read_records(path, quiet=True).records.values())
+
+
+def manifest_range(spec: str) -> range:
+    """The episode indices of a manifest's episode range ('N' or 'A:B', as the study file gives it)."""
+    a, _, b = str(spec).partition(":")
+    return range(int(a), int(b)) if b else range(0, int(a))
+
+
+# what a manifest's evaluation summary says that its records decide (manifest_row_records)
+SUMMARY_FIELDS: tuple[str, ...] = ("count", "failed", *(f"{m}{s}" for m in METRICS for s in ("", "_sem")))
+SECONDS_TOL = 5e-4   # episode_seconds is written rounded to the millisecond
+
+
+def _differences(claimed: dict, actual: dict) -> list[str]:
+    """'field claimed vs actual' for each field of ``actual`` that ``claimed`` holds and states
+    otherwise (numbers within float round-off)."""
+    def same(a, b) -> bool:
+        if isinstance(a, (int, float)) and isinstance(b, (int, float)):
+            return math.isclose(a, b, rel_tol=1e-9, abs_tol=1e-12)
+        return a == b
+    return [f"{k} {claimed[k]!r} where the records give {v!r}" for k, v in actual.items()
+            if k in claimed and not same(claimed[k], v)]
+
+
+def _disagreement(manifest_path: Path, row: str, what: str, path: Path, differences: list[str]) -> ResultsError:
+    more = f" (and {len(differences) - 1} more field(s))" if len(differences) > 1 else ""
+    return ResultsError(f"{manifest_path}: row {row}'s {what} disagrees with its records {path}: {differences[0]}{more}; "
+                        f"the records are the results: rerun `calnav study` on the row (--rows {row}) to rewrite its "
+                        "entry, or restore the records it was written from")
+
+
+def manifest_row_records(manifest_path: Path, manifest: dict, row: str) -> list[dict]:
+    """The evaluation records (in index order) of the finished (``done``) row ``row`` of the
+    manifest ``manifest`` read from ``manifest_path``, read with ``read_records`` and checked
+    against everything the manifest says of them: its ``episodes``, ``episode_seconds``,
+    ``commits`` and ``summary`` (``SUMMARY_FIELDS``), and each tuning grid point's figures
+    (``tune.grid``) against that point's records. ConfigError when the records are missing;
+    ResultsError (one line, the first difference) when the manifest states what its records do
+    not; a manifest entry without a field is not checked on it."""
+    root, entry = manifest_path.parent, manifest["rows"][row]
+    path = root / entry["dir"] / RECORDS_NAME
+    if not path.is_file():
+        raise ConfigError(f"row {row}: records {path} not found (the manifest names them); copy the study's "
+                          "eval/ directories with its manifest")
+    wanted = manifest_range(manifest["evaluate"]["episodes"])
+    recs = read_records(path, quiet=True).records
+    out = [recs[i] for i in sorted(recs) if i in wanted]
+    summary = summarize(out)
+    actual = {"episodes": len(out), "commits": record_commits(out),
+              "episode_seconds": sum(float(r.get("wall_time_s") or 0.0) for r in out)}
+    diffs = _differences(entry, {k: v for k, v in actual.items() if k != "episode_seconds"})
+    if "episode_seconds" in entry and abs(float(entry["episode_seconds"]) - actual["episode_seconds"]) > SECONDS_TOL:
+        diffs.append(f"episode_seconds {entry['episode_seconds']!r} where the records give "
+                     f"{round(actual['episode_seconds'], 3)!r}")
+    diffs += _differences(entry.get("summary") or {}, {k: summary[k] for k in SUMMARY_FIELDS})
+    if diffs:
+        raise _disagreement(manifest_path, row, "entry", path, diffs)
+    tune = entry.get("tune") or {}
+    if tune.get("dir"):
+        tune_range = manifest_range(manifest["tune"]["episodes"])
+        for point in tune.get("grid", []):
+            t, a = point["threshold"], point["min_area"]
+            tpath = root / tune["dir"] / point_name(t, a) / RECORDS_NAME
+            trecs = read_records(tpath, quiet=True).records
+            got = summary_row(t, a, summarize([trecs[i] for i in sorted(trecs) if i in tune_range]))
+            diffs = _differences(point, got)
+            if diffs:
+                raise _disagreement(manifest_path, row, f"tuning grid point {point_name(t, a)}", tpath, diffs)
+    return out
 
 
 def _read_json(path: Path) -> dict | None:
@@ -242,6 +314,7 @@ def _register_finished(study: StudyConfig, row: StudyRow, extra: list[str], mani
     entry = manifest.data["rows"][row.name]
     if entry.get("status") != "done" or entry.get("same_as") or entry.get("threshold") is None:
         return
+    manifest_row_records(manifest.root.path / MANIFEST_NAME, manifest.data, row.name)   # what it carries holds
     try:
         cfg = load_config(study.config, study.eval_overrides(row, entry["threshold"], entry["min_area"], extra))
     except ConfigError:

@@ -31,7 +31,7 @@ import math
 from pathlib import Path
 
 from calnav.eval.config import ConfigError
-from calnav.eval.objectnav.study import UNRECORDED_COMMIT, record_commits
+from calnav.eval.objectnav.study import UNRECORDED_COMMIT, manifest_range, manifest_row_records, record_commits
 from calnav.eval.objectnav.study_grids import edge_rows, grids_markdown, plot_curves, transfer_pairs
 from calnav.eval.results_dir import read_records
 from calnav.eval.stats import (FAILURES, METRIC_LABELS, contrast_and_house_sem, failure_kind, governing_sem,
@@ -59,24 +59,22 @@ def load_manifest(path: Path) -> dict:
 
 
 def _eval_range(manifest: dict) -> range:
-    a, _, b = str(manifest["evaluate"]["episodes"]).partition(":")
-    return range(int(a), int(b)) if b else range(0, int(a))
+    return manifest_range(manifest["evaluate"]["episodes"])
 
 
-def row_records(root: Path, manifest: dict) -> dict[str, list[dict]]:
+def row_episodes(manifest: dict, entry: dict) -> int:
+    """The evaluation episodes a row runs: the study's, but those its episode file's episodes
+    calnav refuses (``summary.refused``: never run, so never missing)."""
+    refused = ((entry.get("summary") or {}).get("refused") or {}).get("episodes", 0)
+    return len(_eval_range(manifest)) - int(refused)
+
+
+def row_records(manifest_path: Path, manifest: dict) -> dict[str, list[dict]]:
     """{row name: its evaluation records, in index order} for every row that has run (a row
-    that is the ``same_as`` another reads that row's records)."""
-    wanted, out = set(_eval_range(manifest)), {}
-    for name, entry in manifest["rows"].items():
-        if entry.get("status") != "done":
-            continue
-        path = root / entry["dir"] / "episodes.jsonl"
-        if not path.is_file():
-            raise ConfigError(f"row {name}: records {path} not found (the manifest names them); copy the study's "
-                              "eval/ directories with its manifest")
-        recs = read_records(path, quiet=True).records
-        out[name] = [recs[i] for i in sorted(recs) if i in wanted]
-    return out
+    that is the ``same_as`` another reads that row's records), each checked against what the
+    manifest says of it (``eval.objectnav.study.manifest_row_records``)."""
+    return {name: manifest_row_records(manifest_path, manifest, name)
+            for name, entry in manifest["rows"].items() if entry.get("status") == "done"}
 
 
 def verdict(d: float, sem: float, n: int) -> str:
@@ -175,8 +173,7 @@ def compute_markdown(root: Path, manifest: dict) -> str:
     the mean cost per episode so far; the same for the rows the study leaves out."""
     tune_n = tune_s = eval_n = eval_s = 0.0
     left = cut = 0
-    a, _, b = str(manifest["tune"]["episodes"]).partition(":")
-    per_tune = (int(b) - int(a)) if b else int(a)
+    per_tune = len(manifest_range(manifest["tune"]["episodes"]))
     n_eval = len(_eval_range(manifest))
     areas = len(manifest["tune"].get("min_areas", [4]))
     for name, e in manifest["rows"].items():
@@ -194,6 +191,7 @@ def compute_markdown(root: Path, manifest: dict) -> str:
         if e.get("status") == "done" and not e.get("same_as"):
             n, s = _records_cost(root / e["dir"] / "episodes.jsonl")
             eval_n, eval_s = eval_n + n, eval_s + s
+            left += max(0, row_episodes(manifest, e) - n)   # a finished row short of episodes is not run
         elif e.get("status") in ("pending", "tuned"):
             left += max(0, n_eval - _evaluated(root, name))
         elif e.get("status") == "left_out":   # what its evaluation ran before it was left out counts as run
@@ -282,7 +280,7 @@ def failures_table(manifest: dict, records: dict[str, list[dict]]) -> str:
 def render(manifest_path: Path) -> str:
     """The results page (Markdown) of the manifest at ``manifest_path``."""
     manifest = load_manifest(manifest_path)
-    records = row_records(manifest_path.parent, manifest)
+    records = row_records(manifest_path, manifest)
     ev, tune = manifest["evaluate"], manifest["tune"]
     pending = [n for n, e in manifest["rows"].items() if e.get("status") == "pending"]
     tuned = [(n, e["threshold"]) for n, e in manifest["rows"].items() if e.get("status") == "tuned"]
@@ -296,8 +294,9 @@ def render(manifest_path: Path) -> str:
              "Mean (SEM) over episodes; "
              f"evaluation compute {seconds / 3600:.2f} worker-hours.", "", metrics_markdown(manifest, records), ""]
     wanted = len(_eval_range(manifest))
-    short = [f"{n} ({len(r)} of {wanted})" for n, r in records.items() if len(r) < wanted]
-    if short:   # a damaged or cut records file: its row's N says so, and so does this line
+    short = [f"{n} ({len(r)} of {row_episodes(manifest, manifest['rows'][n])})" for n, r in records.items()
+             if len(r) < row_episodes(manifest, manifest["rows"][n])]
+    if short:   # a row finished short of its episodes: its row's N says so, and so does this line
         parts += ["Rows holding fewer records than the evaluation episodes (rerun `calnav study` to fill them): "
                   + ", ".join(short) + ".", ""]
     parts += [f"Conclusions: each question's contrast of rows on the episodes they share; {CLAIM}:", "",
@@ -352,7 +351,7 @@ def headline(manifest_path: Path, page: Path, results: Path) -> str:
     import os
 
     manifest = load_manifest(manifest_path)
-    records = row_records(manifest_path.parent, manifest)
+    records = row_records(manifest_path, manifest)
     ev, tune = manifest["evaluate"], manifest["tune"]
     done, total = len(records), len(manifest["rows"])
     left_out = sum(e.get("status") == "left_out" for e in manifest["rows"].values())

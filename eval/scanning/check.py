@@ -169,8 +169,9 @@ def main_check_scene(args, configs) -> None:
         with writing(out / "report.md"):
             write_text_atomic(out / "report.md", "# calnav check-scene\n\n" + "\n".join(scene_markdown(r) for r in rows))
             write_json_atomic(out / "report.json", {"scenes": [_json_row(r) for r in rows]})
-    print(f"results: {out}/report.md, report.json, <scene>.png" + (", <scene>.rrd" if rerun else
-                                                                      " (Rerun recordings need the [viz] extra)"))
+    pictures = [Path(r[k]).name for r in rows for k in ("png", "rrd") if k in r]   # the files written, no others
+    note = " (Rerun recordings need the [viz] extra)" if pictures and not rerun else ""
+    print(f"results: {out}/{', '.join(['report.md', 'report.json', *pictures])}{note}")
     if problems:
         raise ValueError(f"{len(problems)} of {len(rows)} scenes cannot be used; {problems[0]}")
 

@@ -6,7 +6,8 @@ Writes to ``--output``: ``config.yaml``; ``map.npz`` (versioned: ``centres`` (N,
 voxel centres in metres, ``probs`` (N, K) float32 fused probabilities, meta: class names, voxel
 size, frames); ``map.ply`` (one vertex per voxel centre, coloured by its argmax class, with
 ``label`` and ``confidence`` = top probability properties); and ``results.json`` (frames used,
-frames skipped for invalid poses, seconds, frames/s; with a labelled mesh also mIoU / ECE /
+frames skipped (``skipped_frames``) and why (``skip_reasons``: {reason: frames}, the readers' one
+rule, ``mapping.sequences.skips``), seconds, frames/s; with a labelled mesh also mIoU / ECE /
 TL-ECE / mECE / Brier over the labelled voxels -- ground truth per voxel = the nearest labelled
 vertex within ``sequence.label_distance_m``, others ignored) with ``reliability.png`` and
 ``reliability_classes.png``; with ``--rerun``, ``map.rrd`` (``eval.sequence.recording``: frames and
@@ -36,13 +37,14 @@ MAP_FILES: tuple[str, ...] = ("map.npz", "map.ply", "map.rrd", "reliability.png"
 
 @dataclass
 class MappedSequence:
-    """What ``map_sequence`` returns: the map, frames fused, frame numbers skipped (invalid
-    pose), wall seconds of reading + segmenting + fusing."""
+    """What ``map_sequence`` returns: the map, frames fused, frame numbers skipped and {reason:
+    frame numbers} (``Sequence.skips``), wall seconds of reading + segmenting + fusing."""
 
     vmap: object
     frames: int
     skipped: list[int] = field(default_factory=list)
     seconds: float = 0.0
+    skip_reasons: dict[str, list[int]] = field(default_factory=dict)
 
 
 def logits_source(seq: Sequence, cfg: Config, segmenter: str | None, logits: str | None,
@@ -71,7 +73,7 @@ def map_sequence(seq: Sequence, source, mapping_cfg, progress: bool = False, vma
     t0 = time.perf_counter()
     frames = prefetched(map_frames(seq, source))
     n = fuse_frames(vmap, frame_log.tap(frames) if frame_log is not None else frames, total=len(seq), progress=progress)
-    return MappedSequence(vmap, n, list(seq.skipped), time.perf_counter() - t0)
+    return MappedSequence(vmap, n, list(seq.skipped), time.perf_counter() - t0, seq.skips.by_reason())
 
 
 def score(probs: np.ndarray, labels: np.ndarray, num_classes: int):
@@ -172,7 +174,8 @@ def _write_results(out: Path, cfg, seq, res: MappedSequence, names, ply, gt, arg
     from calnav.common.atomic import write_json_atomic
 
     meta = {"sequence": str(seq.root), "layout": seq.layout, "voxel_size_m": cfg.mapping.voxel_size_m,
-            "fusion": cfg.mapping.fusion, "frames": res.frames, "skipped_frames": res.skipped}
+            "fusion": cfg.mapping.fusion, "frames": res.frames, "skipped_frames": res.skipped,
+            "skip_reasons": res.skip_reasons}
     write_map(out, coords, probs, names, meta)
     results = {**meta, "seconds": res.seconds, "frames_per_s": res.frames / max(res.seconds, 1e-9),
                "voxels": int(len(coords)), "segmenter": args.segmenter or "", "logits": args.logits or ""}
@@ -180,7 +183,7 @@ def _write_results(out: Path, cfg, seq, res: MappedSequence, names, ply, gt, arg
         from calnav.eval.calibration.plots import plot_reliability, plot_reliability_per_class
 
         stats = score(probs, labels, len(names))
-        results.update({"labels_ply": str(ply), "label_map": label_map_source(cfg.sequence, seq.root),
+        results.update({"labels_ply": str(ply), "label_map": label_map_source(cfg.sequence, seq.root, ply),
                         "labelled_voxels": int((labels >= 0).sum()), "miou": stats.miou(),
                         "ece": stats.ece(), "tl_ece": stats.tl_ece(), "mece": stats.mece(), "brier": stats.brier()})
         table = {cfg.mapping.fusion: stats.reliability()}

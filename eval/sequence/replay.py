@@ -191,7 +191,8 @@ def main_replay(args, configs: list[Config]) -> None:
                          f"env.camera_height_m = {cfg.env.camera_height_m:g} m above the floor: set it if the "
                          "recording's z = 0 is the floor")
         summary = {"recording": str(seq.root), "layout": seq.layout, "goal": nav.goal,
-                   **summarize(records), "skipped_frames": list(seq.skipped), "skipped_why": seq.skip_summary(),
+                   **summarize(records), "skipped_frames": list(seq.skipped), "skip_reasons": seq.skips.by_reason(),
+                   "skipped_why": seq.skip_summary(),
                    "seconds": round(seconds, 3), "frames_per_s": round(len(records) / max(seconds, 1e-9), 3),
                    "sensor": {"resolution": list(cfg.env.resolution), "hfov_deg": cfg.env.hfov_deg},
                    "notes": notes}

@@ -20,7 +20,9 @@
 
 Every reader streams: ``Sequence.frames()`` decodes one frame at a time, so memory does not grow
 with the recording. Frames whose pose is not finite (ScanNet writes rows of ``-inf`` where
-tracking failed) are skipped and listed in ``Sequence.skipped``; a clearly non-rigid pose
+tracking failed) are skipped and listed with their reason in ``Sequence.skips``
+(``mapping.sequences.skips``: one rule for every layout, bags' shared stamps and repeated
+messages too); a clearly non-rigid pose
 raises ValueError naming the frame; nearly rigid ones are re-orthonormalised
 (``frame_geometry.check_pose``). Depth: raw / ``depth_scale`` metres, raw 0 and
 ``invalid_depth_raw`` set to 0 (invalid), depth beyond ``depth_trunc_m`` set to 0.

@@ -81,29 +81,39 @@ class LogitsDir:
 
 
 
-def label_map_source(cfg: SequenceConfig, seq_root=None) -> str:
-    """The label map a labelled mesh's raw labels are read through: ``cfg.label_map``, else
-    ``<seq_root>/label_map.json`` when present, else ``nyu40`` (ScanNet's ids)."""
+def label_map_source(cfg: SequenceConfig, seq_root=None, ply=None) -> str:
+    """The label map a labelled mesh's raw labels are read through: ``cfg.label_map``, else the
+    ``label_map.json`` beside the mesh ``ply`` or in the sequence directory ``seq_root`` (a bag
+    file has none: the one beside ``--labels-ply`` serves it), else ``nyu40`` (ScanNet's ids).
+    ValueError (one line) when both are there and differ: which one the labels mean is unknown."""
     if cfg.label_map:
         return cfg.label_map
-    if seq_root is not None and (Path(seq_root) / "label_map.json").exists():
-        return str(Path(seq_root) / "label_map.json")
-    return "nyu40"
+    found: list[tuple[Path, str]] = []
+    for folder, where in ((ply and Path(ply).parent, "beside it"), (seq_root, "in the sequence's directory")):
+        path = Path(folder) / "label_map.json" if folder is not None else None
+        if path is None or not path.is_file() or any(path.samefile(p) for p, _ in found):
+            continue
+        if found and path.read_bytes() != found[0][0].read_bytes():
+            raise ValueError(f"two different label maps for {ply}: {found[0][0]} ({found[0][1]}) and {path} ({where}); "
+                             "set sequence.label_map to the one its labels are read through")
+        found.append((path, where))
+    return str(found[0][0]) if found else "nyu40"
 
 
 def vertex_ground_truth(ply_path, class_names, cfg: SequenceConfig, seq_root=None) -> tuple[np.ndarray, np.ndarray]:
     """(vertices (V, 3) float64 m, class per vertex (V,) int64 index into ``class_names``, -1
     void) of a labelled PLY. Raw labels (``cfg.label_property``) map to names through
-    ``cfg.label_map``: a .json / .tsv / .csv file, ``nyu40`` (ScanNet's NYU40 ids), or "" =
-    ``<seq_root>/label_map.json`` when present, else ``nyu40``; names match ``class_names``
-    exactly, then by synonym (``common.ply_labels``). Raises ValueError when nothing maps."""
+    ``cfg.label_map``: a .json / .tsv / .csv file, ``nyu40`` (ScanNet's NYU40 ids), or "" = the
+    ``label_map.json`` beside the PLY or in ``seq_root`` (``label_map_source``), else ``nyu40``;
+    names match ``class_names`` exactly, then by synonym (``common.ply_labels``). Raises
+    ValueError when nothing maps."""
     from calnav.common.ply_labels import NYU40_NAMES, class_ids_of, class_index, int_keyed, read_label_table, read_vertex_labels
 
     vertices, raw = read_vertex_labels(ply_path, cfg.label_property)
     if not np.isfinite(vertices).all():
         bad = int((~np.isfinite(vertices).all(axis=1)).sum())
         raise ValueError(f"{ply_path}: {bad} vertices have NaN or inf coordinates")
-    source = label_map_source(cfg, seq_root)
+    source = label_map_source(cfg, seq_root, ply_path)
     if source == "nyu40":
         table = {i + 1: n for i, n in enumerate(NYU40_NAMES)}
     else:

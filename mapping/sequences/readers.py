@@ -17,6 +17,7 @@ from calnav.common.ranges import Range, check_ranges
 from calnav.mapping import frame_geometry as fg
 from calnav.mapping.registry import LAYOUTS
 from calnav.mapping.sequences.rosbag_config import RosbagConfig
+from calnav.mapping.sequences.skips import NON_FINITE_POSE, SkippedFrames
 
 SCANNET_EXPECTED = "color/N.jpg, depth/N.png, pose/N.txt, intrinsic/intrinsic_color.txt, intrinsic/intrinsic_depth.txt"
 SEVEN_EXPECTED = "frame-NNNNNN.color.png|jpg, frame-NNNNNN.depth.png, frame-NNNNNN.pose.txt, camera-intrinsics.txt"
@@ -53,7 +54,7 @@ class SequenceConfig:
     frame_stride: int = 1            # use every N-th frame of the recording, frames
     max_frames: int = 0              # use at most this many frames (after the stride); 0 = all, frames
     label_distance_m: float = 0.05   # voxel ground truth: nearest labelled vertex within this distance, metres
-    label_map: str = ""              # raw PLY label -> class name (.json / .tsv / .csv); "" = <seq>/label_map.json if present, else NYU40 names
+    label_map: str = ""              # raw PLY label -> class name (.json / .tsv / .csv); "" = the label_map.json beside the PLY or in <seq>, else NYU40 names
     label_property: str = "label"    # integer vertex property of the labelled PLY holding the raw label
     frame_label_map: str = ""        # raw id -> class name table (.tsv/.csv/.json) of ScanNet's label-filt/N.png; "" = label-filt not read
     rosbag: RosbagConfig = field(default_factory=RosbagConfig)   # the rosbag layout's topics, frames, tolerances
@@ -120,8 +121,9 @@ def _imread(path: Path, flags: int) -> np.ndarray:
 
 class Sequence:
     """An opened (validated) recording: ``ids`` the frame numbers used (stride, max_frames,
-    valid pose), ``skipped`` those dropped for a non-finite pose; ``frames()`` yields
-    ``SequenceFrame`` one at a time. Every pose is checked when the sequence is opened."""
+    valid pose), ``skips`` those left out with their reasons (``mapping.sequences.skips``, one
+    rule for every layout; ``skipped`` their numbers); ``frames()`` yields ``SequenceFrame`` one
+    at a time. Every pose is checked when the sequence is opened."""
 
     def __new__(cls, root=None, layout: str = "", cfg: SequenceConfig | None = None):
         # a layout registered as a Sequence subclass (rosbag) reads its recording itself
@@ -141,11 +143,12 @@ class Sequence:
         # every pose is read up front (small text files: ~0.1 ms each), so a non-rigid pose is
         # reported before anything is written and the invalid ones are known
         self._poses = {i: self._read_pose(i) for i in ids}
-        self.skipped = [i for i in ids if self._poses[i] is None]
-        self.ids = [i for i in ids if self._poses[i] is not None]
+        self.skips = SkippedFrames()
+        self.skips.add([i for i in ids if self._poses[i] is None], NON_FINITE_POSE)
+        self.ids = [i for i in ids if i not in self.skips]
         if not self.ids:
             raise ValueError(f"{root}: no frames to read ({len(ids)} after frame_stride {cfg.frame_stride} / max_frames "
-                             f"{cfg.max_frames}, {len(self.skipped)} of them with an invalid pose)")
+                             f"{cfg.max_frames}, {self.skips.summary()})")
         first = self.ids[0]
         rgb = _imread(self._paths(first)["color"], cv2.IMREAD_COLOR)
         depth = _imread(self._paths(first)["depth"], cv2.IMREAD_UNCHANGED)
@@ -191,9 +194,14 @@ class Sequence:
                              f"coordinates are {spacing:.2g} m apart (mapping.voxel_size_m is {voxel_size_m:g} m): give "
                              "the poses in a local frame (subtract a fixed origin, e.g. the first camera position)")
 
+    @property
+    def skipped(self) -> list[int]:
+        """The frame numbers left out (``skips``), in order."""
+        return self.skips.frames
+
     def skip_summary(self) -> str:
-        """Why the ``skipped`` frames were dropped, for a one-line report."""
-        return "invalid pose"
+        """Why the ``skipped`` frames were left out, for a one-line report: "1 with a non-finite pose ..."."""
+        return self.skips.summary()
 
     @property
     def has_semantic(self) -> bool:

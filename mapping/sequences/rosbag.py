@@ -8,8 +8,10 @@ camera pose of the depth image's stamp: from TF (the chain from ``fixed_frame`` 
 camera's optical frame; ``/tf_static`` edges constant, ``/tf`` edges interpolated) or from a
 pose topic and ``camera_extrinsic``. Colour frames without a depth image in tolerance or
 without a pose (the pose track has no samples around the stamp at most ``pose_max_gap_s``
-apart) are skipped and counted (``skipped``, ``skip_reasons``). Depth must be registered to the
-colour camera (same optical frame; another resolution / K is resampled by ``Registration``);
+apart), with a NaN pose sample at or across its stamp, sharing its stamp with another colour
+image, repeating an earlier message, or read at a stamp holding two different depth images or
+pose samples are skipped and counted (``skips``: ``mapping.sequences.skips``, the folders'
+rule). Depth must be registered to the colour camera (same optical frame; another resolution / K is resampled by ``Registration``);
 depth in another optical frame is refused. Images with distortion (CameraInfo ``D`` not zero)
 are undistorted onto K (``rosbag_camera``). See ``docs/sequences.md``.
 
@@ -24,9 +26,11 @@ from typing import Iterator
 import numpy as np
 
 from calnav.mapping.sequences import rosbag_images as img
+from calnav.mapping.sequences import skips
 from calnav.mapping.sequences.readers import Sequence, SequenceConfig, SequenceFrame
 from calnav.mapping.sequences.rosbag_camera import Camera, camera_from_info
-from calnav.mapping.sequences.rosbag_tf import NS, PoseTrack, TfTree, frame_name, rigid
+from calnav.mapping.sequences.rosbag_sync import digest, nearest, stamp_clashes
+from calnav.mapping.sequences.rosbag_tf import AMBIGUOUS, NO_SAMPLES, NON_FINITE, NS, PoseTrack, TfTree, frame_name, rigid
 
 TF_TOPIC, TF_STATIC_TOPIC = "/tf", "/tf_static"
 TF_TYPES = ("tf2_msgs/msg/TFMessage", "tf/msg/tfMessage")   # ROS 2 / ROS 1 tf2, and ROS 1 bags of the tf era
@@ -71,20 +75,22 @@ def _pose_sample(msg, msgtype: str) -> tuple[int, np.ndarray, np.ndarray]:
 
 class _Stream:
     """What the opening pass keeps of one image topic: per message (in bag order) its log time
-    (ns, for random access), header stamp (ns); the first message, decoded for checks."""
+    (ns, for random access), header stamp (ns), pixel digest (``rosbag_sync.digest``); the
+    first message, decoded for checks."""
 
     def __init__(self, topic: str, msgtype: str):
         self.topic, self.msgtype = topic, msgtype
         self.log: list[int] = []
         self.stamps: list[int] = []
+        self.digests: list[int] = []
         self.first = None
         self.frame_id = ""
 
 
 class RosbagSequence(Sequence):
     """An opened (validated) ROS bag; the ``Sequence`` interface (``ids``, ``skipped``,
-    ``k_color``, ``k_depth``, ``color_size``, ``depth_size``, ``frames()``, ``read(i)``), plus
-    ``skip_reasons`` {reason: frame indices} and ``topics`` {name: message type}."""
+    ``skips``, ``k_color``, ``k_depth``, ``color_size``, ``depth_size``, ``frames()``,
+    ``read(i)``), plus ``topics`` {name: message type}."""
 
     def __init__(self, root, layout: str = "rosbag", cfg: SequenceConfig | None = None):
         self.root = root = Path(root)
@@ -161,6 +167,7 @@ class RosbagSequence(Sequence):
                     msg = self._deserialize(raw, conn.msgtype)
                     s.log.append(log_ns)
                     s.stamps.append(_stamp(msg.header))
+                    s.digests.append(digest(msg))
                     if s.first is None:
                         s.first, s.frame_id = msg, frame_name(msg.header.frame_id)
                 elif topic in (info_color, info_depth):
@@ -203,16 +210,17 @@ class RosbagSequence(Sequence):
             raise ValueError(f"{self.root}: {what} CameraInfo {info_topic}: {exc}") from None
 
     def _poses(self, times: np.ndarray, tf_items: dict, pose_samples: list) -> tuple[np.ndarray, np.ndarray]:
-        """(poses (m, 4, 4) camera-to-world in OpenCV axes, valid (m,)) at ``times`` (ns)."""
+        """(poses (m, 4, 4) camera-to-world in OpenCV axes, status (m,): ``rosbag_tf.POSE_OK`` or
+        why there is none) at ``times`` (ns)."""
         gap = int(round(self._rc.pose_max_gap_s * NS))
         rc = self._rc
         if rc.pose_source == "topic":
             if not pose_samples:
                 raise ValueError(f"{self.root}: the pose topic {rc.pose_topic} holds no message")
             stamps, t, q = zip(*pose_samples)
-            poses, valid = PoseTrack(stamps, np.array(t), np.array(q)).at(times, gap)
+            poses, status = PoseTrack(stamps, np.array(t), np.array(q)).at(times, gap)
             extrinsic = rigid(np.array(rc.camera_extrinsic[:3])[None], np.array(rc.camera_extrinsic[3:])[None])[0]
-            return poses @ extrinsic, valid
+            return poses @ extrinsic, status
         camera = rc.camera_frame or self._streams[self._color].frame_id
         if not camera:
             raise ValueError(f"{self.root}: the colour images name no frame (header.frame_id is empty); set "
@@ -229,41 +237,42 @@ class RosbagSequence(Sequence):
             raise ValueError(f"{self.root}: the TF chain {' <- '.join(self.tf_chain)} is static (/tf_static only): "
                              f"the camera never moves in '{self.tf_chain[-1]}'; set sequence.rosbag.fixed_frame to the "
                              f"map's frame (TF frames: {', '.join(tree.frames())}) or use pose_source=topic")
-        poses, valid, _ = tree.poses(self.tf_chain, times, gap)
-        return poses, valid
+        return tree.poses(self.tf_chain, times, gap)
 
     def _index(self, tf_items: dict, pose_samples: list) -> None:
-        """Pair colour with depth (and labels), pose the frames, choose ``ids`` / ``skipped``."""
-        cfg, tol = self.cfg, int(round(self._rc.sync_tolerance_s * NS))
-        color = self._streams[self._color]
+        """Pair colour with depth (and labels), pose the frames, choose ``ids`` / ``skips``."""
+        cfg, rc = self.cfg, self._rc
+        tol = int(round(rc.sync_tolerance_s * NS))
+        color, depth = self._streams[self._color], self._streams[self._depth]
         c_stamps = np.asarray(color.stamps, np.int64)
         candidates = np.arange(len(c_stamps))[::cfg.frame_stride]
         candidates = candidates[:cfg.max_frames] if cfg.max_frames else candidates
-        depth_of, has_depth = _nearest(self._streams[self._depth].stamps, c_stamps[candidates], tol)
-        d_stamps = np.asarray(self._streams[self._depth].stamps, np.int64)
-        poses, has_pose = self._poses(d_stamps[depth_of], tf_items, pose_samples)
-        has_pose &= has_depth
-        no_depth = candidates[~has_depth].tolist()
-        no_pose = candidates[has_depth & ~has_pose].tolist()
-        self.skip_reasons = {
-            f"no depth image within {self._rc.sync_tolerance_s:g} s (sequence.rosbag.sync_tolerance_s)": no_depth,
-            f"no pose (the pose samples around it more than {self._rc.pose_max_gap_s:g} s apart, or none; "
-            "sequence.rosbag.pose_max_gap_s)": no_pose}
-        self.skipped = sorted(no_depth + no_pose)
-        self.ids = candidates[has_pose].tolist()
+        # the first reason found holds: the colour image itself, then its depth, then its pose
+        self.skips = found = skips.SkippedFrames()
+        repeat, shared = stamp_clashes(color.stamps, color.digests)
+        found.add(candidates[repeat[candidates]], skips.REPEATED)
+        found.add(candidates[shared[candidates]], skips.SHARED_STAMP)
+        depth_of, has_depth = nearest(depth.stamps, c_stamps[candidates], tol)
+        found.add(candidates[~has_depth], skips.no_depth(rc.sync_tolerance_s))
+        found.add(candidates[stamp_clashes(depth.stamps, depth.digests)[1][depth_of]], skips.AMBIGUOUS_DEPTH)
+        poses, status = self._poses(np.asarray(depth.stamps, np.int64)[depth_of], tf_items, pose_samples)
+        for code, reason in ((NON_FINITE, skips.NON_FINITE_POSE), (AMBIGUOUS, skips.AMBIGUOUS_POSE),
+                             (NO_SAMPLES, skips.no_pose(rc.pose_max_gap_s))):
+            found.add(candidates[status == code], reason)
+        keep = ~np.isin(candidates, found.frames)
+        self.ids = candidates[keep].tolist()
         if not self.ids:
             raise ValueError(f"{self.root}: no frames to read: {len(candidates)} colour images after frame_stride "
-                             f"{cfg.frame_stride} / max_frames {cfg.max_frames}, "
-                             + ", ".join(f"{len(v)} with {k}" for k, v in self.skip_reasons.items()))
+                             f"{cfg.frame_stride} / max_frames {cfg.max_frames}, {found.summary()}")
         self._poses_of = {}
         self._parts: dict[int, list[tuple[str, int]]] = {}
         sem_of = None
         if self._semantic is not None:
-            sem_of, has_sem = _nearest(self._streams[self._semantic].stamps, c_stamps[self.ids], tol)
+            sem_of, has_sem = nearest(self._streams[self._semantic].stamps, c_stamps[self.ids], tol)
             if not has_sem.all():
                 raise ValueError(f"{self.root}: {int((~has_sem).sum())} frames have no {self._semantic} image within "
                                  f"{self._rc.sync_tolerance_s:g} s, e.g. frame {self.ids[int(np.argmin(has_sem))]}")
-        rows = np.flatnonzero(has_pose)
+        rows = np.flatnonzero(keep)
         for j, (i, row) in enumerate(zip(self.ids, rows)):
             self._poses_of[i] = _checked_pose(poses[row], i)
             parts = [(self._color, i), (self._depth, int(depth_of[row]))]
@@ -359,24 +368,9 @@ class RosbagSequence(Sequence):
             self._reader.close()
             self._reader = None
 
-    def skip_summary(self) -> str:
-        """The skipped frames per reason: "1 with no pose within ..., 2 with no depth image ..."."""
-        return ", ".join(f"{len(v)} with {k}" for k, v in self.skip_reasons.items() if v) or "none"
-
     def labelled_ply(self) -> Path | None:
         """The ground-truth mesh inside a ROS 2 bag directory (as ``Sequence``); None for a bag file."""
         return super().labelled_ply() if self.root.is_dir() else None
-
-
-def _nearest(stamps, query: np.ndarray, tol_ns: int) -> tuple[np.ndarray, np.ndarray]:
-    """(index into ``stamps`` of the nearest stamp to each ``query``, found within ``tol_ns``)."""
-    s = np.asarray(stamps, np.int64)
-    order = np.argsort(s, kind="stable")
-    sorted_s = s[order]
-    hi = np.clip(np.searchsorted(sorted_s, query), 0, len(s) - 1)
-    lo = np.clip(hi - 1, 0, len(s) - 1)
-    pick = np.where(np.abs(sorted_s[lo] - query) <= np.abs(sorted_s[hi] - query), lo, hi)
-    return order[pick], np.abs(sorted_s[pick] - query) <= tol_ns
 
 
 def _checked_pose(pose: np.ndarray, index: int) -> np.ndarray:

@@ -36,12 +36,18 @@ def rigid(translation: np.ndarray, quat_xyzw: np.ndarray) -> np.ndarray:
     return out
 
 
+# why a time has no pose (``PoseTrack.at``, ``TfTree.poses``); 0 = it has one
+POSE_OK, NO_SAMPLES, NON_FINITE, AMBIGUOUS = 0, 1, 2, 3
+
+
 class PoseTrack:
     """One transform over time: samples at increasing stamps (ns); ``at(times)`` interpolates
     between the two samples around each time when they are at most ``max_gap_ns`` apart (a time
-    equal to a sample's stamp takes that sample as it is); other times have no pose. Samples
-    that are no rigid transform (NaN / inf, a zero quaternion: a tracker that lost itself) are
-    dropped, as a folder's non-finite poses are: times near them have no pose."""
+    equal to a sample's stamp takes that sample as it is); other times have no pose. A sample
+    that is no rigid transform (NaN / inf, a zero quaternion: a tracker that lost itself) gives
+    no pose at its stamp nor across it (``NON_FINITE``), as a folder's non-finite pose gives its
+    frame none; a stamp holding two different samples gives none at or across it
+    (``AMBIGUOUS``: which is right is unknown); a sample repeated as it was counts once."""
 
     def __init__(self, stamps_ns, translations, quats_xyzw):
         stamps = np.asarray(stamps_ns, np.int64).reshape(-1)
@@ -49,12 +55,20 @@ class PoseTrack:
         q = np.asarray(quats_xyzw, np.float64).reshape(-1, 4)
         good = np.isfinite(t).all(axis=1) & np.isfinite(q).all(axis=1) & (np.linalg.norm(q, axis=1) > MIN_QUAT_NORM)
         self.dropped = int((~good).sum())
+        self.non_finite = np.unique(stamps[~good])   # stamps of the samples that are no rigid transform
         order = np.argsort(stamps[good], kind="stable")
         stamps, t, q = stamps[good][order], t[good][order], q[good][order]
-        # one sample per stamp (the last one recorded): Slerp needs strictly increasing times
-        last = np.append(stamps[1:] != stamps[:-1], True) if len(stamps) else np.zeros(0, bool)
-        self.stamps, self.translations = stamps[last], t[last]
-        self.rotations = Rotation.from_quat(q[last]) if len(self.stamps) else None
+        # one sample per stamp (Slerp needs strictly increasing times); a stamp whose samples differ is ambiguous
+        values = np.hstack([t, q])
+        first = np.append(True, stamps[1:] != stamps[:-1]) if len(stamps) else np.zeros(0, bool)
+        group = np.cumsum(first) - 1
+        differs = np.zeros(int(first.sum()), bool)
+        np.logical_or.at(differs, group, (values != values[np.flatnonzero(first)][group]).any(axis=1))
+        self.ambiguous = stamps[first][differs]
+        keep = first.copy()
+        keep[np.flatnonzero(first)[differs]] = False
+        self.stamps, self.translations = stamps[keep], t[keep]
+        self.rotations = Rotation.from_quat(q[keep]) if len(self.stamps) else None
         t0 = self.stamps[0] if len(self.stamps) else 0
         self._slerp = Slerp((self.stamps - t0) / NS, self.rotations) if len(self.stamps) >= 2 else None
         self._t0 = t0
@@ -63,26 +77,38 @@ class PoseTrack:
         return len(self.stamps)
 
     def at(self, times_ns: np.ndarray, max_gap_ns: int) -> tuple[np.ndarray, np.ndarray]:
-        """(poses (m, 4, 4), valid (m,) bool) at ``times_ns`` (m,); invalid poses are identity."""
+        """(poses (m, 4, 4), status (m,) int: ``POSE_OK``, or why there is none: ``NO_SAMPLES``,
+        ``NON_FINITE``, ``AMBIGUOUS``) at ``times_ns`` (m,); poses without one are identity."""
         times = np.asarray(times_ns, np.int64)
         n = len(self.stamps)
         poses = np.broadcast_to(np.eye(4), (len(times), 4, 4)).copy()
-        if n == 0:
-            return poses, np.zeros(len(times), bool)
-        i0 = np.searchsorted(self.stamps, times, side="right") - 1
-        exact = (i0 >= 0) & (self.stamps[np.clip(i0, 0, n - 1)] == times)
-        inside = (i0 >= 0) & (i0 + 1 < n)
-        i0c, i1c = np.clip(i0, 0, n - 1), np.clip(i0 + 1, 0, n - 1)
-        interp = inside & ~exact & (self.stamps[i1c] - self.stamps[i0c] <= max_gap_ns)
-        if exact.any():
-            poses[exact, :3, :3] = self.rotations[i0c[exact]].as_matrix()
-            poses[exact, :3, 3] = self.translations[i0c[exact]]
-        if interp.any():
-            a, b = i0c[interp], i1c[interp]
-            frac = ((times[interp] - self.stamps[a]) / (self.stamps[b] - self.stamps[a]))[:, None]
-            poses[interp, :3, 3] = self.translations[a] * (1.0 - frac) + self.translations[b] * frac
-            poses[interp, :3, :3] = self._slerp((times[interp] - self._t0) / NS).as_matrix()
-        return poses, exact | interp
+        status = np.full(len(times), NO_SAMPLES, np.int64)
+        if n:
+            i0 = np.searchsorted(self.stamps, times, side="right") - 1
+            exact = (i0 >= 0) & (self.stamps[np.clip(i0, 0, n - 1)] == times)
+            inside = (i0 >= 0) & (i0 + 1 < n)
+            i0c, i1c = np.clip(i0, 0, n - 1), np.clip(i0 + 1, 0, n - 1)
+            interp = inside & ~exact & (self.stamps[i1c] - self.stamps[i0c] <= max_gap_ns)
+            if exact.any():
+                poses[exact, :3, :3] = self.rotations[i0c[exact]].as_matrix()
+                poses[exact, :3, 3] = self.translations[i0c[exact]]
+            if interp.any():
+                a, b = i0c[interp], i1c[interp]
+                frac = ((times[interp] - self.stamps[a]) / (self.stamps[b] - self.stamps[a]))[:, None]
+                poses[interp, :3, 3] = self.translations[a] * (1.0 - frac) + self.translations[b] * frac
+                poses[interp, :3, :3] = self._slerp((times[interp] - self._t0) / NS).as_matrix()
+            status[exact | interp] = POSE_OK
+            # the span a pose is read from: the time itself, or the two samples it is interpolated between
+            lo = np.where(interp, self.stamps[i0c], times)
+            hi = np.where(interp, self.stamps[i1c], times)
+        else:
+            lo = hi = times
+        for code, bad in ((AMBIGUOUS, self.ambiguous), (NON_FINITE, self.non_finite)):
+            if len(bad):   # a bad sample inside the span (or at the time itself, where no pose is left)
+                hit = np.searchsorted(bad, lo, side="left") < np.searchsorted(bad, hi, side="right")
+                status[hit] = code
+        poses[status != POSE_OK] = np.eye(4)
+        return poses, status
 
 
 @dataclass
@@ -149,20 +175,17 @@ class TfTree:
                              f"ends at '{path[-1]}' ({' <- '.join(path)}); TF frames: {', '.join(self.frames())}")
         return path
 
-    def poses(self, path: list[str], times_ns: np.ndarray, max_gap_ns: int) -> tuple[np.ndarray, np.ndarray, str]:
-        """(poses (m, 4, 4) of ``path[0]`` in ``path[-1]``, valid (m,) bool, the first dynamic
-        frame whose track has no pose at some invalid time, or "") at ``times_ns``."""
+    def poses(self, path: list[str], times_ns: np.ndarray, max_gap_ns: int) -> tuple[np.ndarray, np.ndarray]:
+        """(poses (m, 4, 4) of ``path[0]`` in ``path[-1]``, status (m,) int as ``PoseTrack.at``'s:
+        the worst of the chain's edges) at ``times_ns``."""
         times = np.asarray(times_ns, np.int64)
         poses = np.broadcast_to(np.eye(4), (len(times), 4, 4)).copy()
-        valid = np.ones(len(times), bool)
-        missing = ""
+        status = np.full(len(times), POSE_OK, np.int64)
         for child in path[:-1]:   # camera upwards: pose_parent = T_parent_child @ pose_child
             if child in self.static:
                 poses = self.static[child][1] @ poses
                 continue
-            edge, ok = self.dynamic[child][1].at(times, max_gap_ns)
-            if not ok.all() and valid.all():
-                missing = child
+            edge, why = self.dynamic[child][1].at(times, max_gap_ns)
             poses = edge @ poses
-            valid &= ok
-        return poses, valid, missing
+            status = np.maximum(status, why)
+        return poses, status

@@ -9,6 +9,8 @@ holding the folder's JPEG bytes), depth (raw ``16UC1`` millimetres, raw ``32FC1`
 (``16UC1`` class id + 1), and TF: ``map -> base_link`` on ``/tf`` at the frame stamps (the
 camera pose times the inverse of the mounting), ``base_link -> camera_link -> <optical frame>``
 on ``/tf_static``; or a ``nav_msgs/Odometry`` / ``geometry_msgs/PoseStamped`` pose topic of the camera itself.
+Faults a real recording has, on request (``BagOptions``): dropped or NaN pose samples, two frames at
+one stamp, a frame's messages written twice.
 """
 from __future__ import annotations
 
@@ -45,6 +47,10 @@ class BagOptions:
     extra_color: bool = False         # colour at twice the frame rate: an image between frames, with no depth near it
     extra_depth: bool = False         # depth at twice the frame rate: an image between frames
     drop_poses: tuple[int, ...] = ()  # frames whose TF sample (or odometry) is not written
+    bad_pose: Literal["drop", "nan"] = "drop"   # a frame whose folder pose is not finite: no sample, or a NaN one
+    shared_stamp: tuple[int, ...] = ()   # frames stamped as the frame before them: two frames, two TF poses, one stamp
+    repeat: tuple[int, ...] = ()      # frames whose messages (images, TF / odometry) are written twice, identical
+    second_depth: tuple[int, ...] = ()   # frames with a second, different raw depth image at their stamp (1 cm farther)
     pose: Literal["tf", "odometry", "pose_stamped"] = "tf"   # TF, or the camera's pose on pose_topic
     pose_topic: str = "/odom"
     distortion: tuple[float, ...] = ()   # CameraInfo D written (plumb_bob); the images are written as they are
@@ -157,8 +163,6 @@ def mount_matrix() -> np.ndarray:
 def scannet_to_bag(folder, bag, options: BagOptions | None = None) -> Path:
     """Write the ScanNet-layout recording ``folder`` as the bag ``bag`` (see the module docstring);
     frame i is stamped ``START_NS + i * period_s``. Returns ``bag``."""
-    import cv2
-
     opt = options or BagOptions()
     folder, bag = Path(folder), Path(bag)
     seq = Sequence(folder, "scannet")
@@ -169,7 +173,6 @@ def scannet_to_bag(folder, bag, options: BagOptions | None = None) -> Path:
     period = int(round(opt.period_s * NS))
     unmount = np.linalg.inv(mount_matrix())   # optical frame -> base_link
     top = opt.topics
-    sem_dir = folder / "semantic"
     try:
         b.tf("/tf_static", START_NS, [b.transform(START_NS, "base_link", "camera_link", *MOUNT),
                                       b.transform(START_NS, "camera_link", OPTICAL_FRAME, (0.0, 0.0, 0.0), OPTICAL_QUAT)],
@@ -177,34 +180,49 @@ def scannet_to_bag(folder, bag, options: BagOptions | None = None) -> Path:
         for info_topic, k, size in ((top.color_info, seq.k_color, seq.color_size), (top.depth_info, seq.k_depth, seq.depth_size)):
             b.write(info_topic, "sensor_msgs/msg/CameraInfo", START_NS,
                     b.camera_info(START_NS, OPTICAL_FRAME, k, size, opt.distortion))
+        stamp = START_NS
         for n, i in enumerate(all_ids):
-            stamp = START_NS + n * period
-            pose = np.loadtxt(folder / "pose" / f"{i}.txt")
-            if i not in opt.drop_poses and np.isfinite(pose).all():
-                if opt.pose == "tf":
-                    base = pose @ unmount
-                    b.tf("/tf", stamp, [b.transform(stamp, "map", opt.tf_child, base[:3, 3],
-                                                    Rotation.from_matrix(base[:3, :3]).as_quat())], opt.tf_type)
-                elif opt.pose == "odometry":
-                    b.write(opt.pose_topic, "nav_msgs/msg/Odometry", stamp,
-                            b.odometry(stamp, pose[:3, 3], Rotation.from_matrix(pose[:3, :3]).as_quat()))
-                else:
-                    b.write(opt.pose_topic, "geometry_msgs/msg/PoseStamped", stamp,
-                            b.pose_stamped(stamp, pose[:3, 3], Rotation.from_matrix(pose[:3, :3]).as_quat()))
-            log = stamp + LATENCY_NS
-            _write_color(b, opt, top.color, stamp, log, folder / "color" / f"{i}.jpg")
-            _write_depth(b, opt, top.depth, stamp, log, folder / "depth" / f"{i}.png")
-            if opt.semantic_topic and (sem_dir / f"{i}.png").exists():
-                b.write(opt.semantic_topic, "sensor_msgs/msg/Image", log,
-                        b.image(stamp, OPTICAL_FRAME, "16UC1", cv2.imread(str(sem_dir / f"{i}.png"), cv2.IMREAD_UNCHANGED)))
-            half = stamp + period // 2   # the extra images between frames: the frame's own pixels, restamped
-            if opt.extra_color:
-                _write_color(b, opt, top.color, half, half + LATENCY_NS, folder / "color" / f"{i}.jpg")
-            if opt.extra_depth:
-                _write_depth(b, opt, top.depth, half, half + LATENCY_NS, folder / "depth" / f"{i}.png")
+            stamp = stamp if i in opt.shared_stamp else START_NS + n * period
+            for _ in range(2 if i in opt.repeat else 1):
+                _write_frame(b, opt, folder, i, stamp, unmount)
     finally:
         writer.close()
     return bag
+
+
+def _write_frame(b: BagWriter, opt: BagOptions, folder: Path, i: int, stamp: int, unmount: np.ndarray) -> None:
+    """Frame ``i``'s messages at ``stamp``: its pose (TF or the pose topic), colour, depth, labels."""
+    import cv2
+
+    top = opt.topics
+    pose = np.loadtxt(folder / "pose" / f"{i}.txt")
+    finite = bool(np.isfinite(pose).all())
+    if i not in opt.drop_poses and (finite or opt.bad_pose == "nan"):
+        m = pose @ unmount if opt.pose == "tf" and finite else pose
+        # a non-finite pose (ScanNet's -inf) is written as a NaN sample: what a tracker that lost itself sends
+        t, quat = (m[:3, 3], Rotation.from_matrix(m[:3, :3]).as_quat()) if finite else \
+            (np.full(3, np.nan), np.full(4, np.nan))
+        if opt.pose == "tf":
+            b.tf("/tf", stamp, [b.transform(stamp, "map", opt.tf_child, t, quat)], opt.tf_type)
+        elif opt.pose == "odometry":
+            b.write(opt.pose_topic, "nav_msgs/msg/Odometry", stamp, b.odometry(stamp, t, quat))
+        else:
+            b.write(opt.pose_topic, "geometry_msgs/msg/PoseStamped", stamp, b.pose_stamped(stamp, t, quat))
+    log = stamp + LATENCY_NS
+    _write_color(b, opt, top.color, stamp, log, folder / "color" / f"{i}.jpg")
+    _write_depth(b, opt, top.depth, stamp, log, folder / "depth" / f"{i}.png")
+    if i in opt.second_depth:
+        mm = cv2.imread(str(folder / "depth" / f"{i}.png"), cv2.IMREAD_UNCHANGED)
+        b.write(top.depth, "sensor_msgs/msg/Image", log, b.image(stamp, opt.depth_frame, "16UC1", mm + np.uint16(10)))
+    sem = folder / "semantic" / f"{i}.png"
+    if opt.semantic_topic and sem.exists():
+        b.write(opt.semantic_topic, "sensor_msgs/msg/Image", log,
+                b.image(stamp, OPTICAL_FRAME, "16UC1", cv2.imread(str(sem), cv2.IMREAD_UNCHANGED)))
+    half = stamp + int(round(opt.period_s * NS)) // 2   # the extra images between frames: the frame's own pixels, restamped
+    if opt.extra_color:
+        _write_color(b, opt, top.color, half, half + LATENCY_NS, folder / "color" / f"{i}.jpg")
+    if opt.extra_depth:
+        _write_depth(b, opt, top.depth, half, half + LATENCY_NS, folder / "depth" / f"{i}.png")
 
 
 def _write_color(b: BagWriter, opt: BagOptions, topic: str, stamp: int, log: int, path: Path) -> None:

@@ -281,6 +281,67 @@ def test_unit_and_frame_mix_ups_are_refused(setup):
         nav.act(rgb, depth, pose=moved, semantic=sem)
 
 
+def test_a_refused_call_changes_nothing(setup):
+    """A first act refused for its depth (uint16), given another pose: the good call after it
+    gives what the good call alone gives -- its pose is the start frame, not the refused one's --
+    and so for observe and begin (the episode loop's calls)."""
+    from calnav.agent.navigator import EpisodeAgent, Navigator
+
+    cfg, env, _ = setup
+    obs, _ = env.reset(options={"episode_index": 0})
+    rgb, depth, sem, pose = obs["rgb"], obs["depth"], obs["semantic"], obs["camera_pose"]
+    elsewhere = pose.copy()
+    elsewhere[:3, 3] += (3.0, -2.0, 0.0)
+    elsewhere[:3, :3] = np.array([[0, 0, 1], [-1, 0, 0], [0, -1, 0]], float)   # level, facing +x
+    alone, refused = Navigator(agent_setup(cfg)), Navigator(agent_setup(cfg))
+    alone.reset("chair")
+    refused.reset("chair")
+    with pytest.raises(ValueError, match=r"^depth must be float metres .*got uint16"):
+        refused.act(rgb, (depth * 1000).astype(np.uint16), pose=elsewhere, semantic=sem)
+    assert refused.start_frame is None
+    with pytest.raises(KeyError, match=r"observation lacks semantic, which the 'gt' segmenter needs"):
+        refused.act(rgb, depth, pose=elsewhere)   # the segmenter's input, checked before the start frame too
+    assert refused.start_frame is None
+    want, got = alone.act(rgb, depth, pose=pose, semantic=sem), refused.act(rgb, depth, pose=pose, semantic=sem)
+    assert got == want and got.position == pytest.approx((0.0, 0.0), abs=1e-6) and got.step == 1
+    np.testing.assert_array_equal(refused.start_frame.xy, alone.start_frame.xy)
+    assert refused.start_frame.yaw == alone.start_frame.yaw
+    # the episode loop's calls: a refused begin, then the good one, is the good one alone
+    loop, bad = EpisodeAgent(Navigator(agent_setup(cfg))), {**obs, "compass": np.array([170.0], np.float32)}
+    with pytest.raises(ValueError, match=r"^compass 170 is not Habitat's EpisodicCompass"):
+        loop.reset(bad)
+    loop.reset(obs)
+    fresh = EpisodeAgent(Navigator(agent_setup(cfg)))
+    fresh.reset(obs)
+    assert loop.act(obs).action == fresh.act(obs).action
+    assert loop.navigator.observe(obs) == fresh.navigator.observe(obs)
+
+
+def test_observe_checks_what_act_checks(setup):
+    """observe on a Habitat observation refuses what act refuses, before anything changes: a
+    compass in degrees, a gps that jumps 1 km between steps (millimetres), uint16 depth, a gps
+    that is not 2 finite numbers."""
+    from calnav.agent.navigator import Navigator
+
+    cfg, env, _ = setup
+    obs, _ = env.reset(options={"episode_index": 0})
+    nav = Navigator(agent_setup(cfg))
+    nav.reset()
+    for change, message in [({"compass": np.array([170.0], np.float32)}, r"^compass 170 is not Habitat's EpisodicCompass"),
+                            ({"gps": np.array([np.nan, 0.0], np.float32)}, r"^gps must be 2 finite numbers"),
+                            ({"gps": np.zeros(3, np.float32)}, r"^gps must be 2 finite numbers"),
+                            ({"depth": (obs["depth"] * 1000).astype(np.uint16)}, r"^depth must be float metres")]:
+        with pytest.raises(ValueError, match=message):
+            nav.observe({**obs, **change})
+    assert nav.goal is None   # nothing began: the goal is still the first observation's to give
+    first = nav.observe(obs)
+    assert first.step == 1 and nav.goal == env.unwrapped.episode.object_category
+    jump = {**obs, "gps": (obs["gps"] + np.array([1000.0, 0.0])).astype(np.float32)}
+    with pytest.raises(ValueError, match=r"^the camera moved 1000 m between steps 1 and 2 .*poses in millimetres\?"):
+        nav.observe(jump)
+    assert nav.observe(obs).step == 2   # the refused step was not counted
+
+
 def _docs_block(page: str, marker: str) -> str:
     """The first ```python block after ``marker`` in docs/<page>."""
     text = (REPO / "docs" / page).read_text()

@@ -111,7 +111,7 @@ def test_y_up_is_rotated_to_z_up(tmp_path):
     chair = s.instance_triangles(int(s.instance_ids(CLASS_ID["chair"])[0])).reshape(-1, 3)
     assert chair[:, 2].max() == pytest.approx(0.5, abs=1e-5)   # the chair stands 0.5 m tall on the floor
     with pytest.raises(ValueError, match="up_axis"):
-        load_labelled_ply(tmp_path / "zup.ply", LABEL_MAP, up_axis="x")
+        load_labelled_ply(tmp_path / "zup.ply", LABEL_MAP, up_axis="up")
 
 
 def test_quads_are_triangulated_and_float_colours(tmp_path):
@@ -171,7 +171,8 @@ def test_errors(tmp_path):
     with pytest.raises(SceneError, match="no faces"):
         load_labelled_ply(cloud, LABEL_MAP)
     nolab = _write(tmp_path / "nolab.ply", v, t, {"quality": lab.astype(np.float32)})
-    with pytest.raises(SceneError, match=r"no 'label' property.*quality"):
+    with pytest.raises(SceneError, match=r"no 'label' property.*quality.*; name the one holding the labels in its "
+                                         r'labels.json: \{"label_map": \{\.\.\.\}, "label_property": "\.\.\."\}$'):
         load_labelled_ply(nolab, LABEL_MAP)
     s = load_labelled_ply(nolab, LABEL_MAP, label_property="quality")   # float labels are accepted as ints
     assert CLASS_ID["chair"] in s.classes_present()

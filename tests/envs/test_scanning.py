@@ -236,6 +236,9 @@ def test_load_scene_scanned_is_cached_and_a_normal_scene(scanned_house):
 
     ds = _fast_dataset()
     assert scanned_house.meta["style"] == "scanned" and scanned_house.name == "house_val_0000"
+    from calnav.envs.scene_plausible import check_plausible
+
+    assert check_plausible(scanned_house.vertices, scanned_house.triangles, scanned_house.tri_class) is None
     assert scanned_cache_path("house_val_0000", ds).exists()
     clear_scene_lru()
     again = load_scene("house_val_0000", ds)

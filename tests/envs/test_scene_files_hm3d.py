@@ -180,15 +180,16 @@ def test_frames_config_default_y_up_and_upside_down(tmp_path):
     np.testing.assert_allclose(a.vertices, b.vertices, atol=1e-6)
     _check_room(a)
     y_up = write_scene(tmp_path / "yup" / "scn", y_up=True)
-    with pytest.raises(SceneError, match=r'floor is not horizontal \(it faces the file\'s y axis\).*"up": \[0.0, 1.0, 0.0\], '
-                                         r'"front": \[0.0, 0.0, -1.0\]'):
-        load_hm3d_scene(y_up)
+    with pytest.raises(SceneError, match=r'y-up read as z-up: its labelled floor is not horizontal \(it faces the y axis\).*'
+                                         r'"up": \[0.0, 1.0, 0.0\], "front": \[0.0, 0.0, -1.0\]'):
+        load_scene_file(y_up)
     cfg = hm3d_config(tmp_path / "yup.scene_dataset_config.json", up=(0, 1, 0), front=(0, 0, -1))
     c = load_hm3d_scene(y_up, config=cfg)
     np.testing.assert_allclose(c.vertices, a.vertices, atol=1e-5)
     hm3d_config(root / "hm3d_annotated_basis.scene_dataset_config.json", up=(0, 0, -1), front=(0, 1, 0))
-    with pytest.raises(SceneError, match=r'below the floor \(the scene is upside down\).*"up": \[0.0, 0.0, 1.0\]'):
-        load_hm3d_scene(z_up, root=root)
+    with pytest.raises(SceneError, match=r'read with up \[0.0, 0.0, -1.0\] from .*: upside down \(z flipped\): its labelled '
+                                         r'furniture or ceiling lies below its floor; .*"up": \[0.0, 0.0, 1.0\]'):
+        load_scene_file(z_up, root=root)
 
 
 # ----------------------------------------------------------- missing semantics, no colour

@@ -117,15 +117,44 @@ def test_record_without_its_metrics_is_damaged_and_rerun(run_copy, capsys):
     assert summary["count"] == 4 and summary["success"] == 1.0
 
 
-def test_read_records_skips_damage_and_keeps_the_last_valid_record(tmp_path, capsys):
+def test_read_records_skips_damage_and_counts_an_exact_duplicate_once(tmp_path, capsys):
     p = tmp_path / "episodes.jsonl"
     m = '"success": 1, "spl": 0.5, "softspl": 0.5, "distance_to_goal": 0.0'
-    p.write_text(f'{{"index": 0, "v": 1, {m}}}\n[1, 2]\n{{"v": 3}}\n{{"index": 0, "v": 2, {m}}}\n{{"index": 1, "v"')
+    # the duplicate ran elsewhere (another wall time and commit): the same result, counted once
+    p.write_text(f'{{"index": 0, "v": 1, "wall_time_s": 2.0, {m}}}\n[1, 2]\n{{"v": 3}}\n'
+                 f'{{"index": 0, "v": 1, "wall_time_s": 3.5, "commit": "abc", {m}}}\n{{"index": 1, "v"')
     read = read_records(p)
-    assert read.records[0]["v"] == 2 and list(read.records) == [0] and read.duplicates == 1
+    assert read.records[0]["wall_time_s"] == 3.5 and list(read.records) == [0] and read.duplicates == 1
     assert read.damaged == [2, 3, 5] and not read.clean_end
     err = capsys.readouterr().err
     assert f"{p}:3: skipped a damaged record (no integer 'index')" in err and f"{p}:5:" in err
+    assert "1 duplicate record(s) of episode(s) 0; each episode counts once (the records are the same result)" in err
+
+
+def test_two_different_records_of_one_episode_are_refused_by_every_reader(tmp_path):
+    """One success and one failure of episode 3: no reader may pick one (the report, compare and
+    a resume all read records through read_records)."""
+    p = tmp_path / "run" / "episodes.jsonl"
+    p.parent.mkdir()
+    m = '"spl": 0.5, "softspl": 0.5, "distance_to_goal": 0.0'
+    p.write_text(f'{{"index": 3, "success": 1, {m}}}\n{{"index": 4, "success": 1, {m}}}\n'
+                 f'{{"index": 3, "success": 0, {m}, "wall_time_s": 1.0}}\n')
+    with pytest.raises(ResultsError, match=rf"^{tmp_path / 'run'}: episode 3 has two different records \(episodes.jsonl "
+                                           r"lines 1 and 3: success 1 vs 0\); one episode has one result: delete the "
+                                           r"wrong line \(or both, and rerun the same command to run the episode again\)$"):
+        read_records(p, quiet=True)
+
+
+def test_a_resume_refuses_two_different_records_of_one_episode(run_copy, capsys):
+    records = run_copy / "episodes.jsonl"
+    lines = records.read_text().splitlines()
+    other = {**json.loads(lines[2]), "success": 1.0 - json.loads(lines[2])["success"]}
+    records.write_text("\n".join(lines + [json.dumps(other)]) + "\n")
+    before = records.read_text()
+    assert main(_objectnav(run_copy)) == 2
+    err = capsys.readouterr().err
+    assert f"{run_copy}: episode {other['index']} has two different records (episodes.jsonl lines 3 and 5: success" in err
+    assert records.read_text() == before   # nothing rewritten: the records stay as they were
 
 
 def test_crashed_episode_is_retried_and_replaced(run_copy):

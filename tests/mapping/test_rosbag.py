@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from calnav.mapping.sequences import Sequence
-from tests.rosbag_data import DROPPED, FRAMES, bag, bag_config, folder
+from calnav.mapping.sequences import skips
+from tests.rosbag_data import DROPPED, FRAMES, ODOMETRY, bag, bag_config, folder
 
 POSE_ATOL = 1e-12   # the bag's poses: quaternions and a TF product, not the folder's 17-digit text
 
@@ -73,11 +74,42 @@ def test_colour_and_depth_at_other_rates_pair_by_stamp(seq_dir):
     fast_depth = Sequence(bag(seq_dir, "fast_depth", extra_depth=True), "rosbag", bag_config())
     _same_frames(ref, fast_depth)
     fast_color = Sequence(bag(seq_dir, "fast_color", storage="mcap", extra_color=True), "rosbag", bag_config())
-    no_depth, no_pose = fast_color.skip_reasons.values()
+    no_depth, no_pose = fast_color.skips.by_reason().values()
     assert no_depth == list(range(1, 2 * FRAMES, 2)) and no_pose == [2 * DROPPED]
     assert fast_color.skipped == sorted(no_depth + no_pose)
     assert "6 with no depth image within 0.02 s" in fast_color.skip_summary()
     _same_frames(ref, fast_color, index_map=lambda i: 2 * i)
+
+
+NO_POSE = skips.no_pose(0.2)
+
+
+@pytest.mark.parametrize("options, rosbag, ids, reasons", [
+    # frames 4 and 5 share a stamp (TF holds two poses there): which image is whose is unknown
+    ({"shared_stamp": (5,)}, {}, [0, 1, 3], {DROPPED: NO_POSE, 4: skips.SHARED_STAMP, 5: skips.SHARED_STAMP}),
+    # frame 3's messages twice: the repeat (colour image 4) is skipped, the folder's frame 4 is image 5
+    ({"repeat": (3,), "storage": "mcap"}, {}, [0, 1, 3, 5, 6], {DROPPED: NO_POSE, 4: skips.REPEATED}),
+    # two different depth images at frame 1's stamp: which is frame 1's is unknown
+    ({"second_depth": (1,)}, {}, [0, 3, 4, 5], {DROPPED: NO_POSE, 1: skips.AMBIGUOUS_DEPTH}),
+    # frame 2's pose a NaN sample between samples 0.18 s apart: skipped, not interpolated across it
+    ({"bad_pose": "nan", "period_s": 0.09}, {}, [0, 1, 3, 4, 5], {DROPPED: skips.NON_FINITE_POSE}),
+    ({"bad_pose": "nan", "period_s": 0.09, "pose": "odometry", "storage": "sqlite3"}, ODOMETRY, [0, 1, 3, 4, 5],
+     {DROPPED: skips.NON_FINITE_POSE}),
+])
+def test_shared_stamps_repeats_and_nan_poses_are_skipped_with_their_reason(seq_dir, options, rosbag, ids, reasons):
+    """One rule for every recording: a frame whose data is not one thing is skipped and counted
+    with its reason, never fused with a guess; the frames left are the folder's, bit for bit."""
+    name = "_".join(f"{k}{v}" for k, v in options.items()).replace(" ", "").replace(",", "")
+    seq = Sequence(bag(seq_dir, name, **options), "rosbag", bag_config(**rosbag))
+    assert seq.ids == ids and seq.skips.reasons == reasons and seq.skipped == sorted(reasons)
+    ref = Sequence(seq_dir, "scannet")
+    assert ref.skips.reasons == {DROPPED: skips.NON_FINITE_POSE}
+    if options.get("repeat"):   # the folder's frames after the repeat are one colour image later
+        _same_frames(ref, seq, index_map=dict(zip(ref.ids, ids)).get)
+    else:   # the folder's frames the bag keeps
+        kept = Sequence(seq_dir, "scannet")
+        kept.ids = ids
+        _same_frames(kept, seq)
 
 
 def test_sync_tolerance_decides_the_pairing(seq_dir):
@@ -149,8 +181,8 @@ def test_bad_bags_are_one_line_errors(seq_dir, tmp_path):
     _raises(good, bag_config(color_topic="/tf"), "colour image topic /tf is tf2_msgs/msg/TFMessage; expected "
             "sensor_msgs/msg/Image or sensor_msgs/msg/CompressedImage")
     no_poses = bag(seq_dir, "no_poses", drop_poses=(0, 1))
-    with pytest.raises(ValueError, match="no frames to read: 2 colour images after frame_stride 1 / max_frames 2, 0 with "
-                                         "no depth image within 0.02 s .*, 2 with no pose"):
+    with pytest.raises(ValueError, match="no frames to read: 2 colour images after frame_stride 1 / max_frames 2, 2 with "
+                                         "no pose \\(the pose samples around it"):
         Sequence(no_poses, "rosbag", replace(bag_config(), max_frames=2))
     _raises(tmp_path / "nothing.bag", bag_config(), "rosbag not found")
     (tmp_path / "notes.bag").write_text("not a bag")

@@ -13,7 +13,7 @@ from scipy.spatial.transform import Rotation
 from calnav.mapping.sequences import SequenceConfig
 from calnav.mapping.sequences.rosbag_camera import camera_from_info
 from calnav.mapping.sequences.rosbag_images import COMPRESSED, IMAGE, color_rgb, depth_metres, label_ids
-from calnav.mapping.sequences.rosbag_tf import NS, PoseTrack, TfTree
+from calnav.mapping.sequences.rosbag_tf import AMBIGUOUS, NO_SAMPLES, NON_FINITE, NS, POSE_OK, PoseTrack, TfTree
 
 Z90 = tuple(Rotation.from_euler("z", 90, degrees=True).as_quat())
 IDENTITY_Q = (0.0, 0.0, 0.0, 1.0)
@@ -22,26 +22,55 @@ IDENTITY_Q = (0.0, 0.0, 0.0, 1.0)
 def test_a_track_interpolates_linearly_and_by_slerp_between_close_samples():
     # given out of order: sorted by stamp
     track = PoseTrack([NS, 0], [(2.0, 0.0, 0.0), (0.0, 0.0, 0.0)], [Z90, IDENTITY_Q])
-    poses, ok = track.at(np.array([0, NS // 4, NS, NS + 1, -1]), max_gap_ns=NS)
-    assert ok.tolist() == [True, True, True, False, False]
+    poses, status = track.at(np.array([0, NS // 4, NS, NS + 1, -1]), max_gap_ns=NS)
+    assert (status == POSE_OK).tolist() == [True, True, True, False, False]
     np.testing.assert_array_equal(poses[0], np.eye(4))   # a sample's own stamp: the sample as it is
     np.testing.assert_allclose(poses[1][:3, 3], (0.5, 0.0, 0.0), atol=1e-12)
     np.testing.assert_allclose(poses[1][:3, :3], Rotation.from_euler("z", 22.5, degrees=True).as_matrix(), atol=1e-12)
     np.testing.assert_allclose(poses[2][:3, :3], Rotation.from_quat(Z90).as_matrix(), atol=1e-15)
-    _, ok = track.at(np.array([NS // 4, 0]), max_gap_ns=NS // 2)   # samples 1 s apart: no pose between them
-    assert ok.tolist() == [False, True]
+    _, status = track.at(np.array([NS // 4, 0]), max_gap_ns=NS // 2)   # samples 1 s apart: no pose between them
+    assert status.tolist() == [NO_SAMPLES, POSE_OK]
 
 
-def test_a_track_drops_samples_that_are_no_rigid_transform():
-    """NaN / inf and zero quaternions (a lost tracker) are dropped: no pose at or across them
-    when the samples left are too far apart."""
+def test_a_track_gives_no_pose_at_or_across_samples_that_are_no_rigid_transform():
+    """NaN / inf and zero quaternions (a lost tracker): no pose at them, nor interpolated across
+    them even when the samples around are close enough to bridge a missing one."""
     track = PoseTrack([0, NS // 10, 2 * NS // 10, 3 * NS // 10], [(0, 0, 0), (np.nan, 0, 0), (0, 0, 0), (1, 0, 0)],
                       [IDENTITY_Q, IDENTITY_Q, (0, 0, 0, 0), IDENTITY_Q])
     assert track.dropped == 2 and track.stamps.tolist() == [0, 3 * NS // 10]
-    _, ok = track.at(np.array([0, NS // 10, 2 * NS // 10]), max_gap_ns=NS // 5)
-    assert ok.tolist() == [True, False, False]
-    _, ok = PoseTrack([0], [(np.inf, 0, 0)], [IDENTITY_Q]).at(np.array([0]), max_gap_ns=NS)
-    assert not ok.any()
+    _, status = track.at(np.array([0, NS // 10, 2 * NS // 10, NS // 20]), max_gap_ns=NS)
+    assert status.tolist() == [POSE_OK, NON_FINITE, NON_FINITE, NON_FINITE]
+    _, status = PoseTrack([0], [(np.inf, 0, 0)], [IDENTITY_Q]).at(np.array([0]), max_gap_ns=NS)
+    assert status.tolist() == [NON_FINITE]
+    # a missing sample is bridged (the samples around it within max_gap_ns), a NaN one is not
+    _, status = PoseTrack([0, 2 * NS // 10], [(0, 0, 0), (1, 0, 0)], [IDENTITY_Q, IDENTITY_Q]).at(
+        np.array([NS // 10]), max_gap_ns=NS)
+    assert status.tolist() == [POSE_OK]
+
+
+def test_a_stamp_with_two_different_samples_is_ambiguous_and_a_repeated_one_is_not():
+    """Two different samples at one stamp (two frames stamped alike): no pose at or across it,
+    which is right is unknown; the same sample twice (a repeated message) counts once."""
+    t = [(0, 0, 0), (1, 0, 0), (2, 0, 0), (3, 0, 0)]
+    track = PoseTrack([0, NS // 10, NS // 10, 2 * NS // 10], t, [IDENTITY_Q] * 4)
+    poses, status = track.at(np.array([0, NS // 10, NS // 20, 2 * NS // 10]), max_gap_ns=NS)
+    assert status.tolist() == [POSE_OK, AMBIGUOUS, AMBIGUOUS, POSE_OK]
+    np.testing.assert_array_equal(poses[1], np.eye(4))
+    repeated = PoseTrack([0, NS // 10, NS // 10], [(0, 0, 0), (1, 0, 0), (1, 0, 0)], [IDENTITY_Q] * 3)
+    poses, status = repeated.at(np.array([NS // 10, NS // 20]), max_gap_ns=NS)
+    assert status.tolist() == [POSE_OK, POSE_OK] and poses[0][0, 3] == 1.0 and poses[1][0, 3] == 0.5
+
+
+def test_messages_sharing_a_stamp_are_repeats_or_clashes():
+    """Same stamp and pixels: a repeat (the first kept); same stamp, other pixels: every message
+    of the stamp clashes (none can be told from the others)."""
+    from calnav.mapping.sequences.rosbag_sync import digest, stamp_clashes
+
+    a, b = (SimpleNamespace(data=np.full(4, v, np.uint8)) for v in (1, 2))
+    repeat, shared = stamp_clashes([0, 5, 5, 9, 9, 9, 12], [digest(m) for m in (a, a, a, a, b, a, b)])
+    assert repeat.tolist() == [False, False, True, False, False, False, False]
+    assert shared.tolist() == [False, False, False, True, True, True, False]
+    assert not any(stamp_clashes([0, 1, 2], [1, 1, 1])[0])
 
 
 def test_the_tf_chain_composes_parent_transforms_from_the_fixed_frame_down():
@@ -53,8 +82,8 @@ def test_the_tf_chain_composes_parent_transforms_from_the_fixed_frame_down():
     tree = TfTree.from_transforms(static, moving)
     path = tree.chain("cam")   # the root above the camera ('/map' named as tf2 does: 'map')
     assert path == ["cam", "base", "map"] and tree.chain("cam", "base") == ["cam", "base"]
-    poses, ok, _ = tree.poses(path, np.array([NS // 2]), max_gap_ns=NS)
-    assert ok.all()
+    poses, status = tree.poses(path, np.array([NS // 2]), max_gap_ns=NS)
+    assert (status == POSE_OK).all()
     np.testing.assert_allclose(poses[0][:3, 3], (1.0, 1.0, 0.0), atol=1e-12)
     np.testing.assert_allclose(poses[0][:3, :3], Rotation.from_euler("z", 180, degrees=True).as_matrix(), atol=1e-12)
     with pytest.raises(ValueError, match="broken TF chain: no transform path from 'odom' to 'cam'; the chain from the "

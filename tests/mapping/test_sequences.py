@@ -284,6 +284,29 @@ def test_vertex_ground_truth_label_maps(tmp_path):
         vertex_ground_truth(_ply(tmp_path / "x.ply", [1, 2], prop="nyu"), CLASSES, SequenceConfig())
 
 
+def test_the_label_map_beside_the_ply_or_in_the_sequence_is_used_unless_configured(tmp_path):
+    """No sequence.label_map: the label_map.json beside the mesh (a bag file's --labels-ply), or
+    the sequence's own; the same table in both is one; two different ones are refused."""
+    from calnav.mapping.sequences import label_map_source
+
+    seq_dir, mesh_dir = tmp_path / "seq", tmp_path / "meshes"
+    seq_dir.mkdir(), mesh_dir.mkdir()
+    ply = _ply(mesh_dir / "s.labels.ply", [1, 2])
+    assert label_map_source(SequenceConfig(), seq_dir, ply) == "nyu40"
+    table = json.dumps({"1": "table", "2": "floor"})
+    (mesh_dir / "label_map.json").write_text(table)
+    assert label_map_source(SequenceConfig(), seq_dir, ply) == str(mesh_dir / "label_map.json")
+    _, cls = vertex_ground_truth(ply, CLASSES, SequenceConfig(), tmp_path / "bag.db3")
+    np.testing.assert_array_equal(cls, [TABLE, FLOOR])
+    (seq_dir / "label_map.json").write_text(table)
+    assert label_map_source(SequenceConfig(), seq_dir, ply) == str(mesh_dir / "label_map.json")
+    (seq_dir / "label_map.json").write_text(json.dumps({"1": "wall"}))
+    with pytest.raises(ValueError, match="two different label maps for .*s.labels.ply: .*meshes/label_map.json "
+                                         "\\(beside it\\) and .*seq/label_map.json \\(in the sequence's directory\\)"):
+        vertex_ground_truth(ply, CLASSES, SequenceConfig(), seq_dir)
+    assert label_map_source(SequenceConfig(label_map="nyu40"), seq_dir, ply) == "nyu40"
+
+
 def test_densify_bounds_edges_and_keeps_area_and_classes():
     from calnav.eval.sequence.export import densify
 

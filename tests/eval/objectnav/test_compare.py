@@ -9,7 +9,7 @@ import pytest
 import yaml
 
 from calnav.eval.objectnav.compare import cell_value, differing_keys, main_compare
-from calnav.eval.results_dir import flatten
+from calnav.eval.results_dir import ResultsError, flatten
 from calnav.eval.config import ConfigError
 from calnav.eval.stats import failure_modes, paired_difference
 
@@ -177,12 +177,22 @@ def test_compare_refuses_runs_without_shared_episodes(tmp_path, capsys):
 def test_compare_counts_a_duplicated_episode_once(tmp_path, capsys):
     cfg = {"agent": {"segmenter": "gt"}, "mapping": {"fusion": "rbu"}}
     recs = [_rec(0, 1.0, 1.0), _rec(1, 0.0, 0.0)]
-    r0 = _run_dir(tmp_path / "a", cfg, recs + [_rec(1, 1.0, 0.5)])  # episode 1 twice: the last one counts
+    r0 = _run_dir(tmp_path / "a", cfg, recs + [_rec(1, 0.0, 0.0)])  # episode 1 twice, the same result: once
     r1 = _run_dir(tmp_path / "b", {**cfg, "mapping": {"fusion": "glfs"}}, recs)
     main_compare(argparse.Namespace(runs=[r0, r1], keys="", baseline="0", output=str(tmp_path / "cmp")))
     md = (tmp_path / "cmp" / "comparison.md").read_text().splitlines()
-    assert md[2] == "| rbu | 0.750 (0.250) | 1.000 (0.000) | 0.750 (0.250) | 0.000 (0.000) | 2 |"
+    assert md[2] == "| rbu | 0.500 (0.500) | 0.500 (0.500) | 0.500 (0.500) | 0.500 (0.500) | 2 |"
     assert "1 duplicate record(s) of episode(s) 1" in capsys.readouterr().err
+
+
+def test_compare_refuses_two_different_records_of_one_episode(tmp_path):
+    cfg = {"agent": {"segmenter": "gt"}, "mapping": {"fusion": "rbu"}}
+    recs = [_rec(0, 1.0, 1.0), _rec(1, 0.0, 0.0)]
+    r0 = _run_dir(tmp_path / "a", cfg, recs + [_rec(1, 1.0, 0.5)])  # episode 1: a failure and a success
+    r1 = _run_dir(tmp_path / "b", {**cfg, "mapping": {"fusion": "glfs"}}, recs)
+    with pytest.raises(ResultsError, match=rf"^{r0}: episode 1 has two different records \(episodes.jsonl lines 2 and 3"):
+        main_compare(argparse.Namespace(runs=[r0, r1], keys="", baseline="0", output=str(tmp_path / "cmp")))
+    assert not (tmp_path / "cmp" / "comparison.md").exists()
 
 
 def test_compare_excludes_crashed_episodes_from_the_pairs(tmp_path, capsys):

@@ -257,7 +257,7 @@ def test_study_end_to_end(tmp_path, capsys):
 
 
 @pytest.mark.e2e
-def test_rows_left_out_by_rows_still_count_as_earlier_rows(tmp_path):
+def test_rows_left_out_by_rows_still_count_as_earlier_rows(tmp_path, capsys):
     """``--rows`` that leaves out a finished row whose evaluation config a later row shares: the
     later row names the finished row's records (``same_as``), as in a study run whole, instead
     of running the same episodes again. One-point grids make the shared config certain."""
@@ -279,6 +279,13 @@ def test_rows_left_out_by_rows_still_count_as_earlier_rows(tmp_path):
     assert manifest["gt/ndf@rbu"]["same_as"] == "gt/ndf"
     assert manifest["gt/ndf@rbu"]["dir"] == manifest["gt/ndf"]["dir"]
     assert not (out / "eval" / "gt" / "ndf@rbu").exists()
+
+    # records that are not what the manifest it carries says of them: a resume names the row
+    records = out / manifest["gt/ndf"]["dir"] / "episodes.jsonl"
+    rec = json.loads(records.read_text())
+    records.write_text(json.dumps({**rec, "success": 1.0 - rec["success"]}) + "\n")
+    assert main(["study", str(path), "--output", str(out), "--rows", "gt/ndf@rbu"]) == 2
+    assert f"{out / 'manifest.json'}: row gt/ndf's entry disagrees with its records {records}: " in capsys.readouterr().err
 
 
 @pytest.mark.e2e

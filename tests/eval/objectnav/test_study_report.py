@@ -28,12 +28,24 @@ def _study(tmp_path, rows: dict[str, list[dict]], entries: dict[str, dict], pair
             d = tmp_path / "eval" / name
             d.mkdir(parents=True)
             (d / "episodes.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows[name]))
-            e = {"status": "done", "dir": f"eval/{name}", "episode_seconds": 6.0,
+            e = {"status": "done", "dir": f"eval/{name}", "episode_seconds": sum(r["wall_time_s"] for r in rows[name]),
                  "config": {"env": {"max_episode_steps": 500}}, **e}
         manifest["rows"][name] = e
     path = tmp_path / "manifest.json"
     path.write_text(json.dumps(manifest))
     return path
+
+
+def _replace_records(path: "Path", row: str, recs: list[dict]) -> None:
+    """Row ``row``'s records replaced by ``recs``, its manifest entry's episode seconds with them
+    (as `calnav study` rewrites the entry of the records it ran)."""
+    (path.parent / "eval" / row / "episodes.jsonl").write_text("".join(json.dumps(r) + "\n" for r in recs))
+    from calnav.eval.objectnav.study import manifest_range
+
+    manifest = json.loads(path.read_text())
+    wanted = manifest_range(manifest["evaluate"]["episodes"])
+    manifest["rows"][row]["episode_seconds"] = sum(r["wall_time_s"] for r in recs if r["index"] in wanted)
+    path.write_text(json.dumps(manifest))
 
 
 def test_verdict_claims_only_beyond_two_sem():
@@ -156,7 +168,7 @@ def test_conclusions_answer_each_question_or_say_what_it_waits_for(tmp_path):
     page = render(_questions(tmp_path / "none", []))
     assert "The study file asks no questions." in page
     assert "fewer records" not in page
-    (tmp_path / "none" / "eval" / "g" / "episodes.jsonl").write_text(json.dumps(_rec(0, 1, 0.5)) + "\n")
+    _replace_records(tmp_path / "none" / "manifest.json", "g", [_rec(0, 1, 0.5)])
     assert "Rows holding fewer records than the evaluation episodes (rerun `calnav study` to fill them): g (1 of 4)." \
         in render(tmp_path / "none" / "manifest.json")
 
@@ -224,10 +236,10 @@ def test_rows_on_other_episodes_are_not_paired(tmp_path):
     is refused in one line, as is one whose rows share no episode."""
     other = [{**_rec(i, 1, 0.5), "geodesic_distance": 9.0 + i} for i in range(4)]
     path = _questions(tmp_path, [{"ask": "across styles?", "rows": ["g", "r"], "weights": [1.0, -1.0]}])
-    (tmp_path / "eval" / "g" / "episodes.jsonl").write_text("".join(json.dumps(r) + "\n" for r in other))
+    _replace_records(path, "g", other)
     with pytest.raises(ConfigError, match=r"^rows g and r hold different episodes at index 0 \(0 vs 0\); a paired"):
         render(path)
-    (tmp_path / "eval" / "g" / "episodes.jsonl").write_text(json.dumps({**_rec(7, 1, 0.5)}) + "\n")
+    _replace_records(path, "g", [_rec(7, 1, 0.5)])
     with pytest.raises(ConfigError, match="^rows g and r share no evaluation episode"):
         render(path)
 
@@ -360,3 +372,79 @@ def test_grid_table_names_the_thresholds_transferred_to_a_condition():
     for left_out in ("rgb/scanned/rbu@clean", "rgb/scanned/rbu"):
         rows = {**manifest["rows"], left_out: {**manifest["rows"][left_out], "status": "left_out"}}
         assert transfer_pairs({**manifest, "rows": rows}) == []
+
+
+def _claimed(recs: list[dict]) -> dict:
+    """What `calnav study` writes of a row's records in its manifest entry."""
+    from calnav.eval.objectnav.study import record_commits
+    from calnav.eval.stats import summarize
+
+    return {"episodes": len(recs), "episode_seconds": round(sum(r["wall_time_s"] for r in recs), 3),
+            "commits": record_commits(recs), "summary": {k: v for k, v in summarize(recs).items() if k != "per_category"}}
+
+
+def test_two_different_records_of_one_episode_in_a_row_are_refused(tmp_path):
+    """A row holding a success and a failure of episode 2: the page would show either one."""
+    from calnav.eval.results_dir import ResultsError
+
+    base = [_rec(0, 1, 0.5), _rec(1, 0, 0.0), _rec(2, 1, 0.8), _rec(3, 0, 0.0)]
+    path = _study(tmp_path, {"r": base}, {"r": {"overrides": [], "threshold_from": "", "threshold": 0.5}}, [])
+    with (tmp_path / "eval" / "r" / "episodes.jsonl").open("a") as f:
+        f.write(json.dumps(_rec(2, 0, 0.0)) + "\n")
+    with pytest.raises(ResultsError, match=rf"^{tmp_path / 'eval' / 'r'}: episode 2 has two different records "
+                                           r"\(episodes.jsonl lines 3 and 5: distance_to_goal 0.0 vs 2.0, softspl"):
+        render(path)
+    assert main(["report", str(path)]) == 2 and not (tmp_path / "results.md").exists()
+
+
+def test_a_manifest_that_disagrees_with_its_records_is_named(tmp_path):
+    """The manifest's episode count, summary and tuning grid are checked against the records they
+    come from: a row entry written from other records is one line naming the row and the field."""
+    from calnav.eval.results_dir import ResultsError
+
+    base = [_rec(0, 1, 0.5), _rec(1, 0, 0.0), _rec(2, 1, 0.8), _rec(3, 0, 0.0)]
+    entry = {"overrides": [], "threshold_from": "", "threshold": 0.5, **_claimed(base)}
+    path = _study(tmp_path, {"r": base}, {"r": entry}, [])
+    good = json.loads(path.read_text())
+    assert "| r | 0.5 | 0.500 (0.289) |" in render(path)   # the entry as `calnav study` writes it
+
+    def refused(change, match: str) -> None:
+        manifest = json.loads(json.dumps(good))
+        change(manifest["rows"]["r"])
+        path.write_text(json.dumps(manifest))
+        with pytest.raises(ResultsError, match=match):
+            render(path)
+
+    records = tmp_path / "eval" / "r" / "episodes.jsonl"
+    refused(lambda e: e["summary"].update(success=0.75),
+            rf"^{path}: row r's entry disagrees with its records {records}: success 0.75 where the records give 0.5; "
+            r"the records are the results: rerun `calnav study` on the row \(--rows r\) to rewrite its entry")
+    refused(lambda e: e.update(episodes=1200), r"row r's entry .*: episodes 1200 where the records give 4; ")
+    refused(lambda e: e.update(episodes=5, episode_seconds=7.5), r": episodes 5 where the records give 4 \(and 1 more field\(s\)\)")
+    # a tuning grid point's figures against that point's records
+    point = tmp_path / "tune" / "r" / "0.5_4"
+    point.mkdir(parents=True)
+    (point / "episodes.jsonl").write_text("".join(json.dumps(r) + "\n" for r in base[:2]))
+    grid = [{"threshold": 0.5, "min_area": 4, "success": 0.5, "success_sem": 0.5, "spl": 0.25, "spl_sem": 0.25,
+             "softspl": 0.25, "dtg": 1.0, "n": 2}]
+    good["rows"]["r"]["tune"] = {"dir": "tune/r", "grid": grid, "threshold": 0.5}
+    path.write_text(json.dumps(good))
+    render(path)
+    refused(lambda e: e["tune"]["grid"][0].update(n=300), rf"row r's tuning grid point 0.5_4 disagrees with its "
+                                                          rf"records {point / 'episodes.jsonl'}: n 300 where the records give 2;")
+
+
+def test_a_half_finished_row_is_never_called_run(tmp_path):
+    """A finished row holding 2 of its 4 evaluation episodes (its manifest entry agrees): the page
+    names it as short, and the compute line counts its 2 missing episodes as left to run."""
+    path = _questions(tmp_path, [])
+    manifest = json.loads(path.read_text())
+    del manifest["rows"]["p"]   # no pending row: only the short one is unfinished
+    path.write_text(json.dumps(manifest))
+    _replace_records(path, "g", [_rec(0, 1, 0.5), _rec(1, 1, 0.5)])
+    page = render(path)
+    assert "Rows holding fewer records than the evaluation episodes (rerun `calnav study` to fill them): g (2 of 4)." in page
+    assert "Every row the study runs has run." not in page
+    assert "The plan still needs about 2 episodes" in page
+    _replace_records(path, "g", [_rec(i, 1, 0.5) for i in range(4)])
+    assert "Every row the study runs has run." in render(path)

@@ -28,6 +28,7 @@ def test_check_a_user_scan(scene_dir, tmp_path, capsys):
     assert main(["check-scene", str(scene_dir / "apartment.npz"), "--output", str(out), "--episodes", "6"]) == 0
     text = capsys.readouterr().out
     assert "walkable floor" in text and "islands: 1 kept" in text and "episodes: 6 generated" in text
+    assert f"results: {out}/report.md, report.json, apartment.png, apartment.rrd\n" in text and "<scene>" not in text
     report = json.loads((out / "report.json").read_text())["scenes"][0]
     assert report["scene_id"] == "apartment" and report["generation"]["kept"] == 6
     assert report["figures"]["navigable_m2"] > 10 and report["figures"]["floor_above_p95_m"] == pytest.approx(0.035, abs=0.01)
@@ -42,6 +43,7 @@ def test_unusable_scenes_are_reported_and_refused(scene_dir, tmp_path, capsys):
     assert main(["check-scene", str(scene_dir / "bad"), "--output", str(out)]) == 2
     captured = capsys.readouterr()
     assert "cannot be used" in captured.out and "no navigable area" in captured.out
+    assert f"results: {out}/report.md, report.json\n" in captured.out   # no picture was drawn, none is listed
     err = captured.err.strip()
     assert "\n" not in err and "1 of 1 scenes cannot be used" in err and "closet" in err
     assert (out / "report.md").exists()

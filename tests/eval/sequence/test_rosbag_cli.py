@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from calnav.eval.cli import main
-from tests.rosbag_data import DROPPED, bag, folder, overrides
+from calnav.mapping.sequences import skips
+from tests.rosbag_data import DROPPED, ODOMETRY, bag, folder, overrides
 
 
 @pytest.fixture(scope="module")
@@ -54,6 +55,64 @@ def test_map_of_a_bag_is_the_map_of_its_folder(recorded, tmp_path, capsys, optio
     assert got_res["skipped_frames"] == skipped
     for key in ("miou", "ece", "tl_ece", "mece", "brier", "voxels", "labelled_voxels"):
         assert got_res[key] == want_res[key], key
+
+
+@pytest.mark.parametrize("options, rosbag, folder_keys, reasons", [
+    # frames 4 and 5 at one stamp (TF two poses there): both skipped; the folder's frames 0-3 are the rest
+    ({"shared_stamp": (5,)}, {}, ["sequence.max_frames=4"],
+     {skips.no_pose(0.2): [DROPPED], skips.SHARED_STAMP: [4, 5]}),
+    # frame 3's messages twice: the repeat is skipped, not fused twice
+    ({"repeat": (3,), "storage": "mcap"}, {}, [], {skips.no_pose(0.2): [DROPPED], skips.REPEATED: [4]}),
+    # frame 2's odometry a NaN sample, its neighbours 0.18 s apart: skipped as the folder's -inf pose is
+    ({"bad_pose": "nan", "period_s": 0.09, "pose": "odometry", "storage": "sqlite3"}, ODOMETRY, [],
+     {skips.NON_FINITE_POSE: [DROPPED]}),
+])
+def test_shared_stamps_repeats_and_nan_poses_map_as_the_folder(recorded, tmp_path, capsys, options, rosbag,
+                                                               folder_keys, reasons):
+    """The bag's faulty frames are skipped and counted with their reasons (printed, and
+    ``skip_reasons`` in results.json); the map is the folder's on the same frames."""
+    seq, ply, folder_out = recorded
+    if folder_keys:
+        folder_out = tmp_path / "folder_map"
+        assert main(["map", str(seq), "--layout", "scannet", "--segmenter", "gt", "--output", str(folder_out),
+                     *folder_keys]) == 0
+    path = bag(seq, "cli_" + "_".join(f"{k}{v}" for k, v in options.items()).replace(" ", "").replace(",", ""),
+               **options)
+    out = tmp_path / "bag_map"
+    capsys.readouterr()
+    assert main(["map", str(path), "--layout", "rosbag", "--segmenter", "gt", "--labels-ply", str(ply),
+                 "--output", str(out), f"sequence.label_map={seq / 'label_map.json'}", *overrides(**rosbag)]) == 0
+    printed = capsys.readouterr().out
+    (want, want_res), (got, got_res) = _map(folder_out), _map(out)
+    skipped = sorted(i for v in reasons.values() for i in v)
+    assert f"{want_res['frames']} frames fused ({len(skipped)} skipped: " in printed, printed
+    for reason, frames in reasons.items():
+        assert f"{len(frames)} with {reason}" in printed, printed
+    assert got_res["skipped_frames"] == skipped and got_res["skip_reasons"] == reasons
+    assert got_res["frames"] == want_res["frames"] and got_res["voxels"] == want_res["voxels"]
+    np.testing.assert_array_equal(got["centres"], want["centres"])
+    np.testing.assert_array_equal(got["probs"], want["probs"])
+
+
+def test_the_label_map_beside_the_labels_ply_is_used_when_none_is_configured(recorded, tmp_path, capsys):
+    """A bag file has no sequence folder: the mesh's raw labels are read through the
+    label_map.json beside ``--labels-ply`` (not NYU40's ids); two different ones, beside the mesh
+    and in the sequence's directory, are a one-line refusal."""
+    seq, ply, folder_out = recorded
+    path = bag(seq, "cli_label_map")
+    out = tmp_path / "bag_map"
+    assert main(["map", str(path), "--layout", "rosbag", "--segmenter", "gt", "--labels-ply", str(ply),
+                 "--output", str(out), *overrides()]) == 0
+    (_, want), (_, got) = _map(folder_out), _map(out)
+    assert got["label_map"] == str(seq / "label_map.json") and got["miou"] == want["miou"] > 0.5
+    # a ROS 2 bag directory holding its own, different, label map, and the mesh's beside it
+    ros2 = bag(seq, "cli_label_map2", storage="sqlite3")
+    (ros2 / "label_map.json").write_text(json.dumps({"1": "wall"}))
+    capsys.readouterr()
+    _fails(["map", str(ros2), "--layout", "rosbag", "--segmenter", "gt", "--labels-ply", str(ply), *overrides()],
+           capsys, f"two different label maps for {ply}: {seq / 'label_map.json'} (beside it) and "
+                   f"{ros2 / 'label_map.json'} (in the sequence's directory); set sequence.label_map to the one "
+                   "its labels are read through", tmp_path / "ambiguous")
 
 
 def _fails(args, capsys, message: str, out) -> str:
