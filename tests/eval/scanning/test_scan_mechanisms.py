@@ -33,12 +33,14 @@ def scan_worlds(tmp_path_factory):
     return cfg, gym.make(envs.ENV_ID, split="val", config=cfg.env)
 
 
-def _run(env, agent, index: int) -> dict:
+def _run(env, agent, index: int, action_of=int) -> dict:
+    """Episode ``index`` driven by ``agent``; ``action_of``: the action id of what its ``act``
+    returns (the env's oracle an id, a registry agent an ``agent.step.Step``)."""
     obs, info = env.reset(options={"episode_index": index})
     agent.reset(obs)
     done = False
     while not done:
-        obs, _, terminated, truncated, info = env.step(agent.act(obs).action)
+        obs, _, terminated, truncated, info = env.step(action_of(agent.act(obs)))
         done = terminated or truncated
     return info
 
@@ -72,7 +74,7 @@ def test_the_agent_finishes_its_approach(scan_worlds, category):
     indices = [i for i, e in enumerate(env.unwrapped.episodes) if e.object_category == category]
     assert indices, f"no {category} episode"
     for i in indices:
-        info = _run(env, agent, i)
+        info = _run(env, agent, i, lambda step: step.action)
         assert info["success"] == 1.0, (i, info["distance_to_goal"], info["steps"], agent.info.mode)
         assert info["steps_at_goal"] <= LINGER_STEPS, (i, info["steps_at_goal"])
         assert np.isfinite(info["spl"])
