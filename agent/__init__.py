@@ -5,8 +5,9 @@ per stage, one file per stage:
 | stage | file | what it does |
 |---|---|---|
 | contract | ``contract.py`` | the ``Observation`` (Habitat's keys) the parts read, the ``Privileged`` part only a part declaring it gets, the ``Agent`` protocol |
-| registries | ``registry.py`` | ``MAP_BUILDERS`` (``agent.map_type``), ``GOAL_SELECTORS`` (``agent.exploration``), ``AGENTS`` (``run.agent``: peanut, oracle) and ``build_agent`` |
+| registries | ``registry.py`` | ``MAP_BUILDERS`` (``agent.map_type``), ``GOAL_SELECTORS`` (``agent.exploration``), ``AGENTS`` (``run.agent``: peanut, oracle) |
 | config | ``config.py`` | ``AgentConfig`` (YAML section ``agent``), every default with its unit |
+| setup | ``setup.py`` | ``AgentSetup``: what an agent is built from (its sections, the task's ``SensorSetup``, the device), and ``build_agent`` |
 | perceive | ``perception.py`` | subsample to 160x120 and segment: ``mapping.frame.SegmentedFrame`` (depth, k, logits, rgb) |
 | map | ``semantic_map.py`` | ``MapChannels``, ``MapState`` (2D map + the episode's 3D voxel map) and the map builders (``FusedMapBuilder``, ``NdfMapBuilder``): incremental ground projection |
 | grid geometry | ``projection.py`` | back-projection, cell indices, free rays, discs, dilation |

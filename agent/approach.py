@@ -81,7 +81,7 @@ class Approach:
 
 class GoalApproach:
     """The approach to an accepted goal (module docstring). ``env``: the task's facts
-    (``env.view_point_radius_m``, ``env.hfov_deg``)."""
+    (``agent.setup.SensorSetup``: ``view_point_radius_m``, ``hfov_deg``)."""
 
     def __init__(self, cfg: AgentConfig, env):
         self.cfg = cfg

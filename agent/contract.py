@@ -14,14 +14,14 @@ An agent splits it once, where it receives it (``split_observation``):
   just what the part's *class* declares (``privileged = (CAMERA_POSE, ...)``): today the
   ``noisy`` segmenter (its world-anchored errors), nothing else of the PEANUT-like agent;
 - the simulator itself (``SIMULATOR``: ``envs.task.SimulatorHandle``, the env's privileged
-  handle) is handed at construction, by ``agent.registry.build_agent``, to an agent class that
+  handle) is handed at construction, by ``agent.setup.build_agent``, to an agent class that
   declares it: the oracle (``agent.oracle``).
 """
 from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, fields, replace
-from typing import Any, Iterator, Protocol
+from typing import TYPE_CHECKING, Any, Iterator, Protocol
 
 import numpy as np
 
@@ -110,12 +110,17 @@ def handed(part: Any, privileged: Privileged | None) -> Privileged:
     return privileged.only(declared_privileged(part))
 
 
+if TYPE_CHECKING:
+    from calnav.agent.step import Step
+
+
 class Agent(Protocol):
     """An ObjectNav agent: ``reset(obs)`` on an episode's first observation, then
-    ``act(obs) -> int`` (an ``envs.task.Action`` id) per step. ``obs`` is the env's observation
+    ``act(obs) -> Step`` per step (``agent.step.Step``: its ``envs.task.Action`` id and what it
+    decided it from). ``obs`` is the env's observation
     dict; the agent splits it (``split_observation``). A class may declare
     ``privileged = (SIMULATOR,)`` to be built with the env's ``SimulatorHandle``."""
 
     def reset(self, obs: Mapping) -> None: ...
 
-    def act(self, obs: Mapping) -> int: ...
+    def act(self, obs: Mapping) -> "Step": ...

@@ -3,11 +3,11 @@
 
 ``HabitatAgent(navigator)`` wraps the agent as a library (``agent.navigator.Navigator``, of any
 agent of ``agent.registry.AGENTS``; ``calnav habitat-benchmark`` builds it as ``calnav objectnav``
-does). ``HabitatPeanutAgent(cfg)`` is the PEANUT-like agent so wrapped: cfg is
-calnav's ``Config`` (``agent.*``: segmenter, map type, fusion + GLFS parameters in
-``mapping.*``, thresholds -- as ``calnav objectnav``) whose ``env`` section states the task's
-sensor facts; build it from the habitat config with
-``envs.habitat_config.env_config_from_habitat(habitat_cfg, cfg.env)`` (which needs no
+does). ``HabitatPeanutAgent(setup)`` is the PEANUT-like agent so wrapped: ``setup`` is its
+``agent.setup.AgentSetup`` (``agent``: segmenter, map type, thresholds; ``mapping``: fusion +
+GLFS parameters -- as ``calnav objectnav``) whose ``sensor`` states the task's sensor facts;
+calnav's commands make it with ``eval.config.agent_setup`` from a config whose ``env`` section
+is ``envs.habitat_config.env_config_from_habitat(habitat_cfg, cfg.env)`` (which needs no
 simulator). What crosses the boundary, and how:
 
 - ``reset()`` takes no observations in habitat-lab: it is the Navigator's ``reset()``, which
@@ -17,21 +17,24 @@ simulator). What crosses the boundary, and how:
   rgb (H, W, 3) uint8, depth (H, W, 1), gps (2,), compass (1,), objectgoal (1,)); only
   ``semantic`` (for the gt / noisy segmenters) changes shape, habitat's (H, W, 1) -> (H, W);
 - depth: habitat-lab normalises it by default (``normalize_depth``: (d - min) / (max - min),
-  clipped to [0, 1]); ``env.normalize_depth`` / ``env.min_depth_m`` / ``env.max_depth_m``
-  (from the depth sensor config) let the agent map it back to metres, 0 and 1 read as invalid;
+  clipped to [0, 1]); ``sensor.normalize_depth`` / ``min_depth_m`` / ``max_depth_m`` (from the
+  depth sensor config) let the agent map it back to metres, 0 and 1 read as invalid;
 - pose: the agent's map lives in the episode-start frame; gps (forward, right) and compass
   (ccw) give position and heading in it (``envs.task.gps_compass_to_xy_yaw``), the camera
-  height ``env.camera_height_m`` comes from the sensor position;
-- intrinsics: a pinhole of ``env.resolution`` and ``env.hfov_deg`` (the sensor config);
+  height ``sensor.camera_height_m`` comes from the sensor position;
+- intrinsics: a pinhole of ``sensor.resolution`` and ``sensor.hfov_deg`` (the sensor config);
 - actions: calnav's ids are habitat-lab's ObjectNav action order; the agent returns the action
   *name* (``stop``, ``move_forward``, ``turn_left``, ``turn_right``, ``look_up``,
   ``look_down``), which habitat-lab resolves whatever order a config lists them in.
 """
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from calnav.agent.navigator import Navigator
+from calnav.agent.setup import AgentSetup
 from calnav.common.habitat_import import import_habitat
 from calnav.envs.task import HABITAT_KEYS, SEMANTIC, Action
 
@@ -56,27 +59,28 @@ def from_habitat_observations(observations) -> dict:
 
 class HabitatAgent(habitat.Agent):
     """A ``Navigator`` behind habitat-lab's ``Agent`` interface (see the module docstring);
-    ``navigator`` is the wrapped one, ``agent`` its registry agent."""
+    ``navigator`` is the wrapped one, ``decision`` its last step (``agent.navigator.Decision``,
+    with the agent's ``agent.step.Step``; None before the first)."""
 
     def __init__(self, navigator: Navigator):
         self.navigator = navigator
         self.navigator.reset()
-
-    @property
-    def agent(self):
-        return self.navigator.agent
+        self.decision = None
 
     def reset(self) -> None:
         """Start a new episode: goal and start pose come with the first observations."""
         self.navigator.reset()
+        self.decision = None
 
     def act(self, observations) -> dict:
         """habitat-lab's action dict ``{"action": name}`` for these observations."""
-        return {"action": habitat_action(self.navigator.observe(from_habitat_observations(observations)).action)}
+        self.decision = self.navigator.observe(from_habitat_observations(observations))
+        return {"action": habitat_action(self.decision.action)}
 
 
 class HabitatPeanutAgent(HabitatAgent):
-    """The PEANUT-like agent of ``cfg`` (``run.agent=peanut`` on ``run.device``) as a ``habitat.Agent``."""
+    """The PEANUT-like agent of ``setup`` (``agent.setup.AgentSetup``; ``name`` peanut) as a
+    ``habitat.Agent``."""
 
-    def __init__(self, cfg):
-        super().__init__(Navigator(cfg, agent="peanut"))
+    def __init__(self, setup: AgentSetup):
+        super().__init__(Navigator(dataclasses.replace(setup, name="peanut")))

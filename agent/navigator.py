@@ -1,9 +1,11 @@
 """The ObjectNav agent as a library: ``Navigator``, the one entry point a robot program imports.
 
-    from calnav.eval.config import load_config
+    from calnav.agent.config import AgentConfig
     from calnav.agent.navigator import Navigator
+    from calnav.agent.setup import AgentSetup, SensorSetup
 
-    nav = Navigator(load_config("configs/objectnav.yaml", ["agent.segmenter=learned_rgb"]))
+    nav = Navigator(AgentSetup(agent=AgentConfig(segmenter="learned_rgb"),
+                               sensor=SensorSetup(resolution=(640, 480), hfov_deg=79.0, camera_height_m=0.88)))
     nav.reset("chair")
     while True:
         decision = nav.act(rgb, depth, pose=camera_pose)   # or gps=..., compass=...
@@ -15,20 +17,22 @@ The Navigator is how every calnav command that runs episodes runs the agent: ``c
 objectnav`` (its workers drive a Navigator through the episode loop, ``eval.rollout``, as an
 ``EpisodeAgent``), ``calnav habitat-benchmark`` (``agent.habitat_agent.HabitatAgent`` wraps
 one), ``calnav view-episode``, ``calnav collect-maps`` and ``calnav replay`` (``calnav bench``
-times the agent's stages and ``calnav start-pose`` steps several agents in lockstep: both reach
-inside it). It builds the agent of ``cfg.run.agent`` with ``agent.registry.build_agent`` from
-the same config (sections env, mapping, run, agent, segmenter: the keys of
-``configs/objectnav.yaml``); every step is ``observe(obs)`` on a Habitat observation (rgb,
+times the agent's stages and ``calnav start-pose`` steps several agents in lockstep: both
+drive the registry agent itself). It builds the agent ``setup.name`` with ``agent.setup.build_agent`` from its
+typed setup (``agent.setup.AgentSetup``: the agent, segmenter and mapping sections, the sensor's
+facts, the device; a command makes it from its config with ``eval.config.agent_setup``); every step is ``observe(obs)`` on a Habitat observation (rgb,
 depth, gps, compass, objectgoal; ``semantic`` and the privileged keys when an env gives them),
 which ``act`` builds from a robot's inputs (the goal's id, gps and compass from a pose). It
-reads the agent's step back in metres (``Decision``); the map is read and saved with ``map`` /
+turns the agent's step (``agent.step.Step``) into metres (``Decision``, which carries the step
+for the episode loop's hooks); the map is read and saved with ``map`` /
 ``save_map`` (``agent.navigator_map.AgentMap``).
 
 Inputs of ``act`` (shapes, units): ``rgb`` (H, W, 3) uint8; ``depth`` (H, W) or (H, W, 1)
 float32 at the same size, metres (0 = invalid), or Habitat's normalised [0, 1] depth when
-``env.normalize_depth`` is true; (H, W) must be ``env.resolution`` and the camera a pinhole of
-``env.hfov_deg`` with its principal point at the image centre, level (no pitch, no roll), at
-``env.camera_height_m`` above the floor -- the agent's sensor model (``agent.sensors``).
+``sensor.normalize_depth`` is true; (H, W) must be ``sensor.resolution`` and the camera a pinhole
+of ``sensor.hfov_deg`` with its principal point at the image centre, level (no pitch, no roll), at
+``sensor.camera_height_m`` above the floor -- the agent's sensor model (``agent.sensors``;
+``env.*`` of the same names in a calnav config).
 
 The pose, one of:
 
@@ -47,7 +51,7 @@ first step, on the floor; +x forward at that step, +y to its left, +z up; metres
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -56,6 +60,8 @@ import numpy as np
 from calnav.agent.navigator_map import AgentMap
 from calnav.agent.sensors import check_depth, check_resolution
 from calnav.agent.segmenters.base import task_goal_categories
+from calnav.agent.setup import AgentSetup, build_agent
+from calnav.agent.step import Step
 from calnav.envs.task import (COMPASS, DEPTH, GPS, OBJECTGOAL, RGB, SEMANTIC, Action, gps_compass_to_xy_yaw,
                               require_keys, xy_yaw_to_gps_compass, yaw_to_habitat_quaternion)
 
@@ -152,7 +158,9 @@ class Decision:
     ``long_term_goal`` (x, y): the frontier / predicted goal it explores toward, or the goal
     cell nearest it when heading for a detection (None when it has none); ``short_term_goal``
     (x, y): the point its planner steers to now, ``agent.ring_cells`` away (None when it turns
-    in place); ``goal``: the goal component it heads for, or None."""
+    in place); ``goal``: the goal component it heads for, or None; ``agent_step``: the agent's
+    own step it was read from (``agent.step.Step``: map state, step info, frame), what the
+    episode loop's hooks draw."""
 
     action: Action
     mode: str
@@ -162,28 +170,27 @@ class Decision:
     long_term_goal: tuple[float, float] | None
     short_term_goal: tuple[float, float] | None
     goal: GoalSighting | None
+    agent_step: Step = field(compare=False, repr=False)   # (the map it holds is no value to compare)
 
 
 class Navigator:
-    """The agent of ``cfg`` (an ``eval.config.Config`` with the sections env, mapping, run, agent,
-    segmenter: ``eval.config.load_config(path, overrides)``) as a library (module docstring).
+    """The agent of ``setup`` (an ``agent.setup.AgentSetup``) as a library (module docstring).
     ``reset(goal)`` starts a search; ``act(rgb, depth, pose=... | gps=..., compass=...)`` returns
-    a ``Decision``; ``map()`` / ``save_map(path)`` read and save the map at any time. ``agent``:
-    the ``run.agent`` name (default ``cfg.run.agent``); ``simulator``: an env's privileged handle
-    (``envs.task.SimulatorHandle``), for an agent that declares it (the oracle)."""
+    a ``Decision``; ``map()`` / ``save_map(path)`` read and save the map at any time.
+    ``simulator``: an env's privileged handle (``envs.task.SimulatorHandle``), for an agent that
+    declares it (the oracle)."""
 
-    def __init__(self, cfg: Any, *, agent: str | None = None, simulator=None):
-        from calnav.agent.registry import build_agent
-
-        self.cfg = cfg
-        self.agent_name = agent or cfg.run.agent
-        self.agent = build_agent(self.agent_name, cfg, simulator=simulator)
-        self.goal_categories = task_goal_categories(cfg.agent)   # what objectgoal ids index (the task's contract)
+    def __init__(self, setup: AgentSetup, *, simulator=None):
+        self.setup = setup
+        self.agent_name = setup.name
+        self.agent = build_agent(setup, simulator=simulator)
+        self.goal_categories = task_goal_categories(setup.agent)   # what objectgoal ids index (the task's contract)
         self._goal_id: int | None = None           # reset's goal; None: the first observation's
         self._start: StartFrame | None = None
         self._last_gps: np.ndarray | None = None   # the last act's gps (float64 m): the motion check
         self._reset = self._started = False
         self._steps = 0
+        self._last: Step | None = None   # the agent's last step: its map and frame
 
     @property
     def goal(self) -> str | None:
@@ -195,8 +202,7 @@ class Navigator:
     def needs_semantic(self) -> bool:
         """Whether ``act`` needs ``semantic=``: the segmenter reads a simulator's semantic sensor
         (``gt``, ``noisy``)."""
-        perception = getattr(self.agent, "perception", None)   # the oracle perceives nothing
-        return bool(perception is not None and perception.segmenter.needs_semantic)
+        return bool(self.agent.needs_semantic)
 
     @property
     def goal_names(self) -> tuple[str, ...]:
@@ -222,6 +228,7 @@ class Navigator:
         self._goal_id = None if goal is None else self.goal_id(goal)
         self._start, self._reset, self._started, self._steps = None, True, False, 0
         self._last_gps: np.ndarray | None = None
+        self._last = None
 
     def act(self, rgb: np.ndarray, depth: np.ndarray, *, gps=None, compass=None, pose=None,
             semantic: np.ndarray | None = None) -> Decision:
@@ -270,8 +277,8 @@ class Navigator:
         if depth.shape[:2] != rgb.shape[:2] or depth.ndim not in (2, 3) or depth.shape[2:] not in ((), (1,)):
             raise ValueError(f"depth must be (H, W) or (H, W, 1) at the rgb's size {rgb.shape[1]}x{rgb.shape[0]}; "
                              f"got shape {depth.shape}")
-        check_resolution(depth.shape[:2], self.cfg.env.resolution)
-        check_depth(depth, self.cfg.env.normalize_depth)
+        check_resolution(depth.shape[:2], self.setup.sensor.resolution)
+        check_depth(depth, self.setup.sensor.normalize_depth)
         if self.needs_semantic:
             require_keys(obs, (SEMANTIC,), f"the {self.agent.perception.segmenter.name!r} segmenter")
         gps, compass = np.asarray(obs[GPS]), np.asarray(obs[COMPASS])
@@ -313,10 +320,10 @@ class Navigator:
         """The agent's step on a checked observation (``_check``)."""
         if not self._started:
             self._begin(obs)
-        action = self.agent.act(obs)
+        step = self._last = self.agent.act(obs)
         self._steps += 1
         self._last_gps = np.asarray(obs[GPS], np.float64)   # only a step taken is the next one's reference
-        return self._decision(action, obs)
+        return self._decision(step, obs)
 
     def _gps_compass(self, gps, compass, pose) -> tuple[StartFrame | None, np.ndarray, np.ndarray]:
         """(start frame, gps (2,), compass (1,)) of ``act``'s pose arguments, changing no state:
@@ -333,12 +340,12 @@ class Navigator:
         return self._start, np.asarray(gps, np.float32), np.asarray(compass, np.float32).reshape(-1)
 
     # ------------------------------------------------------------------ reading the step
-    def _decision(self, action: int, obs: dict) -> Decision:
+    def _decision(self, step: Step, obs: dict) -> Decision:
         xy, yaw = gps_compass_to_xy_yaw(obs[GPS], obs[COMPASS])
-        info = getattr(self.agent, "info", None)   # a map-less agent (the oracle) tells only its action
+        info = step.info   # a map-less agent (the oracle) tells only its action
         ltg = stg = goal = None
         if info is not None:
-            state, cell_m = self.agent.state, self.agent.cfg.cell_m
+            state, cell_m = step.state, step.cell_m
             # the step's cells are in its planning window's coordinates, or the map's without one
             off = (info.window[0].start, info.window[1].start) if info.window is not None else (0, 0)
 
@@ -354,8 +361,8 @@ class Navigator:
                 centre = point(np.argwhere(det.mask).mean(axis=0))
                 goal = GoalSighting(info.mode != "verify", float(det.peak), det.area * cell_m ** 2, centre)
         mode = info.mode if info is not None else ""
-        return Decision(Action(int(action)), mode, self._steps, (float(xy[0]), float(xy[1])), float(yaw),
-                        ltg, stg, goal)
+        return Decision(Action(int(step.action)), mode, self._steps, (float(xy[0]), float(xy[1])), float(yaw),
+                        ltg, stg, goal, step)
 
     @property
     def start_frame(self) -> StartFrame | None:
@@ -367,24 +374,24 @@ class Navigator:
     def frame(self):
         """The last frame the agent mapped (``mapping.frame.SegmentedFrame`` at
         ``agent.map_resolution``: depth (h, w) m, logits (h, w, K), rgb), or None."""
-        return getattr(self.agent, "frame", None)
+        return None if self._last is None else self._last.frame
 
     @property
     def class_names(self) -> tuple[str, ...]:
         """The map's classes (the segmenter's), K; none for a map-less agent."""
-        return tuple(getattr(self.agent, "class_names", ()))
+        return tuple(self.agent.class_names)
 
     # ------------------------------------------------------------------ the map
     def map(self) -> AgentMap:
         """A copy of the explored part of the 2D map and of the 3D voxel map
         (``agent.navigator_map.AgentMap``); ValueError before the first ``act``."""
-        if not hasattr(self.agent, "state"):
+        if not self.class_names:
             raise ValueError(f"agent {self.agent_name!r} keeps no map; run.agent=peanut does")
-        if not self._started or self.agent.state is None:
+        step = self._last
+        if not self._started or step is None:
             raise ValueError("the agent has no map yet: call reset(goal) and act() first")
-        agent = self.agent
-        return AgentMap.of_state(agent.state, agent.cfg.cell_m, agent.class_names, self.cfg.mapping.voxel_size_m,
-                                 agent.goal_name, agent.steps, agent.cfg.map_type)
+        return AgentMap.of_state(step.state, step.cell_m, step.class_names, self.setup.mapping.voxel_size_m,
+                                 step.goal_name, step.steps, self.setup.agent.map_type)
 
     def save_map(self, path: str | Path) -> Path:
         """``map()`` written to ``path`` (``AgentMap.save``: a ``calnav map`` map file plus the 2D map)."""
@@ -392,23 +399,21 @@ class Navigator:
 
 
 class EpisodeAgent:
-    """A Navigator as the episode loop's agent (``agent.contract.Agent``, ``eval.rollout``):
-    ``reset(obs)`` starts a search for ``obs``'s objectgoal on it, ``act(obs)`` is
-    ``navigator.observe(obs).action``. This is how ``calnav objectnav`` runs the agent. The
-    loop's hooks (video, Rerun, map collection) draw the agent's internals (``PeanutAgent``:
-    state, info, frame), so an attribute this class lacks is read from ``navigator.agent``."""
+    """A Navigator as the episode loop's agent (``agent.contract.Agent``, ``eval.rollout``), on
+    its public calls only: ``reset(obs)`` is ``navigator.reset()`` and ``begin(obs)`` (a search
+    for ``obs``'s objectgoal), ``act(obs)`` the ``agent.step.Step`` of ``navigator.observe(obs)``,
+    which the loop's hooks read. This is how ``calnav objectnav`` runs the agent."""
 
     def __init__(self, navigator: Navigator):
         self.navigator = navigator
+
+    @property
+    def class_names(self) -> tuple[str, ...]:
+        return self.navigator.class_names
 
     def reset(self, obs: Mapping) -> None:
         self.navigator.reset()
         self.navigator.begin(obs)
 
-    def act(self, obs: Mapping) -> int:
-        return int(self.navigator.observe(obs).action)
-
-    def __getattr__(self, name: str):
-        if name == "navigator":   # not set yet (unpickling): no recursion
-            raise AttributeError(name)
-        return getattr(self.navigator.agent, name)
+    def act(self, obs: Mapping) -> Step:
+        return self.navigator.observe(obs).agent_step

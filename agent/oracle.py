@@ -1,22 +1,27 @@
 """``OracleAgent`` (``run.agent=oracle``): the shortest path to the goal, for validating
 episodes, geodesics and metrics. It is privileged by declaration (``privileged = (SIMULATOR,)``,
-``agent.contract``): ``agent.registry.build_agent`` hands it the env's ``SimulatorHandle``
+``agent.contract``): ``agent.setup.build_agent`` hands it the env's ``SimulatorHandle``
 (``envs.task``: the simulator's shortest-path follower on its true pose), and it reads nothing
 of the observations. Like PEANUT, it calls STOP on the episode's last step.
 """
 from __future__ import annotations
 
-from typing import Any, Mapping
+from typing import Mapping
 
 from calnav.agent.contract import SIMULATOR
+from calnav.agent.setup import AgentSetup
+from calnav.agent.step import Step
 from calnav.envs.task import Action, SimulatorHandle
 
 
 class OracleAgent:
-    """``OracleAgent(simulator)``; ``reset(obs)`` / ``act(obs) -> int`` (``agent.contract.Agent``)."""
+    """``OracleAgent(simulator)``; ``reset(obs)`` / ``act(obs) -> Step`` (``agent.contract.Agent``:
+    the action alone, a map-less ``agent.step.Step``)."""
 
     name = "oracle"
     privileged = (SIMULATOR,)
+    class_names: tuple[str, ...] = ()   # it keeps no map
+    needs_semantic = False
 
     def __init__(self, simulator: SimulatorHandle, categories: tuple[str, ...] = ()):
         self.simulator = simulator
@@ -24,12 +29,12 @@ class OracleAgent:
         self.steps = 0
 
     @classmethod
-    def from_config(cls, cfg: Any, simulator: SimulatorHandle) -> "OracleAgent":
-        """The registry's builder (``agent.registry.build_agent``); the config sets only the task's
+    def from_setup(cls, setup: AgentSetup, simulator: SimulatorHandle) -> "OracleAgent":
+        """The registry's builder (``agent.setup.build_agent``); the setup sets only the task's
         goal categories (``agent.goal_categories``)."""
         from calnav.agent.segmenters.base import task_goal_categories
 
-        return cls(simulator, task_goal_categories(getattr(cfg, "agent", None)))
+        return cls(simulator, task_goal_categories(setup.agent))
 
     def goal_names(self) -> tuple[str, ...]:
         """The goal categories it can be asked for: every ObjectNav goal (it reads the scene)."""
@@ -41,8 +46,8 @@ class OracleAgent:
         self.simulator.reset()
         self.steps = 0
 
-    def act(self, obs: Mapping) -> int:
+    def act(self, obs: Mapping) -> Step:
         self.steps += 1   # this action is the episode's steps-th
         if self.steps >= self.simulator.max_episode_steps:
-            return int(Action.STOP)  # forced STOP on the last step, as PEANUT does
-        return int(self.simulator.shortest_path_action())
+            return Step(int(Action.STOP), self.steps)  # forced STOP on the last step, as PEANUT does
+        return Step(int(self.simulator.shortest_path_action()), self.steps)

@@ -22,8 +22,7 @@ which counts path length only) so the first frontier choice sees all around.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Any, Mapping
+from typing import Mapping
 
 import numpy as np
 
@@ -33,11 +32,12 @@ from calnav.agent.config import AgentConfig
 from calnav.agent.contract import split_observation
 from calnav.agent.goal_detection import GoalDetection, GoalDetector
 from calnav.agent.perception import Perception
-from calnav.agent.planner import Plan, Planner
+from calnav.agent.planner import Planner
 from calnav.agent.projection import dilate
 from calnav.agent.registry import GOAL_SELECTORS, MAP_BUILDERS, STOREY_AGENTS
 from calnav.agent.segmenters.base import task_goal_categories
-from calnav.agent.sensors import SensorModel
+from calnav.agent.setup import AgentSetup
+from calnav.agent.step import Step, StepInfo
 from calnav.agent.watchdog import LOOP, ProgressWatchdog
 from calnav.envs.task import OBJECTGOAL, Action
 
@@ -45,40 +45,25 @@ PLAN_MARGIN_M = 1.0  # the planning window: explored bounding box + this margin 
 HEADING_MODES = ("goal", "verify")   # steps that head for a detected component (the one a loop defers)
 
 
-@dataclass
-class StepInfo:
-    """What the agent decided and why (for visualisation): mode is one of 'spin', 'untrap' (the escape),
-    'goal', 'verify', 'explore', 'stop'. detection / plan / long_term_goal are in window
-    coordinates (``window`` = (row slice, col slice) of the map), frontiers in map coordinates."""
-
-    mode: str
-    detection: GoalDetection | None
-    plan: Plan | None
-    long_term_goal: tuple[int, int] | None
-    frontiers: np.ndarray | None
-    window: tuple[slice, slice] | None = None
-
-
 class PeanutAgent:
-    """``PeanutAgent(cfg, device)``: cfg provides ``.agent`` (AgentConfig), ``.segmenter``
-    (SegmenterConfig), ``.mapping`` (MappingConfig) and from ``.env`` the task facts
-    max_episode_steps, turn_angle_deg, view_point_radius_m and the sensor's resolution,
-    hfov_deg, camera_height_m, min/max_depth_m, normalize_depth (not simulator state).
-    ``reset(obs)``, ``act(obs) -> int`` (``agent.contract.Agent``); obs holds Habitat's keys."""
+    """``PeanutAgent(setup)`` (``agent.setup.AgentSetup``: its ``agent``, ``segmenter`` and
+    ``mapping`` sections, the task's facts ``sensor`` (not simulator state), on ``device``).
+    ``reset(obs)``, ``act(obs) -> Step`` (``agent.contract.Agent``, ``agent.step.Step``: the
+    action and what it was decided from); obs holds Habitat's keys."""
 
     name = "peanut"
 
-    def __init__(self, cfg: Any, device: str = "cpu"):
-        self.cfg: AgentConfig = cfg.agent
-        self.max_steps = int(cfg.env.max_episode_steps)
-        self.spin_turns = int(round(360.0 / cfg.env.turn_angle_deg))
-        self.sensors = SensorModel.from_env_config(cfg.env)
-        self.approach = GoalApproach(self.cfg, cfg.env)
-        self.perception = Perception(self.cfg, cfg.segmenter, self.sensors, device)
+    def __init__(self, setup: AgentSetup):
+        self.cfg: AgentConfig = setup.agent
+        self.max_steps = int(setup.sensor.max_episode_steps)
+        self.spin_turns = int(round(360.0 / setup.sensor.turn_angle_deg))
+        self.sensors = setup.sensor.model
+        self.approach = GoalApproach(self.cfg, setup.sensor)
+        self.perception = Perception(self.cfg, setup.segmenter, self.sensors, setup.device)
         self.class_names = self.perception.class_names   # the map's channels: the segmenter's classes
         self.goal_categories = task_goal_categories(self.cfg)   # what objectgoal ids index (the task's contract)
         self.num_classes = len(self.class_names)
-        self.mapper = MAP_BUILDERS.get(self.cfg.map_type)(self.cfg, cfg.mapping, self.class_names,
+        self.mapper = MAP_BUILDERS.get(self.cfg.map_type)(self.cfg, setup.mapping, self.class_names,
                                                           (self.sensors.min_depth_m, self.sensors.max_depth_m))
         self.planner = Planner(self.cfg)
         self.collisions = CollisionTracker(self.cfg)
@@ -89,14 +74,18 @@ class PeanutAgent:
         self.pose: np.ndarray | None = None
 
     @classmethod
-    def from_config(cls, cfg: Any) -> "PeanutAgent":
-        """The registry's builder (``agent.registry.build_agent``): on ``run.device``; in a
-        house with storeys (``env.dataset.storeys > 1``, a fact of the task like the camera's
-        height) the agent of ``agent.registry.STOREY_AGENTS`` (``agent.storey_policy``)."""
-        dataset = getattr(cfg.env, "dataset", None)
-        if getattr(dataset, "storeys", 1) > 1:
-            return STOREY_AGENTS.get(cls.name)(cfg, cfg.run.device)
-        return cls(cfg, cfg.run.device)
+    def from_setup(cls, setup: AgentSetup) -> "PeanutAgent":
+        """The registry's builder (``agent.setup.build_agent``); in a house with storeys
+        (``sensor.storeys > 1``, a fact of the task like the camera's height) the agent of
+        ``agent.registry.STOREY_AGENTS`` (``agent.storey_policy``)."""
+        if setup.sensor.storeys > 1:
+            return STOREY_AGENTS.get(cls.name)(setup)
+        return cls(setup)
+
+    @property
+    def needs_semantic(self) -> bool:
+        """Whether its segmenter reads a simulator's semantic sensor (``gt``, ``noisy``)."""
+        return bool(self.perception.segmenter.needs_semantic)
 
     def goal_names(self) -> tuple[str, ...]:
         """The goal categories the agent may be asked for: the ObjectNav goals (the task's
@@ -135,7 +124,7 @@ class PeanutAgent:
         self.path: list[tuple[int, int]] = []
         self.window: tuple[slice, slice] | None = None
 
-    def act(self, obs: Mapping) -> int:
+    def act(self, obs: Mapping) -> Step:
         observation, privileged = split_observation(obs)
         self.sensors.check(observation)
         xy, yaw = self.sensors.xy_yaw(observation)
@@ -152,7 +141,8 @@ class PeanutAgent:
             action = self._decide(xy, yaw)
         self.last_action, self.prev_xy = action, xy
         self.collisions.record(action)
-        return action
+        return Step(action, self.steps, self.info, self.state, frame, pose, self.path, self.goal_name,
+                    self.goal_channel, self.class_names, self.cfg.cell_m)
 
     def _camera_pose(self, observation, xy: np.ndarray, yaw: float) -> np.ndarray:
         """(4, 4) start-frame-from-camera pose of this step: level, at the camera's height

@@ -10,17 +10,12 @@ Every part is a lazy ``"module:attribute"`` reference, so this module imports no
 the configs check a name against it (``REGISTRY.check``) before torch, Open3D or a simulator
 loads. ``AGENTS`` is the one agent registry of ``calnav objectnav``, ``calnav view-episode``,
 ``calnav collect-maps`` and ``calnav habitat-benchmark`` (which wraps the agent as a
-``habitat.Agent``: ``agent.habitat_agent.HabitatAgent``); an agent is built by ``build_agent``.
+``habitat.Agent``: ``agent.habitat_agent.HabitatAgent``); an agent is built from its typed
+setup by ``agent.setup.build_agent``.
 """
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
-
 from calnav.common.registry import Registry
-
-if TYPE_CHECKING:
-    from calnav.agent.contract import Agent
-    from calnav.envs.task import SimulatorHandle
 
 # A map builder: ``cls(agent_cfg, mapping_cfg, class_names, depth_range_m)`` with ``new_state(start_xy)``
 # and ``update(state, frame, pose)`` (``agent.semantic_map.MapBuilder``).
@@ -37,8 +32,8 @@ GOAL_SELECTORS.add("frontier", "calnav.agent.goal_selection:FrontierSelector",
 GOAL_SELECTORS.add("prediction", "calnav.agent.goal_selection:PredictionSelector",
                    "PEANUT's target prediction, frontiers when it offers nothing")
 
-# An agent class: ``cls.from_config(cfg)`` (``cfg``: the run's Config), or
-# ``cls.from_config(cfg, simulator=...)`` for a class declaring ``privileged = (SIMULATOR,)``.
+# An agent class: ``cls.from_setup(setup)`` (``setup``: an ``agent.setup.AgentSetup``), or
+# ``cls.from_setup(setup, simulator=...)`` for a class declaring ``privileged = (SIMULATOR,)``.
 AGENTS: Registry[type] = Registry("agent", key="run.agent")
 AGENTS.add("peanut", "calnav.agent.policy:PeanutAgent", "the PEANUT-like semantic-map agent (agent.*)")
 AGENTS.add("oracle", "calnav.agent.oracle:OracleAgent", "the shortest-path follower (privileged: the simulator)")
@@ -48,17 +43,3 @@ STOREY_AGENTS: Registry[type] = Registry("agent for storeys", key="run.agent")
 STOREY_AGENTS.add("peanut", "calnav.agent.storey_policy:StoreyPeanutAgent",
                   "the PEANUT-like agent with a map per storey and stairs (agent.storeys)")
 
-
-def build_agent(name: str, cfg: Any, simulator: "SimulatorHandle | None" = None) -> "Agent":
-    """Agent ``name`` configured by ``cfg`` (a Config). ``simulator``: the env's privileged
-    handle (``envs.task.SimulatorHandle``), handed only to an agent class that declares
-    ``SIMULATOR`` (``agent.contract``); such an agent without one is a one-line ValueError."""
-    from calnav.agent.contract import SIMULATOR, declared_privileged
-
-    cls = AGENTS.get(name)
-    if SIMULATOR not in declared_privileged(cls):
-        return cls.from_config(cfg)
-    if simulator is None:
-        raise ValueError(f"agent {name!r} needs the simulator's privileged handle (envs.task.SimulatorHandle), "
-                         "which this env does not provide")
-    return cls.from_config(cfg, simulator=simulator)

@@ -14,14 +14,14 @@ the policy:
 """
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 
 from calnav.agent.collision import CollisionMarks
 from calnav.agent.goal_detection import GoalDetection, GoalDetector
-from calnav.agent.policy import PeanutAgent, StepInfo
+from calnav.agent.policy import PeanutAgent
 from calnav.agent.semantic_map import MapState
+from calnav.agent.setup import AgentSetup
+from calnav.agent.step import StepInfo
 from calnav.agent.storeys import STAIR_MIN_M, STOREY_SWITCH_M, Storey, StoreyMapBuilder
 from calnav.agent.watchdog import ProgressWatchdog
 from calnav.envs.task import Action, camera_pose
@@ -40,12 +40,12 @@ class StoreyPeanutAgent(PeanutAgent):
     ``floor_z`` the height of the floor under it (start frame, metres), ``climb`` +1 / -1 while
     it commits to stairs up / down (0 otherwise)."""
 
-    def __init__(self, cfg: Any, device: str = "cpu"):
-        super().__init__(cfg, device)
+    def __init__(self, setup: AgentSetup):
+        super().__init__(setup)
         if self.cfg.map_type != "fused":
             raise ValueError(f"env.dataset.storeys > 1 needs agent.map_type=fused (a voxel map per storey); got "
                              f"{self.cfg.map_type!r}")
-        self.mapper = StoreyMapBuilder(self.cfg, cfg.mapping, self.class_names,
+        self.mapper = StoreyMapBuilder(self.cfg, setup.mapping, self.class_names,
                                        (self.sensors.min_depth_m, self.sensors.max_depth_m))
 
     def reset(self, obs) -> None:

@@ -13,6 +13,7 @@ import cv2
 import numpy as np
 
 from calnav.agent.semantic_map import MapChannels
+from calnav.agent.step import Step
 
 PANEL_HEIGHT = 360          # output panel height, pixels
 MAP_MARGIN_CELLS = 20       # top-down crop margin around the explored area, cells
@@ -24,34 +25,35 @@ COLORS = {                  # RGB
 VIDEO_FPS = 6               # frames per second of episode videos
 
 
-def topdown(agent) -> np.ndarray:
-    """(h, w, 3) uint8 top-down view of the agent's map, cropped to the explored area, +y up."""
-    st, ch = agent.state, agent.state.channels
+def topdown(step: Step) -> np.ndarray:
+    """(h, w, 3) uint8 top-down view of a step's map (``agent.step.Step``), cropped to the
+    explored area, +y up."""
+    st, ch = step.state, step.state.channels
     img = np.empty(ch.shape[1:] + (3,), np.uint8)
     img[:] = COLORS["unknown"]
     img[ch[MapChannels.EXPLORED]] = COLORS["explored"]
-    conf = st.semantic[agent.goal_channel]
+    conf = st.semantic[step.goal_channel]
     shade = conf > 0
     red = np.array([255, 0, 0], np.float32)
     img[shade] = (img[shade] * (1 - conf[shade, None]) + red * conf[shade, None]).astype(np.uint8)
     img[ch[MapChannels.OBSTACLE]] = COLORS["obstacle"]
     img[ch[MapChannels.COLLISION]] = COLORS["collision"]
     img[ch[MapChannels.HOLE]] = COLORS["hole"]
-    info = agent.info
+    info = step.info
     win = info.window if info is not None and info.window is not None else (slice(0, None), slice(0, None))
     off = np.array([win[0].start, win[1].start])
     if info is not None and info.frontiers is not None:
         img[info.frontiers] = COLORS["frontier"]
     if info is not None and info.detection is not None and info.detection.found:
         img[win][info.detection.mask] = COLORS["goal"]
-    for r, c in agent.path:
+    for r, c in step.path:
         img[r, c] = COLORS["path"]
     if info is not None and info.long_term_goal is not None:
         cv2.circle(img, tuple(int(v) for v in (off + info.long_term_goal)[::-1]), 3, COLORS["ltg"], -1)
     if info is not None and info.plan is not None and info.plan.short_term_goal is not None:
         cv2.circle(img, tuple(int(v) for v in (off + info.plan.short_term_goal)[::-1]), 2, COLORS["stg"], -1)
-    if agent.path:
-        cv2.circle(img, agent.path[-1][::-1], 3, COLORS["agent"], 1)
+    if step.path:
+        cv2.circle(img, step.path[-1][::-1], 3, COLORS["agent"], 1)
     rows, cols = np.nonzero(ch[MapChannels.EXPLORED])
     if len(rows):
         m = MAP_MARGIN_CELLS
@@ -73,15 +75,16 @@ def class_palette(num_classes: int) -> np.ndarray:
     return np.round(colours * 255).astype(np.uint8)
 
 
-def render_panel(agent) -> np.ndarray:
-    """RGB | segmentation | top-down map, side by side, (PANEL_HEIGHT, W, 3) uint8."""
-    frame = agent.frame
-    palette = class_palette(agent.num_classes)
+def render_panel(step: Step) -> np.ndarray:
+    """RGB | segmentation | top-down map of an agent's step (``agent.step.Step``), side by
+    side, (PANEL_HEIGHT, W, 3) uint8."""
+    frame = step.frame
+    palette = class_palette(len(step.class_names))
     seg = palette[np.clip(frame.labels, 0, len(palette) - 1)]
-    parts = [_fit(frame.rgb, PANEL_HEIGHT), _fit(seg, PANEL_HEIGHT), _fit(topdown(agent), PANEL_HEIGHT)]
+    parts = [_fit(frame.rgb, PANEL_HEIGHT), _fit(seg, PANEL_HEIGHT), _fit(topdown(step), PANEL_HEIGHT)]
     panel = np.concatenate(parts, axis=1)
-    mode = agent.info.mode if agent.info is not None else ""
-    cv2.putText(panel, f"step {agent.steps} {agent.goal_name} {mode}", (8, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.6,
+    mode = step.info.mode if step.info is not None else ""
+    cv2.putText(panel, f"step {step.steps} {step.goal_name} {mode}", (8, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.6,
                 (255, 255, 0), 2)
     return panel
 

@@ -27,6 +27,7 @@ from calnav.common.yaml_keys import unique_key_loader
 from calnav.agent.config import AgentConfig
 from calnav.agent.registry import AGENTS
 from calnav.agent.segmenters.base import SegmenterConfig
+from calnav.agent.setup import AgentSetup, SensorSetup
 from calnav.envs.config import EnvConfig
 from calnav.envs.trajectories import ScanConfig
 from calnav.mapping.calibration.glfs_config import GLFSTrainConfig
@@ -126,6 +127,18 @@ class Config:
         return {v.name: build_dataclass(GLFSTrainConfig, {**base, **v.overrides},
                                         prefix=f"study.glfs_variants.{v.name}.overrides")
                 for v in self.study.glfs_variants}
+
+
+def agent_setup(cfg: Config, agent: str = "") -> AgentSetup:
+    """The agent's typed setup (``agent.setup.AgentSetup``) of a root config holding the episode
+    sections (``EPISODE_SECTIONS``): its agent, segmenter and mapping sections as they are, the
+    env's facts the agent may know, ``run.device``; ``agent``: the ``run.agent`` to build ("" =
+    ``cfg.run.agent``). The one place a command's config becomes the agent's."""
+    env = cfg.env
+    sensor = SensorSetup(tuple(env.resolution), env.hfov_deg, env.camera_height_m, env.min_depth_m, env.max_depth_m,
+                         env.normalize_depth, env.forward_step_m, env.turn_angle_deg, env.view_point_radius_m,
+                         env.max_episode_steps, env.dataset.storeys)
+    return AgentSetup(cfg.agent, cfg.segmenter, cfg.mapping, sensor, agent or cfg.run.agent, cfg.run.device)
 
 
 SECTIONS: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(Config))

@@ -9,7 +9,8 @@ says so (``before_step`` returns the action that is sent). Hooks are called in o
     result = rollout(env, agent, index, hooks=[VideoHook(path)])
     result.info["spl"], result.steps, result.terminated
 
-An agent is anything with ``reset(obs)`` and ``act(obs) -> int`` (``agent.contract.Agent``:
+An agent is anything with ``reset(obs)`` and ``act(obs) -> Step`` (``agent.contract.Agent``,
+``agent.step.Step``: the action and what the agent decided it from, which the hooks read;
 the agents of ``agent.registry.AGENTS``, a composite that drives several agents in lockstep);
 it gets the env's observation as it is and splits off the privileged part itself
 (``agent.contract.split_observation``), so the loop also runs envs with other observations.
@@ -20,6 +21,7 @@ from dataclasses import dataclass
 from typing import Any, Iterable
 
 from calnav.agent.contract import Agent
+from calnav.agent.step import Step
 
 
 class Hook:
@@ -28,12 +30,14 @@ class Hook:
     def on_reset(self, env, agent, obs: dict, info: dict) -> None:
         """After the env and the agent are reset, before the first action."""
 
-    def before_step(self, env, agent, obs: dict, action: int) -> int:
-        """After the agent chose ``action`` for ``obs``; returns the action to send."""
+    def before_step(self, env, step: Step, obs: dict, action: int) -> int:
+        """After the agent's ``step`` on ``obs`` (``action``: its action, or an earlier hook's);
+        returns the action to send."""
         return action
 
-    def after_step(self, env, agent, action: int, obs: dict, info: dict, step: int) -> None:
-        """After the env took ``action`` (the ``step``-th, from 1); ``obs`` / ``info`` are new."""
+    def after_step(self, env, step: Step, action: int, obs: dict, info: dict, n: int) -> None:
+        """After the env took ``action`` (the ``n``-th, from 1) for the agent's ``step``;
+        ``obs`` / ``info`` are new."""
 
     def on_end(self, env, agent, result: "RolloutResult") -> None:
         """After the last step."""
@@ -63,13 +67,14 @@ def rollout(env, agent: Agent, index: int, hooks: Iterable[Hook] = (), max_steps
         hook.on_reset(env, agent, obs, info)
     steps, terminated, truncated = 0, False, False
     while not (terminated or truncated) and not (max_steps and steps >= max_steps):
-        action = agent.act(obs)
+        step = agent.act(obs)
+        action = step.action
         for hook in hooks:
-            action = hook.before_step(env, agent, obs, action)
+            action = hook.before_step(env, step, obs, action)
         obs, _, terminated, truncated, info = env.step(action)
         steps += 1
         for hook in hooks:
-            hook.after_step(env, agent, action, obs, info, steps)
+            hook.after_step(env, step, action, obs, info, steps)
     result = RolloutResult(index, info, steps, terminated, truncated)
     for hook in hooks:
         hook.on_end(env, agent, result)

@@ -147,7 +147,7 @@ class SemanticVoxelMap:
     def _set_fusion_params(self, params: GLFSParams | None, temperature) -> None:
         """Temperature, GLFS gates and weighting parameters (the LUT from the GLFS params)."""
         cfg, k = self.cfg, self.num_classes
-        if params is None and (cfg.fusion == "glfs" or self.weighting == "lut"):
+        if params is None and (self.strategy.gated or self.weighting == "lut"):
             params = GLFSParams.load(cfg.glfs_params) if cfg.glfs_params else GLFSParams.identity(k, self.class_names)
         if params is not None:
             if self.class_names:

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import torch
 
 from calnav.mapping.config import ANGLE_EDGES_DEG, DISTANCE_EDGES_M, MappingConfig  # noqa: F401 (the LUT's bins)
-from calnav.mapping.registry import AUTO_WEIGHTING, WEIGHTINGS, check_weighting
+from calnav.mapping.registry import AUTO_WEIGHTING, FUSIONS, WEIGHTINGS, check_weighting
 
 
 @dataclass
@@ -103,16 +103,17 @@ def sweet_spot_weights(pred, distance_m, angle_deg, params: WeightingParams) -> 
 
 
 def resolve(name: str, fusion: str) -> str:
-    """A weighting name with ``auto`` resolved: ``lut`` for glfs, ``none`` otherwise; a
-    ValueError names the valid choices (``auto`` and ``mapping.registry.WEIGHTINGS``)."""
+    """A weighting name with ``auto`` resolved by the fusion strategy ``fusion``
+    (``mapping.registry.FUSIONS``): ``lut`` for a gated one (glfs: its GLFS table), ``none``
+    otherwise; a ValueError names the valid choices (``auto`` and ``mapping.registry.WEIGHTINGS``)."""
     if check_weighting(name) == AUTO_WEIGHTING:
-        return "lut" if fusion == "glfs" else "none"
+        return "lut" if FUSIONS.get(fusion).gated else "none"
     return name
 
 
 def needs_geometry(name: str) -> bool:
     """Whether weighting ``name`` uses the camera distance / incidence angle."""
-    return resolve(name, "") != "none"
+    return check_weighting(name) not in (AUTO_WEIGHTING, "none")   # auto before it is resolved: none
 
 
 def sample_weights(name: str, pred: torch.Tensor, distance_m: torch.Tensor, angle_deg: torch.Tensor,

@@ -64,11 +64,11 @@ class TimedAct:
     def reset(self, obs: dict) -> None:
         self.agent.reset(obs)
 
-    def act(self, obs: dict) -> int:
+    def act(self, obs: dict):
         t = time.perf_counter()
-        action = self.agent.act(obs)
+        step = self.agent.act(obs)
         self.act_ms.append((time.perf_counter() - t) * 1e3)
-        return action
+        return step
 
 
 class LoopTimer(Hook):
@@ -78,7 +78,7 @@ class LoopTimer(Hook):
     def on_reset(self, env, agent, obs, info) -> None:
         self.t0, self.rss0, self.wall_s = time.perf_counter(), None, 0.0
 
-    def before_step(self, env, agent, obs, action: int) -> int:
+    def before_step(self, env, step, obs, action: int) -> int:
         if self.rss0 is None:
             self.rss0 = rss_mb()
         return action
@@ -133,14 +133,14 @@ def agent_loop(ctx, overrides: tuple[str, ...] = (), predictor_calls: list[float
     ``predictor_calls``: filled with the ms of each target-prediction call (exploration:
     prediction), the network and its input."""
     from calnav.agent.policy import PeanutAgent
-    from calnav.eval.config import load_config
+    from calnav.eval.config import agent_setup, load_config
 
     cfg = load_config(None, ["env.resolution=160x120", "agent.segmenter=gt", *overrides])
     cfg.agent = dataclasses.replace(cfg.agent, goal_threshold=EXPLORE_ONLY_THRESHOLD)
     steps = QUICK_STEPS if ctx.quick else STEPS
     cfg.env = dataclasses.replace(cfg.env, max_episode_steps=steps)
     env = val_env(cfg.env, EPISODE + 1)
-    agent = PeanutAgent(cfg)
+    agent = PeanutAgent(agent_setup(cfg, "peanut"))
     if predictor_calls is not None and agent.predictor is not None:
         network = agent.predictor.probabilities   # its own name: ``timed`` below is the timed agent
 
@@ -200,11 +200,11 @@ def study_episodes(indices: list[int], steps_cap: int = 0) -> tuple[list[int], l
     the steps and the wall seconds (reset + every agent and env step) of each. ``steps_cap`` > 0
     shortens the episodes (quick runs)."""
     from calnav.agent.policy import PeanutAgent
-    from calnav.eval.config import load_config
+    from calnav.eval.config import agent_setup, load_config
 
     cfg = load_config(None, [*STUDY, *([f"env.max_episode_steps={steps_cap}"] if steps_cap else [])])
     env = val_env(cfg.env, max(indices) + 1)
-    agent = PeanutAgent(cfg)
+    agent = PeanutAgent(agent_setup(cfg, "peanut"))
     steps, walls = [], []
     for index in indices:
         t0 = time.perf_counter()
@@ -226,14 +226,14 @@ def rerun_figures(ctx) -> dict[str, float]:
     import rerun  # noqa: F401  (imported once per worker process, not per episode: not timed)
 
     from calnav.agent.policy import PeanutAgent
-    from calnav.eval.config import load_config
+    from calnav.eval.config import agent_setup, load_config
     from calnav.eval.objectnav.run import run_one_episode
 
     cap = [f"env.max_episode_steps={QUICK_STEPS}"] if ctx.quick else []
     cfg = load_config(None, [*STUDY, *cap])
     episodes = QUICK_RERUN_EPISODES if ctx.quick else RERUN_EPISODES
     env = val_env(cfg.env, max(episodes) + 1)
-    agent = PeanutAgent(cfg)
+    agent = PeanutAgent(agent_setup(cfg, "peanut"))
     run_one_episode(env, agent, episodes[0])   # warm-up: the voxel map's allocation grows once
     plain = recorded = 0.0
     sizes, steps = [], 0

@@ -257,10 +257,11 @@ def load_role(out_dir: Path, segmenter: str, scene_ids: list[str]) -> tuple[list
 
 @dataclasses.dataclass
 class RecordTask:
-    """One house to record on a backend worker: the study config (plain dict), the house, the
-    segmenters still missing its files, and the scan seed."""
+    """One house to record on a backend worker: the study config (validated where it was loaded:
+    it pickles to the worker as it is), the house, the segmenters still missing its files, and
+    the scan seed."""
 
-    cfg_dict: dict
+    cfg: Config
     scene_id: str
     segmenters: tuple[str, ...]
     seed: int
@@ -276,9 +277,8 @@ def record_task(task: RecordTask) -> dict[str, bytes]:
     import tempfile
 
     from calnav.agent.segmenters import make_segmenter
-    from calnav.eval.config import build_dataclass
 
-    cfg = build_dataclass(Config, task.cfg_dict)
+    cfg = task.cfg
     segs = {}
     for name in task.segmenters:
         key = (name, cfg.run.device)
@@ -297,14 +297,13 @@ def record_houses(cfg: Config, scene_seeds: dict[str, int], segmenters: tuple[st
     files, as tasks on the ``run.backend`` backend (houses are the slow stage); each house's
     files are written as it arrives (pixels first, the cache last: its presence marks the
     house done), so a killed study resumes."""
-    from calnav.eval.config import to_dict
     from calnav.eval.runner import raise_failures, run_tasks
 
-    cfg_dict, tasks = to_dict(cfg), []
+    tasks = []
     for sid, seed in scene_seeds.items():
         missing = tuple(n for n in segmenters if not all(p.exists() for p in scene_files(out_dir, n, sid)))
         if missing:
-            tasks.append(RecordTask(cfg_dict, sid, missing, seed))
+            tasks.append(RecordTask(cfg, sid, missing, seed))
 
     def save(_, files: dict[str, bytes]) -> None:
         for rel in sorted(files, key=lambda r: r.endswith(".cache.npz")):  # the cache last

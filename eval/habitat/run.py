@@ -65,7 +65,7 @@ def simulator_handle(env, env_cfg):
     ``CalnavSim-v0``: the shortest-path follower on the simulator's navigation grid and pose, to
     the view points of habitat-lab's current episode; ``env_cfg``: the EnvConfig of the habitat
     config (``envs.habitat_config.env_config_from_habitat``: step, turns, success distance,
-    step limit). ``agent.registry.build_agent`` hands it only to an agent that declares it."""
+    step limit). ``agent.setup.build_agent`` hands it only to an agent that declares it."""
     from calnav.envs.oracle import FollowerHandle
 
     def goal_field():
@@ -88,6 +88,7 @@ def run_habitat_benchmark(cfg, habitat_cfg, indices: list[int], out: Path, force
     from calnav.agent.habitat_agent import HabitatAgent, habitat
     from calnav.agent.navigator import Navigator
     from calnav.envs.episodes import load_split
+    from calnav.eval.config import agent_setup
     from calnav.eval.habitat.recording import EnvBenchmark, RecordingEnv, episode_index
 
     habitat_text = OmegaConf.to_yaml(habitat_cfg, resolve=True)
@@ -106,7 +107,7 @@ def run_habitat_benchmark(cfg, habitat_cfg, indices: list[int], out: Path, force
             env = habitat.Env(config=habitat_cfg)
             by_index = {index_of[(Path(e.scene_id).name, e.episode_id)]: e for e in env.episodes}
             env.episodes = [by_index[i] for i in todo]
-            agent = HabitatAgent(Navigator(cfg, agent=agent_name, simulator=simulator_handle(env, cfg.env)))
+            agent = HabitatAgent(Navigator(agent_setup(cfg), simulator=simulator_handle(env, cfg.env)))
             with records_file:
                 def record(rec: dict) -> None:
                     records_file.append(rec)

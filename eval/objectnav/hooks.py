@@ -1,5 +1,5 @@
 """Rollout hooks of the ObjectNav commands (``eval.rollout``): an episode's video, its Rerun
-recording and its path. Each only reads the agent and the env: the actions, hence the metrics,
+recording and its path. Each only reads the agent's step (``agent.step.Step``) and the env: the actions, hence the metrics,
 are the same with them as without."""
 from __future__ import annotations
 
@@ -28,10 +28,10 @@ class VideoHook(Hook):
 
         self.video = EpisodeVideo(self.directory / f"{episode_file_stem(env.unwrapped.episode.episode_id)}.mp4")
 
-    def before_step(self, env, agent, obs, action: int) -> int:
+    def before_step(self, env, step, obs, action: int) -> int:
         from calnav.agent.visualize import render_panel
 
-        self.video.add(render_panel(agent))
+        self.video.add(render_panel(step))
         return action
 
     def on_end(self, env, agent, result: RolloutResult) -> None:
@@ -49,10 +49,11 @@ class RerunHook(Hook):
         from calnav.agent.recording import EpisodeRecording
 
         episode_id = env.unwrapped.episode.episode_id
-        self.recording = EpisodeRecording(self.directory / f"{episode_file_stem(episode_id)}.rrd", agent, episode_id)
+        self.recording = EpisodeRecording(self.directory / f"{episode_file_stem(episode_id)}.rrd", agent.class_names,
+                                          episode_id)
 
-    def after_step(self, env, agent, action: int, obs, info, step: int) -> None:
-        self.recording.step(agent, action, info)
+    def after_step(self, env, step, action: int, obs, info, n: int) -> None:
+        self.recording.step(step, action, info)
 
     def on_end(self, env, agent, result: RolloutResult) -> None:
         self.path = self.recording.close()
@@ -73,6 +74,6 @@ class PathHook(Hook):
     def on_reset(self, env, agent, obs, info) -> None:
         self.positions, self.frames = [env.unwrapped.position.copy()], [obs]
 
-    def after_step(self, env, agent, action: int, obs, info, step: int) -> None:
+    def after_step(self, env, step, action: int, obs, info, n: int) -> None:
         self.positions.append(env.unwrapped.position.copy())
         self.frames.append(obs)

@@ -26,7 +26,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from calnav.common.provenance import running_commit
-from calnav.eval.config import Config, build_dataclass, to_dict
+from calnav.agent.setup import AgentSetup
+from calnav.eval.config import Config, agent_setup, to_dict
 from calnav.eval.results_dir import EPISODE_NEUTRAL_KEYS, RECORDS_NAME, AllEpisodesFailed, ResultsDir, writing
 from calnav.eval.stats import failure_modes, finite_or_error, format_metrics_table, run_label, summarize
 from calnav.common.ranges import Range
@@ -72,12 +73,13 @@ def run_one_episode(env, agent, index: int, video_dir: Path | None = None, rerun
 
 @dataclass
 class EpisodeTask:
-    """One episode to run: the job's resolved config (plain dict, picklable), its agent, the
+    """One episode to run: the job's config (validated once, where it was loaded: it pickles to
+    the worker as it is) for its env, its agent's setup (``eval.config.agent_setup``), the
     episode index within the split, and the video / Rerun directory if this episode gets one."""
 
     job: int
-    cfg_dict: dict
-    agent: str
+    cfg: Config
+    setup: AgentSetup
     index: int
     video_dir: str | None = None
     rerun_dir: str | None = None
@@ -104,23 +106,22 @@ def _make_env(cfg: Config, env_maker: str, env_args: dict, upto: int | None = No
     return getattr(importlib.import_module(module), function)(cfg, **env_args)
 
 
-def _warm_env_agent(cfg_dict: dict, agent_name: str, env_maker: str = "", env_args: dict | None = None,
+def _warm_env_agent(cfg: Config, setup: AgentSetup, env_maker: str = "", env_args: dict | None = None,
                     upto: int | None = None):
     """This process's env and agent for a config, built once and reused while tasks keep the
     same config (a pool or Ray worker stays warm, as an episode loop would). The agent is the
-    library's ``agent.navigator.Navigator`` (registry agent ``agent_name``, handed the env's
-    privileged ``simulator_handle`` only if its class declares it: the oracle), run by the
-    episode loop as an ``EpisodeAgent``."""
+    library's ``agent.navigator.Navigator`` of ``setup`` (handed the env's privileged
+    ``simulator_handle`` only if its class declares it: the oracle), run by the episode loop as
+    an ``EpisodeAgent``."""
     from calnav.agent.navigator import EpisodeAgent, Navigator
 
-    key = json.dumps([cfg_dict, agent_name, env_maker, env_args or {}, upto], sort_keys=True)
+    key = (json.dumps([to_dict(cfg), env_maker, env_args or {}, upto], sort_keys=True), setup)
     if _worker_state.get("key") != key:
         if "env" in _worker_state:
             _worker_state["env"].close()
         _worker_state.clear()
-        cfg = build_dataclass(Config, cfg_dict)
         env = _make_env(cfg, env_maker, env_args or {}, upto)
-        agent = EpisodeAgent(Navigator(cfg, agent=agent_name, simulator=env.unwrapped.simulator_handle()))
+        agent = EpisodeAgent(Navigator(setup, simulator=env.unwrapped.simulator_handle()))
         _worker_state.update(key=key, env=env, agent=agent)
     return _worker_state["env"], _worker_state["agent"]
 
@@ -130,7 +131,7 @@ def run_episode_task(task: EpisodeTask) -> dict:
     which hands it back as an error record (``error_record``) so the run keeps going."""
     from calnav.eval.backends import ray_node_id
 
-    env, agent = _warm_env_agent(task.cfg_dict, task.agent, task.env_maker, task.env_args, task.upto)
+    env, agent = _warm_env_agent(task.cfg, task.setup, task.env_maker, task.env_args, task.upto)
     record = run_one_episode(env, agent, task.index, task.video_dir, task.rerun_dir)
     node = ray_node_id()
     if node is not None:
@@ -235,9 +236,9 @@ def run_jobs(jobs: list[EpisodeJob], force: bool = False, progress: bool = True,
             files.append(stack.enter_context(records_file))
             records.append(done)
             duplicates.append(resumed.duplicates)
-            cfg_dict, videos = to_dict(job.cfg), set(job.indices[:max(0, job.video)])
+            setup, videos = agent_setup(job.cfg), set(job.indices[:max(0, job.video)])
             recorded = set(job.indices[:max(0, job.rerun)])
-            tasks += feed_order([EpisodeTask(j, cfg_dict, job.cfg.run.agent, i,
+            tasks += feed_order([EpisodeTask(j, job.cfg, setup, i,
                                              str(job.out / "videos") if i in videos else None,
                                              str(job.out / "rerun") if i in recorded else None, job.env_maker,
                                              job.env_args, max(job.indices) + 1)

@@ -271,20 +271,20 @@ def plot_summary(summary: dict[str, dict], path: Path) -> None:
 
 
 # ---------------------------------------------------------------------------- the instrument
-def map_stats(agent) -> dict[str, float]:
-    """Frame-independent statistics of an agent's maps after a step: cell counts of each 2D
-    channel, of goal-class cells with any vote and above the goal threshold, the detected goal
-    component's area, and the decision mode."""
+def map_stats(step, goal_threshold: float) -> dict[str, float]:
+    """Frame-independent statistics of an agent's maps after a step (``agent.step.Step``): cell
+    counts of each 2D channel, of goal-class cells with any vote and above ``goal_threshold``,
+    the detected goal component's area, and the decision mode."""
     from calnav.agent.semantic_map import MapChannels
 
-    st, cfg = agent.state, agent.cfg
-    goal = st.semantic[agent.goal_channel]
-    det = agent.info.detection if agent.info is not None else None
+    st, info = step.state, step.info
+    goal = st.semantic[step.goal_channel]
+    det = info.detection if info is not None else None
     return {**{f"{c.name.lower()}_cells": int(st.channels[c].sum()) for c in MapChannels},
-            "goal_cells": int((goal > 0).sum()), "goal_above_threshold": int((goal >= cfg.goal_threshold).sum()),
+            "goal_cells": int((goal > 0).sum()), "goal_above_threshold": int((goal >= goal_threshold).sum()),
             "semantic_cells": int((st.counts.sum(axis=0) > 0).sum()),
             "goal_area": int(det.area) if det is not None and det.found else 0,
-            "mode": agent.info.mode if agent.info is not None else ""}
+            "mode": info.mode if info is not None else ""}
 
 
 class Lockstep:
@@ -294,9 +294,10 @@ class Lockstep:
 
     def __init__(self, cfg, env, variants: list[PoseVariant]):
         from calnav.agent.policy import PeanutAgent
+        from calnav.eval.config import agent_setup
 
-        self.env, self.variants = env, variants
-        self.agents = [PeanutAgent(cfg) for _ in variants]
+        self.env, self.variants, self.goal_threshold = env, variants, cfg.agent.goal_threshold
+        self.agents = [PeanutAgent(agent_setup(cfg, "peanut")) for _ in variants]
         self.rows: list[dict] = []
 
     def _views(self, obs: dict) -> list[dict]:
@@ -308,12 +309,13 @@ class Lockstep:
             agent.reset(view)
         self.rows = []
 
-    def act(self, obs: dict) -> int:
-        step = len(self.rows) // len(self.agents)
-        actions = [a.act(view) for a, view in zip(self.agents, self._views(obs))]
-        self.rows += [{"step": step, "variant": v.name, "action": act, **map_stats(a)}
-                      for a, v, act in zip(self.agents, self.variants, actions)]
-        return actions[0]
+    def act(self, obs: dict):
+        """The first variant's ``agent.step.Step``."""
+        n = len(self.rows) // len(self.agents)
+        steps = [a.act(view) for a, view in zip(self.agents, self._views(obs))]
+        self.rows += [{"step": n, "variant": v.name, "action": s.action, **map_stats(s, self.goal_threshold)}
+                      for v, s in zip(self.variants, steps)]
+        return steps[0]
 
 
 def lockstep_map_stats(cfg, index: int, variants: list[PoseVariant], steps: int) -> list[dict]:

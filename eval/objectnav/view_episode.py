@@ -115,6 +115,7 @@ def main_view_episode(args, configs) -> None:
 
     import calnav.envs  # noqa: F401
     from calnav.agent.navigator import EpisodeAgent, Navigator
+    from calnav.eval.config import agent_setup
     from calnav.eval.objectnav.hooks import PathHook
     from calnav.eval.results_dir import check_output_dir
     from calnav.eval.rollout import rollout
@@ -129,7 +130,7 @@ def main_view_episode(args, configs) -> None:
     n = len(env.unwrapped.episodes)
     if not 0 <= args.episode < n:
         raise ValueError(f"--episode {args.episode} is outside the split, which has episodes 0:{n}")
-    agent = EpisodeAgent(Navigator(cfg, simulator=env.unwrapped.simulator_handle()))
+    agent = EpisodeAgent(Navigator(agent_setup(cfg), simulator=env.unwrapped.simulator_handle()))
     track = PathHook()
     info = rollout(env, agent, args.episode, [track]).info
     top, strip = draw_episode(env, track.path, track.frames, Path(args.output))

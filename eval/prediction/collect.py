@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from calnav.eval.config import Config
 from calnav.eval.results_dir import ResultsDir
 from calnav.eval.rollout import Hook
 from typing import Literal
@@ -29,7 +30,7 @@ MAPS_FORMAT = 1
 
 @dataclass
 class CollectTask:
-    cfg_dict: dict
+    cfg: Config   # the run's config, validated where it was loaded: it pickles to the worker as it is
     index: int
     steps: int
     every: int
@@ -80,19 +81,20 @@ class MapSampler(Hook):
         self.targets: list[np.ndarray] = []
         self.steps: list[int] = []
 
-    def before_step(self, env, agent, obs, action: int) -> int:
+    def before_step(self, env, step, obs, action: int) -> int:
         from calnav.envs.task import Action
 
         return int(Action.TURN_LEFT) if action == int(Action.STOP) else action
 
-    def after_step(self, env, agent, action: int, obs, info, step: int) -> None:
+    def after_step(self, env, step, action: int, obs, info, n: int) -> None:
         from calnav.agent.prediction import crop_origin, map_input, pool_factor
         from calnav.agent.semantic_map import MapChannels
+        from calnav.envs.task import COMPASS, GPS, gps_compass_to_xy_yaw
 
-        if step % self.every:
+        if n % self.every:
             return
-        cell_m, st = self.cfg.agent.cell_m, agent.state
-        xy, _ = agent.sensors.xy_yaw(obs)
+        cell_m, st = step.cell_m, step.state
+        xy, _ = gps_compass_to_xy_yaw(obs[GPS], obs[COMPASS])   # where the move took it
         rc = st.to_cell(xy, cell_m)
         maps = {"obstacle": st.obstacles(), "explored": st.channels[MapChannels.EXPLORED],
                 "visited": st.channels[MapChannels.VISITED]}
@@ -101,7 +103,7 @@ class MapSampler(Hook):
         corner = crop_origin(rc, self.spec, pool_factor(self.spec, cell_m))
         ep, scene = env.unwrapped.episode, env.unwrapped.scene
         self.targets.append(goal_targets(scene, ep, st.origin, corner, self.spec, cell_m, self.goals))
-        self.steps.append(step)
+        self.steps.append(n)
 
 
 def collect_episode(task: CollectTask) -> dict:
@@ -109,14 +111,14 @@ def collect_episode(task: CollectTask) -> dict:
     returns its arrays (see the module docstring)."""
     from calnav.agent.prediction import PredictorSpec
     from calnav.agent.segmenters.base import goal_categories
-    from calnav.eval.config import Config, build_dataclass
+    from calnav.eval.config import agent_setup
     from calnav.eval.objectnav.run import _warm_env_agent
     from calnav.eval.rollout import rollout
 
-    cfg = build_dataclass(Config, task.cfg_dict)
-    env, agent = _warm_env_agent(task.cfg_dict, "peanut", upto=task.upto)
+    cfg = task.cfg
+    env, agent = _warm_env_agent(cfg, agent_setup(cfg, "peanut"), upto=task.upto)
     goals = goal_categories()
-    spec = PredictorSpec(class_names=tuple(agent.class_names), goal_categories=goals)
+    spec = PredictorSpec(class_names=agent.class_names, goal_categories=goals)
     sampler = MapSampler(cfg, spec, goals, task.every)
     rollout(env, agent, task.index, [sampler], max_steps=task.steps)
     ep = env.unwrapped.episode
@@ -138,7 +140,6 @@ def main_collect_maps(args, configs) -> None:
     """``configs``: ``collect_configs(args)``, checked by the preflight."""
     from calnav.common.npz import save_versioned_npz
     from calnav.eval.runner import raise_failures, run_tasks
-    from calnav.eval.config import to_dict
     from calnav.eval.episodes import episode_indices
 
     cfg = configs[0]
@@ -149,7 +150,7 @@ def main_collect_maps(args, configs) -> None:
     indices = episode_indices(str(args.episodes), cfg.env, cfg.run)
     with ResultsDir(out, cfg, force=args.force, discard=("episodes",), files=()):
         todo = [i for i in indices if not episode_file(out, i).exists()]
-        tasks = [CollectTask(to_dict(cfg), i, steps, args.every, max(indices) + 1) for i in todo]
+        tasks = [CollectTask(cfg, i, steps, args.every, max(indices) + 1) for i in todo]
 
         def save(task: CollectTask, res: dict) -> None:
             save_versioned_npz(episode_file(out, task.index), {k: res[k] for k in ("inputs", "targets", "steps")},

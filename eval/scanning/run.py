@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from calnav.eval.config import to_dict
+from calnav.envs.config import EnvConfig
 from calnav.eval.shorthands import load_command_config
 from calnav.eval.results_dir import ResultsDir, writing
 from dataclasses import dataclass
@@ -38,16 +38,14 @@ COLUMNS = ("scene_id", "split", "seconds", "triangles", "triangles_per_m2", "flo
            "floor_above_median_m", "floor_above_p95_m")
 
 
-def scan_one(item: tuple[str, dict]) -> dict:
+def scan_one(item: tuple[str, EnvConfig]) -> dict:
     """Scan (or read from the cache) one house and score it; a top-level function, so it runs
-    in any backend's worker. item: (scene_id, DatasetConfig as a dict)."""
+    in any backend's worker. item: (scene_id, the run's EnvConfig, validated where it was loaded)."""
     from calnav.envs.scanning.quality import floor_quality, scan_quality
     from calnav.envs.scanning.scanner import lived_in_house
     from calnav.envs.scenes import load_scene, parse_scene_id, scene_seed
-    from calnav.eval.config import Config, build_dataclass
 
-    scene_id, cfg_dict = item
-    env = build_dataclass(Config, cfg_dict).env
+    scene_id, env = item
     ds = env.dataset
     start = time.perf_counter()
     scanned = load_scene(scene_id, ds, style="scanned")
@@ -132,12 +130,11 @@ def main_scan_houses(args, configs) -> None:
     if args.houses is not None:
         ids = [i for s in splits for i in split_scene_ids(s, cfg.env.dataset)[: args.houses]]
     check_backend(cfg.run.backend, cfg.run.ray_address)   # ray without Ray: the install command, before writing
-    cfg_dict = to_dict(cfg)
     out = Path(args.output)
     with ResultsDir(out, cfg, force=args.force, discard=("quality.csv", "quality.md", "quality.json"),
                     files=("quality.csv",)):
         rows = []
-        failures = run_tasks(scan_one, [(i, cfg_dict) for i in ids], cfg.run, save=lambda _, row: rows.append(row),
+        failures = run_tasks(scan_one, [(i, cfg.env) for i in ids], cfg.run, save=lambda _, row: rows.append(row),
                              desc="scanning houses", unit="house")
         rows.sort(key=lambda r: r["scene_id"])
         means = split_means(rows)

@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from calnav.eval.config import Config, ConfigError
+from calnav.eval.config import Config, ConfigError, agent_setup
 from calnav.eval.results_dir import ResultsDir, writing
 from dataclasses import dataclass
 from calnav.eval.arguments import REQUIRED, Command, arg
@@ -154,7 +154,7 @@ def replay(seq, nav, goal: str, recording=None, progress: bool = True) -> tuple[
         records.append(frame_record(fr.index, decision, nav.frame, nav.class_names, nav.goal))
         heights.append(float(fr.pose[2, 3]))
         if recording is not None:
-            recording.step(nav.agent, int(decision.action), {})
+            recording.step(decision.agent_step, int(decision.action), {})
     return records, heights
 
 
@@ -171,7 +171,7 @@ def main_replay(args, configs: list[Config]) -> None:
     seq = Sequence(args.recording, args.layout, configs[0].sequence)
     cfg, notes = sensor_config(configs[0], seq)
     seq.check_scale(cfg.mapping.depth_min_m, cfg.mapping.depth_max_m, cfg.mapping.voxel_size_m)   # units, frame
-    nav = Navigator(cfg)
+    nav = Navigator(agent_setup(cfg))
     goal = int(args.goal) if args.goal.isdigit() else args.goal   # a name, or its id
     nav.goal_id(goal)   # an unknown goal: one line naming the valid ones
     if nav.needs_semantic and not seq.has_semantic:
@@ -187,7 +187,7 @@ def main_replay(args, configs: list[Config]) -> None:
             from calnav.agent.recording import EpisodeRecording
 
             # (the recording's name: Rerun's application ids take no dots, so not the file's name)
-            recording = EpisodeRecording(Path(tmp) / "replay.rrd", nav.agent, f"replay {goal}")
+            recording = EpisodeRecording(Path(tmp) / "replay.rrd", nav.class_names, f"replay {goal}")
         t0 = time.perf_counter()
         records, heights = replay(seq, nav, goal, recording)
         seconds = time.perf_counter() - t0

@@ -104,18 +104,18 @@ def test_perception_hands_the_segmenter_what_it_declares(segmenter, expected):
 def test_build_agent_hands_the_simulator_only_to_an_agent_declaring_it(monkeypatch):
     from calnav.agent.oracle import OracleAgent
     from calnav.agent.policy import PeanutAgent
-    from calnav.agent.registry import build_agent
-    from calnav.eval.config import load_config
+    from calnav.agent.setup import build_agent
+    from calnav.eval.config import agent_setup, load_config
 
     cfg = load_config(None, [])
     handle = object()
     assert declared_privileged(OracleAgent) == (SIMULATOR,) and declared_privileged(PeanutAgent) == ()
-    oracle = build_agent("oracle", cfg, simulator=handle)
+    oracle = build_agent(agent_setup(cfg, "oracle"), simulator=handle)
     assert isinstance(oracle, OracleAgent) and oracle.simulator is handle
     with pytest.raises(ValueError, match="agent 'oracle' needs the simulator's privileged handle"):
-        build_agent("oracle", cfg)
-    monkeypatch.setattr(PeanutAgent, "from_config", classmethod(lambda cls, cfg_, **handed_: handed_))
-    assert build_agent("peanut", cfg, simulator=handle) == {}     # built without the handle
+        build_agent(agent_setup(cfg, "oracle"))
+    monkeypatch.setattr(PeanutAgent, "from_setup", classmethod(lambda cls, setup_, **handed_: handed_))
+    assert build_agent(agent_setup(cfg, "peanut"), simulator=handle) == {}     # built without the handle
 
 
 def test_the_registered_oracle_takes_the_env_oracles_actions(small_env_config):
@@ -126,21 +126,21 @@ def test_the_registered_oracle_takes_the_env_oracles_actions(small_env_config):
     import gymnasium as gym
 
     from calnav import envs
-    from calnav.agent.registry import build_agent
+    from calnav.agent.setup import build_agent
     from calnav.envs.oracle import OracleAgent as EnvOracle
-    from calnav.eval.config import load_config
+    from calnav.eval.config import agent_setup, load_config
 
     for limit in (500, 6):   # to the goal; cut short: the forced STOP on step 6
         env_cfg = dataclasses.replace(small_env_config, max_episode_steps=limit)
         env = gym.make(envs.ENV_ID, split="val", config=env_cfg)
-        ours = build_agent("oracle", load_config(None, []), simulator=env.unwrapped.simulator_handle())
+        ours = build_agent(agent_setup(load_config(None, []), "oracle"), simulator=env.unwrapped.simulator_handle())
         theirs = EnvOracle(env)
         obs, _ = env.reset(options={"episode_index": 1})
         ours.reset(obs)
         theirs.reset(obs)
         done, actions = False, []
         while not done:
-            action = ours.act(obs)
+            action = ours.act(obs).action
             assert action == theirs.act(obs), len(actions)
             actions.append(action)
             obs, _, terminated, truncated, info = env.step(action)

@@ -14,7 +14,7 @@ require_habitat()
 
 from calnav.envs.task import Action, depth_to_metres  # noqa: E402
 from calnav.eval.cli import main  # noqa: E402
-from calnav.eval.config import load_config  # noqa: E402
+from calnav.eval.config import agent_setup, load_config  # noqa: E402
 
 pytestmark = pytest.mark.habitat
 
@@ -82,17 +82,18 @@ def test_reset_waits_for_the_first_observations(setup):
     hcfg, env_cfg = setup
     cfg = load_config(None, ["agent.segmenter=gt"])
     cfg.env = env_cfg
-    agent = HabitatPeanutAgent(cfg)
+    agent = HabitatPeanutAgent(agent_setup(cfg))
     agent.reset()
-    assert agent.agent.state is None  # nothing known before the first observations
+    assert agent.decision is None and agent.navigator.goal is None  # nothing known before the first observations
     obs = {"rgb": np.zeros((H, W, 3), np.uint8), "depth": np.zeros((H, W, 1), np.float32),
            "gps": np.zeros(2, np.float32), "compass": np.zeros(1, np.float32), "objectgoal": np.array([2]),
            "semantic": -np.ones((H, W, 1), np.int32)}
     assert agent.act(obs) == {"action": "turn_left"}  # the opening spin
-    assert agent.agent.goal_id == 2 and agent.agent.steps == 1
+    goals = agent.navigator.goal_categories
+    assert agent.navigator.goal == goals[2] and agent.decision.step == agent.decision.agent_step.steps == 1
     agent.reset()
     agent.act({**obs, "objectgoal": np.array([4])})
-    assert agent.agent.goal_id == 4 and agent.agent.steps == 1  # a fresh episode
+    assert agent.navigator.goal == goals[4] and agent.decision.agent_step.steps == 1  # a fresh episode
 
 
 def test_peanut_through_habitat_benchmark_equals_objectnav(tmp_path, capsys):

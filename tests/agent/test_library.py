@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from calnav.eval.config import load_config
+from calnav.eval.config import agent_setup, load_config
 
 REPO = Path(__file__).resolve().parents[2]
 OVERRIDES = ["env.resolution=160x120", "env.dataset.val_scenes=1", "env.dataset.episodes_per_scene=6",
@@ -59,7 +59,7 @@ def library_episode(setup):
     from calnav.agent.navigator import Navigator
 
     cfg, env, index = setup
-    navs = {"gps": Navigator(cfg), "pose": Navigator(cfg)}
+    navs = {"gps": Navigator(agent_setup(cfg)), "pose": Navigator(agent_setup(cfg))}
     decisions, observations, info = _drive(env, index, navs, "gps")
     return navs["gps"], decisions, observations, info
 
@@ -69,17 +69,21 @@ def test_an_episode_through_the_library_takes_calnav_objectnavs_actions(setup, l
     agent its workers build: a Navigator run as an ``EpisodeAgent``) and the same episode driven
     through the robot's entry point, ``Navigator.act``: the same actions step by step, hence the
     same record; the same with the pose given as the 4x4 camera pose instead of gps / compass."""
-    from dataclasses import asdict
 
     from calnav.agent.navigator import EpisodeAgent, Navigator
     from calnav.eval.objectnav.run import _warm_env_agent, run_one_episode
 
     cfg, env, index = setup
     _, decisions, _, info = library_episode
-    _, agent = _warm_env_agent(asdict(cfg), "peanut")   # what a worker of calnav objectnav builds
+    _, agent = _warm_env_agent(cfg, agent_setup(cfg, "peanut"))   # what a worker of calnav objectnav builds
     assert isinstance(agent, EpisodeAgent) and isinstance(agent.navigator, Navigator)
     actions, act = [], agent.act
-    agent.act = lambda obs: actions.append(act(obs)) or actions[-1]   # what objectnav's loop sends, step by step
+
+    def recorded(obs):
+        step = act(obs)
+        actions.append(step.action)   # what objectnav's loop sends, step by step
+        return step
+    agent.act = recorded
     record = run_one_episode(env, agent, index)
     for name, got in decisions.items():
         assert [int(d.action) for d in got] == actions, name
@@ -148,12 +152,12 @@ def test_the_decision_in_metres(library_episode):
     last = decisions["gps"][-1]
     assert last.mode == "stop" and last.goal is not None and last.goal.accepted
     assert m.layer("visited")[m.cell(*last.position)]
-    assert m.confidence(m.goal)[m.cell(*last.goal.centre)] >= nav.cfg.agent.goal_threshold
+    assert m.confidence(m.goal)[m.cell(*last.goal.centre)] >= nav.setup.agent.goal_threshold
     stg = [d for d in decisions["gps"] if d.short_term_goal is not None and d.mode == "explore"]
     assert stg and all(d.long_term_goal is not None for d in stg)
-    ring = nav.cfg.agent.ring_cells * nav.cfg.agent.cell_m
+    ring = nav.setup.agent.ring_cells * nav.setup.agent.cell_m
     far = [math.dist(d.position, d.short_term_goal) for d in stg if math.dist(d.position, d.long_term_goal) > 2 * ring]
-    assert far and max(abs(f - ring) for f in far) < 2 * nav.cfg.agent.cell_m   # one cell from the ring, at most
+    assert far and max(abs(f - ring) for f in far) < 2 * nav.setup.agent.cell_m   # one cell from the ring, at most
 
 
 def test_the_map_is_read_and_saved(library_episode, tmp_path):
@@ -193,7 +197,7 @@ def test_bad_inputs_are_one_line(setup):
     from calnav.agent.navigator import Navigator
 
     cfg, env, _ = setup
-    nav = Navigator(cfg)
+    nav = Navigator(agent_setup(cfg))
     obs, _ = env.reset(options={"episode_index": 0})
     rgb, depth = obs["rgb"], obs["depth"]
     with pytest.raises(ValueError, match=r"^call reset\(goal\) before act\(\)$"):
@@ -223,7 +227,7 @@ def test_bad_inputs_are_one_line(setup):
         nav.act(rgb[::2, ::2], depth[::2, ::2], pose=obs["camera_pose"], semantic=obs["semantic"][::2, ::2])
     oracle = load_config(None, [*OVERRIDES, "run.agent=oracle"])
     with pytest.raises(ValueError, match="needs the simulator's privileged handle"):
-        Navigator(oracle)
+        Navigator(agent_setup(oracle))
 
 
 def test_unit_and_frame_mix_ups_are_refused(setup):
@@ -238,14 +242,14 @@ def test_unit_and_frame_mix_ups_are_refused(setup):
     cfg, env, _ = setup
     obs, _ = env.reset(options={"episode_index": 0})
     rgb, depth, sem, pose = obs["rgb"], obs["depth"], obs["semantic"], obs["camera_pose"]
-    nav = Navigator(cfg)
+    nav = Navigator(agent_setup(cfg))
     nav.reset("chair")
     for bad, message in [((depth * 1000).astype(np.uint16), r"^depth must be float metres \(env.normalize_depth is "
                                                             r"false\); got uint16: raw sensor units\?"),
                          (depth * 1000, r"valid pixels lie beyond 100 m: millimetres\? divide by 1000$")]:
         with pytest.raises(ValueError, match=message):
             nav.act(rgb, bad, pose=pose, semantic=sem)
-    normalised = Navigator(dataclasses.replace(cfg, env=dataclasses.replace(cfg.env, normalize_depth=True)))
+    normalised = Navigator(agent_setup(dataclasses.replace(cfg, env=dataclasses.replace(cfg.env, normalize_depth=True))))
     normalised.reset("chair")
     with pytest.raises(ValueError, match=r"^depth must be normalised \[0, 1\] .*pixels exceed 1 .*metric depth\? set "
                                          r"env.normalize_depth=false$"):
@@ -289,7 +293,7 @@ def test_a_refused_call_changes_nothing(setup):
     elsewhere = pose.copy()
     elsewhere[:3, 3] += (3.0, -2.0, 0.0)
     elsewhere[:3, :3] = np.array([[0, 0, 1], [-1, 0, 0], [0, -1, 0]], float)   # level, facing +x
-    alone, refused = Navigator(cfg), Navigator(cfg)
+    alone, refused = Navigator(agent_setup(cfg)), Navigator(agent_setup(cfg))
     alone.reset("chair")
     refused.reset("chair")
     with pytest.raises(ValueError, match=r"^depth must be float metres .*got uint16"):
@@ -303,13 +307,14 @@ def test_a_refused_call_changes_nothing(setup):
     np.testing.assert_array_equal(refused.start_frame.xy, alone.start_frame.xy)
     assert refused.start_frame.yaw == alone.start_frame.yaw
     # the episode loop's calls: a refused begin, then the good one, is the good one alone
-    loop, bad = EpisodeAgent(Navigator(cfg)), {**obs, "compass": np.array([170.0], np.float32)}
+    loop, bad = EpisodeAgent(Navigator(agent_setup(cfg))), {**obs, "compass": np.array([170.0], np.float32)}
     with pytest.raises(ValueError, match=r"^compass 170 is not Habitat's EpisodicCompass"):
         loop.reset(bad)
     loop.reset(obs)
-    fresh = EpisodeAgent(Navigator(cfg))
+    fresh = EpisodeAgent(Navigator(agent_setup(cfg)))
     fresh.reset(obs)
-    assert loop.act(obs) == fresh.act(obs) and loop.navigator.observe(obs) == fresh.navigator.observe(obs)
+    assert loop.act(obs).action == fresh.act(obs).action
+    assert loop.navigator.observe(obs) == fresh.navigator.observe(obs)
 
 
 def test_observe_checks_what_act_checks(setup):
@@ -320,7 +325,7 @@ def test_observe_checks_what_act_checks(setup):
 
     cfg, env, _ = setup
     obs, _ = env.reset(options={"episode_index": 0})
-    nav = Navigator(cfg)
+    nav = Navigator(agent_setup(cfg))
     nav.reset()
     for change, message in [({"compass": np.array([170.0], np.float32)}, r"^compass 170 is not Habitat's EpisodicCompass"),
                             ({"gps": np.array([np.nan, 0.0], np.float32)}, r"^gps must be 2 finite numbers"),
@@ -357,12 +362,12 @@ def test_the_docs_example_runs(tmp_path, monkeypatch, capsys):
 
 def test_the_ros_node_sketch_uses_only_the_library():
     """docs/robot.md's ROS 2 node (not run here: no ROS) parses and reaches calnav only through
-    the library entry point (the Navigator, the action ids, the config loader)."""
+    the library entry point (the Navigator, its setup, the action ids): never calnav.eval."""
     import ast
 
     code = _docs_block("robot.md", "## A ROS 2 node (a sketch)")
     calnav = {node.module for node in ast.walk(ast.parse(code))
               if isinstance(node, ast.ImportFrom) and node.module.split(".")[0] == "calnav"}
-    assert calnav == {"calnav.agent.navigator", "calnav.envs.task", "calnav.eval.config"}
+    assert calnav == {"calnav.agent.config", "calnav.agent.navigator", "calnav.agent.setup", "calnav.envs.task"}
     assert "self.nav.act(" in code and "import rclpy" in code
     assert not re.search(r"self\.nav\.(agent\b|_)", code)   # the Navigator's public surface only

@@ -3,7 +3,7 @@ generated house with ground-truth segmentation."""
 import numpy as np
 import pytest
 
-from calnav.eval.config import ConfigError, load_config
+from calnav.eval.config import ConfigError, agent_setup, load_config
 
 MAX_STEPS = 200          # the test episode is short: a few metres
 NDF_STEPS = 40           # steps of the NDF / uncertainty-aware observation check
@@ -51,11 +51,11 @@ def test_the_agent_is_composed_of_the_registered_parts(small_setup):
     from calnav.agent.semantic_map import FusedMapBuilder, NdfMapBuilder
 
     cfg, _ = small_setup
-    agent = PeanutAgent(cfg)
+    agent = PeanutAgent(agent_setup(cfg))
     assert type(agent.mapper) is FusedMapBuilder and type(agent.selector) is FrontierSelector
     assert agent.predictor is None
-    other = PeanutAgent(dataclasses.replace(cfg, agent=dataclasses.replace(cfg.agent, map_type="ndf",
-                                                                             exploration="prediction")))
+    other = PeanutAgent(agent_setup(dataclasses.replace(cfg, agent=dataclasses.replace(
+        cfg.agent, map_type="ndf", exploration="prediction"))))
     assert type(other.mapper) is NdfMapBuilder and type(other.selector) is PredictionSelector
     assert other.predictor is other.selector.predictor
 
@@ -79,12 +79,12 @@ def test_agent_finds_goal_in_small_house(small_setup):
     cfg, env = small_setup
     episodes = env.unwrapped.episodes
     index = int(np.argmin([ep.geodesic_distance for ep in episodes]))   # the shortest episode
-    agent = PeanutAgent(cfg)
+    agent = PeanutAgent(agent_setup(cfg))
     obs, info = env.reset(options={"episode_index": index})
     agent.reset(obs)
     done = False
     while not done:
-        obs, _, terminated, truncated, info = env.step(agent.act(obs))
+        obs, _, terminated, truncated, info = env.step(agent.act(obs).action)
         done = terminated or truncated
     assert info["success"], f"episode {index}: distance to goal {info['distance_to_goal']:.2f} m after {info['steps']} steps"
     assert info["steps"] < MAX_STEPS, info["steps"]
@@ -100,7 +100,7 @@ def test_the_goal_channel_is_found_by_name(small_setup):
 
     cfg, env = small_setup
     cfg = dataclasses.replace(cfg, agent=dataclasses.replace(cfg.agent, segmenter="tests.agent.segmenter_plugins:no_bed"))
-    agent = PeanutAgent(cfg)
+    agent = PeanutAgent(agent_setup(cfg))
     obs, _ = env.reset(options={"episode_index": 0})
     agent.reset({**obs, "objectgoal": np.array([2])})
     assert (agent.goal_name, agent.goal_channel, agent.class_names[agent.goal_channel]) == ("plant", 1, "plant")
@@ -117,15 +117,15 @@ def test_agent_reads_only_habitat_observations(small_setup):
     cfg, env = small_setup
     episodes = env.unwrapped.episodes
     index = int(np.argmin([ep.geodesic_distance for ep in episodes]))
-    full, reduced = PeanutAgent(cfg), PeanutAgent(cfg)
+    full, reduced = PeanutAgent(agent_setup(cfg)), PeanutAgent(agent_setup(cfg))
     keep = (*HABITAT_KEYS, SEMANTIC)
     obs, _ = env.reset(options={"episode_index": index})
     full.reset(obs)
     reduced.reset({k: obs[k] for k in keep})
     done, steps = False, 0
     while not done:
-        action = full.act(obs)
-        assert reduced.act({k: obs[k] for k in keep}) == action, f"step {steps}"
+        action = full.act(obs).action
+        assert reduced.act({k: obs[k] for k in keep}).action == action, f"step {steps}"
         obs, _, terminated, truncated, _ = env.step(action)
         done, steps = terminated or truncated, steps + 1
     assert steps > cfg.env.turn_angle_deg and full.info.mode == "stop"
@@ -142,18 +142,19 @@ def test_ndf_uncertainty_aware_agent_and_video_panel_on_habitat_observations(sma
 
     cfg, env = small_setup
     cfg = dataclasses.replace(cfg, agent=dataclasses.replace(cfg.agent, map_type="ndf", uncertainty_aware=True))
-    full, reduced = PeanutAgent(cfg), PeanutAgent(cfg)
+    full, reduced = PeanutAgent(agent_setup(cfg)), PeanutAgent(agent_setup(cfg))
     keep = (*HABITAT_KEYS, SEMANTIC)
     obs, _ = env.reset(options={"episode_index": 0})
     full.reset(obs)
     reduced.reset({k: obs[k] for k in keep})
     for step in range(NDF_STEPS):
-        action = full.act(obs)
-        assert reduced.act({k: obs[k] for k in keep}) == action, f"step {step}"
+        action = full.act(obs).action
+        last = reduced.act({k: obs[k] for k in keep})
+        assert last.action == action, f"step {step}"
         obs, _, terminated, truncated, _ = env.step(action)
         if terminated or truncated:
             break
-    panel = render_panel(reduced)
+    panel = render_panel(last)
     assert panel.ndim == 3 and panel.shape[2] == 3 and panel.std() > 0
 
 
@@ -197,10 +198,10 @@ def test_agent_escapes_a_trap_it_cannot_see(open_heading_deg):
 
     cfg = load_config(None, ["env.resolution=64x48", "agent.map_resolution=64x48", "agent.map_size_m=16",
                              "mapping.initial_alloc_mb=16"])
-    world, agent = TrapWorld(cfg, open_heading_deg), PeanutAgent(cfg)
+    world, agent = TrapWorld(cfg, open_heading_deg), PeanutAgent(agent_setup(cfg))
     agent.reset(world.obs())
     for i in range(200):
-        action = agent.act(world.obs())
+        action = agent.act(world.obs()).action
         assert action != Action.STOP, f"stopped at step {i}"
         world.step(action, i)
     a = cfg.agent

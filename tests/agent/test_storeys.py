@@ -65,10 +65,11 @@ def test_flights_find_the_stairs_and_not_the_seat():
 def test_single_storey_config_builds_the_single_storey_agent():
     from calnav.agent.policy import PeanutAgent
     from calnav.agent.storey_policy import StoreyPeanutAgent
-    from calnav.eval.config import load_config
+    from calnav.eval.config import agent_setup, load_config
 
-    one = PeanutAgent.from_config(load_config("configs/objectnav.yaml", ["agent.segmenter=gt"]))
-    two = PeanutAgent.from_config(load_config("configs/objectnav.yaml", ["agent.segmenter=gt", "env.dataset.storeys=2"]))
+    one = PeanutAgent.from_setup(agent_setup(load_config("configs/objectnav.yaml", ["agent.segmenter=gt"])))
+    two = PeanutAgent.from_setup(agent_setup(load_config("configs/objectnav.yaml",
+                                                         ["agent.segmenter=gt", "env.dataset.storeys=2"])))
     assert type(one) is PeanutAgent and type(two) is StoreyPeanutAgent
 
 
@@ -79,19 +80,19 @@ def test_the_agent_climbs_and_knows_its_height():
     from calnav.agent.navigator import EpisodeAgent, Navigator
     from calnav.envs.episodes import load_split
     from calnav.envs.objectnav_env import ObjectNavEnv
-    from calnav.eval.config import load_config
+    from calnav.eval.config import agent_setup, load_config
 
     cfg = load_config("configs/objectnav.yaml", ["env.dataset.storeys=2", "env.resolution=160x120",
                                                   "agent.segmenter=gt", "env.dataset.val_scenes=1"])
     eps = [e for e in load_split("val", cfg.env, progress=False) if e.start_storey == 0 and e.goal_storey == 1]
     env = ObjectNavEnv(config=cfg.env, episodes=eps[:1])
-    agent = EpisodeAgent(Navigator(cfg))
+    agent = EpisodeAgent(Navigator(agent_setup(cfg)))
     obs, _ = env.reset(options={"episode_index": 0})
     agent.reset(obs)
     a, errors, storeys, done = agent.navigator.agent, [], [], False
     start_floor = env.navgrid.floor_height(env.position, env.layer)
     while not done:
-        obs, _, terminated, truncated, info = env.step(agent.act(obs))
+        obs, _, terminated, truncated, info = env.step(agent.act(obs).action)
         done = terminated or truncated
         errors.append(a.floor_z - (env.navgrid.floor_height(env.position, env.layer) - start_floor))
         storeys.append(info["storey"])

@@ -217,12 +217,12 @@ def test_the_pool_is_fed_longest_episodes_first_within_each_house():
     """Houses stay together (a worker keeps its house loaded) and each house's longest episodes go
     first, so a run ends on its shortest episodes instead of leaving a core idle on a long one."""
     from calnav.envs.episodes import load_split
-    from calnav.eval.config import to_dict
+    from calnav.eval.config import agent_setup
     from calnav.eval.objectnav.run import EpisodeTask, feed_order
 
     cfg = load_config(None, SMALL)
     episodes = load_split(cfg.env.split, cfg.env)
-    tasks = [EpisodeTask(0, to_dict(cfg), "oracle", i) for i in range(len(episodes))]
+    tasks = [EpisodeTask(0, cfg, agent_setup(cfg, "oracle"), i) for i in range(len(episodes))]
     fed = feed_order(tasks, cfg)
     assert sorted(t.index for t in fed) == list(range(len(episodes)))
     houses = [episodes[t.index].scene_id for t in fed]

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from calnav.eval.cli import main
+from calnav.eval.config import agent_setup
 
 # a mark, not a module-level importorskip: a run that deselects these tests (make test's habitat
 # stage) does not report them as skipped
@@ -35,7 +36,7 @@ def test_an_episode_recording_holds_the_agents_camera_frames_and_map(tmp_path):
 
     cfg = load_config(None, SMALL)
     env = gym.make("calnav/ObjectNav-v0", split="val", config=cfg.env)
-    agent = PeanutAgent(cfg)
+    agent = PeanutAgent(agent_setup(cfg))
     plain = run_one_episode(env, agent, 0)
     rec = run_one_episode(env, agent, 0, rerun_dir=tmp_path)
     path = tmp_path / f"{rec['episode_id'].replace(':', '_')}.rrd"

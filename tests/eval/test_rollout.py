@@ -1,5 +1,6 @@
 """eval.rollout: the one episode loop -- reset order, hooks in order with the action they send,
 max_steps, and how an episode ended."""
+from calnav.agent.step import Step
 from calnav.eval.rollout import Hook, rollout
 
 
@@ -30,7 +31,7 @@ class Agent:
 
     def act(self, obs):
         self.seen.append(("act", obs["n"]))
-        return 0 if obs["n"] == self.stop_at else 1
+        return Step(0 if obs["n"] == self.stop_at else 1, len(self.seen) - 1)
 
 
 class Recorder(Hook):

@@ -8,6 +8,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
+from calnav.eval.config import agent_setup
 from tests.conftest import small_or_full
 
 pytestmark = pytest.mark.e2e
@@ -32,12 +33,14 @@ def scan_worlds(tmp_path_factory):
     return cfg, gym.make(envs.ENV_ID, split="val", config=cfg.env)
 
 
-def _run(env, agent, index: int) -> dict:
+def _run(env, agent, index: int, action_of=int) -> dict:
+    """Episode ``index`` driven by ``agent``; ``action_of``: the action id of what its ``act``
+    returns (the env's oracle an id, a registry agent an ``agent.step.Step``)."""
     obs, info = env.reset(options={"episode_index": index})
     agent.reset(obs)
     done = False
     while not done:
-        obs, _, terminated, truncated, info = env.step(agent.act(obs))
+        obs, _, terminated, truncated, info = env.step(action_of(agent.act(obs)))
         done = terminated or truncated
     return info
 
@@ -67,11 +70,11 @@ def test_the_agent_finishes_its_approach(scan_worlds, category):
     from calnav.eval.stats import LINGER_STEPS
 
     cfg, env = scan_worlds
-    agent = PeanutAgent(cfg)
+    agent = PeanutAgent(agent_setup(cfg))
     indices = [i for i, e in enumerate(env.unwrapped.episodes) if e.object_category == category]
     assert indices, f"no {category} episode"
     for i in indices:
-        info = _run(env, agent, i)
+        info = _run(env, agent, i, lambda step: step.action)
         assert info["success"] == 1.0, (i, info["distance_to_goal"], info["steps"], agent.info.mode)
         assert info["steps_at_goal"] <= LINGER_STEPS, (i, info["steps_at_goal"])
         assert np.isfinite(info["spl"])

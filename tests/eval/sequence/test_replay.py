@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from calnav.eval.cli import main
+from calnav.eval.config import agent_setup
 
 SEMANTIC_TOPIC = "/camera/semantic/image_raw"
 # the episode's config; the replay takes the same keys but the sensor's, which the bag sets
@@ -71,7 +72,7 @@ def episode(tmp_path_factory):
     env = gym.make(envs.ENV_ID, split="val", config=cfg.env)
     index = int(np.argmin([ep.geodesic_distance for ep in env.unwrapped.episodes]))
     goal = env.unwrapped.episodes[index].object_category
-    nav = Navigator(cfg)
+    nav = Navigator(agent_setup(cfg))
     obs, _ = env.reset(options={"episode_index": index})
     nav.reset(goal)
     frames, decisions, done = [], [], False
