@@ -24,6 +24,7 @@ import numpy as np
 
 from calnav.common.atomic import atomic_path
 from calnav.common.gc_pause import gc_paused
+from calnav.envs.episode_values import numbers, unit_quaternion
 from calnav.envs.semantics import GOAL_CATEGORIES
 
 VIEW_POINT_IOU = None             # habitat-lab's ObjectViewLocation.iou: not computed by calnav
@@ -130,9 +131,8 @@ def _view_points_from_habitat(view_points: list[dict]) -> tuple[np.ndarray, np.n
     (``_from_habitat`` of each, in one array op: a goal has thousands)."""
     if not view_points:
         return np.zeros((0, 2)), np.zeros(0)
-    p = np.array([v["agent_state"]["position"] for v in view_points], dtype=np.float64)
-    if p.ndim != 2 or p.shape[1] != 3:   # (a ragged list already raised ValueError)
-        raise ValueError(f"view point positions must be [x, y, z], got shape {p.shape}")
+    p = np.array([numbers(v["agent_state"]["position"], 3, "a view point's position") for v in view_points],
+                 dtype=np.float64)
     return np.stack([p[:, 0], -p[:, 2]], axis=1), p[:, 1].copy()
 
 
@@ -177,7 +177,8 @@ def goals_key(scene_id: str, category: str) -> str:
 def _goal_from_habitat(g: dict) -> GoalObject:
     xy, heights = _view_points_from_habitat(g["view_points"])
     return GoalObject(int(g["object_id"]), g["object_category"],
-                      np.array([g["position"][0], -g["position"][2], g["position"][1]], dtype=np.float64),
+                      np.array(numbers(g["position"], 3, f"goal object {g['object_id']}'s position"),
+                               dtype=np.float64)[[0, 2, 1]] * [1.0, -1.0, 1.0],
                       xy, heights if heights.any() else None)   # (all 0: one storey, None as before storeys)
 
 
@@ -192,14 +193,15 @@ def episodes_from_habitat(data: dict) -> list[ObjectNavEpisode]:
             goals[key] = [_goal_from_habitat(g) for g in e["goals"]]
         if key not in goals:
             raise ValueError(f"episode {e['episode_id']}: no goals_by_category entry {key!r}")
+        start = numbers(e["start_position"], 3, f"episode {e['episode_id']}: start_position")
         episodes.append(ObjectNavEpisode(
             episode_id=str(e["episode_id"]), scene_id=e["scene_id"],
-            start_position=_from_habitat(e["start_position"]),
-            start_rotation=[float(c) for c in e["start_rotation"]],
+            start_position=_from_habitat(start),
+            start_rotation=unit_quaternion(e["start_rotation"], f"episode {e['episode_id']}: start_rotation"),
             object_category=e["object_category"],
             geodesic_distance=float(e["info"]["geodesic_distance"]),
             euclidean_distance=float(e["info"].get("euclidean_distance", float("nan"))),
-            goals=goals[key], start_height=float(e["start_position"][1]),
+            goals=goals[key], start_height=start[1],
             start_storey=int(e["info"].get("start_storey", 0)), goal_storey=int(e["info"].get("goal_storey", 0))))
     return episodes
 
