@@ -24,23 +24,25 @@ from calnav.common.ranges import Range
 from calnav.eval.arguments import REQUIRED, Command, arg
 
 _PROCEDURAL = re.compile(r"^house_(train|val|test|calib)_\d+$")
-SCENE_SUFFIXES = (".ply", ".npz")
 
 
 def resolve_target(target: str) -> tuple[str | None, list[str]]:
     """(the ``env.dataset.scene_dir`` it names or None, scene ids) of a TARGET: a scene file, a
     directory of scene files, or a procedural scene id. ValueError naming the three forms
     otherwise."""
+    from calnav.envs.hm3d import scene_id_of
+    from calnav.envs.scene_files import scene_kind
+
     path = Path(target).expanduser()
-    if path.is_file():
-        if path.suffix not in SCENE_SUFFIXES:
-            raise ValueError(f"{target}: a scene file must be a labelled .ply or a calnav .npz scene")
-        return str(path.parent), [path.stem]
+    if path.is_file():   # (scene_kind refuses other suffixes and a .semantic.glb, naming the scene file)
+        # the id the scene folder lists it by (envs.scene_files.scene_files_in): an HM3D / MP3D
+        # .glb's is the scene's (TEEsavR23oF of TEEsavR23oF.basis.glb)
+        return str(path.parent), [path.stem if scene_kind(path) in ("npz", "ply") else scene_id_of(path)]
     if path.is_dir():
         return str(path), []   # every scene of the directory
     if _PROCEDURAL.match(target):
         return None, [target]
-    raise ValueError(f"{target!r} is neither a scene file (.ply / .npz), a directory of them, nor a calnav scene "
+    raise ValueError(f"{target!r} is neither a scene file (.ply / .npz / .glb), a directory of them, nor a calnav scene "
                      "id such as house_val_0003")
 
 

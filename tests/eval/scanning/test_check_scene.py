@@ -59,3 +59,27 @@ def test_bad_target(tmp_path, capsys):
     assert main(["check-scene", "no_such_thing", "--output", str(tmp_path / "x")]) == 2
     err = capsys.readouterr().err
     assert "neither a scene file" in err and "house_val_0003" in err and not (tmp_path / "x").exists()
+
+
+def test_an_hm3d_glb_file_is_a_target(tmp_path, capsys, monkeypatch):
+    """check-scene reads a .glb as every command does (envs.scene_files), by the scene's id; a
+    semantic mesh or a damaged .semantic.txt is refused in one line naming the file."""
+    from calnav.envs import scenes
+    from tests.envs.test_scene_files_hm3d import FLOOR_HEX, write_scene
+
+    monkeypatch.setenv("CALNAV_CACHE", str(tmp_path / "cache"))
+    glb = write_scene(tmp_path / "hm3d" / "00001-scn")
+    main(["check-scene", str(glb), "--output", str(tmp_path / "c"), "--episodes", "1"])
+    captured = capsys.readouterr()
+    assert "a scene file must be" not in captured.err
+    assert json.loads((tmp_path / "c" / "report.json").read_text())["scenes"][0]["scene_id"] == "scn"
+    assert "walkable floor" in captured.out
+    assert main(["check-scene", str(glb.with_name("scn.semantic.glb")), "--output", str(tmp_path / "s")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "is an HM3D semantic mesh, not a scene: load scn.glb" in err
+    txt = glb.with_name("scn.semantic.txt")
+    txt.write_text(txt.read_text() + f'9,{FLOOR_HEX},"wall",0\n')
+    scenes.clear_scene_lru()   # (this process read the scene before; a command's reads it once)
+    assert main(["check-scene", str(glb), "--output", str(tmp_path / "d")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and f"scn.semantic.txt line 4: colour {FLOOR_HEX} is listed twice" in err
