@@ -53,12 +53,23 @@ def read_house(path: str | Path) -> dict[int, str]:
         if not tokens or tokens[0] not in ("C", "O"):
             continue
         try:
+            index = int(tokens[1])
             if tokens[0] == "C":   # C category_index mapping_index mapping_name mpcat40_index mpcat40_name
-                categories.append(tokens[5])
+                name = tokens[5]
             else:                  # O object_index region_index category_index ...
-                objects[int(tokens[1])] = int(tokens[3])
+                category = int(tokens[3])
         except (IndexError, ValueError):
             raise SceneError(f"{path} line {number}: malformed {tokens[0]} line {line[:80]!r}") from None
+        # objects name their category by index: one listed twice or out of order labels another
+        if tokens[0] == "C" and index != len(categories):
+            raise SceneError(f"{path} line {number}: category index {index} where {len(categories)} comes next; "
+                             "the C lines number the categories 0, 1, 2, ... once each")
+        if tokens[0] == "O" and index in objects:
+            raise SceneError(f"{path} line {number}: object {index} is listed twice; each object has one line")
+        if tokens[0] == "C":
+            categories.append(name)
+        else:
+            objects[index] = category
     bad = {o: c for o, c in objects.items() if c >= len(categories)}
     if bad:
         o, c = next(iter(bad.items()))

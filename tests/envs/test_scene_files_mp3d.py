@@ -97,6 +97,20 @@ def test_read_house(tmp_path):
         read_house(tmp_path / "h.house")
 
 
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda h: h + "O 1 0 3  0 0 0  1 0 0  0 1 0  1 1 1  0 0 0 0 0 0 0 0\n", r"line 12: object 1 is listed twice"),
+    (lambda h: h.replace("C 1 3 chair", "C 0 3 chair"), r"line 4: category index 0 where 1 comes next"),
+    (lambda h: h.replace("C 1 3 chair", "C 2 3 chair").replace("C 2 7 book", "C 1 7 book"),
+     r"line 4: category index 2 where 1 comes next"),
+])
+def test_a_house_object_or_category_listed_twice_is_refused(tmp_path, edit, message):
+    """Objects name their category by its C line's index: a repeated object or a category out of
+    its place labelled some faces with another class, silently."""
+    (tmp_path / "h.house").write_text(edit(HOUSE))
+    with pytest.raises(SceneError, match=r"h.house " + message):
+        read_house(tmp_path / "h.house")
+
 def test_mp3d_scene_classes_instances_colour_and_floor(tmp_path):
     path = write_mp3d(tmp_path / "mp3d" / "17DRP5sb8fy")
     assert scene_kind(path) == "mp3d"
