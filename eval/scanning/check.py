@@ -1,6 +1,7 @@
 """``calnav check-scene TARGET``: what the simulator makes of a scene, before any episode runs.
 
     calnav check-scene scans/apartment.ply --output runs/check     # one labelled mesh
+    calnav check-scene data/scene_datasets/hm3d/val/00800-TEEsavR23oF/TEEsavR23oF.basis.glb   # an HM3D scene
     calnav check-scene scans/ --output runs/check                 # every scene of a scene_dir
     calnav check-scene house_val_0003 env.dataset.style=scanned   # a calnav house or its scan
 
@@ -197,7 +198,7 @@ def _has_rerun() -> bool:
 class CheckSceneArgs:
     """``calnav check-scene``'s flags."""
 
-    target: str = arg(REQUIRED, "a scene file (.ply / .npz), a directory of them, or a calnav scene id "
+    target: str = arg(REQUIRED, "a scene file (.ply / .npz / .glb), a directory of them, or a calnav scene id "
                                 "(house_val_0003; with env.dataset.style=scanned its scan)", positional=True,
                       sets="env.dataset.scene_dir", convert=target_scene_dir)   # a scene file's or directory's
     episodes: int = arg(20, "episodes to generate per scene (default 20)", range=Range(1, 100_000, "episodes"))
