@@ -194,13 +194,16 @@ def _unique_ids(episodes: list[ObjectNavEpisode]) -> list[ObjectNavEpisode]:
     ids = [ep.episode_id for ep in episodes]
     if len(set(ids)) == len(ids):
         return episodes
+    seen: set[str] = set()
+    for ep in episodes:
+        joined = f"{scene_name(ep.scene_id)}:{ep.episode_id}"
+        if joined in seen:
+            raise ValueError(f"episode id {ep.episode_id!r} appears twice in the episodes of scene {ep.scene_id}; "
+                             "habitat-lab would run both but calnav's records could not tell them apart: give "
+                             "each episode of a scene its own episode_id")
+        seen.add(joined)
     for ep in episodes:
         ep.episode_id = f"{scene_name(ep.scene_id)}:{ep.episode_id}"
-    ids = [ep.episode_id for ep in episodes]
-    if len(set(ids)) != len(ids):
-        dup = next(i for i in ids if ids.count(i) > 1)
-        raise ValueError(f"episode id {dup!r} appears twice in one scene's episodes; habitat-lab would run both "
-                         "but calnav's records could not tell them apart")
     return episodes
 
 

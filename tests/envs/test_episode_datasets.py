@@ -183,3 +183,15 @@ def test_an_id_habitat_lab_wrote_back_joined_to_a_relative_scenes_dir_resolves(t
     assert resolve_scene("runs/e/scene_datasets/calnav/x.glb", "runs/e/scene_datasets").resolve() == glb
     assert resolve_scene("calnav/x.glb", "runs/e/scene_datasets").resolve() == glb
     assert scene_name("mp3d/17DRP5sb8fy/17DRP5sb8fy.glb") == "17DRP5sb8fy"
+
+
+def test_an_episode_id_twice_in_one_scene_is_refused_by_its_file_id(tmp_path):
+    data_path = _hm3d_dataset(tmp_path)
+    content = tmp_path / "objectnav" / "hm3d" / "v1" / "val" / "content" / "00801-BBB.json.gz"
+    with gzip.open(content, "rt") as f:
+        data = json.load(f)
+    data["episodes"][1]["episode_id"] = "0"
+    _write(content, data)
+    with pytest.raises(ValueError, match=r"episode id '0' appears twice in the episodes of scene "
+                                         r"hm3d/val/00801-BBB/BBB.basis.glb; .*its own episode_id"):
+        read_dataset(data_path, "val")
