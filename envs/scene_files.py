@@ -133,6 +133,18 @@ def _glb_inputs(path: Path, kind: str, root: Path | None, config: Path | None) -
     return [p for p in inputs if p is not None]
 
 
+def scene_file_inputs(path: Path, root: Path | None = None) -> list:
+    """[path, mtime ns, size] of every file the scene ``path`` is read from (the mesh, its
+    semantic files, scene dataset configs, label files): what keys a scene read in memory
+    (``envs.scenes``), so that an edited ``.semantic.txt`` is read again."""
+    kind = scene_kind(path)
+    if kind == "npz":
+        return _stat_key([path])
+    if kind == "ply":
+        return _stat_key([p for p in (path, _ply_label_file(path)) if p is not None])
+    return _stat_key(_glb_inputs(path, kind, root, None))
+
+
 def load_scene_file(path: str | Path, root: str | Path | None = None, dataset_config: str | Path | None = None) -> Scene:
     """The scene in ``path`` (.npz, labelled .ply, HM3D or MP3D .glb; see the module docstring).
 

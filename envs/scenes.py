@@ -59,7 +59,7 @@ from pathlib import Path
 from calnav.envs.config import DatasetConfig
 from calnav.envs.house import HouseSpec, generate_house
 from calnav.envs.scene import Scene, cache_dir
-from calnav.envs.scene_files import cached_scene, load_scene_file, save_atomic, scene_files_in
+from calnav.envs.scene_files import cached_scene, load_scene_file, save_atomic, scene_file_inputs, scene_files_in
 from calnav.envs.stairs import StairSpec
 
 SPLITS = ("train", "val", "test", "calib")
@@ -200,7 +200,7 @@ def load_scene(scene_id: str, dataset_cfg: DatasetConfig | None = None, spec: Ho
         from calnav.envs.episode_datasets import resolve_scene
 
         path, root = resolve_scene(scene_id, cfg.scene_dir), Path(cfg.scene_dir).expanduser()
-        key = ("file", str(path.resolve()), path.stat().st_mtime_ns)
+        key = ("file", json.dumps(scene_file_inputs(path, root)))
         loader = lambda: load_scene_file(path, root=root)  # noqa: E731
     elif cfg.scene_dir:
         files = _user_files(cfg.scene_dir, None)
@@ -208,8 +208,8 @@ def load_scene(scene_id: str, dataset_cfg: DatasetConfig | None = None, spec: Ho
             shown = sorted(files)[:20]
             raise ValueError(f"unknown scene id {scene_id!r} in {cfg.scene_dir}; valid ids: "
                              f"{', '.join(shown) or '(none: no *.npz / *.ply files)'}{' ...' if len(files) > 20 else ''}")
-        key = ("user", str(files[scene_id].resolve()), files[scene_id].stat().st_mtime_ns)
         root = Path(cfg.scene_dir).expanduser()
+        key = ("user", json.dumps(scene_file_inputs(files[scene_id], root)))
         loader = lambda: load_scene_file(files[scene_id], root=root)  # noqa: E731
     else:
         split, index = parse_scene_id(scene_id)

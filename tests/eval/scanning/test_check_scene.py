@@ -63,8 +63,9 @@ def test_bad_target(tmp_path, capsys):
 
 def test_an_hm3d_glb_file_is_a_target(tmp_path, capsys, monkeypatch):
     """check-scene reads a .glb as every command does (envs.scene_files), by the scene's id; a
-    semantic mesh or a damaged .semantic.txt is refused in one line naming the file."""
-    from calnav.envs import scenes
+    semantic mesh or a damaged .semantic.txt is refused in one line naming the file (an edit of
+    the .semantic.txt alone is read again: the scene read in memory is keyed by every file it
+    is read from)."""
     from tests.envs.test_scene_files_hm3d import FLOOR_HEX, write_scene
 
     monkeypatch.setenv("CALNAV_CACHE", str(tmp_path / "cache"))
@@ -79,7 +80,6 @@ def test_an_hm3d_glb_file_is_a_target(tmp_path, capsys, monkeypatch):
     assert "\n" not in err and "is an HM3D semantic mesh, not a scene: load scn.glb" in err
     txt = glb.with_name("scn.semantic.txt")
     txt.write_text(txt.read_text() + f'9,{FLOOR_HEX},"wall",0\n')
-    scenes.clear_scene_lru()   # (this process read the scene before; a command's reads it once)
     assert main(["check-scene", str(glb), "--output", str(tmp_path / "d")]) == 2
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and f"scn.semantic.txt line 4: colour {FLOOR_HEX} is listed twice" in err
