@@ -24,7 +24,7 @@ import numpy as np
 
 from calnav.common.atomic import atomic_path
 from calnav.common.gc_pause import gc_paused
-from calnav.envs.episode_values import numbers, unit_quaternion
+from calnav.envs.episode_values import distance, numbers, unit_quaternion
 from calnav.envs.semantics import GOAL_CATEGORIES
 
 VIEW_POINT_IOU = None             # habitat-lab's ObjectViewLocation.iou: not computed by calnav
@@ -199,8 +199,8 @@ def episodes_from_habitat(data: dict) -> list[ObjectNavEpisode]:
             start_position=_from_habitat(start),
             start_rotation=unit_quaternion(e["start_rotation"], f"episode {e['episode_id']}: start_rotation"),
             object_category=e["object_category"],
-            geodesic_distance=float(e["info"]["geodesic_distance"]),
-            euclidean_distance=float(e["info"].get("euclidean_distance", float("nan"))),
+            geodesic_distance=distance(e["info"]["geodesic_distance"], f"episode {e['episode_id']}: geodesic_distance"),
+            euclidean_distance=float(e["info"].get("euclidean_distance", float("nan"))),   # (recorded nowhere)
             goals=goals[key], start_height=start[1],
             start_storey=int(e["info"].get("start_storey", 0)), goal_storey=int(e["info"].get("goal_storey", 0))))
     return episodes

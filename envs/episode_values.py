@@ -24,6 +24,15 @@ def numbers(value, n: int, what: str) -> list[float]:
     return [float(v) for v in value]
 
 
+def distance(value, what: str) -> float:
+    """``value`` as a finite number of metres >= 0; ValueError naming ``what`` otherwise (a
+    run's records carry the file's ``info.geodesic_distance``: NaN failed the records' write after
+    the run had begun, a negative or quoted number was recorded as the episode's distance)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
+        raise ValueError(f"{what} must be a finite distance >= 0 metres, got {value!r}")
+    return float(value)
+
+
 def unit_quaternion(value, what: str) -> list[float]:
     """``value`` as a Habitat [x, y, z, w] quaternion of norm 1 (within
     ``QUATERNION_NORM_TOLERANCE``); ValueError naming ``what`` otherwise."""
