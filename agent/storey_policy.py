@@ -86,7 +86,7 @@ class StoreyPeanutAgent(PeanutAgent):
             return
         state = MapState.empty(self.start_xy, cfg, self.num_classes, self.mapper.new_voxels(),
                                lattice_m=self.mapper.voxel_size_m)
-        self.storeys.append(Storey.new(state, self.floor_z, direction))
+        self.storeys.append(Storey.new(state, self.floor_z, direction).inherit(st, self.floor_z))
         self._switch(len(self.storeys) - 1)
 
     def _switch(self, index: int) -> None:

@@ -80,6 +80,19 @@ class Storey:
         return cls(state, np.full((n, n), np.nan, np.float32), np.full((n, n), -np.inf, np.float32),
                    np.zeros((n, n), bool), np.full((n, n), np.nan, np.float32), float(z_ref), direction)
 
+    def inherit(self, other: "Storey", floor_z: float) -> "Storey":
+        """Seed this new storey, met part-way up (down) a flight at floor ``floor_z`` metres,
+        with what ``other``, the storey it was reached from, knows there: every flat surface
+        frames register on (one at another height fails the register gate) and the floors
+        within ``STOREY_SWITCH_M`` of ``floor_z`` (the flight, the landing), with what stands
+        on them. An empty map would give the next frames nothing to register on, and the floor
+        read ahead instead may be the storey below, seen down the stairwell. Returns self."""
+        self.reg[:] = other.reg
+        with np.errstate(invalid="ignore"):
+            near = np.abs(other.elev - floor_z) <= STOREY_SWITCH_M
+        self.elev[near], self.top[near] = other.elev[near], other.top[near]
+        return self
+
     def floor_under(self, rc: tuple[int, int], radius_cells: float) -> float | None:
         """Median floor height of the cells within ``radius_cells`` of ``rc``, or None unseen."""
         off = pj.disc_offsets(radius_cells) + rc

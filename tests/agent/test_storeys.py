@@ -120,3 +120,16 @@ def test_stairs_are_kept_out_of_a_storeys_exploration():
     assert (sel._excluded(win) == off).all()
     sel.elsewhere = None
     assert not sel._excluded(win).any()
+
+
+def test_a_storey_met_on_the_stairs_starts_with_the_flight():
+    """The storey the agent reaches part-way up a flight starts with what the storey below knows
+    of the flight (its next frames register at once), not with the floor far below it."""
+    below = _storey()
+    _staircase(below)
+    below.reg[:] = below.elev
+    z = 0.17 * 6 + 0.3    # part-way up: the top tread lies within the switch distance, the floor not
+    above = Storey.new(_storey().state, z, +1).inherit(below, z)
+    assert np.array_equal(above.reg, below.reg)
+    assert np.isclose(above.elev[20, 72], 0.17 * 6) and np.isnan(above.elev[75, 5])
+    assert above.z_ref == z and above.direction == 1
