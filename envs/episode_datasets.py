@@ -246,3 +246,15 @@ def resolve_scene(scene_id: str, scenes_dir: str) -> Path:
             return p
     raise ValueError(f"scene {scene_id!r} of the episode file is missing under env.dataset.scene_dir "
                      f"{scenes_dir!r}: tried {', '.join(str(p) for p in tried)}")
+
+
+def resolve_scene_config(config_id: str, scenes_dir: str) -> Path | None:
+    """The scene dataset config an episode names (its ``scene_dataset_config``: habitat-lab's
+    ``./data/scene_datasets/hm3d/hm3d_annotated_basis.scene_dataset_config.json``), found under
+    ``scenes_dir`` as a scene id is (``scene_candidates``); None when the episode names none or
+    it is not there: then the config in the scene's folder or a folder above it frames the
+    scene, as habitat-sim falls back to its default dataset."""
+    if not config_id:
+        return None
+    config_id = config_id[2:] if config_id.startswith("./") else config_id   # habitat-lab writes ./data/...
+    return next((p for p in scene_candidates(config_id, scenes_dir) if p.is_file()), None)

@@ -59,7 +59,8 @@ class ObjectNavEpisode:
     with storeys ``start_storey`` its storey and ``goal_storey`` the storey of the nearest goal
     view point (geodesically); all 0 on one storey. refused: why the episode cannot run on
     calnav's navmesh ("" when it can): an episode of a habitat-lab dataset
-    (``envs.file_episodes``) keeps its index and is listed, not run."""
+    (``envs.file_episodes``) keeps its index and is listed, not run. scene_dataset_config: the
+    scene dataset config the file's episode names (habitat-lab's key; "" for calnav's own)."""
 
     episode_id: str
     scene_id: str
@@ -73,6 +74,7 @@ class ObjectNavEpisode:
     refused: str = ""
     start_storey: int = 0
     goal_storey: int = 0
+    scene_dataset_config: str = ""
 
     @property
     def crosses_storeys(self) -> bool:
@@ -159,6 +161,7 @@ def episodes_to_habitat(episodes: list[ObjectNavEpisode]) -> dict:
             info.update(start_storey=int(ep.start_storey), goal_storey=int(ep.goal_storey))
         out.append({
             "episode_id": ep.episode_id, "scene_id": ep.scene_id,
+            **({"scene_dataset_config": ep.scene_dataset_config} if ep.scene_dataset_config else {}),
             "start_position": _to_habitat(ep.start_position, ep.start_height),
             "start_rotation": [float(c) for c in ep.start_rotation],
             "object_category": ep.object_category,
@@ -202,7 +205,8 @@ def episodes_from_habitat(data: dict) -> list[ObjectNavEpisode]:
             geodesic_distance=distance(e["info"]["geodesic_distance"], f"episode {e['episode_id']}: geodesic_distance"),
             euclidean_distance=float(e["info"].get("euclidean_distance", float("nan"))),   # (recorded nowhere)
             goals=goals[key], start_height=start[1],
-            start_storey=int(e["info"].get("start_storey", 0)), goal_storey=int(e["info"].get("goal_storey", 0))))
+            start_storey=int(e["info"].get("start_storey", 0)), goal_storey=int(e["info"].get("goal_storey", 0)),
+            scene_dataset_config=str(e.get("scene_dataset_config") or "")))
     return episodes
 
 

@@ -44,7 +44,7 @@ from calnav.envs.episode_files import (GoalObject, ObjectNavEpisode, cached_epis
                                        write_json_gz)
 from calnav.envs.scene import cache_dir
 
-PLACEMENT_VERSION = 2                   # 2: heights in the scene file's frame (floor offset)
+PLACEMENT_VERSION = 3                   # 2: heights in the scene file's frame (floor offset); 3: the scene dataset config an episode names
 MAX_Y_DELTA_M = 0.5                 # habitat-sim's is_navigable(max_y_delta): on the navmesh within this height
 SNAP_BOX_M = (2.0, 4.0)             # habitat-sim's polyPickExt half extents: horizontal, vertical, metres
 SNAP_CANDIDATES = 16                # nearest cells tried per point for one inside the search box
@@ -217,7 +217,7 @@ def place_scene(scene_id: str, mine: list[tuple[int, ObjectNavEpisode]], env_cfg
     from calnav.envs.scene import RGB_UNAVAILABLE, SEMANTICS_UNAVAILABLE
     from calnav.envs.scenes import load_scene
 
-    scene = load_scene(scene_id, env_cfg.dataset)
+    scene = load_scene(scene_id, env_cfg.dataset, dataset_config=mine[0][1].scene_dataset_config if mine else "")
     navgrid = NavGrid.build(scene, env_cfg)
     offset = float(scene.meta.get("floor_offset_m", 0.0))   # the file's heights are calnav's + this
     placed, counts = place_scene_episodes(navgrid, lowered([ep for _, ep in mine], offset), env_cfg)

@@ -93,7 +93,7 @@ class ObjectNavEnv(gym.Env):
         self.action_space = spaces.Discrete(num_actions(cfg.enable_look))
 
     # ------------------------------------------------------------ scene state
-    def _load_scene(self, scene_id: str) -> None:
+    def _load_scene(self, scene_id: str, dataset_config: str = "") -> None:
         if scene_id == self._scene_id:
             return
         from calnav.envs.navigation import NavGrid
@@ -101,7 +101,7 @@ class ObjectNavEnv(gym.Env):
         from calnav.envs.scenes import load_scene
 
         cfg = self.config
-        self.scene = load_scene(scene_id, cfg.dataset)
+        self.scene = load_scene(scene_id, cfg.dataset, dataset_config=dataset_config)
         self.renderer = Renderer(self.scene, self.camera, min_depth_m=cfg.min_depth_m,
                                  max_depth_m=cfg.max_depth_m, rgb_noise_std=cfg.rgb_noise_std,
                                  depth_noise_std=cfg.depth_noise_std)
@@ -125,7 +125,7 @@ class ObjectNavEnv(gym.Env):
         if ep.refused:
             raise ValueError(f"episode {i} ({ep.episode_id} of {ep.scene_id}) cannot run on calnav's navmesh: "
                              f"{ep.refused}")
-        self._load_scene(ep.scene_id)
+        self._load_scene(ep.scene_id, ep.scene_dataset_config)
         self._episode = ep
         self.goal_field = self.navgrid.geodesic_field(goal_mask(self.navgrid, ep.goals))
         self.position = np.array(ep.start_position, dtype=np.float64)

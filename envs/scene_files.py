@@ -133,16 +133,17 @@ def _glb_inputs(path: Path, kind: str, root: Path | None, config: Path | None) -
     return [p for p in inputs if p is not None]
 
 
-def scene_file_inputs(path: Path, root: Path | None = None) -> list:
+def scene_file_inputs(path: Path, root: Path | None = None, dataset_config: Path | None = None) -> list:
     """[path, mtime ns, size] of every file the scene ``path`` is read from (the mesh, its
-    semantic files, scene dataset configs, label files): what keys a scene read in memory
-    (``envs.scenes``), so that an edited ``.semantic.txt`` is read again."""
+    semantic files, scene dataset configs -- ``dataset_config`` when one is named --, label
+    files): what keys a scene read in memory (``envs.scenes``), so that an edited
+    ``.semantic.txt`` is read again."""
     kind = scene_kind(path)
     if kind == "npz":
         return _stat_key([path])
     if kind == "ply":
         return _stat_key([p for p in (path, _ply_label_file(path)) if p is not None])
-    return _stat_key(_glb_inputs(path, kind, root, None))
+    return _stat_key(_glb_inputs(path, kind, root, dataset_config))
 
 
 def load_scene_file(path: str | Path, root: str | Path | None = None, dataset_config: str | Path | None = None) -> Scene:

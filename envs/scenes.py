@@ -186,22 +186,25 @@ def scanned_cache_path(scene_id: str, dataset_cfg: DatasetConfig | None = None,
 
 
 def load_scene(scene_id: str, dataset_cfg: DatasetConfig | None = None, spec: HouseSpec | None = None,
-               style: str | None = None) -> Scene:
+               style: str | None = None, dataset_config: str = "") -> Scene:
     """The scene ``scene_id``: a procedural house (generated once, then read from the cache; with
     ``dataset_cfg.style == "scanned"`` its scan, see the module docstring) or, when
     ``dataset_cfg.scene_dir`` is set, a user scene file. ``style`` ("clean" | "scanned")
-    overrides ``dataset_cfg.style``. ValueError names the valid ids and styles."""
+    overrides ``dataset_cfg.style``. dataset_config: the scene dataset config an episode file's
+    episode names (``envs.episode_datasets.resolve_scene_config``). ValueError names the valid
+    ids and styles."""
     cfg, spec = dataset_cfg or DatasetConfig(), spec or HouseSpec()
     if style is not None:
         if style not in STYLES:
             raise ValueError(f"unknown scene style {style!r}; valid styles: {', '.join(STYLES)}")
         cfg = dataclasses.replace(cfg, style=style)   # its checks refuse a scanned user scene_dir
     if cfg.scene_dir and cfg.data_path:   # an episode file's scene id: a path under scene_dir
-        from calnav.envs.episode_datasets import resolve_scene
+        from calnav.envs.episode_datasets import resolve_scene, resolve_scene_config
 
         path, root = resolve_scene(scene_id, cfg.scene_dir), Path(cfg.scene_dir).expanduser()
-        key = ("file", json.dumps(scene_file_inputs(path, root)))
-        loader = lambda: load_scene_file(path, root=root)  # noqa: E731
+        config = resolve_scene_config(dataset_config, cfg.scene_dir)
+        key = ("file", json.dumps(scene_file_inputs(path, root, config)))
+        loader = lambda: load_scene_file(path, root=root, dataset_config=config)  # noqa: E731
     elif cfg.scene_dir:
         files = _user_files(cfg.scene_dir, None)
         if scene_id not in files:

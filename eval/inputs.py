@@ -168,7 +168,7 @@ def _dataset_inputs(env: dict) -> dict[str, Path | StatFile]:
     dataset = env.get("dataset") or {}
     if not dataset.get("data_path"):
         return {}
-    from calnav.envs.episode_datasets import read_dataset
+    from calnav.envs.episode_datasets import read_dataset, resolve_scene_config
     from calnav.envs.file_episodes import scene_file_key
 
     split, data_path, scene_dir = env.get("split", "val"), dataset["data_path"], dataset.get("scene_dir", "")
@@ -178,6 +178,10 @@ def _dataset_inputs(env: dict) -> dict[str, Path | StatFile]:
     for scene_id in source.scene_ids():
         for path, _, _ in scene_file_key(scene_id, scene_dir):
             out[f"env.dataset.scene_dir ({Path(path).name})"] = StatFile(Path(path))
+    for named in dict.fromkeys(ep.scene_dataset_config for ep in source.episodes):   # the configs episodes name
+        config = resolve_scene_config(named, scene_dir)
+        if config is not None:
+            out[f"env.dataset.scene_dir ({config.name})"] = StatFile(config)
     return out
 
 

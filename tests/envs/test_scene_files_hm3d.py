@@ -264,3 +264,29 @@ def test_hm3d_tree_discovery_split_folders_and_cache(tmp_path, isolated_cache):
     scenes.clear_scene_lru()
     with pytest.warns(UserWarning, match=r"holds another scene \(converted_from "):
         assert scenes.load_scene("aaa", whole).name == "aaa"
+
+
+def test_the_scene_dataset_config_an_episode_names_frames_its_scene(tmp_path, isolated_cache):
+    """An episode's ``scene_dataset_config`` (habitat-lab's key, resolved under scene_dir as a
+    scene id is) frames its scene: a y-up scene with no config above it is refused as y-up read
+    as z-up, and loads through the y-up config its episodes name; the key survives a placed
+    content file."""
+    from calnav.envs.episode_files import ObjectNavEpisode, episodes_from_habitat, episodes_to_habitat
+
+    scene_dir = tmp_path / "scene_datasets"
+    y_up = write_scene(scene_dir / "hm3d" / "val" / "00000-scn", y_up=True)
+    z_up = load_hm3d_scene(write_scene(tmp_path / "plain" / "scn"))
+    (scene_dir / "configs").mkdir()
+    hm3d_config(scene_dir / "configs" / "yup.scene_dataset_config.json", up=(0, 1, 0), front=(0, 0, -1))
+    cfg = DatasetConfig(scene_dir=str(scene_dir), data_path=str(tmp_path / "{split}.json.gz"))
+    sid = "hm3d/val/00000-scn/scn.glb"
+    with pytest.raises(SceneError, match="y-up read as z-up"):
+        scenes.load_scene(sid, cfg)
+    named = "./data/scene_datasets/configs/yup.scene_dataset_config.json"
+    scene = scenes.load_scene(sid, cfg, dataset_config=named)
+    assert scene.meta["frame"]["source"].endswith("yup.scene_dataset_config.json") and y_up.is_file()
+    np.testing.assert_allclose(scene.vertices, z_up.vertices, atol=1e-5)
+    ep = ObjectNavEpisode("0", sid, np.zeros(2), [0.0, 0.0, 0.0, 1.0], "chair", 1.0, 1.0, scene_dataset_config=named)
+    data = episodes_to_habitat([ep])
+    data["goals_by_category"] = {"scn.glb_chair": []}
+    assert episodes_from_habitat(data)[0].scene_dataset_config == named
