@@ -334,6 +334,8 @@ def write_sidecar(content_file: Path, source_key: tuple[int, int, int], episodes
     strings = {"episode_id": [e.episode_id for e in episodes], "scene_id": [e.scene_id for e in episodes],
                "object_category": [e.object_category for e in episodes],
                "goal_category": [g.object_category for g in goals]}
+    if any(e.scene_dataset_config for e in episodes):   # (an episode file's; calnav's own sidecars keep their bytes)
+        strings["scene_dataset_config"] = [e.scene_dataset_config for e in episodes]
     arrays = {
         "format": np.array([SIDECAR_FORMAT, *source_key], np.int64),
         "strings": np.array(json.dumps(strings)),
@@ -402,6 +404,7 @@ def read_sidecar(content_file: Path, source_key: tuple[int, int, int]) -> list |
                 start_rotation=a["start_rotation"][i].tolist(), object_category=s["object_category"][i],
                 geodesic_distance=float(a["distances"][i, 0]), euclidean_distance=float(a["distances"][i, 1]),
                 goals=shared.setdefault(ids, [goals[j] for j in ids]),
+                scene_dataset_config=s.get("scene_dataset_config", [""] * n)[i],
                 **({"start_height": float(a["start_height"][i]), "start_storey": int(a["storeys"][i, 0]),
                     "goal_storey": int(a["storeys"][i, 1])} if storeyed else {})))
         return episodes

@@ -271,7 +271,8 @@ def test_the_scene_dataset_config_an_episode_names_frames_its_scene(tmp_path, is
     scene id is) frames its scene: a y-up scene with no config above it is refused as y-up read
     as z-up, and loads through the y-up config its episodes name; the key survives a placed
     content file."""
-    from calnav.envs.episode_files import ObjectNavEpisode, episodes_from_habitat, episodes_to_habitat
+    from calnav.envs.episode_files import (_PARSED, ObjectNavEpisode, cached_episodes, episodes_from_habitat,
+                                           episodes_to_habitat, sidecar_path, write_json_gz)
 
     scene_dir = tmp_path / "scene_datasets"
     y_up = write_scene(scene_dir / "hm3d" / "val" / "00000-scn", y_up=True)
@@ -290,3 +291,9 @@ def test_the_scene_dataset_config_an_episode_names_frames_its_scene(tmp_path, is
     data = episodes_to_habitat([ep])
     data["goals_by_category"] = {"scn.glb_chair": []}
     assert episodes_from_habitat(data)[0].scene_dataset_config == named
+    content = tmp_path / "placed" / "content" / "scn.json.gz"   # a placed content file and its parsed sidecar
+    content.parent.mkdir(parents=True)
+    write_json_gz(content, data)
+    assert cached_episodes(content)[0].scene_dataset_config == named
+    _PARSED.clear()
+    assert sidecar_path(content).is_file() and cached_episodes(content)[0].scene_dataset_config == named
