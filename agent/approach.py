@@ -69,7 +69,7 @@ class Approach:
     """The next move toward a detected component (window cells): ``action`` now (a turn
     toward it, or STOP), else plan to ``target`` (h, w) bool (``dilate_goal``: to it dilated by
     goal_dilation_m, as ``planner.Planner.plan``), else neither: nothing to do about it this
-    step. ``mode`` names the move ('goal', 'stop', 'verify'); ``nearest`` is the component's
+    step. ``mode`` names the move ('goal', 'stop', 'verify', 'look', 'reject': ``agent.evidence``); ``nearest`` is the component's
     cell nearest the agent."""
 
     mode: str

@@ -16,7 +16,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any, ClassVar, Literal
 
-from calnav.agent.registry import GOAL_SELECTORS, MAP_BUILDERS
+from calnav.agent.registry import DECISIONS, GOAL_SELECTORS, MAP_BUILDERS
 from calnav.agent.segmenters import check_segmenter_spec
 from calnav.common.ranges import Range, check_ranges
 
@@ -61,6 +61,13 @@ AGENT_RANGES = {
     "prediction_distance_m": Range(0.0, 100.0, METRES, lo_open=True),
     "hole_margin_m": Range(0.0, 2.0, METRES),
     "floor_tolerance_m": Range(0.0, 2.0, METRES),
+    # the evidence decision: a second look from within 10 m (room scale, as the planning distances);
+    # the bound's z from 0 (the mean alone) to 10 standard errors; views and looks counted
+    "evidence_look_distance_m": Range(0.0, 10.0, METRES, lo_open=True),
+    "evidence_z": Range(0.0, 10.0, "standard errors"),
+    "evidence_min_views": Range(1, 1000, "views"),
+    "evidence_confidence": Range(0.0, 1.0, "", lo_open=True, hi_open=True),
+    "evidence_looks": Range(0, 10, "looks"),
 }
 
 SemanticPrior = Literal["none", "cooccurrence"]
@@ -129,15 +136,26 @@ class AgentConfig:
     uncertain_low: float = 0.3          # goal confidence band [uncertain_low, goal_threshold) counts as a candidate
                                         # (must lie below goal_threshold when uncertainty_aware)
     verify_distance_m: float = 1.0      # approach candidates to this range and re-observe, metres
+    # --- the STOP decision (agent.registry.DECISIONS; agent.evidence) ---------------------------
+    decision: str = "threshold"         # threshold (STOP on arrival, PEANUT) | evidence (uncertainty test over views first)
+    evidence_min_views: int = 3         # evidence: views of the object STOP needs, frames
+    evidence_z: float = 1.0             # evidence: STOP needs mean - z * spread / sqrt(views) of the per-view goal
+                                        # probability >= evidence_confidence; z in standard errors
+    evidence_confidence: float = 0.5    # evidence: ... that lower bound, a probability in (0, 1)
+    evidence_looks: int = 1             # evidence: second looks from another bearing before a failing object is rejected, looks
+    evidence_look_distance_m: float = 1.5  # evidence: a second look's distance from the object, metres
 
     # Left out of saved configs while at these values (``envs.config.plain_dict``): configs saved
     # before the field existed stay equal
-    OMIT_AT_DEFAULT: ClassVar[dict[str, Any]] = {"goal_categories": ()}
+    OMIT_AT_DEFAULT: ClassVar[dict[str, Any]] = {"goal_categories": (), "decision": "threshold",
+                                                  "evidence_min_views": 3, "evidence_z": 1.0, "evidence_confidence": 0.5, "evidence_looks": 1,
+                                                  "evidence_look_distance_m": 1.5}
 
     def __post_init__(self) -> None:
         check_segmenter_spec(self.segmenter)   # a misspelt name fails here, importing nothing of it
         MAP_BUILDERS.check(self.map_type)      # names only: the builders load when an agent is built
         GOAL_SELECTORS.check(self.exploration)
+        DECISIONS.check(self.decision)
         check_ranges(self, "agent", AGENT_RANGES)
         if not self.turn_threshold_deg > 0:
             raise ValueError(f"agent.turn_threshold_deg must be > 0, got {self.turn_threshold_deg}")

@@ -90,7 +90,7 @@ class GoalSighting:
 class Decision:
     """One step of the agent. ``action``: Habitat's discrete action (``envs.task.Action``: STOP,
     MOVE_FORWARD, TURN_LEFT, TURN_RIGHT); ``mode``: why ('spin': the opening turn, 'explore',
-    'goal': heading for a detected goal, 'verify', 'untrap': escaping, 'stop': STOP at the goal or the step limit);
+    'goal': heading for a detected goal, 'verify', 'look' (a second look before STOP), 'untrap': escaping, 'stop': STOP at the goal or the step limit);
     ``step``: 1 at the first ``act`` after ``reset``. In the episode-start frame (module
     docstring), metres: ``position`` (x, y) and ``yaw`` (rad) of the agent as it read them;
     ``long_term_goal`` (x, y): the frontier / predicted goal it explores toward, or the goal

@@ -6,6 +6,7 @@ fused) semantic map, composed of one part per stage. This file only composes the
 | perceive | ``Perception``: subsample, segment | ``agent.perception`` |
 | map | the map builder of ``agent.map_type`` (``agent.registry.MAP_BUILDERS``); collision marks | ``agent.semantic_map``, ``agent.collision`` |
 | detect | ``GoalDetector``: accept, verify / reject, defer | ``agent.goal_detection`` |
+| decide | the STOP decision of ``agent.decision`` (``agent.registry.DECISIONS``): STOP on arrival, or an uncertainty test over views first | ``agent.evidence`` |
 | select | the goal selector of ``agent.exploration`` (``agent.registry.GOAL_SELECTORS``) | ``agent.goal_selection`` |
 | plan | ``Planner``: geodesic field, short-term goal | ``agent.planner`` |
 | act | the opening spin; the approach to a goal and its STOP (``GoalApproach``); the escape (``CollisionTracker``) on blocks or the watchdog's word (``ProgressWatchdog``) | ``agent.approach``, ``agent.collision``, ``agent.watchdog`` |
@@ -34,7 +35,7 @@ from calnav.agent.goal_detection import GoalDetection, GoalDetector
 from calnav.agent.perception import Perception
 from calnav.agent.planner import Planner
 from calnav.agent.projection import dilate
-from calnav.agent.registry import GOAL_SELECTORS, MAP_BUILDERS, STOREY_AGENTS
+from calnav.agent.registry import DECISIONS, GOAL_SELECTORS, MAP_BUILDERS, STOREY_AGENTS
 from calnav.agent.segmenters.base import task_goal_categories
 from calnav.agent.setup import AgentSetup
 from calnav.agent.step import Step, StepInfo
@@ -42,7 +43,7 @@ from calnav.agent.watchdog import LOOP, ProgressWatchdog
 from calnav.envs.task import OBJECTGOAL, Action
 
 PLAN_MARGIN_M = 1.0  # the planning window: explored bounding box + this margin (unknown = optimistic), metres
-HEADING_MODES = ("goal", "verify")   # steps that head for a detected component (the one a loop defers)
+HEADING_MODES = ("goal", "verify", "look")   # steps that head for a detected component (the one a loop defers)
 
 
 class PeanutAgent:
@@ -66,6 +67,7 @@ class PeanutAgent:
         self.mapper = MAP_BUILDERS.get(self.cfg.map_type)(self.cfg, setup.mapping, self.class_names,
                                                           (self.sensors.min_depth_m, self.sensors.max_depth_m))
         self.planner = Planner(self.cfg)
+        self.decision = DECISIONS.get(self.cfg.decision)(self.cfg, setup.mapping.temperature)
         self.collisions = CollisionTracker(self.cfg)
         self.selector = GOAL_SELECTORS.get(self.cfg.exploration)(self.cfg, self.class_names, self.goal_names())
         self.predictor = getattr(self.selector, "predictor", None)   # PEANUT's network (exploration: prediction)
@@ -113,6 +115,7 @@ class PeanutAgent:
         self.collisions.reset()
         self.marks = CollisionMarks(self.cfg, n)
         self.detector = GoalDetector(self.cfg, n)
+        self.decision.reset(n)
         self.watchdog = ProgressWatchdog(self.cfg, self.detector.deferral)
         self.selector.reset(n, self.goal_name)
         self.steps = 0
@@ -133,6 +136,7 @@ class PeanutAgent:
             self._after_move(xy, yaw)
         frame = self.frame = self.perception.observe(observation, privileged)    # perceive
         self._map(frame, pose)                                                    # map
+        self.decision.observe(self.state, frame, pose, self.goal_channel)        # evidence over views
         self.steps += 1
         self.path.append(self.state.to_cell(xy, self.cfg.cell_m))
         if self.steps >= self.max_steps:
@@ -195,10 +199,16 @@ class PeanutAgent:
         det, candidate = self.detector.detect(st.semantic[self.goal_channel][win], win)            # detect
         free = ~dilate(st.obstacles(win), cfg.dilation_cells)  # unknown cells are optimistic
         if det.found:
-            action = self._go(self.approach.next(det.mask, st, win, agent_rc, yaw, free, self.collided), det,
-                              agent_rc, yaw, free)
+            move = self.approach.next(det.mask, st, win, agent_rc, yaw, free, self.collided)
+            move = self.decision.review(move, det, st, self.goal_channel, win, agent_rc, free)        # decide
+            if move.mode == "reject":   # the evidence failed after the last look: never this object again
+                self.detector.rejected[win] |= det.mask
+                return self._explore(agent_rc, yaw, free, det)
+            action = self._go(move, det, agent_rc, yaw, free)
             if action is not None:
                 return action
+            if move.mode == "look":     # its view point cannot be reached: the look is given up
+                self.decision.abandon()
         elif candidate is not None:
             action = self._go(self.detector.verify(candidate, agent_rc, yaw, self.planner.turn_rad, win), candidate,
                               agent_rc, yaw, free)

@@ -4,6 +4,7 @@
 |---|---|---|
 | ``MAP_BUILDERS`` | ``agent.map_type`` | ``fused``, ``ndf`` (``agent.semantic_map``) |
 | ``GOAL_SELECTORS`` | ``agent.exploration`` | ``frontier``, ``prediction`` (``agent.goal_selection``) |
+| ``DECISIONS`` | ``agent.decision`` | ``threshold``, ``evidence`` (``agent.evidence``) |
 | ``AGENTS`` | ``run.agent`` | ``peanut`` (``agent.policy``), ``oracle`` (``agent.oracle``) |
 
 Every part is a lazy ``"module:attribute"`` reference, so this module imports nothing heavy:
@@ -31,6 +32,14 @@ GOAL_SELECTORS.add("frontier", "calnav.agent.goal_selection:FrontierSelector",
                    "the frontier of best size / distance utility")
 GOAL_SELECTORS.add("prediction", "calnav.agent.goal_selection:PredictionSelector",
                    "PEANUT's target prediction, frontiers when it offers nothing")
+
+# A goal decision: ``cls(agent_cfg, temperature)`` with ``reset(n)``, ``observe(state, frame, pose,
+# goal_channel)`` and ``review(move, det, state, goal_channel, win, agent_rc, free)`` (``agent.evidence``).
+DECISIONS: Registry[type] = Registry("decision", key="agent.decision")
+DECISIONS.add("threshold", "calnav.agent.evidence:ThresholdDecision",
+              "STOP on arrival at a component above agent.goal_threshold (PEANUT)")
+DECISIONS.add("evidence", "calnav.agent.evidence:EvidenceDecision",
+              "an uncertainty test on the object's evidence over views before STOP; a second look, then reject")
 
 # An agent class: ``cls.from_setup(setup)`` (``setup``: an ``agent.setup.AgentSetup``), or
 # ``cls.from_setup(setup, simulator=...)`` for a class declaring ``privileged = (SIMULATOR,)``.

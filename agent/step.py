@@ -24,7 +24,7 @@ if TYPE_CHECKING:
 @dataclass
 class StepInfo:
     """What the agent decided and why (for visualisation): mode is one of 'spin', 'untrap' (the escape),
-    'goal', 'verify', 'explore', 'stop' ('stairs' in a house with storeys). detection / plan /
+    'goal', 'verify', 'look' (a second look at a goal, ``agent.evidence``), 'explore', 'stop' ('stairs' in a house with storeys). detection / plan /
     long_term_goal are in window coordinates (``window`` = (row slice, col slice) of the map),
     frontiers in map coordinates."""
 

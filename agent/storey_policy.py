@@ -98,6 +98,7 @@ class StoreyPeanutAgent(PeanutAgent):
         n = self.state.size
         self.marks = CollisionMarks(self.cfg, n)
         self.detector = GoalDetector(self.cfg, n)
+        self.decision.reset(n)   # its evidence is per map
         self.watchdog = ProgressWatchdog(self.cfg, self.detector.deferral)
         self.selector.reset(n, self.goal_name)
         self.look_turns, self.climb_steps = 0, 0
