@@ -266,3 +266,28 @@ def test_a_periodic_rechoice_never_returns_to_the_predicted_goal_just_left(monke
     selector.cfg = dataclasses.replace(selector.cfg, prediction_no_switch_back=False)
     offers = iter([b, a])
     assert choose(state, win, here, free, current=a) == b and choose(state, win, here, free, current=b) == a   # off: flips
+
+
+def test_the_evidence_decision_tests_the_goal_before_it_stops(small_setup):
+    """agent.decision=evidence in the whole agent: the STOP at the goal came after the
+    uncertainty test read the goal's views (gt: per-view probability 0.9), and the episode
+    succeeds as with the threshold decision."""
+    import dataclasses
+
+    from calnav.agent.policy import PeanutAgent
+
+    cfg, env = small_setup
+    cfg = dataclasses.replace(cfg, agent=dataclasses.replace(cfg.agent, decision="evidence"))
+    episodes = env.unwrapped.episodes
+    index = int(np.argmin([ep.geodesic_distance for ep in episodes]))
+    agent = PeanutAgent(agent_setup(cfg))
+    obs, info = env.reset(options={"episode_index": index})
+    agent.reset(obs)
+    done = False
+    while not done:
+        obs, _, terminated, truncated, info = env.step(agent.act(obs).action)
+        done = terminated or truncated
+    ev = agent.decision.last
+    assert info["success"] and agent.info.mode == "stop"
+    assert ev is not None and ev.n >= cfg.agent.evidence_min_views and ev.mean > 0.8, ev
+    assert ev.lower_bound(cfg.agent.evidence_z) >= cfg.agent.evidence_confidence
