@@ -10,8 +10,9 @@ STOP, and the decision that reads it (``agent.decision``, ``agent.registry.DECIS
   map: RBU, averaging and GLFS accept differently from the same frames); the test then asks what
   that confidence rests on, the same way for every fusion:
 
-  * ``n``: the views -- the most frames that saw any one of the component's cells (points of the
-    object's height band, ``agent.obstacle_min_height_m`` up to the camera);
+  * ``n``: the views -- the most frames that saw any one of the component's cells (points of an
+    object's heights, ``agent.obstacle_min_height_m`` to ``OBJECT_TOP_M``: a component seen only
+    on the floor, a rug read as a bed, has none);
   * ``mean`` and ``spread``: the mean and standard deviation of the per-view goal probability
     (each frame's calibrated softmax(logits / ``mapping.temperature``), averaged over the points
     of a cell), pooled over the component's cells.
@@ -45,6 +46,10 @@ from calnav.mapping.frame import SegmentedFrame
 
 BEARING_BINS = 8          # bearings of the views on an object, 45-degree sectors (one bit each of a uint8)
 LOOK_ARRIVED_CELLS = 3    # a second look is taken once the agent is this close to its view point, cells
+# Points of an object: from agent.obstacle_min_height_m (the floor and what lies flat on it -- a rug
+# read as a bed -- are no view of an object) up to this height above the floor, metres. Not the
+# camera's height: real TVs hang on walls above a 0.88 m camera; ceilings (2.4 m and up) stay out.
+OBJECT_TOP_M = 2.0
 
 
 @dataclass
@@ -85,7 +90,7 @@ class GoalEvidence:
         """Add one frame's views: depth (h, w) m and logits (h, w, K) of ``frame``, pose (4, 4)
         world-from-camera (the pose the map was updated with)."""
         points, pix = pj.backproject(frame.depth, frame.k, pose)
-        band = pj.obstacle_points(points, cfg.obstacle_min_height_m, pose[2, 3] + cfg.obstacle_above_camera_m)
+        band = pj.obstacle_points(points, cfg.obstacle_min_height_m, OBJECT_TOP_M)
         n = state.size
         cells, inside = pj.cell_of(points[:, :2], state.origin, cfg.cell_m, n)
         keep = band & inside

@@ -62,6 +62,12 @@ def test_a_view_adds_its_goal_probability_and_bearing_to_the_cell_it_sees():
     floor, pose = _frame_one_point(1.05, 0.05, 0.05, goal_logit=5.0)
     ev.observe(st, floor, pose, 0, cfg, temperature=1.0)
     assert ev.views.sum() == 1
+    # a TV on the wall above the 0.88 m camera is a view; the ceiling (above OBJECT_TOP_M) is not
+    tv, pose = _frame_one_point(1.05, -0.45, 1.4, goal_logit=0.0)
+    ev.observe(st, tv, pose, 0, cfg, temperature=1.0)
+    ceiling, pose = _frame_one_point(1.05, -0.95, 2.5, goal_logit=0.0)
+    ev.observe(st, ceiling, pose, 0, cfg, temperature=1.0)
+    assert ev.views.sum() == 2 and ev.views[15, 30] == 1 and ev.q_sum[15, 30] == pytest.approx(1 / 3)
     # temperature 2 halves the logit: softmax (sqrt 2, 1, 1) -> 0.4142
     frame, pose = _frame_one_point(1.05, 0.05, 0.5, goal_logit=math.log(2.0))
     ev.observe(st, frame, pose, 0, cfg, temperature=2.0)
