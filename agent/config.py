@@ -141,14 +141,14 @@ class AgentConfig:
     evidence_min_views: int = 3         # evidence: views of the object STOP needs, frames
     evidence_z: float = 1.0             # evidence: STOP needs mean - z * spread / sqrt(views) of the per-view goal
                                         # probability >= evidence_confidence; z in standard errors
-    evidence_confidence: float = 0.5    # evidence: ... that lower bound, a probability in (0, 1)
+    evidence_confidence: float = 0.3    # evidence: ... that lower bound, a probability in (0, 1)
     evidence_looks: int = 1             # evidence: second looks from another bearing before a failing object is rejected, looks
     evidence_look_distance_m: float = 1.5  # evidence: a second look's distance from the object, metres
 
     # Left out of saved configs while at these values (``envs.config.plain_dict``): configs saved
     # before the field existed stay equal
     OMIT_AT_DEFAULT: ClassVar[dict[str, Any]] = {"goal_categories": (), "decision": "threshold",
-                                                  "evidence_min_views": 3, "evidence_z": 1.0, "evidence_confidence": 0.5, "evidence_looks": 1,
+                                                  "evidence_min_views": 3, "evidence_z": 1.0, "evidence_confidence": 0.3, "evidence_looks": 1,
                                                   "evidence_look_distance_m": 1.5}
 
     def __post_init__(self) -> None:
