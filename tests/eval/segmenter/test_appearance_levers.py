@@ -136,3 +136,20 @@ def test_camera_shift_is_fixed_and_changes_the_frames():
     assert np.array_equal(a, b) and a.dtype == np.uint8 and a.shape == rgb.shape
     assert np.abs(a.astype(int) - rgb).mean() > 5
     assert np.array_equal(camera_shift(rgb[1:], 7)[0], camera_shift(rgb[1:2], 7)[0])
+
+
+def test_ablation_table_renders_the_records(tmp_path):
+    import json
+
+    from calnav.eval.segmenter.ablation import ablation_table
+
+    for row, ev, miou in (("all", "camera", 0.4), ("baseline", "clean", 0.5), ("baseline", "camera", 0.2)):
+        (tmp_path / f"{row}_{ev}.json").write_text(json.dumps({"miou": miou, "miou_goal_structure": miou + 0.1,
+                                                               "ece": 0.01}))
+    (tmp_path / "baseline.card.json").write_text(json.dumps({"train_wall_s": 90.0}))
+    lines = ablation_table(tmp_path).splitlines()
+    assert lines[2:] == ["| baseline | clean | 0.500 | 0.600 | 0.010 | 1.5 min |",
+                         "| baseline | scanned + camera shift | 0.200 | 0.300 | 0.010 | 1.5 min |",
+                         "| all | scanned + camera shift | 0.400 | 0.500 | 0.010 | - |"]
+    with pytest.raises(ValueError, match="holds no"):
+        ablation_table(tmp_path / "empty")
