@@ -135,6 +135,8 @@ class CalibrationStudyConfig:
 
 
 # ------------------------------------------------------------------ segmenter training
+EVAL_APPEARANCES: tuple[str, ...] = ("none", "camera")   # data.eval_appearance (eval.segmenter.appearance)
+
 @dataclass
 class SegDataConfig:
     """Which frames are rendered (``data``; ``eval.segmenter.data`` renders them)."""
@@ -150,17 +152,42 @@ class SegDataConfig:
     keep_sparse_prob: float = 0.3    # ... are kept with this probability (1 = no rebalancing; eval never rebalances)
     scanned_fraction: float = 0.5    # share of each house's training frames rendered from its scan, [0, 1]
                                      # (validation / evaluation frames follow env.dataset.style)
+    recolour_fraction: float = 0.0   # share of each training house's instances recoloured and repatterned, [0, 1]
+                                     # (eval.segmenter.appearance; validation / evaluation frames keep their colours)
+    eval_appearance: Literal["none", "camera"] = "none"  # eval-segmenter frames: as rendered, or through the fixed
+                                     # camera shift of eval.segmenter.appearance (not the training levers' distribution)
 
     def __post_init__(self) -> None:
+        if self.eval_appearance not in EVAL_APPEARANCES:
+            raise ValueError(f"unknown data.eval_appearance {self.eval_appearance!r}; valid choices: "
+                             f"{', '.join(EVAL_APPEARANCES)}")
         if self.frames < 1 or self.walk_steps < 1:
             raise ValueError("data.frames and data.walk_steps must be >= 1")
-        for key in ("turn_prob", "keep_sparse_prob", "scanned_fraction", "min_object_fraction"):
+        for key in ("turn_prob", "keep_sparse_prob", "scanned_fraction", "min_object_fraction", "recolour_fraction"):
             if not 0 <= getattr(self, key) <= 1:   # also refuses NaN
                 raise ValueError(f"data.{key} must be in [0, 1], got {getattr(self, key)}")
         w, h = self.resolution
         if not (16 <= w <= MAX_RESOLUTION_PX and 16 <= h <= MAX_RESOLUTION_PX):   # rendered like the sensor's
             raise ValueError(f"data.resolution must be between 16x16 and {MAX_RESOLUTION_PX}x{MAX_RESOLUTION_PX} "
                              f"pixels, got {w}x{h}")
+
+
+# Ranges of the camera-like training levers (eval.segmenter.photometric): +-3 EV spans a dim room
+# to a sunlit one; a log gain of 1 is ~2.7x between channels, beyond any white-balance error; an
+# exponent factor of 2 ** 2 = 4 already crushes mid-tones; a vignette over 0.9 blacks the corners;
+# a streak over 20 pixels smears a 160-pixel frame beyond recognition; 40 uint8 levels at white is
+# a high-ISO phone sensor.
+TRAIN_LEVER_RANGES = {
+    "exposure_ev": Range(0, 3, "stops"),
+    "white_balance": Range(0, 1),
+    "tint": Range(0, 1),
+    "gamma": Range(0, 2),
+    "vignette": Range(0, 0.9),
+    "motion_blur_prob": Range(0, 1),
+    "motion_blur_px": Range(2, 20, "pixels"),
+    "shot_noise": Range(0, 40, "uint8 levels"),
+    "jpeg_prob": Range(0, 1),
+}
 
 
 @dataclass
@@ -193,8 +220,23 @@ class TrainConfig:
     blur_sigma_px: float = 1.0       # blur std drawn from [0.3, this] per batch, pixels at the training resolution, [0.3, 5]
     depth_dropout_prob: float = 0.0  # probability an image's depth is blanked to 0 (invalid), [0, 1]: modality dropout,
                                      # so the RGB stream learns each class alone where a scan's geometry is damaged
+    # camera-like levers (eval.segmenter.photometric), 0 = off (nothing drawn, the stream unchanged)
+    exposure_ev: float = 0.0         # exposure gain 2 ** U(-this, this), EV stops, [0, 3]
+    white_balance: float = 0.0       # blue-orange gains exp(+-t), t ~ U(-this, this) per image, log gain, [0, 1]
+    tint: float = 0.0                # green-magenta gains exp(u) green, exp(-u/2) red / blue, u ~ U(-this, this), log gain, [0, 1]
+    gamma: float = 0.0               # tone curve rgb ** 2 ** U(-this, this), log2 exponent, [0, 2]
+    vignette: float = 0.0            # corner darkening 1 - s r ** 2, s ~ U(0, this) per image, [0, 0.9]
+    motion_blur_prob: float = 0.0    # probability an image gets the batch's motion-blur streak, [0, 1]
+    motion_blur_px: float = 6.0      # streak length drawn from [2, this] per batch, pixels at the training resolution, [2, 20]
+    shot_noise: float = 0.0          # signal-dependent noise std at white drawn from [0, this] (std ~ sqrt(signal)), uint8 levels, [0, 40]
+    jpeg_prob: float = 0.0           # probability an image is JPEG-compressed and decoded, [0, 1]
+    jpeg_quality: tuple[int, int] = (30, 90)  # JPEG quality drawn uniformly from [lo, hi], cv2 quality, within [5, 100]
 
     def __post_init__(self) -> None:
+        check_ranges(self, "train", TRAIN_LEVER_RANGES)
+        lo, hi = self.jpeg_quality
+        if isinstance(lo, bool) or isinstance(hi, bool) or not 5 <= lo <= hi <= 100:   # also refuses NaN
+            raise ValueError(f"train.jpeg_quality must be [lo, hi] with 5 <= lo <= hi <= 100, got {list(self.jpeg_quality)}")
         if self.epochs < 1 or self.batch_size < 1:
             raise ValueError("train.epochs and train.batch_size must be >= 1")
         if not self.lr > 0:   # also refuses NaN

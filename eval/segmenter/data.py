@@ -21,6 +21,10 @@ navigable cells, so the networks learn reconstructed appearance next to the clea
 Validation and evaluation frames follow ``env.dataset.style`` alone (score each style with
 ``env.dataset.style=clean`` / ``scanned``).
 
+Recolouring: a share ``recolour_fraction`` of a house's instances is recoloured and repatterned
+in its *training* frames (``eval.segmenter.appearance``), clean and scanned alike, from its own
+random stream (the poses are those of a run without it).
+
 Frames are rendered without sensor noise (sensor noise and photometric changes are training-time
 augmentation, drawn afresh every epoch) and cached at
 ``cache_dir()/segdata/<split>_<frames>_<key>.npz``, ``key`` a hash of everything that affects
@@ -42,6 +46,7 @@ from calnav.common.atomic import atomic_path
 from calnav.envs.config import EnvConfig, plain_dict, require_single_storey
 from calnav.envs.semantics import STRUCTURE_CLASSES as STRUCTURE_NAMES
 from calnav.eval.sections import SegDataConfig
+from calnav.eval.segmenter.appearance import recolour_scene
 
 DATA_VERSION = 1                # bump when rendering changes, so stale caches are not reused
 EVAL_SEED_OFFSET = 1000         # eval poses use data.seed + this (never the training poses)
@@ -135,6 +140,9 @@ def render_frames(env_cfg: EnvConfig, data_cfg: SegDataConfig, split: str, frame
             if wanted == 0:
                 continue
             scene = load_scene(scene_id, env_cfg.dataset, style=style)
+            if rebalance and data_cfg.recolour_fraction > 0:   # its own stream: the poses do not move
+                scene = recolour_scene(scene, data_cfg.recolour_fraction,
+                                       np.random.default_rng([seed, s, 2, int(style is None)]))
             renderer = Renderer(scene, camera, min_depth_m=env_cfg.min_depth_m, max_depth_m=env_cfg.max_depth_m)
             grid = NavGrid.build(scene, env_cfg, raycasting_scene=renderer.raycasting_scene)
             structure = np.array([n in STRUCTURE_NAMES for n in scene.class_names] + [True])  # last: void
@@ -165,10 +173,13 @@ def cache_path(env_cfg: EnvConfig, data_cfg: SegDataConfig, split: str, frames: 
                                                  "turn_angle_deg", "forward_step_m", "agent_radius_m",
                                                  "agent_height_m", "nav_cell_m")}
     data_part = asdict(data_cfg) | {"frames": None, "seed": None}
-    if not rebalance:   # the rebalancing knobs and the scan share do not change an un-rebalanced set
-        data_part |= {"min_object_fraction": None, "keep_sparse_prob": None, "scanned_fraction": None}
-    if not data_part.get("scanned_fraction"):
-        data_part.pop("scanned_fraction")   # keys (and caches) of sets without scans are unchanged
+    if not rebalance:   # the rebalancing knobs, the scan share and recolouring do not change an un-rebalanced set
+        data_part |= {"min_object_fraction": None, "keep_sparse_prob": None, "scanned_fraction": None,
+                      "recolour_fraction": None}
+    for key in ("scanned_fraction", "recolour_fraction"):
+        if not data_part.get(key):
+            data_part.pop(key)   # keys (and caches) of sets without scans / recolouring are unchanged
+    data_part.pop("eval_appearance")   # applied to the frames after loading (eval.segmenter.evaluate)
     blob = json.dumps({"v": DATA_VERSION, "split": split, "frames": frames, "seed": seed, "inst": with_instance,
                        "rebalance": rebalance, "data": data_part,
                        "env": env_part, "dataset": plain_dict(env_cfg.dataset)}, sort_keys=True, default=list)

@@ -7,7 +7,9 @@ training) with the pose seed ``data.seed + EVAL_SEED_OFFSET`` (different walks f
 training ones), at ``data.resolution``. Every non-void pixel is a sample; probabilities are
 softmax(logits). Metrics (``mapping.metrics``): accuracy, mIoU over all classes present in the
 labels and over the goal categories + structure classes present, ECE, TL-ECE, mECE, Brier,
-per-class IoU and per-class ECE, mean top-label confidence.
+per-class IoU and per-class ECE, mean top-label confidence. ``data.eval_appearance: camera``
+scores the same frames through the fixed camera shift of ``eval.segmenter.appearance`` (the
+record then names it).
 """
 from __future__ import annotations
 
@@ -19,6 +21,7 @@ import numpy as np
 from calnav.common.atomic import undefined_as_null, write_json_atomic
 from calnav.eval.results_dir import check_output_file, writing
 from calnav.eval.config import Config
+from calnav.eval.segmenter.appearance import camera_shift
 from calnav.eval.segmenter.data import EVAL_SEED_OFFSET, load_or_render
 from calnav.mapping.metrics import CalibrationStats
 from dataclasses import dataclass
@@ -28,6 +31,7 @@ from calnav.eval.config import SEGMENTER_SECTIONS
 from calnav.eval.segmenter.data import segmenter_configs
 
 BATCH = 16                     # frames per segment_batch call
+CAMERA_SEED_OFFSET = 7919      # the camera shift's seed family: pose seed + this (no training stream uses it)
 
 
 def evaluate(cfg: Config, model: str, split: str = "test", frames: int = 500,
@@ -45,6 +49,8 @@ def evaluate(cfg: Config, model: str, split: str = "test", frames: int = 500,
         raise ValueError(f"{model} predicts classes {seg.class_names}, the simulator has {CLASS_NAMES}")
     data = load_or_render(cfg.env, cfg.data, split, frames=frames, seed=cfg.data.seed + EVAL_SEED_OFFSET,
                           with_instance=seg.needs_semantic, progress=progress)
+    if cfg.data.eval_appearance == "camera":   # after the cache: the rendered frames are shared with plain runs
+        data.rgb = camera_shift(data.rgb, cfg.data.seed + EVAL_SEED_OFFSET + CAMERA_SEED_OFFSET)
     k = len(CLASS_NAMES)
     stats = CalibrationStats(k)
     conf_sum = 0.0
@@ -64,8 +70,9 @@ def evaluate(cfg: Config, model: str, split: str = "test", frames: int = 500,
     goal_structure = [CLASS_NAMES.index(n) for n in (*GOAL_CATEGORIES, *STRUCTURE_CLASSES)]
     iou, cece = stats.per_class_iou(), stats.per_class_ece()
     present = [CLASS_NAMES[i] for i in range(k) if np.isfinite(iou[i])]
+    shift = {} if cfg.data.eval_appearance == "none" else {"eval_appearance": cfg.data.eval_appearance}
     return {
-        "model": model, "split": split, "n_frames": len(data), "resolution": list(data.resolution),
+        "model": model, "split": split, **shift, "n_frames": len(data), "resolution": list(data.resolution),
         "n_pixels": stats.n, "accuracy": stats.accuracy(),
         "miou": stats.miou(), "miou_goal_structure": stats.miou(goal_structure),
         "ece": stats.ece(), "tl_ece": stats.tl_ece(), "mece": stats.mece(), "brier": stats.brier(),

@@ -7,8 +7,10 @@ Data: ``data.frames`` frames rendered from the *train* split only (``eval.segmen
 cached on disk); ``train.val_frames`` val-split frames are scored after every epoch.
 Training: cross-entropy (void ignored, optional inverse-log-frequency class weights), AdamW with
 a one-cycle learning-rate schedule, on-the-fly augmentation (brightness, contrast, per-channel
-colour gain, Gaussian rgb noise, optional Gaussian blur, multiplicative depth noise, optional depth
-dropout, horizontal flips), all drawn from
+colour gain, optional camera-like levers: vignetting, exposure, white balance, motion blur, tone
+curve, shot noise (``eval.segmenter.photometric``), Gaussian rgb noise, optional Gaussian blur,
+optional JPEG compression, multiplicative depth noise, optional depth dropout, horizontal flips),
+all drawn from
 generators seeded by (run.seed, epoch), so a resumed run is bit-identical to an uninterrupted
 one on the same machine and thread count.
 
@@ -40,6 +42,7 @@ from calnav.eval.config import Config, to_dict
 from calnav.eval.results_dir import check_output_file
 from calnav.eval.sections import TrainConfig
 from calnav.eval.segmenter.data import VAL_SEED_OFFSET, SegData, load_or_render
+from calnav.eval.segmenter.photometric import camera_levers, jpeg_lever
 from calnav.mapping.metrics import CalibrationStats
 from dataclasses import dataclass
 from typing import Literal
@@ -87,6 +90,7 @@ def augment(rgb: torch.Tensor, depth: torch.Tensor | None, labels: torch.Tensor,
     mean = rgb.mean(dim=(1, 2, 3), keepdim=True)
     rgb = (rgb - mean) * contrast + mean
     rgb = rgb * gain
+    rgb = camera_levers(rgb, gen, cfg)   # each draws only when on (the stream of runs without them is unchanged)
     noise = torch.randn(rgb.shape, generator=gen).to(rgb.device)
     rgb = (rgb + noise * uniform(0, cfg.rgb_noise_std / 255.0, b, 1, 1, 1)).clamp_(0.0, 1.0)
     if cfg.blur_prob > 0:   # drawn only when enabled: runs without blur keep their augmentation stream
@@ -94,6 +98,7 @@ def augment(rgb: torch.Tensor, depth: torch.Tensor | None, labels: torch.Tensor,
         blurred = gaussian_blur(rgb, sigma)
         pick = (torch.rand(b, generator=gen) < cfg.blur_prob).to(rgb.device)
         rgb = torch.where(pick[:, None, None, None], blurred, rgb)
+    rgb = jpeg_lever(rgb, gen, cfg)      # last: compression sees the noise a camera's encoder sees
     if depth is not None:
         valid = depth > 0
         dn = torch.randn(depth.shape, generator=gen).to(depth.device)
