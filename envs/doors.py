@@ -18,7 +18,7 @@ from calnav.envs.scene import Texture
 
 
 class Cell(Protocol):
-    """A room cell of the house layout (``envs.house._Cell``), metres."""
+    """A room cell of the house layout (``envs.house_layout.Cell``), metres."""
     x0: float
     y0: float
 

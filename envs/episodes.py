@@ -35,8 +35,9 @@ import numpy as np
 from calnav.common.atomic import write_json_atomic
 from calnav.envs.config import EnvConfig, plain_dict
 from calnav.envs.episode_files import (goal_mask, view_point_mask,  # noqa: F401 (importable here too)
-                                       GoalObject, ObjectNavEpisode, cached_episodes, episodes_from_habitat,
+                                       GoalObject, ObjectNavEpisode, episodes_from_habitat,
                                        episodes_to_habitat, write_json_gz)
+from calnav.envs.episode_cache import cached_episodes
 from calnav.envs.episode_rules import (MAX_START_TRIES, MAX_UNSOLVABLE_TRIES, START_DISTANCE_POWER,  # noqa: F401
                                        SURFACE_SAMPLE_SPACING_M, TRIVIAL_REJECT_PROB, VISIBILITY_TARGETS,
                                        find_view_points)

@@ -40,8 +40,8 @@ import numpy as np
 from calnav.common.atomic import write_json_atomic
 from calnav.envs.config import EnvConfig
 from calnav.envs.episode_datasets import DatasetFiles, EpisodeDataset, dataset_files, read_dataset, scene_name
-from calnav.envs.episode_files import (GoalObject, ObjectNavEpisode, cached_episodes, episodes_to_habitat,
-                                       write_json_gz)
+from calnav.envs.episode_cache import cached_episodes
+from calnav.envs.episode_files import GoalObject, ObjectNavEpisode, episodes_to_habitat, write_json_gz
 from calnav.envs.scene import cache_dir
 
 PLACEMENT_VERSION = 3                   # 2: heights in the scene file's frame (floor offset); 3: the scene dataset config an episode names

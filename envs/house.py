@@ -25,23 +25,18 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-import hashlib
-import json
-import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 
 import numpy as np
 
-from calnav.envs.doors import Doorway, add_door_leaf, door_zones, leaf_pose, overlap
+from calnav.envs.doors import Doorway, add_door_leaf, door_zones, leaf_pose
 from calnav.envs.furniture_parts import colour
 from calnav.envs.furnish import ROOM_RECIPES, emit_group, find_pose
+from calnav.envs.house_layout import Cell, assign_kinds, connect, interior, split_footprint
+from calnav.envs.house_spec import GENERATOR_VERSION, MAX_STOREYS, ROOM_KINDS, HouseSpec  # noqa: F401 (importable here)
 from calnav.envs.primitives import MeshBuilder
 from calnav.envs.scene import Room, Scene, Texture
 from calnav.envs.stairs import StairSpec, Staircase, build_staircase, place_staircase, rect_minus
-
-GENERATOR_VERSION = 1  # bump when generated houses change for a given (seed, spec): invalidates caches
-MAX_STOREYS = 3        # storeys a house may have (``env.dataset.storeys``' range)
-ROOM_KINDS = ("bedroom", "bathroom", "living_room", "kitchen", "office", "hallway")
 
 # Surface styles per room kind: (palette, texture) choices for floors and walls.
 _FLOORS = {
@@ -54,7 +49,7 @@ _FLOORS = {
 }
 _WALL_PAINT = ((236, 232, 222), (222, 210, 190), (200, 215, 225), (205, 220, 200), (210, 210, 210), (235, 220, 215))
 _CEILING = ((240, 240, 236), (232, 232, 228))
-# Room kinds of a house with storeys (``_assign_kinds`` reads them as it reads
+# Room kinds of a house with storeys (``assign_kinds`` reads them as it reads
 # ``HouseSpec.kind_sequence``): living rooms, kitchens and offices downstairs, bedrooms
 # upstairs, a bathroom on every storey, so that some goal categories (sofa, bed) are on one
 # storey only and their episodes cross storeys. The stair room upstairs is a landing hall.
@@ -65,204 +60,8 @@ UPPER_KINDS = ("living_room", "bathroom", "bedroom", "bedroom", "office", "bedro
 _STAIR_WOOD = ((150, 110, 75), (120, 85, 55), (170, 125, 80))
 
 
-@dataclass(frozen=True)
-class HouseSpec:
-    """Every constant of the generator. Ranges are (low, high) sampled uniformly."""
-
-    min_rooms: int = 3                                 # rooms per house (hallway included), inclusive
-    max_rooms: int = 10
-    room_area_m2: tuple[float, float] = (15.0, 26.0)    # mean footprint area per room, m^2 (HM3D-like episode lengths)
-    min_floor_area_m2: float = 40.0                     # bounds on total walkable floor (room interiors), m^2
-    max_floor_area_m2: float = 250.0
-    area_margin: float = 0.08                           # keep the sampled footprint this fraction inside the bounds
-    footprint_aspect: tuple[float, float] = (1.0, 1.7)  # long side / short side of the footprint
-    min_room_side_m: float = 2.4                        # shortest side of a room cell, metres
-    split_fraction: tuple[float, float] = (0.35, 0.65)  # BSP cut position as a fraction of the cut side
-    hallway_prob: float = 0.5                           # chance of a corridor in a house with >= hallway_min_rooms
-    hallway_min_rooms: int = 5
-    hallway_width_m: tuple[float, float] = (1.3, 1.8)   # corridor width, metres
-    wall_height_m: tuple[float, float] = (2.5, 3.0)     # floor-to-ceiling height per house, metres
-    wall_thickness_m: float = 0.1                       # interior and exterior walls, metres
-    door_width_m: tuple[float, float] = (0.9, 1.0)      # doorway opening width, metres
-    door_height_m: tuple[float, float] = (2.0, 2.1)     # doorway opening height (lintel bottom), metres
-    door_jamb_m: float = 0.15                           # least wall between a doorway and a room corner, metres
-    door_corner_prob: float = 0.6                       # chance a doorway sits at the end of the shared wall
-    extra_door_prob: float = 0.3                        # chance of a door on each adjacency off the spanning tree
-    door_leaf_prob: float = 0.5                         # chance that a doorway has an open door leaf (>= 1 per house)
-    door_leaf_thickness_m: float = 0.04                 # metres
-    door_open_deg: tuple[float, float] = (90.0, 105.0)  # leaf opening angle from closed, degrees
-    door_clearance_m: float = 1.0                       # free depth in front of a doorway, both sides, metres
-    door_zone_side_m: float = 0.3                       # free width beside a doorway (covers the leaf), metres
-    walk_gap_m: float = 0.6                             # least gap between furniture, and between furniture and
-                                                        # a wall it does not touch, metres
-    corner_prob: float = 0.35                           # chance a wall placement snaps into a corner
-    patterned_wall_prob: float = 0.35                   # chance a room's walls are tiled / papered, else paint
-    any_free_prob: float = 0.4                          # chance an "any"-mode item stands free of the walls
-    placement_tries: int = 30                           # random poses tried per sampled group
-    group_samples: int = 3                              # groups sampled per item before giving up
-    required_samples: int = 8                           # extra samples (exhaustive scan) for required items
-    scan_step_m: float = 0.1                            # step of the exhaustive wall scan for required items
-    max_layout_tries: int = 50                          # layouts drawn before giving up
-    kind_sequence: tuple[str, ...] = ("living_room", "bathroom", "bedroom", "kitchen", "bedroom", "office",
-                                      "bathroom", "bedroom", "living_room", "office")  # kinds by room count
-
-    def max_extent_m(self) -> tuple[float, float]:
-        """(long, short) sides of the largest house's xy bounds, metres: the footprint of the
-        largest floor area ``_split_footprint`` draws at the most elongated aspect (the largest
-        perimeter, hence the largest bounds once walls are added), plus half an exterior wall on
-        each side. Memory estimates size the navigation grid for it."""
-        area = self.max_floor_area_m2 * (1 - self.area_margin)
-        aspect = self.footprint_aspect[1]
-        wall = self.wall_thickness_m
-        return math.sqrt(area * aspect) + wall, math.sqrt(area / aspect) + wall
-
-    def digest(self) -> str:
-        """Short hash of the spec and ``GENERATOR_VERSION`` (cache keys)."""
-        blob = json.dumps({"spec": asdict(self), "version": GENERATOR_VERSION}, sort_keys=True)
-        return hashlib.sha1(blob.encode()).hexdigest()[:10]
-
-
-@dataclass
-class _Cell:
-    x0: float
-    y0: float
-    x1: float
-    y1: float
-    hallway: bool = False
-    kind: str = ""
-
-    @property
-    def area(self) -> float:
-        return (self.x1 - self.x0) * (self.y1 - self.y0)
-
-
-# ------------------------------------------------------------------------------ layout
-def _split_footprint(rng: np.random.Generator, spec: HouseSpec) -> list[_Cell]:
-    """Cells tiling a rectangular footprint with its corner at the origin (see module docstring)."""
-    n_target = int(rng.integers(spec.min_rooms, spec.max_rooms + 1))
-    lo, hi = spec.min_floor_area_m2 * (1 + spec.area_margin), spec.max_floor_area_m2 * (1 - spec.area_margin)
-    area = float(np.clip(n_target * rng.uniform(*spec.room_area_m2), lo, hi))
-    aspect = rng.uniform(*spec.footprint_aspect)
-    long, short = float(np.sqrt(area * aspect)), float(np.sqrt(area / aspect))
-    along_x = rng.random() < 0.5   # which world axis the footprint's long side follows
-    w, h = (long, short) if along_x else (short, long)
-    cells = [_Cell(0.0, 0.0, w, h)]
-    hall_w = rng.uniform(*spec.hallway_width_m)
-    if (n_target >= spec.hallway_min_rooms and rng.random() < spec.hallway_prob
-            and short >= 2 * spec.min_room_side_m + hall_w):
-        c0 = rng.uniform(spec.min_room_side_m, short - spec.min_room_side_m - hall_w)  # corridor along the long axis
-        c1 = c0 + hall_w
-        cells = ([_Cell(0, 0, w, c0), _Cell(0, c0, w, c1, hallway=True), _Cell(0, c1, w, h)] if along_x else
-                 [_Cell(0, 0, c0, h), _Cell(c0, 0, c1, h, hallway=True), _Cell(c1, 0, w, h)])
-    while len(cells) < n_target:
-        cands = [i for i, c in enumerate(cells)
-                 if not c.hallway and max(c.x1 - c.x0, c.y1 - c.y0) >= 2 * spec.min_room_side_m]
-        if not cands:
-            break
-        areas = np.array([cells[i].area for i in cands])
-        c = cells.pop(cands[int(rng.choice(len(cands), p=areas / areas.sum()))])
-        cut_x = (c.x1 - c.x0) >= (c.y1 - c.y0)
-        a, b = (c.x0, c.x1) if cut_x else (c.y0, c.y1)
-        t = float(np.clip(a + rng.uniform(*spec.split_fraction) * (b - a), a + spec.min_room_side_m, b - spec.min_room_side_m))
-        cells += ([_Cell(c.x0, c.y0, t, c.y1), _Cell(t, c.y0, c.x1, c.y1)] if cut_x else
-                  [_Cell(c.x0, c.y0, c.x1, t), _Cell(c.x0, t, c.x1, c.y1)])
-    return cells
-
-
-def _interior(c: _Cell, t: float) -> Room:
-    """The walkable floor of a cell: inside its walls (half a wall thickness on every side)."""
-    return Room(c.kind, float(c.x0 + t / 2), float(c.y0 + t / 2), float(c.x1 - t / 2), float(c.y1 - t / 2))
-
-
-def _assign_kinds(cells: list[_Cell], rng: np.random.Generator, spec: HouseSpec) -> None:
-    """Living room to the largest cell, bathrooms to the smallest; of the others, bedrooms
-    (which must fit a bed) get the cells with the longest short side, the rest is shuffled."""
-    for c in cells:
-        c.kind = "hallway" if c.hallway else ""
-    rooms = sorted((i for i, c in enumerate(cells) if not c.hallway), key=lambda i: -cells[i].area)
-    kinds = list(spec.kind_sequence[:len(rooms)])
-    kinds += ["bedroom"] * (len(rooms) - len(kinds))
-    n_bath = kinds.count("bathroom")
-    first = [kinds.pop(kinds.index("living_room"))]
-    middle = [k for k in kinds if k not in ("bathroom", "bedroom")]
-    rng.shuffle(middle)
-    middle = ["bedroom"] * kinds.count("bedroom") + middle
-    n_mid = len(middle)
-    mid_cells = sorted(rooms[1:1 + n_mid], key=lambda i: -min(cells[i].x1 - cells[i].x0, cells[i].y1 - cells[i].y0))
-    for i, kind in zip([rooms[0]] + mid_cells + rooms[1 + n_mid:], first + middle + ["bathroom"] * n_bath):
-        cells[i].kind = kind
-
-
-def _connect(cells: list[_Cell], rng: np.random.Generator, spec: HouseSpec) -> list[Doorway] | None:
-    """Doorways forming a connected room graph, or None if some room cannot get a door."""
-    t, need = spec.wall_thickness_m, spec.door_width_m[1] + 2 * (spec.wall_thickness_m / 2 + spec.door_jamb_m)
-    edges = []
-    for i, ci in enumerate(cells):
-        for j in range(i + 1, len(cells)):
-            cj = cells[j]
-            for axis, (a0, a1, b0, b1), (ilo, ihi, jlo, jhi) in (
-                    ("x", (ci.x0, ci.x1, cj.x0, cj.x1), (ci.y0, ci.y1, cj.y0, cj.y1)),
-                    ("y", (ci.y0, ci.y1, cj.y0, cj.y1), (ci.x0, ci.x1, cj.x0, cj.x1))):
-                coord = a1 if np.isclose(a1, b0) else a0 if np.isclose(a0, b1) else None
-                lo, hi = max(ilo, jlo), min(ihi, jhi)
-                if coord is not None and hi - lo >= need:
-                    edges.append((i, j, axis, coord, lo, hi))
-    # Randomised Prim: corridor edges first, bathroom edges last (bathrooms end up as leaves).
-    keys = [rng.random() - any(cells[k].hallway for k in e[:2]) + any(cells[k].kind == "bathroom" for k in e[:2])
-            for e in edges]
-    start = next((i for i, c in enumerate(cells) if c.hallway), int(np.argmax([c.area for c in cells])))
-    tree, chosen = {start}, []
-    while len(tree) < len(cells):
-        frontier = [k for k, e in enumerate(edges) if (e[0] in tree) != (e[1] in tree)]
-        if not frontier:
-            return None
-        k = min(frontier, key=lambda k: keys[k])
-        chosen.append(k)
-        tree.update(edges[k][:2])
-    chosen += [k for k, e in enumerate(edges) if k not in chosen and rng.random() < spec.extra_door_prob
-               and all(cells[i].kind != "bathroom" for i in e[:2])]
-    doors = []
-    for k in chosen:
-        i, j, axis, coord, lo, hi = edges[k]
-        width, margin = rng.uniform(*spec.door_width_m), t / 2 + spec.door_jamb_m
-        lo_mid, hi_mid = lo + margin + width / 2, hi - margin - width / 2
-        mid = ((lo_mid, hi_mid)[rng.integers(2)] if rng.random() < spec.door_corner_prob  # near a corner frees wall space
-               else rng.uniform(lo_mid, hi_mid))
-        doors.append(Doorway(i, j, axis, float(coord), mid - width / 2, mid + width / 2,
-                             rng.uniform(*spec.door_height_m), open_deg=rng.uniform(*spec.door_open_deg)))
-    _choose_leaves(doors, cells, rng, spec)
-    return doors
-
-
-def _choose_leaves(doors: list[Doorway], cells: list[_Cell], rng: np.random.Generator, spec: HouseSpec) -> None:
-    """Hang open leaves in some doorways (at least one per house), each swung into a room where it
-    stays inside the room, off the other doorways' clear zones and off other leaves."""
-    taken: list[np.ndarray] = []
-
-    def try_leaf(d: Doorway) -> bool:
-        for k in rng.permutation(4):   # (room, hinge side) options in random order
-            d.leaf_room, d.hinge_lo = (d.a, d.b)[k // 2], bool(k % 2)
-            rect, room = leaf_pose(d, cells, spec)[-1], _interior(cells[d.leaf_room], spec.wall_thickness_m)
-            inside = room.xmin <= rect[0] and rect[2] <= room.xmax and room.ymin <= rect[1] and rect[3] <= room.ymax
-            # across the room from the leaf, a walkable gap must remain (narrow hallways)
-            across = (room.xmax - rect[2], rect[0] - room.xmin) if d.axis == "x" else (room.ymax - rect[3], rect[1] - room.ymin)
-            inside = inside and max(across) >= spec.walk_gap_m
-            zones = door_zones([o for o in doors if o is not d], cells, d.leaf_room, spec)
-            grown = rect + spec.walk_gap_m * np.array([-1, -1, 1, 1])   # two leaves could seal a corner
-            if inside and not any(overlap(rect, z) for z in zones) and not any(overlap(grown, o) for o in taken):
-                taken.append(rect)
-                return True
-        d.leaf_room = None
-        return False
-
-    wanted = [rng.random() < spec.door_leaf_prob for _ in doors]
-    placed = [try_leaf(d) for d, w in zip(doors, wanted) if w]
-    if not any(placed):   # the house must show the door class
-        any(try_leaf(d) for d in doors)
-
-
 # --------------------------------------------------------------------------- structure
-def _slab(b: MeshBuilder, c: _Cell, z: float, t: float, holes, cls: str, inst: int, albedo, texture, faces: str) -> None:
+def _slab(b: MeshBuilder, c: Cell, z: float, t: float, holes, cls: str, inst: int, albedo, texture, faces: str) -> None:
     """The cell's floor or ceiling slab centred at height ``z``, around ``holes`` ((4,) world
     rects: stair openings, and the floor under a staircase, which would otherwise be open
     floor inside the steps' boxes to the navmesh; None: one box, as a single-storey house has)."""
@@ -278,7 +77,7 @@ def _slab(b: MeshBuilder, c: _Cell, z: float, t: float, holes, cls: str, inst: i
                   faces=faces)
 
 
-def _build_room_shell(b: MeshBuilder, ci: int, cells: list[_Cell], doors: list[Doorway], footprint, wall_h: float,
+def _build_room_shell(b: MeshBuilder, ci: int, cells: list[Cell], doors: list[Doorway], footprint, wall_h: float,
                       rng: np.random.Generator, spec: HouseSpec, floor_holes=None, ceiling_holes=None) -> None:
     """Floor, ceiling and this room's own wall slabs (with doorway holes and lintels); the
     floor and ceiling leave out ``floor_holes`` / ``ceiling_holes`` (lists of (4,) world rects
@@ -318,7 +117,7 @@ def _build_room_shell(b: MeshBuilder, ci: int, cells: list[_Cell], doors: list[D
             b.add_box(center, size, "wall", wall_inst, paint, wall_tex, faces="-z -y +y +x -x" if za > 0 else "-y +y +x -x")
 
 
-def _furnish(b: MeshBuilder, rooms: list[Room], cells: list[_Cell], doors: list[Doorway], rng: np.random.Generator,
+def _furnish(b: MeshBuilder, rooms: list[Room], cells: list[Cell], doors: list[Doorway], rng: np.random.Generator,
              spec: HouseSpec, blocked: dict[int, tuple[list, list]] | None = None) -> list[dict]:
     """Place each room's recipe items in order; returns one meta record per object instance.
     ``blocked``: room index -> (obstacle rects, zone rects) of its stairs (None: no stairs)."""
@@ -346,13 +145,13 @@ def _furnish(b: MeshBuilder, rooms: list[Room], cells: list[_Cell], doors: list[
 
 
 # ------------------------------------------------------------------------------ storeys
-def _stair_keep_clear(ci: int, cells: list[_Cell], doors: list[Doorway], spec: HouseSpec) -> list[np.ndarray]:
+def _stair_keep_clear(ci: int, cells: list[Cell], doors: list[Doorway], spec: HouseSpec) -> list[np.ndarray]:
     """Rects of room ``ci`` a staircase must stay off: its doorway zones and door leaves (every
     storey has the same doorways)."""
     return door_zones(doors, cells, ci, spec) + [leaf_pose(d, cells, spec)[-1] for d in doors if d.leaf_room == ci]
 
 
-def _place_stairs(cells: list[_Cell], doors: list[Doorway], wall_h: float, storeys: int, rng: np.random.Generator,
+def _place_stairs(cells: list[Cell], doors: list[Doorway], wall_h: float, storeys: int, rng: np.random.Generator,
                   spec: HouseSpec, stair_spec: StairSpec) -> list[tuple[int, Staircase]] | None:
     """(cell index, staircase) from each storey to the next, larger rooms tried first, each
     off the previous staircase (whose opening and arrival lie on the storey it starts from);
@@ -368,7 +167,7 @@ def _place_stairs(cells: list[_Cell], doors: list[Doorway], wall_h: float, store
                 prev = out[-1][1]
                 grown = prev.rect + spec.walk_gap_m * np.array([-1, -1, 1, 1])
                 keep = keep + [grown, prev.entry(stair_spec.entry_clearance_m)]
-            st = place_staircase(_interior(cells[ci], t), k, k * storey_h, storey_h, keep, rng, stair_spec)
+            st = place_staircase(interior(cells[ci], t), k, k * storey_h, storey_h, keep, rng, stair_spec)
             if st is not None:
                 placed = (ci, st)
                 break
@@ -378,14 +177,14 @@ def _place_stairs(cells: list[_Cell], doors: list[Doorway], wall_h: float, store
     return out
 
 
-def _storey_cells(cells: list[_Cell], storey: int, stairs: list[tuple[int, Staircase]], rng: np.random.Generator,
-                  spec: HouseSpec) -> list[_Cell]:
+def _storey_cells(cells: list[Cell], storey: int, stairs: list[tuple[int, Staircase]], rng: np.random.Generator,
+                  spec: HouseSpec) -> list[Cell]:
     """The cells of ``storey`` (same walls as the ground floor, its own room kinds): bedrooms
     and a bathroom upstairs (``UPPER_KINDS``), a landing hall where a staircase arrives."""
     if storey == 0:
         return cells
     out = [copy.copy(c) for c in cells]   # (a shallow copy each: their kinds change, the walls stay shared)
-    _assign_kinds(out, rng, dataclasses.replace(spec, kind_sequence=UPPER_KINDS))
+    assign_kinds(out, rng, dataclasses.replace(spec, kind_sequence=UPPER_KINDS))
     for ci, st in stairs:
         if st.lower == storey - 1:
             out[ci].kind = "hallway"
@@ -409,7 +208,7 @@ def _stair_blocks(storey: int, stairs: list[tuple[int, Staircase]], stair_spec: 
     return out
 
 
-def _build_storeys(b: MeshBuilder, cells: list[_Cell], doors: list[Doorway], stairs: list[tuple[int, Staircase]],
+def _build_storeys(b: MeshBuilder, cells: list[Cell], doors: list[Doorway], stairs: list[tuple[int, Staircase]],
                    footprint, wall_h: float, storeys: int, rng: np.random.Generator, spec: HouseSpec,
                    stair_spec: StairSpec) -> tuple[list[dict], list[list[str]]]:
     """Every storey's shells, door leaves and furniture, each built at floor level and lifted
@@ -429,7 +228,7 @@ def _build_storeys(b: MeshBuilder, cells: list[_Cell], doors: list[Doorway], sta
         for d in doors:
             if d.leaf_room is not None:
                 add_door_leaf(b, d, cells_s, rng, spec)
-        rooms = [_interior(c, t) for c in cells_s]
+        rooms = [interior(c, t) for c in cells_s]
         records = _furnish(b, rooms, cells_s, doors, rng, spec, blocked=_stair_blocks(s, stairs, stair_spec))
         dz = s * (wall_h + t)
         b.lift(mark, dz)
@@ -459,13 +258,13 @@ def generate_house(seed: int, spec: HouseSpec | None = None, storeys: int = 1,
     kind_spec = spec if storeys == 1 else dataclasses.replace(spec, kind_sequence=GROUND_KINDS)
     stairs: list[tuple[int, Staircase]] = []
     for _ in range(spec.max_layout_tries):
-        cells = _split_footprint(rng, spec)
+        cells = split_footprint(rng, spec)
         area = sum((c.x1 - c.x0 - t) * (c.y1 - c.y0 - t) for c in cells)
         if not (spec.min_rooms <= len(cells) <= spec.max_rooms
                 and spec.min_floor_area_m2 <= area <= spec.max_floor_area_m2):
             continue
-        _assign_kinds(cells, rng, kind_spec)
-        doors = _connect(cells, rng, spec)
+        assign_kinds(cells, rng, kind_spec)
+        doors = connect(cells, rng, spec)
         if doors is None:
             continue
         if storeys == 1:
@@ -481,7 +280,7 @@ def generate_house(seed: int, spec: HouseSpec | None = None, storeys: int = 1,
         wall_h = float(rng.uniform(*spec.wall_height_m))
     footprint = (min(c.x0 for c in cells), min(c.y0 for c in cells), max(c.x1 for c in cells), max(c.y1 for c in cells))
     b = MeshBuilder(f"house_{seed}")
-    rooms = [_interior(c, t) for c in cells]
+    rooms = [interior(c, t) for c in cells]
     if storeys == 1:
         for ci in range(len(cells)):
             _build_room_shell(b, ci, cells, doors, footprint, wall_h, rng, spec)

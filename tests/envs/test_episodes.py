@@ -213,8 +213,9 @@ def test_view_points_parse_to_the_same_array_as_one_by_one():
 def test_an_episode_file_is_parsed_once_per_process_until_it_changes(tmp_path, monkeypatch):
     """load_split's per-file cache: a second read of an unchanged file does not parse it again;
     a rewritten file (new stat) is parsed again and its new content returned."""
-    import calnav.envs.episode_files as episodes_mod
-    from calnav.envs.episode_files import ObjectNavEpisode, cached_episodes, episodes_to_habitat, write_json_gz
+    import calnav.envs.episode_cache as episodes_mod
+    from calnav.envs.episode_cache import cached_episodes
+    from calnav.envs.episode_files import ObjectNavEpisode, episodes_to_habitat, write_json_gz
 
     ep = ObjectNavEpisode(episode_id="0", scene_id="s", start_position=np.zeros(2), start_rotation=[0.0, 0.0, 0.0, 1.0],
                           object_category="chair", geodesic_distance=2.0, euclidean_distance=1.5, goals=[])
@@ -247,12 +248,12 @@ def _episodes_equal(a, b) -> bool:
 
 
 def test_the_parsed_sidecar_replaces_the_json_parse_until_anything_is_off(tmp_path, monkeypatch):
-    """A content file's binary sidecar (episode_files.read_sidecar): written on the first parse, read
+    """A content file's binary sidecar (episode_cache.read_sidecar): written on the first parse, read
     instead of the JSON by the next process (the same values, goal lists shared as parsed), and
     ignored -- the JSON parsed again -- when the JSON changes, the sidecar is damaged or of
     another format; a file outside a split's content folder gets none."""
-    import calnav.envs.episode_files as ef
-    from calnav.envs import episode_files as sc
+    import calnav.envs.episode_cache as ef
+    from calnav.envs import episode_cache as sc
     from calnav.envs.episode_files import GoalObject, ObjectNavEpisode, episodes_to_habitat, write_json_gz
 
     rng = np.random.default_rng(0)

@@ -271,8 +271,8 @@ def test_the_scene_dataset_config_an_episode_names_frames_its_scene(tmp_path, is
     scene id is) frames its scene: a y-up scene with no config above it is refused as y-up read
     as z-up, and loads through the y-up config its episodes name; the key survives a placed
     content file."""
-    from calnav.envs.episode_files import (_PARSED, ObjectNavEpisode, cached_episodes, episodes_from_habitat,
-                                           episodes_to_habitat, sidecar_path, write_json_gz)
+    from calnav.envs.episode_cache import _PARSED, cached_episodes, sidecar_path
+    from calnav.envs.episode_files import ObjectNavEpisode, episodes_from_habitat, episodes_to_habitat, write_json_gz
 
     scene_dir = tmp_path / "scene_datasets"
     y_up = write_scene(scene_dir / "hm3d" / "val" / "00000-scn", y_up=True)

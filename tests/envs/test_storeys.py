@@ -231,7 +231,8 @@ def test_episodes_cross_storeys_and_keep_heights(house):
 
 
 def test_sidecar_keeps_storeys(tmp_path, house):
-    from calnav.envs.episode_files import _stat_key, read_sidecar, sidecar_path, write_json_gz, write_sidecar
+    from calnav.envs.episode_cache import _stat_key, read_sidecar, sidecar_path, write_sidecar
+    from calnav.envs.episode_files import write_json_gz
     from calnav.envs.render import Camera, Renderer
     from calnav.envs.storey_episodes import generate_layered_episodes
 

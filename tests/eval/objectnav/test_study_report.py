@@ -8,8 +8,8 @@ from hypothesis import given, settings, strategies as st
 from calnav.eval.cli import main
 from calnav.eval.config import ConfigError
 from calnav.eval.objectnav.study_grids import edge_rows, grids_markdown, transferred_thresholds
-from calnav.eval.objectnav.study_report import (PAGE_BEGIN, PAGE_END, _ratio, commits_markdown, compute_markdown, embed,
-                                                headline, render, transfer_pairs, verdict)
+from calnav.eval.objectnav.study_ledger import commits_markdown, compute_markdown
+from calnav.eval.objectnav.study_report import PAGE_BEGIN, PAGE_END, _ratio, embed, headline, render, transfer_pairs, verdict
 from calnav.eval.stats import contrast, failure_kind
 
 
