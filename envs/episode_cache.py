@@ -15,6 +15,8 @@ import numpy as np
 from calnav.common.atomic import atomic_path
 from calnav.envs.episode_files import GoalObject, ObjectNavEpisode, read_episode_file
 
+
+# ---------------------------------------------------------------- parsed once per process
 # episode files already parsed in this process: path -> ((mtime_ns, size, inode), episodes). A
 # command reads its split several times (preflight, feed order, the env); a rewritten file
 # (another stat) is parsed again.

@@ -253,6 +253,3 @@ def add_view_point_iou(data: dict) -> bool:
                     v["iou"] = VIEW_POINT_IOU
                     changed = True
     return changed
-
-
-# ---------------------------------------------------------------- parsed once per process
