@@ -135,7 +135,7 @@ class CalibrationStudyConfig:
 
 
 # ------------------------------------------------------------------ segmenter training
-EVAL_APPEARANCES: tuple[str, ...] = ("none", "camera")   # data.eval_appearance (eval.segmenter.appearance)
+EVAL_APPEARANCES: tuple[str, ...] = ("none", "camera", "recolour")   # data.eval_appearance (eval.segmenter.appearance)
 
 @dataclass
 class SegDataConfig:
@@ -154,8 +154,9 @@ class SegDataConfig:
                                      # (validation / evaluation frames follow env.dataset.style)
     recolour_fraction: float = 0.0   # share of each training house's instances recoloured and repatterned, [0, 1]
                                      # (eval.segmenter.appearance; validation / evaluation frames keep their colours)
-    eval_appearance: Literal["none", "camera"] = "none"  # eval-segmenter frames: as rendered, or through the fixed
-                                     # camera shift of eval.segmenter.appearance (not the training levers' distribution)
+    eval_appearance: Literal["none", "camera", "recolour"] = "none"  # eval-segmenter frames: as rendered, through
+                                     # the fixed camera shift of eval.segmenter.appearance (not the training levers'
+                                     # distribution), or of houses with every instance recoloured (novel colours)
 
     def __post_init__(self) -> None:
         if self.eval_appearance not in EVAL_APPEARANCES:

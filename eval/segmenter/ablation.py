@@ -14,8 +14,9 @@ import sys
 from pathlib import Path
 
 ROWS = ("baseline", "photometric", "jpeg", "recolour", "all")
-SETS = ("clean", "scanned", "camera")
-SET_LABELS = {"clean": "clean", "scanned": "scanned", "camera": "scanned + camera shift"}
+SETS = ("clean", "scanned", "camera", "recoloured")
+SET_LABELS = {"clean": "clean", "scanned": "scanned", "camera": "scanned + camera shift",
+              "recoloured": "scanned, houses recoloured"}
 
 
 def ablation_table(folder: Path | str) -> str:

@@ -8,6 +8,16 @@ share of a training house's instances gets every part (its triangles of one albe
 colour, hue uniform, saturation U(0, 0.8), value U(0.15, 0.95), and a procedural pattern drawn
 uniformly from ``envs.scene.Texture`` (an image texture the part had is dropped).
 
+A scan's colours are baked per triangle (lighting, blur and the pattern included), so its parts
+are not its distinct colours: each scan triangle takes the part of the nearest triangle of the
+clean house it was scanned from, and keeps its own shading, the ratio of its luminance to that
+part's clean albedo (clipped to [0, ``MAX_SHADING``]), times the part's new colour. The scan
+keeps its baked pattern (it cannot be re-patterned without scanning again).
+
+``data.eval_appearance: recolour`` scores a segmenter on held-out houses whose every instance is
+recoloured that way (from the evaluation seed's own stream): the same rooms and shapes in colours
+the training palette never drew, the content shift a real house is to calnav's houses.
+
 The camera shift stands in for a real camera and is deliberately *not* the training levers'
 distribution (``eval.segmenter.photometric``): it decodes the sRGB frame to linear light,
 applies a fixed warm colour cast (gains 1.12 / 1.0 / 0.85 +- 3 % per frame), a disc-shaped
@@ -31,27 +41,66 @@ READ_NOISE = 0.004                # camera shift: read-noise std, linear light [
 SHOT_NOISE = 0.015                # camera shift: shot-noise std at white (std ~ sqrt(signal)), linear light
 RESPONSE_SLOPE = 6.0              # camera shift: slope of the logistic response curve at mid-grey
 JPEG_QUALITY = (40, 60)           # camera shift: JPEG quality range (cv2), inclusive
+MAX_SHADING = 2.0                 # recolouring a scan: largest kept ratio of baked to clean luminance
+MIN_LUMA = 8.0                    # recolouring a scan: clean luminance floor (uint8 levels), avoids /0
+LUMA = np.array([0.299, 0.587, 0.114])   # Rec. 601 luma weights of R, G, B
 
 
-def recolour_scene(scene: Scene, fraction: float, rng: np.random.Generator) -> Scene:
+def _new_looks(n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """``n`` parts' new colours, (n, 3) float64 in [0, 255], and patterns, (n,) Texture ids."""
+    hsv = np.column_stack([rng.random(n), rng.uniform(0.0, 0.8, n), rng.uniform(0.15, 0.95, n)])
+    colours = np.array([colorsys.hsv_to_rgb(*c) for c in hsv]).reshape(n, 3) * 255.0
+    return colours, rng.integers(0, len(Texture), n)
+
+
+def _nearest_source_albedo(scene: Scene, source: Scene, tris: np.ndarray) -> np.ndarray:
+    """(len(tris), 3) uint8 albedo of the ``source`` triangle nearest each of ``scene``'s
+    triangles ``tris`` (their centroids)."""
+    import open3d as o3d
+
+    from calnav.envs.render import build_raycasting_scene
+
+    centroids = scene.vertices[scene.triangles[tris]].mean(axis=1).astype(np.float32)
+    prim = build_raycasting_scene(source).compute_closest_points(o3d.core.Tensor(centroids))["primitive_ids"]
+    return source.tri_albedo[prim.numpy().astype(np.int64)]
+
+
+def is_baked(scene: Scene) -> bool:
+    """Whether ``scene``'s colours carry their lighting (a scan: ``meta["lighting"] == "baked"``)."""
+    from calnav.envs.scanning.scanner import BAKED
+
+    return scene.meta.get("lighting") == BAKED
+
+
+def recolour_scene(scene: Scene, fraction: float, rng: np.random.Generator, source: Scene | None = None) -> Scene:
     """A copy of ``scene`` whose instances, each with probability ``fraction``, have every part
     (triangles of one instance and one albedo) recoloured and repatterned (module docstring).
-    The scene itself (perhaps shared by the in-memory scene cache) is not changed."""
+    ``source``: the clean house a baked scan (``meta["lighting"] == "baked"``) was made from; a
+    scan's parts and shading come from it. The scene itself (perhaps shared by the in-memory
+    scene cache) is not changed."""
     import dataclasses
 
+    baked = is_baked(scene)
+    if baked and (source is None or is_baked(source)):   # a scene file's scan has no clean house behind it
+        raise ValueError(f"recolouring the scan {scene.name!r} needs the clean house it was scanned from (source); "
+                         "scans loaded from scene files have none")
     instances = np.unique(scene.tri_instance[scene.tri_instance >= 0])
     chosen = instances[rng.random(len(instances)) < fraction]
-    hit = np.isin(scene.tri_instance, chosen)
+    hit = np.flatnonzero(np.isin(scene.tri_instance, chosen))
     albedo, texture = scene.tri_albedo.copy(), scene.tri_texture.copy()
-    if hit.any():
-        parts = np.column_stack([scene.tri_instance[hit], scene.tri_albedo[hit].astype(np.int32)])
+    if len(hit):
+        part_albedo = _nearest_source_albedo(scene, source, hit) if baked else scene.tri_albedo[hit]
+        parts = np.column_stack([scene.tri_instance[hit], part_albedo.astype(np.int32)])
         _, part_of = np.unique(parts, axis=0, return_inverse=True)
-        n = int(part_of.max()) + 1
-        hsv = np.column_stack([rng.random(n), rng.uniform(0.0, 0.8, n), rng.uniform(0.15, 0.95, n)])
-        colours = np.array([colorsys.hsv_to_rgb(*c) for c in hsv]) * 255.0
-        patterns = rng.integers(0, len(Texture), n)
-        albedo[hit] = np.round(colours[part_of.ravel()]).astype(np.uint8)
-        texture[hit] = patterns[part_of.ravel()]
+        part_of = part_of.ravel()
+        colours, patterns = _new_looks(int(part_of.max()) + 1, rng)
+        if baked:   # the triangle's own shading times its part's new colour; the baked pattern stays
+            shading = (scene.tri_albedo[hit] @ LUMA) / np.maximum(part_albedo @ LUMA, MIN_LUMA)
+            new = colours[part_of] * np.clip(shading, 0.0, MAX_SHADING)[:, None]
+            albedo[hit] = np.round(np.clip(new, 0.0, 255.0)).astype(albedo.dtype)
+        else:
+            albedo[hit] = np.round(colours[part_of]).astype(albedo.dtype)
+            texture[hit] = patterns[part_of]
     material = None
     if scene.tri_material is not None:
         material = scene.tri_material.copy()

@@ -22,8 +22,10 @@ Validation and evaluation frames follow ``env.dataset.style`` alone (score each 
 ``env.dataset.style=clean`` / ``scanned``).
 
 Recolouring: a share ``recolour_fraction`` of a house's instances is recoloured and repatterned
-in its *training* frames (``eval.segmenter.appearance``), clean and scanned alike, from its own
-random stream (the poses are those of a run without it).
+in its *training* frames (``eval.segmenter.appearance``), clean and scanned alike (a scan by the
+parts of the clean house it was made from), from its own random stream (the poses are those of a
+run without it). ``data.eval_appearance: recolour`` recolours every instance of the evaluation
+houses the same way.
 
 Frames are rendered without sensor noise (sensor noise and photometric changes are training-time
 augmentation, drawn afresh every epoch) and cached at
@@ -46,13 +48,15 @@ from calnav.common.atomic import atomic_path
 from calnav.envs.config import EnvConfig, plain_dict, require_single_storey
 from calnav.envs.semantics import STRUCTURE_CLASSES as STRUCTURE_NAMES
 from calnav.eval.sections import SegDataConfig
-from calnav.eval.segmenter.appearance import recolour_scene
+from calnav.eval.segmenter.appearance import is_baked, recolour_scene
 
 DATA_VERSION = 1                # bump when rendering changes, so stale caches are not reused
 EVAL_SEED_OFFSET = 1000         # eval poses use data.seed + this (never the training poses)
 VAL_SEED_OFFSET = 500           # per-epoch validation poses likewise
 PITCH_CLIP_SIGMA = 2.0          # pitch jitter is clipped at this many standard deviations
 MAX_BLOCKED_RETRIES = 12        # a walk whose moves keep failing just records turning frames
+RECOLOUR_SCANS_VERSION = 2      # in the cache key of recoloured sets with scans (1 recoloured a scan's
+                                # baked colours one triangle at a time)
 
 
 def segmenter_configs(args) -> list:
@@ -104,9 +108,11 @@ def walk_poses(navgrid, env_cfg: EnvConfig, data_cfg: SegDataConfig, rng: np.ran
 
 
 def render_frames(env_cfg: EnvConfig, data_cfg: SegDataConfig, split: str, frames: int, seed: int,
-                  with_instance: bool = False, progress: bool = True, rebalance: bool = False) -> SegData:
+                  with_instance: bool = False, progress: bool = True, rebalance: bool = False,
+                  recolour_all: bool = False) -> SegData:
     """Render ``frames`` frames from ``split``'s houses (see the module docstring);
-    ``rebalance``: drop most object-sparse frames (training sets)."""
+    ``rebalance``: drop most object-sparse frames (training sets); ``recolour_all``: every
+    instance recoloured (``data.eval_appearance: recolour``; an un-rebalanced set only)."""
     from tqdm import tqdm
 
     from calnav.envs.navigation import NavGrid
@@ -128,7 +134,10 @@ def render_frames(env_cfg: EnvConfig, data_cfg: SegDataConfig, split: str, frame
            "scene": np.empty(frames, np.int16)}
     if with_instance:
         out["instance"] = np.empty((frames, h, w), np.int32)
+    if recolour_all and rebalance:
+        raise ValueError("recolour_all is an evaluation shift; training sets use data.recolour_fraction")
     fraction = data_cfg.scanned_fraction if rebalance and env_cfg.dataset.style == "clean" else 0.0
+    recolour = data_cfg.recolour_fraction if rebalance else float(recolour_all)
     i = 0
     for s, (scene_id, count) in enumerate(tqdm(list(zip(ids, counts)), desc=f"render {split} frames",
                                                unit="scene", disable=not progress)):
@@ -140,9 +149,10 @@ def render_frames(env_cfg: EnvConfig, data_cfg: SegDataConfig, split: str, frame
             if wanted == 0:
                 continue
             scene = load_scene(scene_id, env_cfg.dataset, style=style)
-            if rebalance and data_cfg.recolour_fraction > 0:   # its own stream: the poses do not move
-                scene = recolour_scene(scene, data_cfg.recolour_fraction,
-                                       np.random.default_rng([seed, s, 2, int(style is None)]))
+            if recolour > 0:   # its own stream: the poses do not move
+                source = load_scene(scene_id, env_cfg.dataset, style="clean") if is_baked(scene) else None
+                scene = recolour_scene(scene, recolour, np.random.default_rng([seed, s, 2, int(style is None)]),
+                                       source=source)
             renderer = Renderer(scene, camera, min_depth_m=env_cfg.min_depth_m, max_depth_m=env_cfg.max_depth_m)
             grid = NavGrid.build(scene, env_cfg, raycasting_scene=renderer.raycasting_scene)
             structure = np.array([n in STRUCTURE_NAMES for n in scene.class_names] + [True])  # last: void
@@ -166,7 +176,7 @@ def render_frames(env_cfg: EnvConfig, data_cfg: SegDataConfig, split: str, frame
 
 
 def cache_path(env_cfg: EnvConfig, data_cfg: SegDataConfig, split: str, frames: int, seed: int,
-               with_instance: bool, rebalance: bool = False) -> Path:
+               with_instance: bool, rebalance: bool = False, recolour_all: bool = False) -> Path:
     from calnav.envs.scene import cache_dir
 
     env_part = {k: getattr(env_cfg, k) for k in ("hfov_deg", "camera_height_m", "min_depth_m", "max_depth_m",
@@ -179,7 +189,11 @@ def cache_path(env_cfg: EnvConfig, data_cfg: SegDataConfig, split: str, frames: 
     for key in ("scanned_fraction", "recolour_fraction"):
         if not data_part.get(key):
             data_part.pop(key)   # keys (and caches) of sets without scans / recolouring are unchanged
-    data_part.pop("eval_appearance")   # applied to the frames after loading (eval.segmenter.evaluate)
+    data_part.pop("eval_appearance")   # the camera shift is applied after loading (eval.segmenter.evaluate)
+    if data_part.get("recolour_fraction"):
+        data_part["recolour_scans"] = RECOLOUR_SCANS_VERSION   # scans recoloured by part and shading
+    if recolour_all:
+        data_part["recolour_all"] = RECOLOUR_SCANS_VERSION
     blob = json.dumps({"v": DATA_VERSION, "split": split, "frames": frames, "seed": seed, "inst": with_instance,
                        "rebalance": rebalance, "data": data_part,
                        "env": env_part, "dataset": plain_dict(env_cfg.dataset)}, sort_keys=True, default=list)
@@ -189,19 +203,19 @@ def cache_path(env_cfg: EnvConfig, data_cfg: SegDataConfig, split: str, frames: 
 
 def load_or_render(env_cfg: EnvConfig, data_cfg: SegDataConfig, split: str, frames: int | None = None,
                    seed: int | None = None, with_instance: bool = False, progress: bool = True,
-                   rebalance: bool = False) -> SegData:
+                   rebalance: bool = False, recolour_all: bool = False) -> SegData:
     """Cached frames of ``split`` (rendered and saved on first use). frames / seed default to
-    ``data_cfg``'s; ``rebalance`` for training sets (see the module docstring)."""
+    ``data_cfg``'s; ``rebalance`` for training sets, ``recolour_all`` (see ``render_frames``)."""
     frames = int(data_cfg.frames if frames is None else frames)
     seed = int(data_cfg.seed if seed is None else seed)
-    path = cache_path(env_cfg, data_cfg, split, frames, seed, with_instance, rebalance)
+    path = cache_path(env_cfg, data_cfg, split, frames, seed, with_instance, rebalance, recolour_all)
     if path.exists():
         try:
             with np.load(path) as z:
                 return SegData(**{k: z[k] for k in z.files})
         except (OSError, ValueError, KeyError, EOFError):
             pass  # a corrupt cache entry: render again
-    data = render_frames(env_cfg, data_cfg, split, frames, seed, with_instance, progress, rebalance)
+    data = render_frames(env_cfg, data_cfg, split, frames, seed, with_instance, progress, rebalance, recolour_all)
     arrays = {k: v for k, v in asdict_shallow(data).items() if v is not None}
     try:
         with atomic_path(path) as tmp:

@@ -8,8 +8,9 @@ training ones), at ``data.resolution``. Every non-void pixel is a sample; probab
 softmax(logits). Metrics (``mapping.metrics``): accuracy, mIoU over all classes present in the
 labels and over the goal categories + structure classes present, ECE, TL-ECE, mECE, Brier,
 per-class IoU and per-class ECE, mean top-label confidence. ``data.eval_appearance: camera``
-scores the same frames through the fixed camera shift of ``eval.segmenter.appearance`` (the
-record then names it).
+scores the same frames through the fixed camera shift of ``eval.segmenter.appearance``;
+``recolour`` the same poses in the houses with every instance recoloured (the record names the
+shift).
 """
 from __future__ import annotations
 
@@ -21,6 +22,7 @@ import numpy as np
 from calnav.common.atomic import undefined_as_null, write_json_atomic
 from calnav.eval.results_dir import check_output_file, writing
 from calnav.eval.config import Config
+from calnav.eval.inputs import sha256_file
 from calnav.eval.segmenter.appearance import camera_shift
 from calnav.eval.segmenter.data import EVAL_SEED_OFFSET, load_or_render
 from calnav.mapping.metrics import CalibrationStats
@@ -48,7 +50,8 @@ def evaluate(cfg: Config, model: str, split: str = "test", frames: int = 500,
     if tuple(seg.class_names) != tuple(CLASS_NAMES):
         raise ValueError(f"{model} predicts classes {seg.class_names}, the simulator has {CLASS_NAMES}")
     data = load_or_render(cfg.env, cfg.data, split, frames=frames, seed=cfg.data.seed + EVAL_SEED_OFFSET,
-                          with_instance=seg.needs_semantic, progress=progress)
+                          with_instance=seg.needs_semantic, progress=progress,
+                          recolour_all=cfg.data.eval_appearance == "recolour")
     if cfg.data.eval_appearance == "camera":   # after the cache: the rendered frames are shared with plain runs
         data.rgb = camera_shift(data.rgb, cfg.data.seed + EVAL_SEED_OFFSET + CAMERA_SEED_OFFSET)
     k = len(CLASS_NAMES)
@@ -83,7 +86,15 @@ def evaluate(cfg: Config, model: str, split: str = "test", frames: int = 500,
         "per_class_ece": {CLASS_NAMES[i]: (float(cece[i]) if np.isfinite(cece[i]) else None) for i in range(k)},
         "pose_seed": cfg.data.seed + EVAL_SEED_OFFSET, "segment_ms_per_frame": 1e3 * seconds / len(data),
         "weights": str(getattr(seg, "weights_path", "")),
+        "weights_sha256": _weights_sha256(seg),
     }
+
+
+def _weights_sha256(seg) -> str | None:
+    """sha256 of the weights file a record scores (None for segmenters without one), so a
+    record names the weights it scores, not just their path (a path can be overwritten)."""
+    path = getattr(seg, "weights_path", None)
+    return sha256_file(Path(path)) if path and Path(path).is_file() else None
 
 
 def format_report(m: dict) -> str:

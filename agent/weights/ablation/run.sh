@@ -1,15 +1,21 @@
 #!/usr/bin/env bash
-# The appearance-lever ablation of learned_rgb (agent/weights/README.md): one small training per
-# row on the same frames, each scored on clean, scanned and camera-shifted scanned test frames.
-# FRAMES training frames (default 4000); weights go to $WEIGHTS (not shipped), the eval records
-# and training cards to agent/weights/ablation/f$FRAMES/.
+# The appearance-lever ablation of learned_rgb, or MODEL=learned_rgbd (agent/weights/README.md): one small training per
+# row on the same frames, each scored on clean, scanned, camera-shifted scanned and recoloured
+# scanned test frames. FRAMES training frames (default 4000); weights go to $WEIGHTS (not shipped),
+# the eval records and training cards to agent/weights/ablation/f$FRAMES/. ROWS_ONLY / SETS_ONLY
+# pick rows / sets; TRAIN=0 scores a row's existing weights without training it again.
+# FRAMES=shipped scores the shipped learned_rgb and learned_rgbd weights on the same sets
+# (agent/weights/ablation/shipped/, rows named by the model). MODEL=learned_rgbd writes to
+# agent/weights/ablation/rgbd_f$FRAMES/.
 set -euo pipefail
 cd "$(dirname "$0")/../../.."
 FRAMES=${FRAMES:-4000}
-HERE=agent/weights/ablation/f$FRAMES
+MODEL=${MODEL:-learned_rgb}
+case "$MODEL" in learned_rgb) RUN=f$FRAMES ;; learned_rgbd) RUN=rgbd_f$FRAMES ;;
+  *) echo "MODEL must be learned_rgb or learned_rgbd, got $MODEL" >&2; exit 2 ;; esac
+HERE=agent/weights/ablation/$RUN
 WEIGHTS=${WEIGHTS:-/tmp/calnav_ablation}
 PY=${PY:-python}
-mkdir -p "$WEIGHTS/f$FRAMES" "$HERE"
 DATA="data.frames=$FRAMES data.scenes=30 train.epochs=4 train.val_frames=0 train.threads=1"
 PHOTO="train.exposure_ev=1 train.white_balance=0.3 train.tint=0.15 train.gamma=0.5 train.vignette=0.4 \
 train.motion_blur_prob=0.2 train.shot_noise=12"
@@ -17,14 +23,22 @@ JPEG="train.jpeg_prob=0.5"
 RECOL="data.recolour_fraction=0.5"
 declare -A ROWS=([baseline]="" [photometric]="$PHOTO" [jpeg]="$JPEG" [recolour]="$RECOL" [all]="$PHOTO $JPEG $RECOL")
 declare -A EVALS=([clean]="env.dataset.style=clean" [scanned]="env.dataset.style=scanned"
-                  [camera]="env.dataset.style=scanned data.eval_appearance=camera")
-for row in ${ROWS_ONLY:-baseline photometric jpeg recolour all}; do
-  # shellcheck disable=SC2086
-  $PY -m calnav.eval.cli train-segmenter --segmenter learned_rgb --output "$WEIGHTS/f$FRAMES/$row.pt" $DATA ${ROWS[$row]}
-  cp "$WEIGHTS/f$FRAMES/$row.json" "$HERE/$row.card.json"
-  for ev in clean scanned camera; do
+                  [camera]="env.dataset.style=scanned data.eval_appearance=camera"
+                  [recoloured]="env.dataset.style=scanned data.eval_appearance=recolour")
+DEFAULT_ROWS="baseline photometric jpeg recolour all"
+[ "$FRAMES" = shipped ] && DEFAULT_ROWS="learned_rgb learned_rgbd" && HERE=agent/weights/ablation/shipped
+mkdir -p "$WEIGHTS/$RUN" "$HERE"
+for row in ${ROWS_ONLY:-$DEFAULT_ROWS}; do
+  model=$MODEL weights="segmenter.weights=$WEIGHTS/$RUN/$row.pt"
+  [ "$FRAMES" = shipped ] && model=$row weights=""   # the shipped weights are the segmenter's default
+  if [ "${TRAIN:-1}" != 0 ] && [ "$FRAMES" != shipped ]; then
     # shellcheck disable=SC2086
-    $PY -m calnav.eval.cli eval-segmenter --segmenter learned_rgb --split test --frames 500 \
-      --output "$HERE/${row}_$ev.json" segmenter.weights="$WEIGHTS/f$FRAMES/$row.pt" data.scenes=12 ${EVALS[$ev]}
+    $PY -m calnav.eval.cli train-segmenter --segmenter "$MODEL" --output "$WEIGHTS/$RUN/$row.pt" $DATA ${ROWS[$row]}
+    cp "$WEIGHTS/$RUN/$row.json" "$HERE/$row.card.json"
+  fi
+  for ev in ${SETS_ONLY:-clean scanned camera recoloured}; do
+    # shellcheck disable=SC2086
+    $PY -m calnav.eval.cli eval-segmenter --segmenter "$model" --split test --frames 500 \
+      --output "$HERE/${row}_$ev.json" $weights data.scenes=12 ${EVALS[$ev]}
   done
 done

@@ -89,7 +89,7 @@ def test_data_keys_are_refused():
     for bad in (-0.1, 1.5, float("nan")):
         with pytest.raises(ValueError, match=r"^data\.recolour_fraction must be in \[0, 1\]"):
             SegDataConfig(recolour_fraction=bad)
-    with pytest.raises(ValueError, match="^unknown data.eval_appearance 'phone'; valid choices: none, camera$"):
+    with pytest.raises(ValueError, match="^unknown data.eval_appearance 'phone'; valid choices: none, camera, recolour$"):
         SegDataConfig(eval_appearance="phone")
 
 
@@ -107,6 +107,7 @@ def test_default_cache_keys_are_unchanged():
     assert cache_path(cfg.env, recol, "train", 20000, 0, False, True) != train
     assert cache_path(cfg.env, recol, "test", 500, 1000, False, False) == test
     assert cache_path(cfg.env, camera, "test", 500, 1000, False, False) == test
+    assert cache_path(cfg.env, cfg.data, "test", 500, 1000, False, False, recolour_all=True) != test
 
 
 def test_recolour_scene_redraws_the_chosen_instances_only():
@@ -128,6 +129,71 @@ def test_recolour_scene_redraws_the_chosen_instances_only():
     assert 0.2 * n < len(changed) < 0.8 * n
 
 
+def _quad_scene(name: str, albedo: np.ndarray, subdivide: int, meta: dict) -> "Scene":
+    """Two unit squares side by side in z = 0 (instance 0: x in [0, 1], instance 1: x in [1, 2]),
+    each cut into ``subdivide`` x ``subdivide`` cells of two triangles; ``albedo(x)`` colours a
+    triangle by its centroid's x."""
+    from calnav.envs.scene import Scene
+    from calnav.envs.semantics import CLASS_NAMES
+
+    n = 2 * subdivide
+    xs, ys = np.meshgrid(np.linspace(0, 2, n + 1), np.linspace(0, 1, subdivide + 1))
+    v = np.column_stack([xs.ravel(), ys.ravel(), np.zeros(xs.size)])
+    idx = lambda i, j: j * (n + 1) + i  # noqa: E731
+    t = np.array([tri for j in range(subdivide) for i in range(n)
+                  for tri in ((idx(i, j), idx(i + 1, j), idx(i + 1, j + 1)), (idx(i, j), idx(i + 1, j + 1), idx(i, j + 1)))])
+    cx = v[t].mean(axis=1)[:, 0]
+    return Scene(name=name, vertices=v, triangles=t, tri_class=np.full(len(t), CLASS_NAMES.index("chair")),
+                 tri_instance=(cx > 1).astype(np.int32), tri_albedo=albedo(cx), tri_texture=np.zeros(len(t)), meta=meta)
+
+
+def test_recolouring_a_scan_goes_by_the_clean_parts_and_keeps_its_shading():
+    """A baked scan's triangles each have their own colour; recolouring gives every part of the
+    clean house (instance and albedo) one new colour, times each triangle's own shading."""
+    from calnav.eval.segmenter.appearance import LUMA, MIN_LUMA, recolour_scene
+
+    part_colour = lambda cx: np.where((cx % 1 < 0.5)[:, None], [200, 60, 60], [60, 60, 200])  # noqa: E731
+    clean = _quad_scene("clean", part_colour, 2, {})
+    shading = np.random.default_rng(0).uniform(0.4, 1.0, 2 * 8 * 8 * 2)
+    scan = _quad_scene("scan", lambda cx: np.round(part_colour(cx) * shading[:, None]), 8, {"lighting": "baked"})
+    assert len(np.unique(scan.tri_albedo, axis=0)) > 50   # one colour per triangle, as a TSDF bakes them
+    with pytest.raises(ValueError, match="needs the clean house it was scanned from"):
+        recolour_scene(scan, 1.0, np.random.default_rng(0))
+    with pytest.raises(ValueError, match="scans loaded from scene files have none"):
+        recolour_scene(scan, 1.0, np.random.default_rng(0), source=scan)
+    out = recolour_scene(scan, 1.0, np.random.default_rng(0), source=clean)
+    assert np.array_equal(out.tri_texture, scan.tri_texture)   # the baked pattern stays
+    cx = scan.vertices[scan.triangles].mean(axis=1)[:, 0]
+    part = (cx > 1) * 2 + (cx % 1 >= 0.5)
+    own = (scan.tri_albedo @ LUMA) / np.maximum(part_colour(cx) @ LUMA, MIN_LUMA)   # each triangle's shading
+    base = out.tri_albedo / own[:, None]   # the part's new colour, up to rounding
+    for p in range(4):
+        spread = base[part == p].max(axis=0) - base[part == p].min(axis=0)
+        assert spread.max() < 1.0 / own[part == p].min() + 1e-6, (p, spread)
+    means = np.array([base[part == p].mean(axis=0) for p in range(4)])
+    assert np.abs(means[:, None] - means[None]).max(axis=2)[~np.eye(4, dtype=bool)].min() > 5   # four new colours
+    assert not np.array_equal(out.tri_albedo, scan.tri_albedo) and out.tri_albedo.dtype == np.uint8
+    half = recolour_scene(scan, 0.5, np.random.default_rng(3), source=clean)   # by instance: all of it or none
+    for inst in (0, 1):
+        m = scan.tri_instance == inst
+        changed = (half.tri_albedo[m] != scan.tri_albedo[m]).any(axis=1)
+        assert changed.all() or not changed.any()
+
+
+def test_recoloured_evaluation_frames_are_their_own_set(small_env_config):
+    """``recolour_all`` renders the same poses of the same houses with new colours (the labels and
+    depth are those of the plain set), and refuses a training set."""
+    from calnav.eval.segmenter.data import render_frames
+
+    cfg = SegDataConfig(resolution=(32, 24), scenes=1, walk_steps=2)
+    plain = render_frames(small_env_config, cfg, "val", 4, 0, progress=False)
+    recol = render_frames(small_env_config, cfg, "val", 4, 0, progress=False, recolour_all=True)
+    assert np.array_equal(plain.labels, recol.labels) and np.array_equal(plain.depth, recol.depth)
+    assert np.abs(plain.rgb.astype(int) - recol.rgb).mean() > 10
+    with pytest.raises(ValueError, match="recolour_all is an evaluation shift"):
+        render_frames(small_env_config, cfg, "val", 4, 0, progress=False, rebalance=True, recolour_all=True)
+
+
 def test_camera_shift_is_fixed_and_changes_the_frames():
     from calnav.eval.segmenter.appearance import camera_shift
 
@@ -143,13 +209,26 @@ def test_ablation_table_renders_the_records(tmp_path):
 
     from calnav.eval.segmenter.ablation import ablation_table
 
-    for row, ev, miou in (("all", "camera", 0.4), ("baseline", "clean", 0.5), ("baseline", "camera", 0.2)):
+    for row, ev, miou in (("all", "camera", 0.4), ("baseline", "clean", 0.5), ("baseline", "camera", 0.2),
+                          ("baseline", "recoloured", 0.1)):
         (tmp_path / f"{row}_{ev}.json").write_text(json.dumps({"miou": miou, "miou_goal_structure": miou + 0.1,
                                                                "ece": 0.01}))
     (tmp_path / "baseline.card.json").write_text(json.dumps({"train_wall_s": 90.0}))
     lines = ablation_table(tmp_path).splitlines()
     assert lines[2:] == ["| baseline | clean | 0.500 | 0.600 | 0.010 | 1.5 min |",
                          "| baseline | scanned + camera shift | 0.200 | 0.300 | 0.010 | 1.5 min |",
+                         "| baseline | scanned, houses recoloured | 0.100 | 0.200 | 0.010 | 1.5 min |",
                          "| all | scanned + camera shift | 0.400 | 0.500 | 0.010 | - |"]
     with pytest.raises(ValueError, match="holds no"):
         ablation_table(tmp_path / "empty")
+
+
+@pytest.mark.parametrize("folder", ["shipped", "f8000", "f4000", "f2000"])
+def test_the_weights_readme_holds_the_rendered_ablation_tables(folder):
+    """agent/weights/README.md's ablation tables are the committed records rendered, not typed."""
+    from pathlib import Path
+
+    from calnav.eval.segmenter.ablation import ablation_table
+
+    root = Path(__file__).resolve().parents[3]
+    assert ablation_table(root / "agent/weights/ablation" / folder) in (root / "agent/weights/README.md").read_text()

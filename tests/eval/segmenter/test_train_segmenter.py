@@ -52,6 +52,18 @@ def test_trained_weights_load_into_the_segmenter(trained, cfg):
     assert seg.meta["train_frames"] == 16
 
 
+def test_an_eval_record_names_the_weights_it_scores(trained, cfg):
+    """The record carries the scored weights' sha256 (the card's), not only their path."""
+    import dataclasses
+
+    from calnav.eval.segmenter.evaluate import evaluate
+
+    out, card = trained
+    weighted = dataclasses.replace(cfg, segmenter=dataclasses.replace(cfg.segmenter, weights=str(out)))
+    m = evaluate(weighted, "learned_rgbd", "test", frames=2, progress=False)
+    assert m["weights"] == str(out) and m["weights_sha256"] == card["weights_sha256"]
+
+
 def test_resume_is_bit_identical(trained, cfg, tmp_path):
     from calnav.eval.segmenter.train import checkpoint_path, train
 
@@ -95,6 +107,7 @@ def test_eval_segmenter_cli_writes_metrics(tmp_path):
     assert m["miou"] == pytest.approx(1.0)
     for key in ("miou_goal_structure", "per_class_iou", "classes_in_miou", "brier", "tl_ece"):
         assert key in m
+    assert m["weights_sha256"] is None   # gt has no weights
 
 
 def test_train_rejects_unknown_model(cfg, tmp_path):
