@@ -36,16 +36,19 @@ $(HABITAT_STAMP): pyproject.toml
 demo: $(STAMP)
 	$(VENV)/bin/calnav demo
 
-# the main suite (its 10 slowest tests listed: it keeps to ~10 minutes on 2 cores), then the
-# habitat-lab interop tests (marker habitat) for real in .venv-habitat,
-# then the docs site (mkdocs.yml; strict: a broken link or anchor fails) into the ignored site/
+# the main suite, one pytest-xdist worker per core (TEST_WORKERS; 0 runs it in this process), a
+# test file per worker so module fixtures are built once; its 10 slowest tests listed: it keeps
+# well under 10 minutes on 2 cores. Then the habitat-lab interop tests (marker habitat) for real
+# in .venv-habitat, then the docs site (mkdocs.yml; strict: a broken link or anchor fails) into
+# the ignored site/
+TEST_WORKERS ?= auto
 test: $(STAMP) $(HABITAT_STAMP)
-	$(PY) -m pytest -q -ra --durations=10
+	$(PY) -m pytest -q -ra --durations=10 -n $(TEST_WORKERS) --dist loadfile
 	CALNAV_REQUIRE_HABITAT=1 $(HPY) -m pytest -q -ra -m habitat
 	$(VENV)/bin/mkdocs build --strict --quiet --site-dir site
 
 test-full: $(STAMP) $(HABITAT_STAMP)
-	CALNAV_FULL_TESTS=1 $(PY) -m pytest -q -ra
+	CALNAV_FULL_TESTS=1 $(PY) -m pytest -q -ra -n $(TEST_WORKERS) --dist loadfile
 	CALNAV_REQUIRE_HABITAT=1 CALNAV_FULL_TESTS=1 $(HPY) -m pytest -q -ra -m habitat
 
 # the documentation site (docs/, mkdocs.yml) into site/; `$(VENV)/bin/mkdocs serve` to browse it

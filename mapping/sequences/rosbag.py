@@ -362,6 +362,14 @@ class RosbagSequence(Sequence):
             msgs[(topic, ordinal)] = self._deserialize(raw, conn.msgtype)
         return self._frame(index, msgs)
 
+    def check_scale(self, depth_min_m: float, depth_max_m: float, voxel_size_m: float) -> None:
+        """As ``Sequence.check_scale``; its sampled reads open the random-access reader, which is
+        closed again (a command that maps many bags would otherwise hold one file per bag)."""
+        try:
+            super().check_scale(depth_min_m, depth_max_m, voxel_size_m)
+        finally:
+            self.close()
+
     def close(self) -> None:
         """Close the random-access reader (``read``), if open."""
         if self._reader is not None:

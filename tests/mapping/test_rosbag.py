@@ -225,3 +225,23 @@ def test_without_rosbags_the_layout_names_the_extra(seq_dir, monkeypatch):
     path = bag(seq_dir, "no_rosbags")
     monkeypatch.setitem(sys.modules, "rosbags.highlevel", None)   # as if the [ros] extra were not installed
     _raises(path, bag_config(), 'the rosbag layout needs rosbags: pip install -e ".[ros]"')
+
+
+def _open_files() -> set[str]:
+    import os
+
+    fds = "/proc/self/fd"
+    return {os.path.realpath(os.path.join(fds, fd)) for fd in os.listdir(fds)}
+
+
+def test_checking_a_bags_scale_leaves_no_file_open(seq_dir):
+    """The scale check samples frames through the random-access reader; a command that maps
+    many bags in one process must not keep one open file per bag afterwards."""
+    path = bag(seq_dir, "scale_check")
+    seq = Sequence(path, "rosbag", bag_config())
+    seq.check_scale(0.1, 10.0, 0.05)
+    assert not any(f.startswith(str(path.resolve())) for f in _open_files())
+    seq.read(seq.ids[-1])   # random access opens it again, and close() lets it go
+    assert any(f.startswith(str(path.resolve())) for f in _open_files())
+    seq.close()
+    assert not any(f.startswith(str(path.resolve())) for f in _open_files())
