@@ -16,7 +16,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any, ClassVar, Literal
 
-from calnav.agent.registry import DECISIONS, GOAL_SELECTORS, MAP_BUILDERS
+from calnav.agent.registry import DECISIONS, GOAL_CHOICES, GOAL_SELECTORS, MAP_BUILDERS
 from calnav.agent.segmenters import check_segmenter_spec
 from calnav.common.ranges import Range, check_ranges
 
@@ -68,6 +68,7 @@ AGENT_RANGES = {
     "evidence_min_views": Range(1, 1000, "views"),
     "evidence_confidence": Range(0.0, 1.0, "", lo_open=True, hi_open=True),
     "evidence_looks": Range(0, 10, "looks"),
+    "goal_choice_margin": Range(0.0, 1.0, ""),
 }
 
 SemanticPrior = Literal["none", "cooccurrence"]
@@ -144,18 +145,27 @@ class AgentConfig:
     evidence_confidence: float = 0.3    # evidence: ... that lower bound, a probability in (0, 1)
     evidence_looks: int = 1             # evidence: second looks from another bearing before a failing object is rejected, looks
     evidence_look_distance_m: float = 1.5  # evidence: a second look's distance from the object, metres
+    # --- which accepted component is the goal (agent.registry.GOAL_CHOICES) ----------------------
+    goal_choice: str = "largest"        # largest (PEANUT) | evidence (strongest evidence over views; needs decision: evidence)
+    goal_choice_margin: float = 0.1     # evidence: another component replaces the one pursued when its evidence
+                                        # lower bound is higher by this much, a probability in [0, 1]
 
     # Left out of saved configs while at these values (``envs.config.plain_dict``): configs saved
     # before the field existed stay equal
     OMIT_AT_DEFAULT: ClassVar[dict[str, Any]] = {"goal_categories": (), "decision": "threshold",
                                                   "evidence_min_views": 3, "evidence_z": 1.0, "evidence_confidence": 0.3, "evidence_looks": 1,
-                                                  "evidence_look_distance_m": 1.5}
+                                                  "evidence_look_distance_m": 1.5, "goal_choice": "largest",
+                                                  "goal_choice_margin": 0.1}
 
     def __post_init__(self) -> None:
         check_segmenter_spec(self.segmenter)   # a misspelt name fails here, importing nothing of it
         MAP_BUILDERS.check(self.map_type)      # names only: the builders load when an agent is built
         GOAL_SELECTORS.check(self.exploration)
         DECISIONS.check(self.decision)
+        GOAL_CHOICES.check(self.goal_choice)
+        if self.goal_choice == "evidence" and self.decision != "evidence":
+            raise ValueError(f"agent.goal_choice=evidence ranks components by the evidence decision's views: it needs "
+                             f"agent.decision=evidence, got agent.decision={self.decision}")
         check_ranges(self, "agent", AGENT_RANGES)
         if not self.turn_threshold_deg > 0:
             raise ValueError(f"agent.turn_threshold_deg must be > 0, got {self.turn_threshold_deg}")

@@ -24,6 +24,9 @@ STOP, and the decision that reads it (``agent.decision``, ``agent.registry.DECIS
   from the object), and when the test still fails after the last look the component is rejected
   for the rest of the episode (``GoalDetector.rejected``).
 
+The same evidence can choose the goal among the accepted components (``agent.goal_choice:
+evidence``, ``EvidenceChoice``): the strongest evidence rather than the largest area.
+
 ``GoalEvidence`` is the per-episode state (per map cell: views, per-view probability sums,
 bearings seen); the decisions are stateless but for their look counter. Masks are (n, n) bool map
 cells or (h, w) cells of the planning window ``win`` where a method says so.
@@ -123,6 +126,48 @@ class GoalEvidence:
         return Evidence(p, int(views.max()), mean, math.sqrt(var), bearings)
 
 
+def passes(ev: Evidence, cfg: AgentConfig) -> bool:
+    """The uncertainty test before STOP (module docstring)."""
+    return ev.n >= cfg.evidence_min_views and ev.lower_bound(cfg.evidence_z) >= cfg.evidence_confidence
+
+
+class EvidenceChoice:
+    """``agent.goal_choice: evidence``: among the components above the goal threshold, the goal
+    is the one whose evidence is strongest -- one that passes the STOP test before one that does
+    not, then the higher lower bound (``Evidence.lower_bound``; an object no view saw has none),
+    then the larger. The component pursued so far stays the goal unless another is better by a
+    tier or by ``goal_choice_margin`` in lower bound, so the agent does not turn back and forth
+    between two near-equal objects as their views come in. ``pursued`` (n, n) bool: the last
+    component chosen."""
+
+    def __init__(self, cfg: AgentConfig, map_cells: int):
+        self.cfg = cfg
+        self.pursued = np.zeros((map_cells, map_cells), bool)
+
+    def picker(self, confidence: np.ndarray, win: tuple[slice, slice], evidence: GoalEvidence | None):
+        """The pick over components (h, w) of window ``win``; ``confidence`` (h, w) the map's
+        goal confidence there, ``evidence`` the decision's views."""
+        if evidence is None:   # the config refuses goal_choice=evidence without decision=evidence
+            raise ValueError("agent.goal_choice=evidence needs the evidence decision's views (agent.decision=evidence)")
+        cfg = self.cfg
+
+        def pick(masks: list[np.ndarray], areas: list[int]) -> int:
+            evs = [evidence.of(m, confidence, win) for m in masks]
+            keys = [(passes(ev, cfg), ev.lower_bound(cfg.evidence_z)) for ev in evs]
+            best = max(range(len(masks)), key=lambda i: (keys[i], areas[i]))
+            overlap = [int((m & self.pursued[win]).sum()) for m in masks]
+            held = int(np.argmax(overlap)) if max(overlap) > 0 else None
+            if held is not None and held != best:
+                (pass_b, lb_b), (pass_h, lb_h) = keys[best], keys[held]
+                if pass_b == pass_h and not lb_b > lb_h + cfg.goal_choice_margin:
+                    best = held
+            self.pursued[:] = False
+            self.pursued[win] = masks[best]
+            return best
+
+        return pick
+
+
 class ThresholdDecision:
     """``agent.decision: threshold``: STOP on arrival at an accepted component (PEANUT)."""
 
@@ -169,8 +214,7 @@ class EvidenceDecision(ThresholdDecision):
 
     def passes(self, ev: Evidence) -> bool:
         """The uncertainty test (module docstring)."""
-        cfg = self.cfg
-        return ev.n >= cfg.evidence_min_views and ev.lower_bound(cfg.evidence_z) >= cfg.evidence_confidence
+        return passes(ev, self.cfg)
 
     def review(self, move: Approach, det: GoalDetection, state: MapState, goal_channel: int,
                win: tuple[slice, slice], agent_rc: tuple[int, int], free: np.ndarray) -> Approach:

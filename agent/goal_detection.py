@@ -1,7 +1,8 @@
 """The detect stage: which goal component the agent accepts, which it rejects, which it defers.
 
 - accept (``detect_goal``, PEANUT / SemExp style): threshold the goal class's confidence map
-  and keep the largest connected component if it is big enough;
+  and keep a connected component big enough: the largest (``agent.goal_choice: largest``) or
+  the one with the strongest evidence over views (``evidence``, ``agent.evidence``);
 - verify and reject (``agent.uncertainty_aware``): a candidate in the band
   [uncertain_low, goal_threshold) is approached and re-observed; still uncertain within
   ``verify_distance_m`` while facing it, it is rejected for the rest of the episode;
@@ -16,6 +17,7 @@ excluded. Masks are (n, n) bool map cells, or (h, w) cells of the planning windo
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import cv2
 import numpy as np
@@ -42,32 +44,61 @@ class GoalDetection:
 def largest_component(mask: np.ndarray, min_area: int) -> tuple[np.ndarray, int]:
     """The largest 8-connected component of a bool mask (n, n) with at least ``min_area``
     cells, and its area (an all-False mask and 0 when none)."""
-    out = np.zeros_like(mask, bool)
+    masks, areas = components(mask, min_area, most=1)
+    return (masks[0], areas[0]) if masks else (np.zeros_like(mask, bool), 0)
+
+
+def components(mask: np.ndarray, min_area: int, most: int | None = None) -> tuple[list[np.ndarray], list[int]]:
+    """The 8-connected components of a bool mask (n, n) with at least ``min_area`` cells (the
+    ``most`` largest, or all): their masks (n, n) bool and areas, largest first (ties in label
+    order)."""
     if not mask.any():
-        return out, 0
+        return [], []
     rows, cols = np.nonzero(mask)
     r0, r1, c0, c1 = rows.min(), rows.max() + 1, cols.min(), cols.max() + 1  # crop: cost ~ object size
     num, labels, stats, _ = cv2.connectedComponentsWithStats(mask[r0:r1, c0:c1].astype(np.uint8), connectivity=CONNECTIVITY)
-    if num <= 1:
-        return out, 0
     areas = stats[1:, cv2.CC_STAT_AREA]
-    best = int(np.argmax(areas))
-    if areas[best] < min_area:
-        return out, 0
-    out[r0:r1, c0:c1] = labels == best + 1
-    return out, int(areas[best])
+    masks, kept = [], []
+    for label in np.argsort(-areas, kind="stable")[:most]:
+        if areas[label] < min_area:
+            break
+        out = np.zeros_like(mask, bool)
+        out[r0:r1, c0:c1] = labels == label + 1
+        masks.append(out)
+        kept.append(int(areas[label]))
+    return masks, kept
 
 
-def detect_goal(confidence: np.ndarray, threshold: float, min_area: int, exclude: np.ndarray | None = None) -> GoalDetection:
+Pick = Callable[[list[np.ndarray], list[int]], int]   # (component masks, areas) -> the chosen one's index
+
+
+def detect_goal(confidence: np.ndarray, threshold: float, min_area: int, exclude: np.ndarray | None = None,
+                pick: Pick | None = None) -> GoalDetection:
     """confidence (n, n) float in [0, 1] of the goal class; cells >= ``threshold`` (and not in
-    the optional bool ``exclude`` mask) are candidates; found when the largest component has
-    >= ``min_area`` cells."""
+    the optional bool ``exclude`` mask) are candidates; found when a component has >=
+    ``min_area`` cells: the largest, or the one ``pick`` chooses among all of them."""
     cand = confidence >= threshold
     if exclude is not None:
         cand &= ~exclude
-    mask, area = largest_component(cand, min_area)
+    if pick is None:
+        mask, area = largest_component(cand, min_area)
+    else:
+        masks, areas = components(cand, min_area)
+        i = pick(masks, areas) if masks else -1
+        mask, area = (masks[i], areas[i]) if masks else (np.zeros_like(cand, bool), 0)
     peak = float(confidence[mask].max()) if area else 0.0
     return GoalDetection(area > 0, mask, area, peak)
+
+
+class LargestChoice:
+    """``agent.goal_choice: largest`` (PEANUT / SemExp): the largest accepted component."""
+
+    def __init__(self, cfg: AgentConfig, map_cells: int):
+        pass
+
+    def picker(self, confidence: np.ndarray, win: tuple[slice, slice], evidence) -> Pick | None:
+        """None: ``detect_goal``'s own rule, the largest."""
+        return None
 
 
 class Deferral:
@@ -117,20 +148,26 @@ class GoalDetector:
     (``defer_heading``, through ``deferral``)."""
 
     def __init__(self, cfg: AgentConfig, map_cells: int):
+        from calnav.agent.registry import GOAL_CHOICES
+
         self.cfg = cfg
         self.rejected = np.zeros((map_cells, map_cells), bool)   # goal candidates verified as wrong
         self.deferral = Deferral(cfg, map_cells)
+        self.choice = GOAL_CHOICES.get(cfg.goal_choice)(cfg, map_cells)   # which accepted component is the goal
 
-    def detect(self, confidence: np.ndarray, win: tuple[slice, slice]) -> tuple[GoalDetection, GoalDetection | None]:
+    def detect(self, confidence: np.ndarray, win: tuple[slice, slice],
+               evidence=None) -> tuple[GoalDetection, GoalDetection | None]:
         """(the accepted goal, a candidate to verify or None) in the window: confidence (h, w)
-        of the goal class in ``win``; rejected and deferred cells are excluded. A candidate is
-        looked for only when no goal is accepted and ``uncertainty_aware`` is on."""
+        of the goal class in ``win``; rejected and deferred cells are excluded; ``evidence``
+        the decision's views (``agent.evidence.GoalEvidence``, or None) for the goal choice. A
+        candidate is looked for only when no goal is accepted and ``uncertainty_aware`` is on."""
         cfg = self.cfg
         exclude = self.rejected[win]
         hidden = self.deferral.hidden()
         if hidden is not None:
             exclude = exclude | hidden[win]
-        det = detect_goal(confidence, cfg.goal_threshold, cfg.goal_min_area_cells, exclude=exclude)
+        det = detect_goal(confidence, cfg.goal_threshold, cfg.goal_min_area_cells, exclude=exclude,
+                          pick=self.choice.picker(confidence, win, evidence))
         if det.found or not cfg.uncertainty_aware:
             return det, None
         cand = detect_goal(confidence, cfg.uncertain_low, cfg.goal_min_area_cells, exclude=exclude)

@@ -5,6 +5,7 @@
 | ``MAP_BUILDERS`` | ``agent.map_type`` | ``fused``, ``ndf`` (``agent.semantic_map``) |
 | ``GOAL_SELECTORS`` | ``agent.exploration`` | ``frontier``, ``prediction`` (``agent.goal_selection``) |
 | ``DECISIONS`` | ``agent.decision`` | ``threshold``, ``evidence`` (``agent.evidence``) |
+| ``GOAL_CHOICES`` | ``agent.goal_choice`` | ``largest`` (``agent.goal_detection``), ``evidence`` (``agent.evidence``) |
 | ``AGENTS`` | ``run.agent`` | ``peanut`` (``agent.policy``), ``oracle`` (``agent.oracle``) |
 
 Every part is a lazy ``"module:attribute"`` reference, so this module imports nothing heavy:
@@ -40,6 +41,14 @@ DECISIONS.add("threshold", "calnav.agent.evidence:ThresholdDecision",
               "STOP on arrival at a component above agent.goal_threshold (PEANUT)")
 DECISIONS.add("evidence", "calnav.agent.evidence:EvidenceDecision",
               "an uncertainty test on the object's evidence over views before STOP; a second look, then reject")
+
+# A goal choice among the components above the goal threshold: ``cls(agent_cfg, n)`` per episode map
+# with ``picker(confidence, win, evidence)`` -> None (the largest) or ``pick(masks, areas) -> index``.
+GOAL_CHOICES: Registry[type] = Registry("goal choice", key="agent.goal_choice")
+GOAL_CHOICES.add("largest", "calnav.agent.goal_detection:LargestChoice",
+                 "the largest component above agent.goal_threshold (PEANUT)")
+GOAL_CHOICES.add("evidence", "calnav.agent.evidence:EvidenceChoice",
+                 "the component whose evidence over views is strongest (needs agent.decision=evidence)")
 
 # An agent class: ``cls.from_setup(setup)`` (``setup``: an ``agent.setup.AgentSetup``), or
 # ``cls.from_setup(setup, simulator=...)`` for a class declaring ``privileged = (SIMULATOR,)``.

@@ -171,3 +171,103 @@ def test_the_decision_is_a_config_key_with_declared_ranges():
     saved = plain_dict(AgentConfig())
     assert not any(k.startswith("evidence") or k == "decision" for k in saved)
     assert plain_dict(AgentConfig(decision="evidence"))["decision"] == "evidence"
+
+
+def _two_objects(cfg: AgentConfig):
+    """A big component A (5x5 cells) no view saw at object heights and a small one B (3x3) with
+    4 views of goal probability 0.8 at every cell; their confidence map (0.9 on both)."""
+    conf = np.zeros((N, N))
+    a = np.zeros((N, N), bool)
+    a[5:10, 5:10] = True
+    b = np.zeros((N, N), bool)
+    b[25:28, 25:28] = True
+    conf[a | b] = 0.9
+    ev = GoalEvidence.empty(N)
+    ev.views[b], ev.q_sum[b], ev.q_sq[b] = 4, 4 * 0.8, 4 * 0.8 ** 2
+    return conf, a, b, ev
+
+
+def test_the_evidence_goal_choice_takes_the_object_the_views_support_not_the_largest():
+    """Two components above the threshold: PEANUT's rule takes the larger, one seen only on the
+    floor (no views: no lower bound); agent.goal_choice=evidence takes the smaller one whose 4
+    views say 0.8 (it passes the STOP test: lower bound 0.8 - 1 * 0 / 2 >= 0.3)."""
+    from calnav.agent.goal_detection import GoalDetector
+
+    cfg = _cfg(goal_threshold=0.5, goal_min_area_cells=4)
+    conf, a, b, ev = _two_objects(cfg)
+    largest, _ = GoalDetector(dataclasses_replace(cfg, goal_choice="largest"), N).detect(conf, WIN, ev)
+    by_evidence, _ = GoalDetector(dataclasses_replace(cfg, goal_choice="evidence"), N).detect(conf, WIN, ev)
+    assert largest.found and (largest.mask == a).all() and largest.area == 25
+    assert by_evidence.found and (by_evidence.mask == b).all() and by_evidence.area == 9
+    # without views on either, the evidence choice falls back to the larger
+    det, _ = GoalDetector(dataclasses_replace(cfg, goal_choice="evidence"), N).detect(conf, WIN, GoalEvidence.empty(N))
+    assert (det.mask == a).all()
+
+
+def test_the_evidence_goal_choice_keeps_the_pursued_object_within_the_margin():
+    """Both components seen, neither passing the STOP test (2 views < 3): the goal pursued stays
+    the goal while the other's lower bound is within goal_choice_margin (0.1) above it, and
+    changes when it is more than that above, or when the other passes the test (a tier up)."""
+    from calnav.agent.evidence import EvidenceChoice
+
+    cfg = _cfg(goal_threshold=0.5, goal_min_area_cells=4, goal_choice="evidence", goal_choice_margin=0.1)
+    conf, a, b, ev = _two_objects(cfg)
+
+    def seen(mask, views, q):
+        ev.views[mask], ev.q_sum[mask], ev.q_sq[mask] = views, views * q, views * q * q
+
+    choice = EvidenceChoice(cfg, N)
+    seen(a, 2, 0.6), seen(b, 2, 0.5)
+    masks, areas = [a, b], [25, 9]
+    assert choice.picker(conf, WIN, ev)(masks, areas) == 0 and (choice.pursued == a).all()
+    seen(b, 2, 0.68)                                      # 0.68 - 0.6 = 0.08 <= 0.1: keep A
+    assert choice.picker(conf, WIN, ev)(masks, areas) == 0
+    seen(b, 2, 0.75)                                      # 0.15 above: B
+    assert choice.picker(conf, WIN, ev)(masks, areas) == 1 and (choice.pursued == b).all()
+    seen(a, 2, 0.8)                                       # A 0.05 above B, within the margin: B stays
+    assert choice.picker(conf, WIN, ev)(masks, areas) == 1
+    seen(a, 3, 0.62)                                      # A passes the test (3 views), B does not: A
+    assert choice.picker(conf, WIN, ev)(masks, areas) == 0
+    with pytest.raises(ValueError, match="needs the evidence decision's views"):
+        choice.picker(conf, WIN, None)
+
+
+def test_components_are_listed_largest_first_above_the_minimum_area():
+    from calnav.agent.goal_detection import components, largest_component
+
+    m = np.zeros((8, 8), bool)
+    m[0, 0:3] = True            # 3 cells
+    m[4:6, 4:7] = True          # 6 cells
+    m[7, 0] = True              # 1 cell
+    m[0, 6], m[1, 7] = True, True   # 2 cells touching at a corner: one component (8-connected)
+    masks, areas = components(m, 2)
+    assert areas == [6, 3, 2] and masks[0].sum() == 6 and masks[2][0, 6] and masks[2][1, 7]
+    assert not any(mk[7, 0] for mk in masks)
+    assert components(m, 2, most=1)[1] == [6] and components(m, 7) == ([], [])
+    mask, area = largest_component(m, 2)
+    assert area == 6 and (mask == masks[0]).all()
+    assert largest_component(m, 7)[1] == 0 and not largest_component(m, 7)[0].any()
+
+
+def test_the_goal_choice_is_a_config_key_that_needs_the_evidence_decision():
+    from calnav.envs.config import plain_dict
+    from calnav.eval.config import ConfigError, load_config
+
+    cfg = load_config(None, ["agent.decision=evidence", "agent.goal_choice=evidence"]).agent
+    assert cfg.goal_choice == "evidence" and plain_dict(cfg)["goal_choice"] == "evidence"
+    with pytest.raises(ConfigError, match="unknown goal choice 'evidense' for agent.goal_choice; valid choices: "
+                                          "largest, evidence"):
+        load_config(None, ["agent.decision=evidence", "agent.goal_choice=evidense"])
+    with pytest.raises(ConfigError, match="agent.goal_choice=evidence .* needs agent.decision=evidence, got "
+                                          "agent.decision=threshold"):
+        load_config(None, ["agent.goal_choice=evidence"])
+    with pytest.raises(ConfigError, match="agent.goal_choice_margin must be in"):
+        load_config(None, ["agent.goal_choice_margin=1.5"])
+    saved = plain_dict(AgentConfig())   # at their defaults the keys stay out of saved configs
+    assert "goal_choice" not in saved and "goal_choice_margin" not in saved
+
+
+def dataclasses_replace(cfg, **kw):
+    import dataclasses
+
+    return dataclasses.replace(cfg, **kw)

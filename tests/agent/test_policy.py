@@ -268,16 +268,17 @@ def test_a_periodic_rechoice_never_returns_to_the_predicted_goal_just_left(monke
     assert choose(state, win, here, free, current=a) == b and choose(state, win, here, free, current=b) == a   # off: flips
 
 
-def test_the_evidence_decision_tests_the_goal_before_it_stops(small_setup):
+@pytest.mark.parametrize("goal_choice", ["largest", "evidence"])
+def test_the_evidence_decision_tests_the_goal_before_it_stops(small_setup, goal_choice):
     """agent.decision=evidence in the whole agent: the STOP at the goal came after the
     uncertainty test read the goal's views (gt: per-view probability 0.9), and the episode
-    succeeds as with the threshold decision."""
+    succeeds as with the threshold decision; with the goal chosen by its evidence too."""
     import dataclasses
 
     from calnav.agent.policy import PeanutAgent
 
     cfg, env = small_setup
-    cfg = dataclasses.replace(cfg, agent=dataclasses.replace(cfg.agent, decision="evidence"))
+    cfg = dataclasses.replace(cfg, agent=dataclasses.replace(cfg.agent, decision="evidence", goal_choice=goal_choice))
     episodes = env.unwrapped.episodes
     index = int(np.argmin([ep.geodesic_distance for ep in episodes]))
     agent = PeanutAgent(agent_setup(cfg))
