@@ -137,30 +137,39 @@ class EvidenceChoice:
     not, then the higher lower bound (``Evidence.lower_bound``; an object no view saw has none),
     then the larger. The component pursued so far stays the goal unless another is better by a
     tier or by ``goal_choice_margin`` in lower bound, so the agent does not turn back and forth
-    between two near-equal objects as their views come in. ``pursued`` (n, n) bool: the last
-    component chosen."""
+    between two near-equal objects as their views come in; it stays the goal while a second
+    look at it is under way (the look is for it), and a new goal starts with no looks taken.
+    A lower bound is not a probability (it may be negative, or minus infinity for an object no
+    view saw), so any seen component replaces a held one no view saw. ``pursued`` (n, n) bool:
+    the last component chosen."""
 
     def __init__(self, cfg: AgentConfig, map_cells: int):
         self.cfg = cfg
         self.pursued = np.zeros((map_cells, map_cells), bool)
 
-    def picker(self, confidence: np.ndarray, win: tuple[slice, slice], evidence: GoalEvidence | None):
+    def picker(self, confidence: np.ndarray, win: tuple[slice, slice], decision):
         """The pick over components (h, w) of window ``win``; ``confidence`` (h, w) the map's
-        goal confidence there, ``evidence`` the decision's views."""
+        goal confidence there, ``decision`` the ``EvidenceDecision`` whose views it reads."""
+        evidence = getattr(decision, "evidence", None)
         if evidence is None:   # the config refuses goal_choice=evidence without decision=evidence
             raise ValueError("agent.goal_choice=evidence needs the evidence decision's views (agent.decision=evidence)")
         cfg = self.cfg
 
         def pick(masks: list[np.ndarray], areas: list[int]) -> int:
-            evs = [evidence.of(m, confidence, win) for m in masks]
-            keys = [(passes(ev, cfg), ev.lower_bound(cfg.evidence_z)) for ev in evs]
-            best = max(range(len(masks)), key=lambda i: (keys[i], areas[i]))
             overlap = [int((m & self.pursued[win]).sum()) for m in masks]
             held = int(np.argmax(overlap)) if max(overlap) > 0 else None
-            if held is not None and held != best:
-                (pass_b, lb_b), (pass_h, lb_h) = keys[best], keys[held]
-                if pass_b == pass_h and not lb_b > lb_h + cfg.goal_choice_margin:
-                    best = held
+            if held is not None and decision.looking:
+                best = held
+            else:
+                evs = [evidence.of(m, confidence, win) for m in masks]
+                keys = [(passes(ev, cfg), ev.lower_bound(cfg.evidence_z)) for ev in evs]
+                best = max(range(len(masks)), key=lambda i: (keys[i], areas[i]))
+                if held is not None and held != best:
+                    (pass_b, lb_b), (pass_h, lb_h) = keys[best], keys[held]
+                    if pass_b == pass_h and not lb_b > lb_h + cfg.goal_choice_margin:
+                        best = held
+                if held is not None and best != held:
+                    decision.new_goal()
             self.pursued[:] = False
             self.pursued[win] = masks[best]
             return best
@@ -188,6 +197,14 @@ class ThresholdDecision:
     def abandon(self) -> None:
         """The look under way cannot be carried out (its view point is unreachable)."""
 
+    @property
+    def looking(self) -> bool:
+        """Whether a second look is under way."""
+        return False
+
+    def new_goal(self) -> None:
+        """The goal choice moved to another component (``EvidenceChoice``)."""
+
 
 class EvidenceDecision(ThresholdDecision):
     """``agent.decision: evidence``: the uncertainty test before STOP, a second look when it
@@ -211,6 +228,13 @@ class EvidenceDecision(ThresholdDecision):
 
     def abandon(self) -> None:
         self.target = None
+
+    @property
+    def looking(self) -> bool:
+        return self.target is not None
+
+    def new_goal(self) -> None:
+        self.looks = 0   # the looks taken were at the previous goal
 
     def passes(self, ev: Evidence) -> bool:
         """The uncertainty test (module docstring)."""

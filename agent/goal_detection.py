@@ -96,7 +96,7 @@ class LargestChoice:
     def __init__(self, cfg: AgentConfig, map_cells: int):
         pass
 
-    def picker(self, confidence: np.ndarray, win: tuple[slice, slice], evidence) -> Pick | None:
+    def picker(self, confidence: np.ndarray, win: tuple[slice, slice], decision) -> Pick | None:
         """None: ``detect_goal``'s own rule, the largest."""
         return None
 
@@ -156,10 +156,10 @@ class GoalDetector:
         self.choice = GOAL_CHOICES.get(cfg.goal_choice)(cfg, map_cells)   # which accepted component is the goal
 
     def detect(self, confidence: np.ndarray, win: tuple[slice, slice],
-               evidence=None) -> tuple[GoalDetection, GoalDetection | None]:
+               decision=None) -> tuple[GoalDetection, GoalDetection | None]:
         """(the accepted goal, a candidate to verify or None) in the window: confidence (h, w)
-        of the goal class in ``win``; rejected and deferred cells are excluded; ``evidence``
-        the decision's views (``agent.evidence.GoalEvidence``, or None) for the goal choice. A
+        of the goal class in ``win``; rejected and deferred cells are excluded; ``decision``
+        the STOP decision (``agent.evidence``), whose views the goal choice may read. A
         candidate is looked for only when no goal is accepted and ``uncertainty_aware`` is on."""
         cfg = self.cfg
         exclude = self.rejected[win]
@@ -167,7 +167,7 @@ class GoalDetector:
         if hidden is not None:
             exclude = exclude | hidden[win]
         det = detect_goal(confidence, cfg.goal_threshold, cfg.goal_min_area_cells, exclude=exclude,
-                          pick=self.choice.picker(confidence, win, evidence))
+                          pick=self.choice.picker(confidence, win, decision))
         if det.found or not cfg.uncertainty_aware:
             return det, None
         cand = detect_goal(confidence, cfg.uncertain_low, cfg.goal_min_area_cells, exclude=exclude)

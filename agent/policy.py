@@ -196,8 +196,7 @@ class PeanutAgent:
         win = self.window = st.window(int(PLAN_MARGIN_M / cfg.cell_m))
         r, c = st.to_cell(xy, cfg.cell_m)
         agent_rc = (r - win[0].start, c - win[1].start)
-        det, candidate = self.detector.detect(st.semantic[self.goal_channel][win], win,             # detect
-                                              getattr(self.decision, "evidence", None))
+        det, candidate = self.detector.detect(st.semantic[self.goal_channel][win], win, self.decision)  # detect
         free = ~dilate(st.obstacles(win), cfg.dilation_cells)  # unknown cells are optimistic
         if det.found:
             move = self.approach.next(det.mask, st, win, agent_rc, yaw, free, self.collided)

@@ -43,7 +43,7 @@ DECISIONS.add("evidence", "calnav.agent.evidence:EvidenceDecision",
               "an uncertainty test on the object's evidence over views before STOP; a second look, then reject")
 
 # A goal choice among the components above the goal threshold: ``cls(agent_cfg, n)`` per episode map
-# with ``picker(confidence, win, evidence)`` -> None (the largest) or ``pick(masks, areas) -> index``.
+# with ``picker(confidence, win, decision)`` -> None (the largest) or ``pick(masks, areas) -> index``.
 GOAL_CHOICES: Registry[type] = Registry("goal choice", key="agent.goal_choice")
 GOAL_CHOICES.add("largest", "calnav.agent.goal_detection:LargestChoice",
                  "the largest component above agent.goal_threshold (PEANUT)")

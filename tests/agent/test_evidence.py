@@ -173,45 +173,58 @@ def test_the_decision_is_a_config_key_with_declared_ranges():
     assert plain_dict(AgentConfig(decision="evidence"))["decision"] == "evidence"
 
 
-def _two_objects(cfg: AgentConfig):
+def _two_objects(cfg: AgentConfig, win=WIN):
     """A big component A (5x5 cells) no view saw at object heights and a small one B (3x3) with
-    4 views of goal probability 0.8 at every cell; their confidence map (0.9 on both)."""
-    conf = np.zeros((N, N))
-    a = np.zeros((N, N), bool)
+    4 views of goal probability 0.8 at every cell, in window ``win`` of the map; their
+    confidence there (0.9 on both), and the evidence decision holding those views."""
+    h, w = win[0].stop - win[0].start, win[1].stop - win[1].start
+    conf = np.zeros((h, w))
+    a = np.zeros((h, w), bool)
     a[5:10, 5:10] = True
-    b = np.zeros((N, N), bool)
-    b[25:28, 25:28] = True
+    b = np.zeros((h, w), bool)
+    b[20:23, 25:28] = True
     conf[a | b] = 0.9
-    ev = GoalEvidence.empty(N)
-    ev.views[b], ev.q_sum[b], ev.q_sq[b] = 4, 4 * 0.8, 4 * 0.8 ** 2
-    return conf, a, b, ev
+    dec = EvidenceDecision(cfg, 1.0)
+    dec.reset(N)
+    ev = dec.evidence
+    full_b = np.zeros((N, N), bool)
+    full_b[win] = b
+    ev.views[full_b], ev.q_sum[full_b], ev.q_sq[full_b] = 4, 4 * 0.8, 4 * 0.8 ** 2
+    return conf, a, b, dec
 
 
 def test_the_evidence_goal_choice_takes_the_object_the_views_support_not_the_largest():
     """Two components above the threshold: PEANUT's rule takes the larger, one seen only on the
     floor (no views: no lower bound); agent.goal_choice=evidence takes the smaller one whose 4
-    views say 0.8 (it passes the STOP test: lower bound 0.8 - 1 * 0 / 2 >= 0.3)."""
+    views say 0.8 (it passes the STOP test: lower bound 0.8 - 1 * 0 / 2 >= 0.3) -- also in a
+    planning window that is not the whole map, where the views sit at the map's own cells."""
     from calnav.agent.goal_detection import GoalDetector
 
     cfg = _cfg(goal_threshold=0.5, goal_min_area_cells=4)
-    conf, a, b, ev = _two_objects(cfg)
-    largest, _ = GoalDetector(dataclasses_replace(cfg, goal_choice="largest"), N).detect(conf, WIN, ev)
-    by_evidence, _ = GoalDetector(dataclasses_replace(cfg, goal_choice="evidence"), N).detect(conf, WIN, ev)
-    assert largest.found and (largest.mask == a).all() and largest.area == 25
-    assert by_evidence.found and (by_evidence.mask == b).all() and by_evidence.area == 9
+    for win in (WIN, (slice(3, 33), slice(2, 38))):
+        conf, a, b, dec = _two_objects(cfg, win)
+        largest, _ = GoalDetector(dataclasses_replace(cfg, goal_choice="largest"), N).detect(conf, win, dec)
+        detector = GoalDetector(dataclasses_replace(cfg, goal_choice="evidence"), N)
+        by_evidence, _ = detector.detect(conf, win, dec)
+        assert largest.found and (largest.mask == a).all() and largest.area == 25
+        assert by_evidence.found and (by_evidence.mask == b).all() and by_evidence.area == 9
+        assert (detector.choice.pursued[win] == b).all() and detector.choice.pursued.sum() == 9
     # without views on either, the evidence choice falls back to the larger
-    det, _ = GoalDetector(dataclasses_replace(cfg, goal_choice="evidence"), N).detect(conf, WIN, GoalEvidence.empty(N))
+    dec.reset(N)
+    det, _ = GoalDetector(dataclasses_replace(cfg, goal_choice="evidence"), N).detect(conf, win, dec)
     assert (det.mask == a).all()
 
 
 def test_the_evidence_goal_choice_keeps_the_pursued_object_within_the_margin():
     """Both components seen, neither passing the STOP test (2 views < 3): the goal pursued stays
     the goal while the other's lower bound is within goal_choice_margin (0.1) above it, and
-    changes when it is more than that above, or when the other passes the test (a tier up)."""
+    changes when it is more than that above, or when the other passes the test (a tier up);
+    a change of goal clears the looks taken at the old one."""
     from calnav.agent.evidence import EvidenceChoice
 
     cfg = _cfg(goal_threshold=0.5, goal_min_area_cells=4, goal_choice="evidence", goal_choice_margin=0.1)
-    conf, a, b, ev = _two_objects(cfg)
+    conf, a, b, dec = _two_objects(cfg)
+    ev = dec.evidence
 
     def seen(mask, views, q):
         ev.views[mask], ev.q_sum[mask], ev.q_sq[mask] = views, views * q, views * q * q
@@ -219,17 +232,21 @@ def test_the_evidence_goal_choice_keeps_the_pursued_object_within_the_margin():
     choice = EvidenceChoice(cfg, N)
     seen(a, 2, 0.6), seen(b, 2, 0.5)
     masks, areas = [a, b], [25, 9]
-    assert choice.picker(conf, WIN, ev)(masks, areas) == 0 and (choice.pursued == a).all()
+    assert choice.picker(conf, WIN, dec)(masks, areas) == 0 and (choice.pursued == a).all()
     seen(b, 2, 0.68)                                      # 0.68 - 0.6 = 0.08 <= 0.1: keep A
-    assert choice.picker(conf, WIN, ev)(masks, areas) == 0
-    seen(b, 2, 0.75)                                      # 0.15 above: B
-    assert choice.picker(conf, WIN, ev)(masks, areas) == 1 and (choice.pursued == b).all()
+    assert choice.picker(conf, WIN, dec)(masks, areas) == 0
+    dec.looks = 1                                         # a look was taken at A
+    seen(b, 2, 0.75)                                      # 0.15 above: B, with no looks taken yet
+    assert choice.picker(conf, WIN, dec)(masks, areas) == 1 and (choice.pursued == b).all() and dec.looks == 0
     seen(a, 2, 0.8)                                       # A 0.05 above B, within the margin: B stays
-    assert choice.picker(conf, WIN, ev)(masks, areas) == 1
-    seen(a, 3, 0.62)                                      # A passes the test (3 views), B does not: A
-    assert choice.picker(conf, WIN, ev)(masks, areas) == 0
+    assert choice.picker(conf, WIN, dec)(masks, areas) == 1
+    seen(a, 3, 0.62)                                      # A passes the test (3 views), B does not: A ...
+    dec.target, dec.looks = (0, 0), 1                     # ... but not while a look at B is under way
+    assert choice.picker(conf, WIN, dec)(masks, areas) == 1 and dec.looks == 1
+    dec.target = None
+    assert choice.picker(conf, WIN, dec)(masks, areas) == 0 and dec.looks == 0
     with pytest.raises(ValueError, match="needs the evidence decision's views"):
-        choice.picker(conf, WIN, None)
+        choice.picker(conf, WIN, ThresholdDecision(cfg, 1.0))
 
 
 def test_components_are_listed_largest_first_above_the_minimum_area():
@@ -246,6 +263,11 @@ def test_components_are_listed_largest_first_above_the_minimum_area():
     assert components(m, 2, most=1)[1] == [6] and components(m, 7) == ([], [])
     mask, area = largest_component(m, 2)
     assert area == 6 and (mask == masks[0]).all()
+    tie = np.zeros((8, 8), bool)
+    tie[0, 0:3], tie[5, 0:3] = True, True           # two of 3 cells: the first in label (raster) order
+    masks, areas = components(tie, 1)
+    assert areas == [3, 3] and masks[0][0, 0:3].all() and masks[1][5, 0:3].all()
+    assert largest_component(tie, 1)[0][0, 0:3].all() and not largest_component(tie, 1)[0][5].any()
     assert largest_component(m, 7)[1] == 0 and not largest_component(m, 7)[0].any()
 
 

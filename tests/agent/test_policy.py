@@ -290,5 +290,9 @@ def test_the_evidence_decision_tests_the_goal_before_it_stops(small_setup, goal_
         done = terminated or truncated
     ev = agent.decision.last
     assert info["success"] and agent.info.mode == "stop"
+    if goal_choice == "evidence":   # the goal was chosen by the evidence choice, which held it to the end
+        from calnav.agent.evidence import EvidenceChoice
+
+        assert isinstance(agent.detector.choice, EvidenceChoice) and agent.detector.choice.pursued.any()
     assert ev is not None and ev.n >= cfg.agent.evidence_min_views and ev.mean > 0.8, ev
     assert ev.lower_bound(cfg.agent.evidence_z) >= cfg.agent.evidence_confidence
