@@ -136,6 +136,41 @@ def refused_episodes(env_cfg: EnvConfig, indices: list[int]) -> dict[int, str]:
     return {i: f"{episodes[i].scene_id}: {episodes[i].refused}" for i in indices if episodes[i].refused}
 
 
+def other_recorded_episodes(env_cfg: EnvConfig, records_path, indices: list[int]) -> str | None:
+    """How the records in ``records_path`` name other episodes than ``env_cfg.split`` holds
+    under their indices now (``eval.stats.EPISODE_KEYS``: id and geodesic distance), in one
+    line, or None when every one is the same. Scans, generated houses and their episodes are
+    derived data: a scan made by another calnav version or on another machine places other
+    starts under the same indices, and a run resumed on them would mix two datasets in one
+    records file. Checked: every record up to the end of the range ``indices`` (the scenes it
+    needs, read from the cache ``prepare_episodes`` filled before the run)."""
+    from calnav.eval.records import read_records
+    from calnav.eval.stats import EPISODE_KEYS
+
+    if not indices:
+        return None
+    end = max(indices) + 1
+    recorded = [r for i, r in sorted(read_records(records_path, quiet=True).records.items()) if i < end]
+    if not recorded:
+        return None
+    from calnav.envs.episodes import load_split
+
+    episodes = load_split(env_cfg.split, env_cfg, progress=False, upto=end)
+    now = {"episode_id": lambda ep: ep.episode_id, "geodesic_distance": lambda ep: ep.geodesic_distance}
+    assert set(now) == set(EPISODE_KEYS)
+    other = [(r, episodes[r["index"]]) for r in recorded if r["index"] < len(episodes)
+             and any(k in r and r[k] != now[k](episodes[r["index"]]) for k in EPISODE_KEYS)]
+    if not other:
+        return None
+    r, ep = other[0]
+    was = f"{r.get('episode_id')} ({r.get('category', '?')}, {float(r.get('geodesic_distance', float('nan'))):.3f} m)"
+    return (f"{len(other)} of its {len(recorded)} recorded episodes up to {end} are not the episodes the "
+            f"{env_cfg.split} split holds now (episode {r['index']}: recorded {was}, now {ep.episode_id} "
+            f"({ep.object_category}, {ep.geodesic_distance:.3f} m)): its houses, scans or episode file were made "
+            "differently (by another calnav version, or scans made on another machine), and resuming would mix "
+            "two datasets")
+
+
 def check_file_scenes(cfg, indices: list[int]) -> None:
     """Refuse, in one line, a run of an episode file's ``indices`` whose agent needs what one of
     their scenes lacks (``envs.file_episodes``' per-scene ``lacks``): ground-truth semantics

@@ -14,7 +14,9 @@
    before a key moved is the same config), and so are the files the config reads
    (``eval.inputs``: weights, GLFS parameters, ..., by sha256, saved in ``inputs.json``, whose
    labels are migrated the same way; a retrained ``agent/weights/<model>.pt`` under an unchanged
-   config is another run); a difference is refused unless ``force``, which deletes the
+   config is another run), and, where the command says how (``other_records``), the records
+   themselves (an episode run's records name their episodes: scans made elsewhere place other
+   episodes under the same indices); a difference is refused unless ``force``, which deletes the
    directory's results (``discard``). A directory from before ``inputs.json`` existed is resumed
    with a warning;
 4. ``config.yaml`` and ``inputs.json`` are (re)written atomically.
@@ -32,7 +34,7 @@ import json
 import os
 import shutil
 from pathlib import Path
-from typing import Iterable
+from typing import Callable, Iterable
 
 import yaml
 
@@ -133,8 +135,10 @@ class ResultsDir:
     def __init__(self, path: str | os.PathLike, cfg=None, *, force: bool = False,
                  discard: tuple[str, ...] = (RECORDS_NAME,), files: tuple[str, ...] = (RECORDS_NAME,),
                  neutral_keys: tuple[str, ...] = NEUTRAL_KEYS, option: str = "--output",
-                 segmenters: tuple[str, ...] | None = None, can_force: bool = True):
+                 segmenters: tuple[str, ...] | None = None, can_force: bool = True,
+                 other_records: Callable[[Path], str | None] | None = None):
         self.path = Path(path)
+        self.other_records = other_records   # (records path) -> how its records are not this run's, or None
         self.cfg, self.force, self.discard, self.files = cfg, force, discard, files
         self.neutral_keys, self.option = neutral_keys, option
         self.segmenters = segmenters   # the segmenters this command runs, when not the config's (eval.inputs)
@@ -286,6 +290,9 @@ class ResultsDir:
             files = ", ".join(f"{k} ({self._inputs()[k]['path']})" for k in changed)
             return (f"{self.path} holds results made with other input files: {files} changed since "
                     f"({self.path / INPUTS_NAME}); {self._remedy}")
+        other = self.other_records(self.path / RECORDS_NAME) if self.other_records else None
+        if other is not None:
+            return f"{self.path} holds other records: {other}; {self._remedy}"
         return None
 
     def _check_config(self) -> None:

@@ -93,7 +93,12 @@ def run_habitat_benchmark(cfg, habitat_cfg, indices: list[int], out: Path, force
 
     habitat_text = OmegaConf.to_yaml(habitat_cfg, resolve=True)
     agent_name = cfg.run.agent
-    with ResultsDir(out, cfg, force=force, discard=RUN_RESULTS, neutral_keys=EPISODE_NEUTRAL_KEYS) as results:
+    from functools import partial
+
+    from calnav.eval.episodes import other_recorded_episodes
+
+    with ResultsDir(out, cfg, force=force, discard=RUN_RESULTS, neutral_keys=EPISODE_NEUTRAL_KEYS,
+                    other_records=partial(other_recorded_episodes, cfg.env, indices=list(indices))) as results:
         _check_habitat_config(out, habitat_text, force)
         results.write_text(HABITAT_CONFIG_FILE, habitat_text)
         records_file = results.records()

@@ -22,6 +22,7 @@ from __future__ import annotations
 import json
 import time
 from contextlib import ExitStack
+from functools import partial
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -212,7 +213,7 @@ def run_jobs(jobs: list[EpisodeJob], force: bool = False, progress: bool = True,
 
             require_rerun("--rerun")   # the install command, before anything is written
     check_backend(run_cfg.backend, run_cfg.ray_address)   # before anything is written
-    from calnav.eval.episodes import check_file_scenes, refused_episodes
+    from calnav.eval.episodes import check_file_scenes, other_recorded_episodes, refused_episodes
 
     for job in jobs:
         check_file_scenes(job.cfg, job.indices)   # a scene without what the agent reads: before anything is written
@@ -225,8 +226,9 @@ def run_jobs(jobs: list[EpisodeJob], force: bool = False, progress: bool = True,
     with ExitStack() as stack:
         dirs, files, records, duplicates, tasks = [], [], [], [], []
         for j, (job, refused) in enumerate(zip(jobs, refusals)):
-            results = stack.enter_context(ResultsDir(job.out, job.cfg, force=force, discard=RUN_RESULTS,
-                                                     neutral_keys=EPISODE_NEUTRAL_KEYS))
+            results = stack.enter_context(ResultsDir(
+                job.out, job.cfg, force=force, discard=RUN_RESULTS, neutral_keys=EPISODE_NEUTRAL_KEYS,
+                other_records=partial(other_recorded_episodes, job.cfg.env, indices=job.indices)))
             records_file = results.records()
             # crashed episodes of this range are dropped from the file, so they run again
             resumed = records_file.resume(retry=crashed, indices=job.indices)

@@ -13,7 +13,7 @@ import json
 import sys
 from pathlib import Path
 
-ROWS = ("baseline", "photometric", "jpeg", "recolour", "all")
+ROWS = ("baseline", "photometric", "jpeg", "recolour", "recolour25", "all")
 SETS = ("clean", "scanned", "camera", "recoloured")
 SET_LABELS = {"clean": "clean", "scanned": "scanned", "camera": "scanned + camera shift",
               "recoloured": "scanned, houses recoloured"}

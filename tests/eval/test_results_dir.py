@@ -445,3 +445,29 @@ def test_config_differences_name_the_first_keys_and_count_the_rest():
     assert config_differences(saved, {**saved, "b": 5}) == "b: 2 there, 5 here"
     assert config_differences(saved, {"a": {"x": 1, "y": [1, 3]}, "e": 0}) == (
         "a.y: [1, 2] there, [1, 3] here; b: 2 there, (absent) here; c: 3 there, (absent) here; 2 more key(s)")
+
+
+def test_a_resume_refuses_records_of_other_episodes_under_the_same_indices(run_copy, capsys):
+    """Scans (and so the episodes on them) made by another calnav version or on another machine
+    place other starts under the same indices: records made on them are refused, never mixed
+    with this split's episodes, before anything is written; --force discards and reruns them."""
+    records = run_copy / "episodes.jsonl"
+    lines = [json.loads(line) for line in records.read_text().splitlines()]
+    lines = [r for r in lines if r["index"] != 3]                    # one episode left to run
+    elsewhere = next(r for r in lines if r["index"] == 1)
+    elsewhere["geodesic_distance"] += 1.25                            # as a scan made elsewhere places it
+    records.write_text("".join(json.dumps(r) + "\n" for r in lines))
+    before = records.read_text()
+    assert main(_objectnav(run_copy)) == 2
+    err = _one_line_error(capsys, "objectnav")
+    assert f"{run_copy} holds other records: 1 of its 3 recorded episodes up to 4 are not the episodes the val " \
+           f"split holds now (episode 1: recorded {elsewhere['episode_id']}" in err
+    assert "resuming would mix two datasets; use another --output, or --force to discard them" in err
+    assert records.read_text() == before
+    assert main(_objectnav(run_copy, "2:4")) == 2                    # a later range checks the records before it too
+    capsys.readouterr()
+    assert main(_objectnav(run_copy, "0:4", "--force")) == 0
+    got = sorted(_lines(run_copy), key=lambda r: r["index"])
+    assert [r["index"] for r in got] == [0, 1, 2, 3]
+    assert got[1]["geodesic_distance"] == pytest.approx(elsewhere["geodesic_distance"] - 1.25, abs=1e-12)
+    assert main(_objectnav(run_copy)) == 0                            # its own records resume as ever
