@@ -16,7 +16,9 @@ records already is refused, since resuming it would compare records that never r
 only read. What it reproduces is a directory of ``calnav objectnav``, ``calnav tune`` (a grid
 point) or a study row: episodes of calnav's ObjectNav env under the directory's config (the
 start-pose study's frame-change variants and habitat-benchmark runs use other envs). A
-record's ``commit`` is the checkout's HEAD: uncommitted edits do not show in it.
+record's ``commit`` is the checkout's HEAD: uncommitted edits do not show in it. Records that
+name other episodes than the split holds now (scans made on another kind of machine) are
+refused: on other episodes the code is not compared at all.
 """
 from __future__ import annotations
 
@@ -95,7 +97,7 @@ def _check_output(out: Path, src: Path) -> None:
 def main_reproduce(args, configs: list[Config]) -> int:
     """Rerun ``args.episodes`` of ``args.dir`` and compare; returns the exit status (0 / 1)."""
     from calnav.envs.episodes import parse_episode_range
-    from calnav.eval.episodes import episode_indices
+    from calnav.eval.episodes import episode_indices, other_recorded_episodes
     from calnav.eval.objectnav.run import EpisodeJob, run_jobs
 
     src, cfg = _source(args), configs[0]
@@ -114,6 +116,9 @@ def main_reproduce(args, configs: list[Config]) -> int:
     if args.output:
         _check_output(Path(args.output), src)
     indices = list(episode_indices(str(args.episodes), cfg.env, cfg.run, progress=False))
+    other = other_recorded_episodes(cfg.env, src / RECORDS_NAME, indices)
+    if other is not None:   # the code cannot be compared on other episodes (scans made on another machine)
+        raise ResultsError(f"cannot reproduce: {src}'s records name other episodes: {other}")
     out = Path(args.output) if args.output else Path(tempfile.mkdtemp(prefix="calnav-reproduce-"))
     print(f"reproduce: rerunning {len(indices)} episode(s) of {src} into {out}")
     try:

@@ -70,6 +70,18 @@ def test_reproduce_matches_finds_a_change_and_refuses_bad_input(tmp_path, capsys
     out = capsys.readouterr().out
     assert f"episode 1 ({changed['episode_id']}): steps: {steps + 1} -> {steps}" in out and "1 of them differ" in out
 
+    # records of other episodes under the same indices (scans made on another kind of machine):
+    # refused, the code is not compared on them
+    changed["steps"], geodesic = steps, changed["geodesic_distance"]
+    changed["geodesic_distance"] += 0.5
+    (run / "episodes.jsonl").write_text("".join(json.dumps(r) + "\n" for r in lines))
+    assert main(["reproduce", str(run), "--episodes", "0:2", "--output", str(tmp_path / "e"), "run.workers=1"]) == 2
+    err = capsys.readouterr().err
+    assert f"cannot reproduce: {run}'s records name other episodes: 1 of its 2 recorded episodes up to 2" in err
+    assert not (tmp_path / "e").exists()
+    changed["geodesic_distance"] = geodesic
+    (run / "episodes.jsonl").write_text("".join(json.dumps(r) + "\n" for r in lines))
+
     # refused before running: an episode without a record, an override that changes results,
     # a file the config reads that changed since the directory ran, --tol NaN, no directory
     assert main(["reproduce", str(run), "--episodes", "0:3", "--output", str(tmp_path / "c")]) == 2
