@@ -87,7 +87,21 @@ def evaluate(cfg: Config, model: str, split: str = "test", frames: int = 500,
         "pose_seed": cfg.data.seed + EVAL_SEED_OFFSET, "segment_ms_per_frame": 1e3 * seconds / len(data),
         "weights": str(getattr(seg, "weights_path", "")),
         "weights_sha256": _weights_sha256(seg),
+        "frames_sha256": frames_sha256(data),
     }
+
+
+def frames_sha256(data) -> str:
+    """sha256 of the scored frames' rgb, depth and labels, as scored (after any camera shift):
+    two records scored the same frames only when it agrees. Frames of scanned houses are derived
+    data (a scan made on another machine can differ), so the cache key alone does not say."""
+    import hashlib
+
+    h = hashlib.sha256()
+    for a in (data.rgb, data.depth, data.labels):
+        h.update(str((a.dtype.str, a.shape)).encode())
+        h.update(np.ascontiguousarray(a).tobytes())
+    return h.hexdigest()
 
 
 def _weights_sha256(seg) -> str | None:

@@ -62,6 +62,15 @@ def test_an_eval_record_names_the_weights_it_scores(trained, cfg):
     weighted = dataclasses.replace(cfg, segmenter=dataclasses.replace(cfg.segmenter, weights=str(out)))
     m = evaluate(weighted, "learned_rgbd", "test", frames=2, progress=False)
     assert m["weights"] == str(out) and m["weights_sha256"] == card["weights_sha256"]
+    # ... and the frames it scored: the same frames give the same digest, other frames another
+    from calnav.eval.segmenter.data import load_or_render
+    from calnav.eval.segmenter.evaluate import EVAL_SEED_OFFSET, frames_sha256
+
+    data = load_or_render(cfg.env, cfg.data, "test", frames=2, seed=cfg.data.seed + EVAL_SEED_OFFSET, progress=False)
+    assert m["frames_sha256"] == frames_sha256(data)
+    data.labels[0, 0, 0] = (int(data.labels[0, 0, 0]) + 1) % 18
+    assert frames_sha256(data) != m["frames_sha256"]
+    assert evaluate(weighted, "learned_rgbd", "test", frames=2, progress=False)["frames_sha256"] == m["frames_sha256"]
 
 
 def test_resume_is_bit_identical(trained, cfg, tmp_path):
