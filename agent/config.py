@@ -148,7 +148,7 @@ class AgentConfig:
     # --- which accepted component is the goal (agent.registry.GOAL_CHOICES) ----------------------
     goal_choice: str = "largest"        # largest (PEANUT) | evidence (strongest evidence over views; needs decision: evidence)
     goal_choice_margin: float = 0.1     # evidence: another component replaces the one pursued when its evidence
-                                        # lower bound is higher by this much, a probability in [0, 1]
+                                        # lower bound (on the probability scale) is higher by this much, in [0, 1]
 
     # Left out of saved configs while at these values (``envs.config.plain_dict``): configs saved
     # before the field existed stay equal
