@@ -156,10 +156,8 @@ def other_recorded_episodes(env_cfg: EnvConfig, records_path, indices: list[int]
     from calnav.envs.episodes import load_split
 
     episodes = load_split(env_cfg.split, env_cfg, progress=False, upto=end)
-    now = {"episode_id": lambda ep: ep.episode_id, "geodesic_distance": lambda ep: ep.geodesic_distance}
-    assert set(now) == set(EPISODE_KEYS)
-    other = [(r, episodes[r["index"]]) for r in recorded if r["index"] < len(episodes)
-             and any(k in r and r[k] != now[k](episodes[r["index"]]) for k in EPISODE_KEYS)]
+    other = [(r, episodes[r["index"]]) for r in recorded if r["index"] < len(episodes)   # (the keys are its fields)
+             and any(k in r and r[k] != getattr(episodes[r["index"]], k) for k in EPISODE_KEYS)]
     if not other:
         return None
     r, ep = other[0]
