@@ -133,6 +133,18 @@ def clustered_sem(values, groups) -> float:
     return float(math.sqrt(g / (g - 1) * float(resid @ resid)) / len(x))
 
 
+def jackknife_sem(leave_one_out) -> float:
+    """Jackknife standard error of an estimate from its leave-one-group-out values theta_(g):
+    sqrt((G - 1) / G * sum_g (theta_(g) - mean theta_(.))^2), for estimates that are no mean
+    of independent values (a mIoU pools counts over houses). For the mean of G values it is their
+    ordinary SEM; NaN with fewer than 2 groups."""
+    x = np.asarray(list(leave_one_out), dtype=np.float64)
+    g = len(x)
+    if g < 2:
+        return math.nan
+    return float(math.sqrt((g - 1) / g * float(((x - x.mean()) ** 2).sum())))
+
+
 def contrast_values(runs: list[tuple[list[dict], float]], metric: str) -> tuple[list[float], list[dict]]:
     """Per episode (matched by ``index``) that every run holds, sum_k w_k * ``metric``(run_k),
     each run's records with its weight ``w_k``, scored as ``paired_difference`` scores them;

@@ -86,6 +86,22 @@ class ReliabilityTable:
             return np.where(n_c > 0, gap / np.maximum(n_c, 1.0), np.nan)
 
 
+def iou_of_confusion(confusion: np.ndarray, present: str = "labels") -> np.ndarray:
+    """(K,) float64 IoU per class of a (K_pred, K_true) confusion count table; NaN for classes
+    not present (``present``: in the labels, or ``either`` labels or predictions)."""
+    if present not in PRESENT_CHOICES:
+        raise ValueError(f"present must be one of {', '.join(PRESENT_CHOICES)}, got {present!r}")
+    conf = np.asarray(confusion, dtype=np.float64)
+    if conf.ndim != 2 or conf.shape[0] != conf.shape[1]:
+        raise ValueError(f"confusion must be a (K, K) table, got shape {conf.shape}")
+    tp = np.diag(conf)
+    predicted, actual = conf.sum(axis=1), conf.sum(axis=0)
+    union = predicted + actual - tp
+    keep = actual > 0 if present == "labels" else union > 0
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(keep, tp / np.maximum(union, 1.0), np.nan)
+
+
 class CalibrationStats:
     """Streaming accumulator of everything the metrics need.
 
@@ -203,15 +219,7 @@ class CalibrationStats:
 
     def per_class_iou(self, present: str = "labels") -> np.ndarray:
         """(K,) float64 IoU per class; NaN for classes not present (see the module docstring)."""
-        if present not in PRESENT_CHOICES:
-            raise ValueError(f"present must be one of {', '.join(PRESENT_CHOICES)}, got {present!r}")
-        conf = self.confusion().astype(np.float64)
-        tp = np.diag(conf)
-        predicted, actual = conf.sum(axis=1), conf.sum(axis=0)
-        union = predicted + actual - tp
-        keep = actual > 0 if present == "labels" else union > 0
-        with np.errstate(invalid="ignore", divide="ignore"):
-            return np.where(keep, tp / np.maximum(union, 1.0), np.nan)
+        return iou_of_confusion(self.confusion(), present)
 
     def per_class_iou_authors(self, exclude: Iterable[int] = AUTHORS_EXCLUDED_CLASSES) -> np.ndarray:
         """(K,) float64 IoU per class in the authors' convention (module docstring): void

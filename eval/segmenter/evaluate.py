@@ -7,7 +7,9 @@ training) with the pose seed ``data.seed + EVAL_SEED_OFFSET`` (different walks f
 training ones), at ``data.resolution``. Every non-void pixel is a sample; probabilities are
 softmax(logits). Metrics (``mapping.metrics``): accuracy, mIoU over all classes present in the
 labels and over the goal categories + structure classes present, ECE, TL-ECE, mECE, Brier,
-per-class IoU and per-class ECE, mean top-label confidence. ``data.eval_appearance: camera``
+per-class IoU and per-class ECE, mean top-label confidence, and each house's (K_pred, K_true)
+confusion counts (``scene_confusion``, for paired house-level standard errors of a difference
+between two records of the same frames: ``eval.segmenter.ablation``). ``data.eval_appearance: camera``
 scores the same frames through the fixed camera shift of ``eval.segmenter.appearance``;
 ``recolour`` the same poses in the houses with every instance recoloured (the record names the
 shift).
@@ -56,6 +58,8 @@ def evaluate(cfg: Config, model: str, split: str = "test", frames: int = 500,
         data.rgb = camera_shift(data.rgb, cfg.data.seed + EVAL_SEED_OFFSET + CAMERA_SEED_OFFSET)
     k = len(CLASS_NAMES)
     stats = CalibrationStats(k)
+    n_scenes = int(data.scene.max()) + 1
+    scene_conf = np.zeros(n_scenes * k * k, np.int64)   # (scene, pred, label) counts, flattened
     conf_sum = 0.0
     t0 = time.perf_counter()
     for start in tqdm(range(0, len(data), BATCH), desc=f"eval {model}", disable=not progress):
@@ -68,6 +72,8 @@ def evaluate(cfg: Config, model: str, split: str = "test", frames: int = 500,
         labels = data.labels[sl].reshape(-1).astype(np.int64)
         stats.update(probs, labels, ignore_index=-1)
         valid = labels >= 0
+        scene = np.repeat(data.scene[sl].astype(np.int64), labels.size // len(data.scene[sl]))
+        scene_conf += np.bincount(((scene * k + probs.argmax(axis=1)) * k + labels)[valid], minlength=scene_conf.size)
         conf_sum += float(probs[valid].max(axis=1).sum())
     seconds = time.perf_counter() - t0
     goal_structure = [CLASS_NAMES.index(n) for n in (*GOAL_CATEGORIES, *STRUCTURE_CLASSES)]
@@ -88,6 +94,8 @@ def evaluate(cfg: Config, model: str, split: str = "test", frames: int = 500,
         "weights": str(getattr(seg, "weights_path", "")),
         "weights_sha256": _weights_sha256(seg),
         "frames_sha256": frames_sha256(data),
+        # per house of the split (data.scene's index): the paired house-level error of a difference
+        "scene_confusion": scene_conf.reshape(n_scenes, k, k).tolist(),
     }
 
 

@@ -8,40 +8,47 @@
 # (agent/weights/ablation/shipped/, rows named by the model). MODEL=learned_rgbd writes to
 # agent/weights/ablation/rgbd_f$FRAMES/. FRAMES=full trains at the shipped size (20,000 frames, 8
 # epochs) on the first 50 train houses (their scans first: calnav scan-houses --splits train
-# --houses 50), rows baseline and recolour25 (recolour fraction 0.25), into agent/weights/ablation/full/.
+# --houses 50), rows baseline and recolour25 (recolour fraction 0.25), into agent/weights/ablation/full/;
+# HOUSES=100 (with FRAMES=full) trains on all 100 train houses, rows recolour25 and recolour10, into
+# agent/weights/ablation/full_h100/, beside row shipped: the shipped weights, that size's baseline
+# (configs/segmenter.yaml unchanged), scored on the same frames.
 set -euo pipefail
 cd "$(dirname "$0")/../../.."
 FRAMES=${FRAMES:-4000}
 MODEL=${MODEL:-learned_rgb}
+HOUSES=${HOUSES:-50}
 RUN_FRAMES=f$FRAMES; [ "$FRAMES" = full ] && RUN_FRAMES=full
+[ "$FRAMES" = full ] && [ "$HOUSES" != 50 ] && RUN_FRAMES=full_h$HOUSES
 case "$MODEL" in learned_rgb) RUN=$RUN_FRAMES ;; learned_rgbd) RUN=rgbd_$RUN_FRAMES ;;
   *) echo "MODEL must be learned_rgb or learned_rgbd, got $MODEL" >&2; exit 2 ;; esac
 HERE=agent/weights/ablation/$RUN
 WEIGHTS=${WEIGHTS:-/tmp/calnav_ablation}
 PY=${PY:-python}
 DATA="data.frames=$FRAMES data.scenes=30 train.epochs=4 train.val_frames=0 train.threads=1"
-[ "$FRAMES" = full ] && DATA="data.scenes=50 train.threads=1"   # configs/segmenter.yaml's frames and epochs
+[ "$FRAMES" = full ] && DATA="data.scenes=$HOUSES train.threads=1"   # configs/segmenter.yaml's frames and epochs
 PHOTO="train.exposure_ev=1 train.white_balance=0.3 train.tint=0.15 train.gamma=0.5 train.vignette=0.4 \
 train.motion_blur_prob=0.2 train.shot_noise=12"
 JPEG="train.jpeg_prob=0.5"
 RECOL="data.recolour_fraction=0.5"
 declare -A ROWS=([baseline]="" [photometric]="$PHOTO" [jpeg]="$JPEG" [recolour]="$RECOL" [all]="$PHOTO $JPEG $RECOL"
-                 [recolour25]="data.recolour_fraction=0.25")
+                 [recolour25]="data.recolour_fraction=0.25" [recolour10]="data.recolour_fraction=0.1")
 declare -A EVALS=([clean]="env.dataset.style=clean" [scanned]="env.dataset.style=scanned"
                   [camera]="env.dataset.style=scanned data.eval_appearance=camera"
                   [recoloured]="env.dataset.style=scanned data.eval_appearance=recolour")
 DEFAULT_ROWS="baseline photometric jpeg recolour all"
 [ "$FRAMES" = shipped ] && DEFAULT_ROWS="learned_rgb learned_rgbd" && HERE=agent/weights/ablation/shipped
 [ "$FRAMES" = full ] && DEFAULT_ROWS="baseline recolour25"
+[ "$FRAMES" = full ] && [ "$HOUSES" != 50 ] && DEFAULT_ROWS="shipped recolour25 recolour10"
 mkdir -p "$WEIGHTS/$RUN" "$HERE"
 for row in ${ROWS_ONLY:-$DEFAULT_ROWS}; do
   model=$MODEL weights="segmenter.weights=$WEIGHTS/$RUN/$row.pt"
   [ "$FRAMES" = shipped ] && model=$row weights=""   # the shipped weights are the segmenter's default
-  if [ "${TRAIN:-1}" != 0 ] && [ "$FRAMES" != shipped ]; then
+  trained=1; { [ "$FRAMES" = shipped ] || [ "$row" = shipped ]; } && trained=0 weights=""
+  if [ "${TRAIN:-1}" != 0 ] && [ $trained = 1 ]; then
     # shellcheck disable=SC2086
     $PY -m calnav.eval.cli train-segmenter --segmenter "$MODEL" --output "$WEIGHTS/$RUN/$row.pt" $DATA ${ROWS[$row]}
   fi
-  [ "$FRAMES" != shipped ] && cp "$WEIGHTS/$RUN/$row.json" "$HERE/$row.card.json"   # the training card beside its scores
+  [ $trained = 1 ] && cp "$WEIGHTS/$RUN/$row.json" "$HERE/$row.card.json"   # the training card beside its scores
   for ev in ${SETS_ONLY:-clean scanned camera recoloured}; do
     # shellcheck disable=SC2086
     $PY -m calnav.eval.cli eval-segmenter --segmenter "$model" --split test --frames 500 \

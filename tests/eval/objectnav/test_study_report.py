@@ -448,3 +448,17 @@ def test_a_half_finished_row_is_never_called_run(tmp_path):
     assert "The plan still needs about 2 episodes" in page
     _replace_records(path, "g", [_rec(i, 1, 0.5) for i in range(4)])
     assert "Every row the study runs has run." in render(path)
+
+
+def test_jackknife_sem_by_hand():
+    """Leave-one-out values [1, 2, 4]: mean 7/3, squared deviations 16/9 + 1/9 + 25/9 = 42/9,
+    SE = sqrt(2/3 * 42/9) = sqrt(28/9) = 1.7638; for a mean it is the ordinary SEM."""
+    import numpy as np
+
+    from calnav.eval.stats import jackknife_sem, mean_sem
+
+    assert jackknife_sem([1, 2, 4]) == pytest.approx(np.sqrt(28 / 9))
+    x = np.random.default_rng(1).normal(size=9)
+    loo = [(x.sum() - v) / (len(x) - 1) for v in x]
+    assert jackknife_sem(loo) == pytest.approx(mean_sem(x)[1])
+    assert np.isnan(jackknife_sem([0.5]))

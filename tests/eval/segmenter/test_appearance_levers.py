@@ -232,3 +232,51 @@ def test_the_weights_readme_holds_the_rendered_ablation_tables(folder):
 
     root = Path(__file__).resolve().parents[3]
     assert ablation_table(root / "agent/weights/ablation" / folder) in (root / "agent/weights/README.md").read_text()
+
+
+def _record(confusions, frames="f"):
+    """An eval record of two classes (a, b), both goal+structure, from per-house confusions."""
+    import numpy as np
+
+    from calnav.mapping.metrics import iou_of_confusion
+
+    iou = iou_of_confusion(np.sum(confusions, axis=0))
+    return {"per_class_iou": {"a": iou[0], "b": iou[1]}, "classes_in_miou_goal_structure": ["a", "b"],
+            "scene_confusion": confusions, "frames_sha256": frames,
+            "miou": float(iou.mean()), "miou_goal_structure": float(iou.mean()), "ece": 0.0}
+
+
+def test_paired_miou_difference_by_hand():
+    """Two houses of 4 pixels, labels a a b b each; rows = predicted, columns = true.
+    A is right on 3 of 4 in house 0 ([[2,1],[0,1]]: IoU a 2/3, b 1/2) and on all of house 1;
+    B is right everywhere. Pooled A: TP (4, 3), a predicted 5 / true 4, b predicted 3 / true 4:
+    IoU a 4/5, b 3/4, mIoU 0.775; B 1. Difference 0.225. Leaving house 0 out: both perfect,
+    0; house 1 out: 1 - (2/3 + 1/2) / 2 = 5/12. Jackknife SE = sqrt(1/2 * 2 * (5/24)^2) = 5/24."""
+    from calnav.eval.segmenter.ablation import paired_miou_difference
+
+    a = _record([[[2, 1], [0, 1]], [[2, 0], [0, 2]]])
+    b = _record([[[2, 0], [0, 2]], [[2, 0], [0, 2]]])
+    diff, se, houses = paired_miou_difference(a, b)
+    assert diff == pytest.approx(0.225) and se == pytest.approx(5 / 24) and houses == 2
+    assert paired_miou_difference(b, a)[0] == pytest.approx(-0.225)
+    with pytest.raises(ValueError, match="different frames"):
+        paired_miou_difference(a, _record(b["scene_confusion"], frames="g"))
+    with pytest.raises(ValueError, match="no scene_confusion"):
+        paired_miou_difference(a, {k: v for k, v in b.items() if k != "scene_confusion"})
+
+
+def test_ablation_table_pairs_rows_with_the_reference_on_the_same_frames(tmp_path):
+    import json
+
+    from calnav.eval.segmenter.ablation import ablation_table
+
+    a = _record([[[2, 1], [0, 1]], [[2, 0], [0, 2]]])
+    b = _record([[[2, 0], [0, 2]], [[2, 0], [0, 2]]])
+    (tmp_path / "shipped_clean.json").write_text(json.dumps(a))
+    (tmp_path / "recolour25_clean.json").write_text(json.dumps(b))
+    (tmp_path / "recolour25_scanned.json").write_text(json.dumps(b))   # no reference on this set
+    lines = ablation_table(tmp_path).splitlines()
+    assert lines[0].endswith("| goal+structure - shipped (SE) |")
+    assert lines[2] == "| shipped | clean | 0.775 | 0.775 | 0.000 | - | - |"
+    assert lines[3] == "| recolour25 | clean | 1.000 | 1.000 | 0.000 | - | +0.225 (0.208) |"
+    assert lines[4] == "| recolour25 | scanned | 1.000 | 1.000 | 0.000 | - | - |"

@@ -62,6 +62,13 @@ def test_an_eval_record_names_the_weights_it_scores(trained, cfg):
     weighted = dataclasses.replace(cfg, segmenter=dataclasses.replace(cfg.segmenter, weights=str(out)))
     m = evaluate(weighted, "learned_rgbd", "test", frames=2, progress=False)
     assert m["weights"] == str(out) and m["weights_sha256"] == card["weights_sha256"]
+    # per-house confusions: they add up to the scored pixels and give the record's IoUs
+    from calnav.mapping.metrics import iou_of_confusion
+
+    per_house = np.asarray(m["scene_confusion"])
+    assert per_house.ndim == 3 and per_house.shape[1:] == (18, 18) and per_house.sum() == m["n_pixels"]
+    iou = [v if v is not None else np.nan for v in m["per_class_iou"].values()]
+    np.testing.assert_allclose(iou_of_confusion(per_house.sum(axis=0)), iou)
     # ... and the frames it scored: the same frames give the same digest, other frames another
     from calnav.eval.segmenter.data import load_or_render
     from calnav.eval.segmenter.evaluate import EVAL_SEED_OFFSET, frames_sha256
