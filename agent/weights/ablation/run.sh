@@ -17,6 +17,8 @@ cd "$(dirname "$0")/../../.."
 FRAMES=${FRAMES:-4000}
 MODEL=${MODEL:-learned_rgb}
 HOUSES=${HOUSES:-50}
+[[ "$HOUSES" =~ ^[1-9][0-9]*$ ]] || { echo "HOUSES must be a positive integer, got $HOUSES" >&2; exit 2; }
+[ "$HOUSES" != 50 ] && [ "$FRAMES" != full ] && { echo "HOUSES is for FRAMES=full, got FRAMES=$FRAMES" >&2; exit 2; }
 RUN_FRAMES=f$FRAMES; [ "$FRAMES" = full ] && RUN_FRAMES=full
 [ "$FRAMES" = full ] && [ "$HOUSES" != 50 ] && RUN_FRAMES=full_h$HOUSES
 case "$MODEL" in learned_rgb) RUN=$RUN_FRAMES ;; learned_rgbd) RUN=rgbd_$RUN_FRAMES ;;

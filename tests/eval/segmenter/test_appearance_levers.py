@@ -223,7 +223,7 @@ def test_ablation_table_renders_the_records(tmp_path):
         ablation_table(tmp_path / "empty")
 
 
-@pytest.mark.parametrize("folder", ["shipped", "full", "full_h100", "f8000", "f4000", "f2000", "rgbd_f8000"])
+@pytest.mark.parametrize("folder", ["shipped", "full", "full_h100", "rgbd_full_h100", "f8000", "f4000", "f2000", "rgbd_f8000"])
 def test_the_weights_readme_holds_the_rendered_ablation_tables(folder):
     """agent/weights/README.md's ablation tables are the committed records rendered, not typed."""
     from pathlib import Path
