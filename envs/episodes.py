@@ -153,6 +153,10 @@ def dataset_key(env_cfg: EnvConfig) -> str:
         # the oracle check runs the task's actions (its step limit is the dataset's oracle_max_steps)
         "task": [env_cfg.forward_step_m, env_cfg.turn_angle_deg, env_cfg.success_distance_m],
     }
+    if env_cfg.dataset.style == "scanned":   # episodes on an older scan's floor are other episodes
+        from calnav.envs.scenes import scan_versions
+
+        relevant["scans"] = scan_versions()
     return hashlib.sha1(json.dumps(relevant, sort_keys=True).encode()).hexdigest()[:10]
 
 

@@ -248,14 +248,24 @@ def procedural_identity(scene_id: str, seed: int, spec: HouseSpec, storeys: int 
     return out if storeys == 1 else {**out, "storeys": int(storeys)}
 
 
+def scan_versions() -> list[int]:
+    """[scanner version, trajectory version]: in the key of every cache made from scans (training
+    frames, episodes), so frames or episodes of an older scan are made again with the scan."""
+    from calnav.envs.scanning.config import SCANNER_VERSION
+    from calnav.envs.trajectories import TRAJECTORY_VERSION
+
+    return [SCANNER_VERSION, TRAJECTORY_VERSION]
+
+
 def scanned_identity(scene_id: str, seed: int, spec: HouseSpec, cfg: DatasetConfig) -> dict:
     """The metadata that makes a scan's cache file the scan of this house with these settings
     (``scan_house`` writes the scan keys, JSON-normalised here as they are read back)."""
     from calnav.envs.scanning.config import SCANNER_VERSION
+    from calnav.envs.trajectories import TRAJECTORY_VERSION
 
     scanning = json.loads(json.dumps(cfg.scanning.digest_items(), default=list))
     return {**procedural_identity(scene_id, seed, spec), "scan_seed": int(seed), "scanner_version": SCANNER_VERSION,
-            "scanning": scanning}
+            "trajectory_version": TRAJECTORY_VERSION, "scanning": scanning}
 
 
 def _load_procedural(scene_id: str, path: Path, seed: int, spec: HouseSpec, storeys: int = 1) -> Scene:

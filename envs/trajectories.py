@@ -17,10 +17,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from fractions import Fraction
 
 import numpy as np
 
 from calnav.common.ranges import Range, check_ranges
+
+# 2: lengths the same on every CPU (plane_length); in the identity of every cached scan, so a
+# scan walked with a CPU's own rounding is made again
+TRAJECTORY_VERSION = 2
 
 
 # Size-like keys of a calibration scan (``scan``), and why their bounds: a hand-held walk moves
@@ -100,12 +105,24 @@ def _farthest_points(points: np.ndarray, rng: np.random.Generator, count: int | 
     return points[picks]
 
 
+def plane_length(v: np.ndarray) -> float:
+    """|v| of a 2-vector v = (x, y), metres, with the same bits on every CPU: sqrt(fma(y, y, x * x))
+    with the fused multiply-add done exactly (rationals, rounded once). ``np.linalg.norm`` of a 1-D
+    vector is the square root of a BLAS dot, rounded as the kernel OpenBLAS picks for the CPU
+    rounds (its AVX-512 kernel fuses the second product, its Haswell and generic ones do not): a
+    walk's segment at an exact multiple of ``step_m`` then got one pose more or one less, and every
+    later draw of the scan moved. The fused form is the AVX-512 kernel's, the rounding the
+    committed scans were walked with, so they stay as they are."""
+    x, y = float(v[0]), float(v[1])
+    return math.sqrt(float(Fraction(y) * Fraction(y) + Fraction(x * x)))
+
+
 def _tour(stops: np.ndarray, start: np.ndarray, rng: np.random.Generator) -> list[np.ndarray]:
     """Greedy nearest-next order with a random tie-break of near-equal choices."""
     left = list(range(len(stops)))
     here, order = start, []
     while left:
-        d = np.array([np.linalg.norm(stops[i] - here) for i in left]) + rng.uniform(0, 0.5, len(left))
+        d = np.array([plane_length(stops[i] - here) for i in left]) + rng.uniform(0, 0.5, len(left))
         i = left.pop(int(np.argmin(d)))
         order.append(stops[i])
         here = stops[i]
@@ -174,7 +191,7 @@ def scan_poses(scene, navgrid, env_cfg, cfg: ScanConfig | None = None, seed: int
             except ValueError:   # a room unreachable from here: skip it
                 continue
             for a, b in zip(path[:-1], path[1:]):
-                seg = float(np.linalg.norm(b - a))
+                seg = plane_length(b - a)   # decides how many poses the segment gets: the same on every CPU
                 heading = math.atan2(b[1] - a[1], b[0] - a[0])
                 for s in np.arange(cfg.step_m, seg + cfg.step_m, cfg.step_m):
                     if rec.full:

@@ -200,6 +200,8 @@ class TrainConfig:
     net_decoder_width: int = 64      # network: FPN decoder channels
     net_depth_ratio: float = 1.0     # network (learned_rgbd): depth-branch width / RGB-branch width, (0, 2]; the
                                      # shipped weights: 1.0 (345,730 parameters; 0.5, before 2026-11-26: 229,338)
+    init_weights: str = ""           # weight file the network starts from (fine-tuning, e.g. agent/weights/learned_rgb.pt:
+                                     # same model, classes and train.net_* shape); "" = random initialisation
     epochs: int = 8                  # passes over the training frames
     batch_size: int = 16             # frames per step
     lr: float = 5e-3                 # peak learning rate (one-cycle schedule), AdamW

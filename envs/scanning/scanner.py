@@ -25,7 +25,7 @@ from calnav.envs.scanning.lived_in import lived_in
 from calnav.envs.scanning.reconstruct import TSDFScan, tidy_mesh, transfer_labels
 from calnav.envs.scanning.sensor import camera_rgb, noisy_depth
 from calnav.envs.scene import Scene, SceneError, Texture
-from calnav.envs.trajectories import ScanConfig, scan_poses
+from calnav.envs.trajectories import TRAJECTORY_VERSION, ScanConfig, scan_poses
 
 BAKED = "baked"   # Scene.meta["lighting"] of meshes whose colours include the lighting
 RENDER_RANGE_MARGIN_M = 1.0   # true depth is rendered this far past the sensor's range (noise may pull it in)
@@ -93,7 +93,8 @@ def scan_house(scene: Scene, cfg: ScanningConfig | None = None, seed: int = 0,
         house, vertices, triangles, tri_class, tri_instance, cfg, np.random.default_rng([seed, SCANNER_VERSION, 2]))
     albedo = np.round(colours[triangles].mean(axis=1) * 255.0)
     meta = {k_: v for k_, v in scene.meta.items() if k_ not in ("generator",)}
-    meta.update({"generator": "envs.scanning", "scanner_version": SCANNER_VERSION, "style": "scanned",
+    meta.update({"generator": "envs.scanning", "scanner_version": SCANNER_VERSION,
+                 "trajectory_version": TRAJECTORY_VERSION, "style": "scanned",
                  "lighting": BAKED, "closed_solids": False, "scan_seed": int(seed), "scan_frames": int(len(poses)),
                  "scanning": cfg.digest_items(), "lived_in": house.meta["lived_in"], "floor_artifacts": artifacts})
     return Scene(name=scene.name, vertices=vertices, triangles=triangles, tri_class=tri_class,

@@ -2,6 +2,7 @@
 ``run.sh``): ``<row>_<set>.json`` eval-segmenter records and ``<row>.card.json`` training cards.
 
     python -m calnav.eval.segmenter.ablation agent/weights/ablation
+    python -m calnav.eval.segmenter.ablation --heldout agent/weights   # the weights card's held-out tables
 
 One line per (row, evaluation set), rows in the order of ``ROWS`` then any others by name, sets
 in the order of ``SETS``: mIoU over all classes present, mIoU over goal + structure classes,
@@ -18,7 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
-ROWS = ("shipped", "baseline", "photometric", "jpeg", "recolour", "recolour25", "recolour10", "all")
+ROWS = ("shipped", "baseline", "photometric", "jpeg", "recolour", "recolour25", "recolour10", "all", "ft", "ft_recolour10",
+        "ft_recolour25", "ft_fresh")
 REFERENCE_ROWS = ("shipped", "baseline")   # the row the others are paired with, the first present
 SETS = ("clean", "scanned", "camera", "recoloured")
 SET_LABELS = {"clean": "clean", "scanned": "scanned", "camera": "scanned + camera shift",
@@ -98,5 +100,37 @@ def _difference_cell(ref: dict | None, m: dict, is_reference: bool) -> str:
     return f"{diff:+.3f} ({se:.3f})"
 
 
-if __name__ == "__main__":
-    print(ablation_table(sys.argv[1] if len(sys.argv) > 1 else "agent/weights/ablation"))
+HELDOUT_MODELS = ("learned_rgb", "learned_rgbd", "noisy", "gt")   # rows of the held-out table, in this order
+HELDOUT_COLUMNS = (("accuracy", "accuracy"), ("mIoU all", "miou"), ("mIoU goal+structure", "miou_goal_structure"),
+                   ("ECE", "ece"), ("TL-ECE", "tl_ece"), ("mECE", "mece"), ("Brier", "brier"),
+                   ("mean confidence", "mean_confidence"))
+
+
+def heldout_tables(folder: Path | str, frames: int = 2000) -> str:
+    """The weights card's held-out tables from the eval records ``<model>[.scanned].eval<frames>.json``
+    in ``folder`` (``agent/weights``): one line per record (``HELDOUT_MODELS`` order, clean before
+    scanned) with ``HELDOUT_COLUMNS``, then per-class IoU with one column per learned model's
+    record. ValueError when the folder holds no such record."""
+    folder = Path(folder)
+    found = [(m, style, json.loads(p.read_text())) for m in HELDOUT_MODELS for style in ("clean", "scanned")
+             if (p := folder / f"{m}{'.scanned' if style == 'scanned' else ''}.eval{frames}.json").exists()]
+    if not found:
+        raise ValueError(f"{folder} holds no <model>[.scanned].eval{frames}.json records")
+    lines = ["| model | frames | " + " | ".join(label for label, _ in HELDOUT_COLUMNS) + " |",
+             "|---|---|" + "---:|" * len(HELDOUT_COLUMNS)]
+    lines += [f"| {m} | {style} | " + " | ".join(f"{r[key]:.3f}" for _, key in HELDOUT_COLUMNS) + " |"
+              for m, style, r in found]
+    learned = [(m, style, r) for m, style, r in found if m.startswith("learned")]
+    classes = list(learned[0][2]["per_class_iou"]) if learned else []
+    per_class = ["| class | " + " | ".join(f"{m} {style}" for m, style, _ in learned) + " |",
+                 "|---|" + "---:|" * len(learned)]
+    per_class += [f"| {c} | " + " | ".join("-" if r["per_class_iou"].get(c) is None else f"{r['per_class_iou'][c]:.3f}"
+                                          for _, _, r in learned) + " |" for c in classes]
+    return "\n".join(lines) + ("\n\n" + "\n".join(per_class) if learned else "")
+
+
+if __name__ == "__main__":   # python -m calnav.eval.segmenter.ablation FOLDER | --heldout [agent/weights]
+    if sys.argv[1:2] == ["--heldout"]:
+        print(heldout_tables(sys.argv[2] if len(sys.argv) > 2 else "agent/weights"))
+    else:
+        print(ablation_table(sys.argv[1] if len(sys.argv) > 1 else "agent/weights/ablation"))

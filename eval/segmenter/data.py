@@ -46,6 +46,7 @@ import numpy as np
 
 from calnav.common.atomic import atomic_path
 from calnav.envs.config import EnvConfig, plain_dict, require_single_storey
+from calnav.envs.scenes import scan_versions
 from calnav.envs.semantics import STRUCTURE_CLASSES as STRUCTURE_NAMES
 from calnav.eval.sections import SegDataConfig
 from calnav.eval.segmenter.appearance import is_baked, recolour_scene
@@ -194,6 +195,8 @@ def cache_path(env_cfg: EnvConfig, data_cfg: SegDataConfig, split: str, frames: 
         data_part["recolour_scans"] = RECOLOUR_SCANS_VERSION   # scans recoloured by part and shading
     if recolour_all:
         data_part["recolour_all"] = RECOLOUR_SCANS_VERSION
+    if env_cfg.dataset.style == "scanned" or data_part.get("scanned_fraction"):
+        data_part["scans"] = scan_versions()   # frames of an older scan are other frames
     blob = json.dumps({"v": DATA_VERSION, "split": split, "frames": frames, "seed": seed, "inst": with_instance,
                        "rebalance": rebalance, "data": data_part,
                        "env": env_part, "dataset": plain_dict(env_cfg.dataset)}, sort_keys=True, default=list)

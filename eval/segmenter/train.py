@@ -5,13 +5,15 @@
 
 Data: ``data.frames`` frames rendered from the *train* split only (``eval.segmenter.data``,
 cached on disk); ``train.val_frames`` val-split frames are scored after every epoch.
-Training: cross-entropy (void ignored, optional inverse-log-frequency class weights), AdamW with
-a one-cycle learning-rate schedule, on-the-fly augmentation (brightness, contrast, per-channel
-colour gain, optional camera-like levers: vignetting, exposure, white balance, motion blur, tone
-curve, shot noise (``eval.segmenter.photometric``), Gaussian rgb noise, optional Gaussian blur,
-optional JPEG compression, multiplicative depth noise, optional depth dropout, horizontal flips),
-all drawn from
-generators seeded by (run.seed, epoch), so a resumed run is bit-identical to an uninterrupted
+Training: from a random initialisation, or fine-tuning from a weight file (``train.init_weights``:
+the same model, calnav's classes in order, the train.net_* shape; checked before any frame is
+rendered, and named by its sha256 in the checkpoint key and the card), cross-entropy (void
+ignored, optional inverse-log-frequency class weights), AdamW with a one-cycle learning-rate
+schedule, on-the-fly augmentation (brightness, contrast, per-channel colour gain, optional
+camera-like levers: vignetting, exposure, white balance, motion blur, tone curve, shot noise
+(``eval.segmenter.photometric``), Gaussian rgb noise, optional Gaussian blur, optional JPEG
+compression, multiplicative depth noise, optional depth dropout, horizontal flips), all drawn
+from generators seeded by (run.seed, epoch), so a resumed run is bit-identical to an uninterrupted
 one on the same machine and thread count.
 
 Checkpoints (model, optimiser, schedule, epoch, RNG states, history) are written after every
@@ -35,10 +37,12 @@ import torch
 import torch.nn.functional as F
 
 from calnav.agent.segmenters.base import resolve_device, segmenter_device
-from calnav.agent.segmenters.learned import LEARNED_MODELS, default_weights_path, save_weights
+from calnav.agent.segmenters.learned import (LEARNED_MODELS, check_weights, default_weights_path, load_weights,
+                                             save_weights)
 from calnav.agent.segmenters.network import NetSpec, SegNet, count_parameters
 from calnav.common.atomic import atomic_path, undefined_as_null, write_json_atomic
 from calnav.eval.config import Config, to_dict
+from calnav.eval.inputs import sha256_file
 from calnav.eval.results_dir import check_output_file
 from calnav.eval.sections import TrainConfig
 from calnav.eval.segmenter.data import VAL_SEED_OFFSET, SegData, load_or_render
@@ -159,12 +163,38 @@ def score(net: SegNet, data: SegData, device: torch.device, k: int) -> dict[str,
     return {"accuracy": stats.accuracy(), "miou": stats.miou(), "ece": stats.ece(), "mece": stats.mece()}
 
 
+def initial_state(path: str, model: str, spec: NetSpec) -> tuple[dict[str, torch.Tensor], str]:
+    """(float32 state dict, sha256) of the weight file ``path`` a fine-tuning starts from: a
+    ``model`` file with calnav's classes in calnav's order and the network ``spec`` (the
+    train.net_* keys; the depth-branch width only for learned_rgbd). FileNotFoundError /
+    ValueError name the file and what differs."""
+    from calnav.envs.semantics import CLASS_NAMES
+
+    file = Path(path)
+    check_weights(file, model)   # readable, this model, tensors that fit the file's own spec
+    data = load_weights(file, model)
+    if list(data["class_names"]) != list(CLASS_NAMES):
+        raise ValueError(f"train.init_weights={path}: its classes ({', '.join(data['class_names'])}) are not calnav's "
+                         f"in order ({', '.join(CLASS_NAMES)}); fine-tuning keeps the output layer as it is")
+    have = NetSpec.from_dict(data["spec"])
+    if not spec.in_depth:   # the RGB network has no depth branch: its width ratio is not part of its shape
+        have.depth_ratio = spec.depth_ratio
+    if have != spec:
+        differ = [f"{k} {getattr(have, k)} (train: {getattr(spec, k)})" for k in vars(spec)
+                  if getattr(have, k) != getattr(spec, k)]
+        raise ValueError(f"train.init_weights={path} holds a network of another shape: {'; '.join(differ)}; set the "
+                         "train.net_* keys to the file's")
+    return {k: v.float() for k, v in data["state_dict"].items()}, sha256_file(file)
+
+
 def checkpoint_path(cfg: Config, model: str) -> Path:
     from calnav.envs.scene import cache_dir
 
     d = to_dict(cfg)
     d["run"].pop("output_dir", None), d["run"].pop("workers", None), d["train"].pop("threads", None)
     d["segmenter"] = {}  # inference settings do not change training
+    if cfg.train.init_weights:   # the file's content, not its name: a retrained file never resumes an old run
+        d["train"]["init_weights"] = sha256_file(Path(cfg.train.init_weights))
     key = hashlib.sha1(json.dumps([model, d], sort_keys=True).encode()).hexdigest()[:12]
     return cache_dir() / "segtrain" / f"{model}_{key}.ckpt"
 
@@ -191,18 +221,23 @@ def train(cfg: Config, model: str, output: Path | str, resume: bool = False,
     if tc.threads > 0:
         torch.set_num_threads(tc.threads)
     output = Path(output)
+    k = len(CLASS_NAMES)
+    spec = NetSpec(num_classes=k, in_depth=model == "learned_rgbd", stem=tc.net_stem, stages=tuple(tc.net_stages),
+                   decoder_width=tc.net_decoder_width, depth_ratio=tc.net_depth_ratio)
+    # checked before the frames are rendered (minutes, written to the cache) or anything else is written
+    init, init_sha = initial_state(tc.init_weights, model, spec) if tc.init_weights else (None, None)
     t_start = time.perf_counter()
     data = load_or_render(cfg.env, cfg.data, "train", progress=progress, rebalance=True)
     val = (load_or_render(cfg.env, cfg.data, "val", frames=tc.val_frames, seed=cfg.data.seed + VAL_SEED_OFFSET,
                           progress=progress) if tc.val_frames > 0 else None)
-    k = len(CLASS_NAMES)
     weight = class_weights(data.labels, k, tc.class_weighting, tc.class_weight_power)
     weight = weight.to(device) if weight is not None else None
 
     torch.manual_seed(seed)
-    spec = NetSpec(num_classes=k, in_depth=model == "learned_rgbd", stem=tc.net_stem, stages=tuple(tc.net_stages),
-                   decoder_width=tc.net_decoder_width, depth_ratio=tc.net_depth_ratio)
-    net = SegNet(spec).to(device=device, memory_format=torch.channels_last)
+    net = SegNet(spec)
+    if init is not None:
+        net.load_state_dict(init)
+    net = net.to(device=device, memory_format=torch.channels_last)
     opt = torch.optim.AdamW(net.parameters(), lr=tc.lr, weight_decay=tc.weight_decay)
     n, b = len(data), min(tc.batch_size, len(data))
     steps = max(1, n // b)  # drop the last partial batch (BatchNorm needs > 1 sample per channel)
@@ -270,6 +305,7 @@ def train(cfg: Config, model: str, output: Path | str, resume: bool = False,
         "model": model, "command": command or f"calnav train-segmenter --segmenter {model} --output {output}",
         "seed": seed, "train_frames": n, "train_split": "train", "train_scenes": int(len(np.unique(data.scene))),
         "val_frames": len(val) if val is not None else 0, "resolution": list(data.resolution),
+        "init_weights": ({"path": tc.init_weights, "sha256": init_sha} if init is not None else None),
         "epochs": tc.epochs, "batch_size": b, "parameters": count_parameters(net),
         "train_wall_s": round(wall_train, 1), "total_wall_s_this_call": round(time.perf_counter() - t_start, 1),
         "device": str(device), "threads": torch.get_num_threads(), "torch": str(torch.__version__),

@@ -208,13 +208,14 @@ def test_a_scan_cache_of_another_house_or_settings_is_rebuilt(isolated_cache, mo
     from calnav.envs.scanning import scanner
     from calnav.envs.scanning.config import SCANNER_VERSION, ScanningConfig
     from calnav.envs.scenes import scanned_cache_path
+    from calnav.envs.trajectories import TRAJECTORY_VERSION
 
     scanned = []
 
     def fake_scan(scene, cfg, seed):
         scanned.append(scene.name)
         meta = {**scene.meta, "scan_seed": int(seed), "scanner_version": SCANNER_VERSION,
-                "scanning": cfg.digest_items(), "style": "scanned"}
+                "trajectory_version": TRAJECTORY_VERSION, "scanning": cfg.digest_items(), "style": "scanned"}
         return type(scene)(**{**scene.__dict__, "meta": meta})
 
     monkeypatch.setattr(scanner, "scan_house", fake_scan)
@@ -234,6 +235,17 @@ def test_a_scan_cache_of_another_house_or_settings_is_rebuilt(isolated_cache, mo
     scenes.clear_scene_lru()
     load_scene("house_val_0000", cfg)   # the rebuilt file is its own: no rescan
     assert len(scanned) == 5
+    # a scan walked before every CPU walked alike (no trajectory_version) is scanned again
+    from calnav.envs.scene import Scene
+    from calnav.envs.scene_files import save_atomic
+
+    old = Scene.load(path)
+    old.meta.pop("trajectory_version")
+    save_atomic(old, path)
+    scenes.clear_scene_lru()
+    with pytest.warns(UserWarning, match=r"holds another scene \(trajectory_version None, expected"):
+        load_scene("house_val_0000", cfg)
+    assert len(scanned) == 6
 
 
 def test_a_converted_ply_cache_of_another_file_is_converted_again(tmp_path, isolated_cache):
@@ -253,3 +265,33 @@ def test_a_converted_ply_cache_of_another_file_is_converted_again(tmp_path, isol
     scenes.clear_scene_lru()
     with pytest.warns(UserWarning, match=r"holds another scene \(converted_from "):
         assert load_scene("a", cfg).name == "a"
+
+
+def test_caches_made_from_scans_carry_the_scan_versions(monkeypatch):
+    """A scan's identity, and the keys of the training frames and episodes made from scans, hold
+    the scanner and trajectory versions; clean caches keep their keys when either moves."""
+    import dataclasses
+
+    from calnav.envs import trajectories
+    from calnav.envs.config import EnvConfig
+    from calnav.envs.episodes import dataset_key
+    from calnav.eval.sections import SegDataConfig
+    from calnav.eval.segmenter.data import cache_path
+
+    env = EnvConfig()
+    scanned = dataclasses.replace(env, dataset=dataclasses.replace(env.dataset, style="scanned"))
+    spec = HouseSpec()
+    identity = scenes.scanned_identity("house_test_0000", 1, spec, env.dataset)
+    assert identity["trajectory_version"] == trajectories.TRAJECTORY_VERSION
+
+    def keys():
+        train = cache_path(env, SegDataConfig(), "train", 16, 0, False, rebalance=True)    # half its frames from scans
+        clean_eval = cache_path(env, SegDataConfig(), "test", 16, 0, False)
+        return (dataset_key(env), dataset_key(scanned), train, clean_eval,
+                cache_path(scanned, SegDataConfig(), "test", 16, 0, False))
+
+    before = keys()
+    monkeypatch.setattr(trajectories, "TRAJECTORY_VERSION", trajectories.TRAJECTORY_VERSION + 1)
+    after = keys()
+    assert scenes.scanned_identity("house_test_0000", 1, spec, env.dataset) != identity
+    assert [a == b for a, b in zip(before, after)] == [True, False, False, True, False]

@@ -74,3 +74,45 @@ def test_scan_config_rejects_bad_values():
         ScanConfig(up_turn_prob=float("nan"))
     with pytest.raises(ValueError, match="up_pitch_deg"):
         ScanConfig(up_pitch_deg=95.0)
+
+
+def test_plane_length_rounds_as_the_fused_dot_by_hand():
+    """(-1, 0.4): 0.16 fused onto 1 (rounded once) is one ulp below the plain sum's rounding, and
+    its square root keeps the difference; 3-4-5 is exact either way."""
+    import math
+
+    from calnav.envs.trajectories import plane_length
+
+    assert plane_length(np.array([-1.0, 0.4])) == 1.0770329614269007
+    assert math.sqrt(1.0 * 1.0 + 0.4 * 0.4) == 1.077032961426901   # the unfused rounding, one ulp above
+    assert plane_length(np.array([3.0, 4.0])) == 5.0 and plane_length(np.zeros(2)) == 0.0
+
+
+KERNEL_PROBE = """
+import hashlib
+from calnav.envs.config import EnvConfig
+from calnav.envs.navigation import NavGrid
+from calnav.envs.scenes import load_scene
+from calnav.envs.trajectories import ScanConfig, scan_poses
+env = EnvConfig()
+scene = load_scene("house_calib_0000")
+print(hashlib.sha256(scan_poses(scene, NavGrid.build(scene, env), env, ScanConfig(frames=1500), seed=3).tobytes()).hexdigest())
+"""
+
+
+def test_a_scan_walks_the_same_poses_under_every_blas_kernel(house):
+    """OpenBLAS picks its kernels by CPU (OPENBLAS_CORETYPE forces one): on an AVX-512 CPU its
+    default kernel and Haswell's round a 2-vector's dot product differently, which once gave a
+    walk segment one pose more or less and so another scan per kind of CPU. Every kernel walks
+    the same poses, to the bit (Prescott's runs on any x86-64 CPU)."""
+    import os
+    import subprocess
+    import sys
+
+    digests = {}
+    for core in ("", "Haswell", "Prescott"):
+        env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_CORETYPE"} | ({"OPENBLAS_CORETYPE": core} if core else {})
+        run = subprocess.run([sys.executable, "-c", KERNEL_PROBE], env=env, capture_output=True, text=True, timeout=300)
+        assert run.returncode == 0, run.stderr[-2000:]
+        digests[core or "default"] = run.stdout.split()[-1]
+    assert len(set(digests.values())) == 1, digests

@@ -11,7 +11,12 @@
 # --houses 50), rows baseline and recolour25 (recolour fraction 0.25), into agent/weights/ablation/full/;
 # HOUSES=100 (with FRAMES=full) trains on all 100 train houses, rows recolour25 and recolour10, into
 # agent/weights/ablation/full_h100/, beside row shipped: the shipped weights, that size's baseline
-# (configs/segmenter.yaml unchanged), scored on the same frames.
+# (configs/segmenter.yaml unchanged), scored on the same frames. Rows ft_recolour25 / ft_recolour10
+# fine-tune the shipped weights (2 epochs, peak lr 1e-3) on frames with that recolour fraction;
+# ft does the same without the lever (the control: what 2 more epochs give), ft_fresh on 20,000
+# other frames of the same houses (data.seed=1: poses the shipped weights never saw). TEST=full
+# scores on 2,000 frames of all 30 test houses (the weights card's held-out set) instead of 500 of
+# 12, into <folder>_test2000/ (with TRAIN=0: the rows' weights trained before).
 set -euo pipefail
 cd "$(dirname "$0")/../../.."
 FRAMES=${FRAMES:-4000}
@@ -23,7 +28,10 @@ RUN_FRAMES=f$FRAMES; [ "$FRAMES" = full ] && RUN_FRAMES=full
 [ "$FRAMES" = full ] && [ "$HOUSES" != 50 ] && RUN_FRAMES=full_h$HOUSES
 case "$MODEL" in learned_rgb) RUN=$RUN_FRAMES ;; learned_rgbd) RUN=rgbd_$RUN_FRAMES ;;
   *) echo "MODEL must be learned_rgb or learned_rgbd, got $MODEL" >&2; exit 2 ;; esac
-HERE=agent/weights/ablation/$RUN
+TEST=${TEST:-12}
+case "$TEST" in 12) HERE=agent/weights/ablation/$RUN EVAL="--frames 500 data.scenes=12" ;;
+  full) HERE=agent/weights/ablation/${RUN}_test2000 EVAL="--frames 2000 data.scenes=0" ;;
+  *) echo "TEST must be 12 or full, got $TEST" >&2; exit 2 ;; esac
 WEIGHTS=${WEIGHTS:-/tmp/calnav_ablation}
 PY=${PY:-python}
 DATA="data.frames=$FRAMES data.scenes=30 train.epochs=4 train.val_frames=0 train.threads=1"
@@ -32,8 +40,11 @@ PHOTO="train.exposure_ev=1 train.white_balance=0.3 train.tint=0.15 train.gamma=0
 train.motion_blur_prob=0.2 train.shot_noise=12"
 JPEG="train.jpeg_prob=0.5"
 RECOL="data.recolour_fraction=0.5"
+FINETUNE="train.init_weights=agent/weights/$MODEL.pt train.epochs=2 train.lr=1e-3"   # from the shipped weights
 declare -A ROWS=([baseline]="" [photometric]="$PHOTO" [jpeg]="$JPEG" [recolour]="$RECOL" [all]="$PHOTO $JPEG $RECOL"
-                 [recolour25]="data.recolour_fraction=0.25" [recolour10]="data.recolour_fraction=0.1")
+                 [recolour25]="data.recolour_fraction=0.25" [recolour10]="data.recolour_fraction=0.1"
+                 [ft_recolour25]="$FINETUNE data.recolour_fraction=0.25" [ft_recolour10]="$FINETUNE data.recolour_fraction=0.1"
+                 [ft]="$FINETUNE" [ft_fresh]="$FINETUNE data.seed=1")
 declare -A EVALS=([clean]="env.dataset.style=clean" [scanned]="env.dataset.style=scanned"
                   [camera]="env.dataset.style=scanned data.eval_appearance=camera"
                   [recoloured]="env.dataset.style=scanned data.eval_appearance=recolour")
@@ -53,7 +64,7 @@ for row in ${ROWS_ONLY:-$DEFAULT_ROWS}; do
   [ $trained = 1 ] && cp "$WEIGHTS/$RUN/$row.json" "$HERE/$row.card.json"   # the training card beside its scores
   for ev in ${SETS_ONLY:-clean scanned camera recoloured}; do
     # shellcheck disable=SC2086
-    $PY -m calnav.eval.cli eval-segmenter --segmenter "$model" --split test --frames 500 \
-      --output "$HERE/${row}_$ev.json" $weights data.scenes=12 ${EVALS[$ev]}
+    $PY -m calnav.eval.cli eval-segmenter --segmenter "$model" --split test $EVAL \
+      --output "$HERE/${row}_$ev.json" $weights ${EVALS[$ev]}
   done
 done

@@ -94,14 +94,15 @@ def test_data_keys_are_refused():
 
 
 def test_default_cache_keys_are_unchanged():
-    """The default config's training and evaluation caches keep the names they had before the
-    levers existed; recolouring changes the training key only, the eval shift no key."""
+    """The default config's cache names: the clean evaluation set's is the one it had before the
+    levers existed, the training set's (half its frames from scans) holds the scan versions
+    (``envs.scenes.scan_versions``); recolouring changes the training key only, the eval shift no key."""
     from calnav.eval.segmenter.data import cache_path
 
     cfg = load_config("configs/segmenter.yaml", [], sections=SEGMENTER_SECTIONS)
     train = cache_path(cfg.env, cfg.data, "train", 20000, 0, False, True)
     test = cache_path(cfg.env, cfg.data, "test", 500, 1000, False, False)
-    assert (train.name, test.name) == ("train_20000_2043cc7d04a3.npz", "test_500_40fbbe894513.npz")
+    assert (train.name, test.name) == ("train_20000_fdbf02ae401a.npz", "test_500_40fbbe894513.npz")
     recol = dataclasses.replace(cfg.data, recolour_fraction=0.5)
     camera = dataclasses.replace(cfg.data, eval_appearance="camera")
     assert cache_path(cfg.env, recol, "train", 20000, 0, False, True) != train
@@ -223,7 +224,8 @@ def test_ablation_table_renders_the_records(tmp_path):
         ablation_table(tmp_path / "empty")
 
 
-@pytest.mark.parametrize("folder", ["shipped", "full", "full_h100", "rgbd_full_h100", "f8000", "f4000", "f2000", "rgbd_f8000"])
+@pytest.mark.parametrize("folder", ["shipped", "full", "full_h100", "rgbd_full_h100", "rgbd_full_h100_test2000", "f8000",
+                                    "f4000", "f2000", "rgbd_f8000"])
 def test_the_weights_readme_holds_the_rendered_ablation_tables(folder):
     """agent/weights/README.md's ablation tables are the committed records rendered, not typed."""
     from pathlib import Path
@@ -280,3 +282,30 @@ def test_ablation_table_pairs_rows_with_the_reference_on_the_same_frames(tmp_pat
     assert lines[2] == "| shipped | clean | 0.775 | 0.775 | 0.000 | - | - |"
     assert lines[3] == "| recolour25 | clean | 1.000 | 1.000 | 0.000 | - | +0.225 (0.208) |"
     assert lines[4] == "| recolour25 | scanned | 1.000 | 1.000 | 0.000 | - | - |"
+
+
+def test_heldout_tables_render_the_records_by_hand(tmp_path):
+    import json
+
+    from calnav.eval.segmenter.ablation import heldout_tables
+
+    keys = ("accuracy", "miou", "miou_goal_structure", "ece", "tl_ece", "mece", "brier", "mean_confidence")
+    rec = {k: 0.1 * (i + 1) for i, k in enumerate(keys)} | {"per_class_iou": {"a": 0.5, "b": None}}
+    (tmp_path / "learned_rgbd.scanned.eval2000.json").write_text(json.dumps(rec))
+    (tmp_path / "gt.eval2000.json").write_text(json.dumps(rec | {"accuracy": 1.0}))
+    (tmp_path / "learned_rgbd.eval500.json").write_text(json.dumps(rec))   # another size: not in this table
+    lines = heldout_tables(tmp_path).splitlines()
+    assert lines[2] == "| learned_rgbd | scanned | 0.100 | 0.200 | 0.300 | 0.400 | 0.500 | 0.600 | 0.700 | 0.800 |"
+    assert lines[3].startswith("| gt | clean | 1.000 | 0.200 |") and len(lines) == 9
+    assert lines[5:] == ["| class | learned_rgbd scanned |", "|---|---:|", "| a | 0.500 |", "| b | - |"]
+    with pytest.raises(ValueError, match="holds no"):
+        heldout_tables(tmp_path, frames=300)
+
+
+def test_the_weights_readme_holds_the_rendered_heldout_tables():
+    from pathlib import Path
+
+    from calnav.eval.segmenter.ablation import heldout_tables
+
+    root = Path(__file__).resolve().parents[3]
+    assert heldout_tables(root / "agent/weights") in (root / "agent/weights/README.md").read_text()

@@ -214,3 +214,63 @@ def test_depth_ratio_sets_the_depth_branch_width_and_survives_a_save():
     for bad in (0.0, -1.0, 2.5, float("nan")):
         with pytest.raises(ValueError, match="net_depth_ratio"):
             TrainConfig(net_depth_ratio=bad)
+
+
+def test_fine_tuning_starts_from_the_given_weights(trained, cfg, tmp_path):
+    """train.init_weights loads the file before the first step: at a vanishing learning rate the
+    first epoch's loss is the trained network's, far below a random start's, its weights come
+    back unchanged, and the card names the file by its content."""
+    import dataclasses
+
+    from calnav.eval.inputs import sha256_file
+    from calnav.eval.segmenter.train import train
+
+    src, scratch = trained
+    tc = dataclasses.replace(cfg.train, init_weights=str(src), lr=1e-9, epochs=1, val_frames=0)
+    card = train(dataclasses.replace(cfg, train=tc), "learned_rgbd", tmp_path / "ft.pt", progress=False)
+    assert card["history"][0]["train_loss"] < 0.5 * scratch["history"][0]["train_loss"]
+    assert card["init_weights"] == {"path": str(src), "sha256": sha256_file(src)}
+    a = torch.load(src, weights_only=True)["state_dict"]
+    b = torch.load(tmp_path / "ft.pt", weights_only=True)["state_dict"]
+    for key in a:   # BatchNorm running statistics move with the batches; learned tensors do not
+        if "running" not in key and a[key].is_floating_point():
+            torch.testing.assert_close(a[key].float(), b[key].float(), atol=1e-3, rtol=1e-3)
+
+
+def test_fine_tuning_refuses_a_file_it_cannot_start_from_before_rendering(trained, cfg, tmp_path):
+    import dataclasses
+
+    from calnav.eval.segmenter.train import train
+
+    src, _ = trained
+    fresh = dataclasses.replace(cfg.data, seed=cfg.data.seed + 977)   # frames no test has rendered
+    cases = [("learned_rgb", {}, ValueError, "not 'learned_rgb'"),
+             ("learned_rgbd", {"net_decoder_width": 32}, ValueError, "another shape: decoder_width 64 .train: 32."),
+             ("learned_rgbd", {"init_weights": str(tmp_path / "none.pt")}, FileNotFoundError, "none.pt")]
+    for model, change, error, message in cases:
+        tc = dataclasses.replace(cfg.train, **{"init_weights": str(src), **change})
+        with pytest.raises(error, match=message):
+            train(dataclasses.replace(cfg, data=fresh, train=tc), model, tmp_path / "x.pt", progress=False)
+    assert not cache_path(cfg.env, fresh, "train", 16, fresh.seed, False, rebalance=True).exists()
+    assert not (tmp_path / "x.pt").exists()
+
+
+def test_a_fine_tuning_resumes_only_from_the_same_start(trained, cfg, tmp_path):
+    """The checkpoint key holds the start file's content: a retrained file at the same path is
+    another run."""
+    import dataclasses
+    import shutil
+
+    from calnav.eval.segmenter.train import checkpoint_path
+
+    src, _ = trained
+    start = tmp_path / "start.pt"
+    shutil.copy(src, start)
+    tuned = dataclasses.replace(cfg, train=dataclasses.replace(cfg.train, init_weights=str(start)))
+    before = checkpoint_path(tuned, "learned_rgbd")
+    assert before != checkpoint_path(cfg, "learned_rgbd")
+    state = torch.load(start, weights_only=False)
+    key = next(k for k, v in state["state_dict"].items() if v.is_floating_point())
+    state["state_dict"][key] += 1   # a retrained file
+    torch.save(state, start)
+    assert checkpoint_path(tuned, "learned_rgbd") != before
