@@ -11,8 +11,9 @@
 # --houses 50), rows baseline and recolour25 (recolour fraction 0.25), into agent/weights/ablation/full/;
 # HOUSES=100 (with FRAMES=full) trains on all 100 train houses, rows recolour25 and recolour10, into
 # agent/weights/ablation/full_h100/, beside row shipped: the shipped weights, that size's baseline
-# (configs/segmenter.yaml unchanged), scored on the same frames. Rows ft_recolour25 / ft_recolour10
-# fine-tune the shipped weights (2 epochs, peak lr 1e-3) on frames with that recolour fraction;
+# (configs/segmenter.yaml unchanged), scored on the same frames (for learned_rgbd the rows were
+# measured against learned_rgbd_base.pt, shipped then). Rows ft_recolour25 / ft_recolour10
+# fine-tune those weights (2 epochs, peak lr 1e-3) on frames with that recolour fraction;
 # ft does the same without the lever (the control: what 2 more epochs give), ft_fresh on 20,000
 # other frames of the same houses (data.seed=1: poses the shipped weights never saw). TEST=full
 # scores on 2,000 frames of all 30 test houses (the weights card's held-out set) instead of 500 of
@@ -40,7 +41,8 @@ PHOTO="train.exposure_ev=1 train.white_balance=0.3 train.tint=0.15 train.gamma=0
 train.motion_blur_prob=0.2 train.shot_noise=12"
 JPEG="train.jpeg_prob=0.5"
 RECOL="data.recolour_fraction=0.5"
-FINETUNE="train.init_weights=agent/weights/$MODEL.pt train.epochs=2 train.lr=1e-3"   # from the shipped weights
+START=agent/weights/$MODEL.pt; [ "$MODEL" = learned_rgbd ] && START=agent/weights/learned_rgbd_base.pt
+FINETUNE="train.init_weights=$START train.epochs=2 train.lr=1e-3"   # from the weights the rows were measured against
 declare -A ROWS=([baseline]="" [photometric]="$PHOTO" [jpeg]="$JPEG" [recolour]="$RECOL" [all]="$PHOTO $JPEG $RECOL"
                  [recolour25]="data.recolour_fraction=0.25" [recolour10]="data.recolour_fraction=0.1"
                  [ft_recolour25]="$FINETUNE data.recolour_fraction=0.25" [ft_recolour10]="$FINETUNE data.recolour_fraction=0.1"
@@ -57,6 +59,7 @@ for row in ${ROWS_ONLY:-$DEFAULT_ROWS}; do
   model=$MODEL weights="segmenter.weights=$WEIGHTS/$RUN/$row.pt"
   [ "$FRAMES" = shipped ] && model=$row weights=""   # the shipped weights are the segmenter's default
   trained=1; { [ "$FRAMES" = shipped ] || [ "$row" = shipped ]; } && trained=0 weights=""
+  [ "$row" = shipped ] && [ "$MODEL" = learned_rgbd ] && weights="segmenter.weights=$START"   # the rows' reference
   if [ "${TRAIN:-1}" != 0 ] && [ $trained = 1 ]; then
     # shellcheck disable=SC2086
     $PY -m calnav.eval.cli train-segmenter --segmenter "$MODEL" --output "$WEIGHTS/$RUN/$row.pt" $DATA ${ROWS[$row]}
