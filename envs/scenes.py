@@ -260,12 +260,10 @@ def scan_versions() -> list[int]:
 def scanned_identity(scene_id: str, seed: int, spec: HouseSpec, cfg: DatasetConfig) -> dict:
     """The metadata that makes a scan's cache file the scan of this house with these settings
     (``scan_house`` writes the scan keys, JSON-normalised here as they are read back)."""
-    from calnav.envs.scanning.config import SCANNER_VERSION
-    from calnav.envs.trajectories import TRAJECTORY_VERSION
-
+    scanner, trajectory = scan_versions()
     scanning = json.loads(json.dumps(cfg.scanning.digest_items(), default=list))
-    return {**procedural_identity(scene_id, seed, spec), "scan_seed": int(seed), "scanner_version": SCANNER_VERSION,
-            "trajectory_version": TRAJECTORY_VERSION, "scanning": scanning}
+    return {**procedural_identity(scene_id, seed, spec), "scan_seed": int(seed), "scanner_version": scanner,
+            "trajectory_version": trajectory, "scanning": scanning}
 
 
 def _load_procedural(scene_id: str, path: Path, seed: int, spec: HouseSpec, storeys: int = 1) -> Scene:
