@@ -22,13 +22,16 @@ STOP, and the decision that reads it (``agent.decision``, ``agent.registry.DECIS
   say "goal". Otherwise the agent takes a *second look* from a view point whose bearing to the
   object no view has had yet (``evidence_looks`` of them, about ``evidence_look_distance_m``
   from the object), and when the test still fails after the last look the component is rejected
-  for the rest of the episode (``GoalDetector.rejected``).
+  for the rest of the episode (``GoalDetector.rejected``). The looks are counted per object (the
+  cells of the component a look was for), not per episode: when the goal moves to another
+  component (a larger one under ``goal_choice: largest``), that one has its own looks, and a
+  look under way for the one before is dropped.
 
 The same evidence can choose the goal among the accepted components (``agent.goal_choice:
 evidence``, ``EvidenceChoice``): the strongest evidence rather than the largest area.
 
 ``GoalEvidence`` is the per-episode state (per map cell: views, per-view probability sums,
-bearings seen); the decisions are stateless but for their look counter. Masks are (n, n) bool map
+bearings seen); the decisions are stateless but for their per-object look accounting. Masks are (n, n) bool map
 cells or (h, w) cells of the planning window ``win`` where a method says so.
 """
 from __future__ import annotations
@@ -138,7 +141,8 @@ class EvidenceChoice:
     then the larger. The component pursued so far stays the goal unless another is better by a
     tier or by ``goal_choice_margin`` in lower bound, so the agent does not turn back and forth
     between two near-equal objects as their views come in; it stays the goal while a second
-    look at it is under way (the look is for it), and a new goal starts with no looks taken.
+    look at it is under way (the look is for it). Each object has its own looks
+    (``EvidenceDecision``): coming back to one keeps the looks it had.
     A lower bound is not a probability (it may be negative, or minus infinity for an object no
     view saw), so any seen component replaces a held one no view saw. ``pursued`` (n, n) bool:
     the last component chosen."""
@@ -168,8 +172,6 @@ class EvidenceChoice:
                     (pass_b, lb_b), (pass_h, lb_h) = keys[best], keys[held]
                     if pass_b == pass_h and not lb_b > lb_h + cfg.goal_choice_margin:
                         best = held
-                if held is not None and best != held:
-                    decision.new_goal()
             self.pursued[:] = False
             self.pursued[win] = masks[best]
             return best
@@ -202,9 +204,6 @@ class ThresholdDecision:
         """Whether a second look is under way."""
         return False
 
-    def new_goal(self) -> None:
-        """The goal choice moved to another component (``EvidenceChoice``)."""
-
 
 class EvidenceDecision(ThresholdDecision):
     """``agent.decision: evidence``: the uncertainty test before STOP, a second look when it
@@ -215,13 +214,21 @@ class EvidenceDecision(ThresholdDecision):
         super().__init__(cfg, temperature)
         self.temperature = temperature
         self.evidence: GoalEvidence | None = None
-        self.looks = 0                              # second looks taken on the current goal
+        self.looked: np.ndarray | None = None       # (n, n) int16: second looks taken at the object on each cell
+        self.look_for: np.ndarray | None = None     # (n, n) bool: the object the look under way is for
         self.target: tuple[int, int] | None = None  # the view point of the look under way (map cell)
         self.last: Evidence | None = None           # the evidence the last test read (for traces)
 
     def reset(self, n: int) -> None:
         self.evidence = GoalEvidence.empty(n)
-        self.looks, self.target, self.last = 0, None, None
+        self.looked = np.zeros((n, n), np.int16)
+        self.look_for = np.zeros((n, n), bool)
+        self.target, self.last = None, None
+
+    def looks(self, mask: np.ndarray, win: tuple[slice, slice]) -> int:
+        """Second looks taken at the object ``mask`` (h, w) of window ``win``: the most taken at
+        any of its cells (a component grows and merges as the map does; its looks stay)."""
+        return int(self.looked[win][mask].max()) if mask.any() else 0
 
     def observe(self, state: MapState, frame: SegmentedFrame, pose: np.ndarray, goal_channel: int) -> None:
         self.evidence.observe(state, frame, pose, goal_channel, self.cfg, self.temperature)
@@ -233,9 +240,6 @@ class EvidenceDecision(ThresholdDecision):
     def looking(self) -> bool:
         return self.target is not None
 
-    def new_goal(self) -> None:
-        self.looks = 0   # the looks taken were at the previous goal
-
     def passes(self, ev: Evidence) -> bool:
         """The uncertainty test (module docstring)."""
         return passes(ev, self.cfg)
@@ -245,6 +249,8 @@ class EvidenceDecision(ThresholdDecision):
         """The approach's move, or a second look, or a rejection (an Approach of mode
         ``reject``: the caller rejects ``det.mask``)."""
         w0 = (win[0].start, win[1].start)
+        if self.target is not None and not (self.look_for[win] & det.mask).any():
+            self.target = None                      # the goal is another object now: the look was for the one before
         if self.target is not None:                 # a look under way: go on until there
             t = (self.target[0] - w0[0], self.target[1] - w0[1])
             if math.dist(t, agent_rc) > LOOK_ARRIVED_CELLS and 0 <= t[0] < free.shape[0] and 0 <= t[1] < free.shape[1]:
@@ -257,15 +263,16 @@ class EvidenceDecision(ThresholdDecision):
         ev = self.last = self.evidence.of(det.mask, state.semantic[goal_channel][win], win)
         if self.passes(ev):
             return move
-        if self.looks < self.cfg.evidence_looks:
+        if self.looks(det.mask, win) < self.cfg.evidence_looks:
             point = self._view_point(det.mask, ev.bearings, state, win, agent_rc, free)
             if point is not None:
-                self.looks += 1
+                self.looked[win][det.mask] += 1     # counted when started: an abandoned look is spent too
+                self.look_for[:] = False
+                self.look_for[win] = det.mask
                 self.target = (point[0] + w0[0], point[1] + w0[1])
                 target = np.zeros_like(free)
                 target[point] = True
                 return Approach("look", move.nearest, target=target)
-        self.looks = 0
         return Approach("reject", move.nearest)
 
     def _view_point(self, goal: np.ndarray, seen: int, state: MapState, win: tuple[slice, slice],

@@ -146,6 +146,32 @@ def test_an_unreachable_look_is_given_up():
     assert dec.review(Approach("stop", (20, 20), action=int(Action.STOP)), det, st, 0, WIN, (20, 12), free).mode == "reject"
 
 
+def test_looks_are_counted_per_object_when_the_largest_component_changes():
+    """goal_choice=largest: a second look at A is under way when B becomes the largest, and the
+    approach heads for B. The look for A is dropped; B, failing its test on arrival, gets a
+    second look of its own (not a rejection on A's look); A, back as the goal, has spent its
+    look and is rejected when it fails again."""
+    dec, st, a = _decision(evidence_min_views=3, evidence_looks=1, evidence_look_distance_m=1.0)
+    b = np.zeros((N, N), bool)
+    b[8:10, 30:32] = True
+    free = np.ones((N, N), bool)
+    _views(dec, a, 1, 0.9, sector=4)
+    _views(dec, b, 1, 0.9, sector=4)
+    det_a, det_b = GoalDetection(True, a, 4, 0.99), GoalDetection(True, b, 4, 0.99)
+    stop_a = Approach("stop", (20, 20), action=int(Action.STOP))
+    stop_b = Approach("stop", (8, 30), action=int(Action.STOP))
+    assert dec.review(stop_a, det_a, st, 0, WIN, (20, 12), free).mode == "look" and dec.looking
+    to_b = Approach("goal", (8, 30), target=b)
+    assert dec.review(to_b, det_b, st, 0, WIN, (20, 12), free) is to_b and not dec.looking
+    look = dec.review(stop_b, det_b, st, 0, WIN, (8, 22), free)
+    assert look.mode == "look" and (dec.looks(b, WIN), dec.looks(a, WIN)) == (1, 1)
+    (r, c), = np.argwhere(look.target)
+    assert 5 <= math.dist((r, c), (8.5, 30.5)) <= 11
+    dec.abandon()
+    assert dec.review(stop_a, det_a, st, 0, WIN, (20, 12), free).mode == "reject"
+    assert dec.review(stop_b, det_b, st, 0, WIN, (8, 22), free).mode == "reject"
+
+
 def test_threshold_decision_passes_every_move_through():
     cfg = AgentConfig()
     dec = ThresholdDecision(cfg, 1.0)
@@ -219,7 +245,7 @@ def test_the_evidence_goal_choice_keeps_the_pursued_object_within_the_margin():
     """Both components seen, neither passing the STOP test (2 views < 3): the goal pursued stays
     the goal while the other's lower bound is within goal_choice_margin (0.1) above it, and
     changes when it is more than that above, or when the other passes the test (a tier up);
-    a change of goal clears the looks taken at the old one."""
+    each object keeps its own looks across the changes."""
     from calnav.agent.evidence import EvidenceChoice
 
     cfg = _cfg(goal_threshold=0.5, goal_min_area_cells=4, goal_choice="evidence", goal_choice_margin=0.1)
@@ -235,16 +261,17 @@ def test_the_evidence_goal_choice_keeps_the_pursued_object_within_the_margin():
     assert choice.picker(conf, WIN, dec)(masks, areas) == 0 and (choice.pursued == a).all()
     seen(b, 2, 0.68)                                      # 0.68 - 0.6 = 0.08 <= 0.1: keep A
     assert choice.picker(conf, WIN, dec)(masks, areas) == 0
-    dec.looks = 1                                         # a look was taken at A
-    seen(b, 2, 0.75)                                      # 0.15 above: B, with no looks taken yet
-    assert choice.picker(conf, WIN, dec)(masks, areas) == 1 and (choice.pursued == b).all() and dec.looks == 0
+    dec.looked[a] = 1                                     # a look was taken at A
+    seen(b, 2, 0.75)                                      # 0.15 above: B, with no looks taken at it
+    assert choice.picker(conf, WIN, dec)(masks, areas) == 1 and (choice.pursued == b).all()
+    assert (dec.looks(b, WIN), dec.looks(a, WIN)) == (0, 1)
     seen(a, 2, 0.8)                                       # A 0.05 above B, within the margin: B stays
     assert choice.picker(conf, WIN, dec)(masks, areas) == 1
     seen(a, 3, 0.62)                                      # A passes the test (3 views), B does not: A ...
-    dec.target, dec.looks = (0, 0), 1                     # ... but not while a look at B is under way
-    assert choice.picker(conf, WIN, dec)(masks, areas) == 1 and dec.looks == 1
+    dec.target, dec.look_for[b] = (0, 0), True            # ... but not while a look at B is under way
+    assert choice.picker(conf, WIN, dec)(masks, areas) == 1
     dec.target = None
-    assert choice.picker(conf, WIN, dec)(masks, areas) == 0 and dec.looks == 0
+    assert choice.picker(conf, WIN, dec)(masks, areas) == 0 and dec.looks(a, WIN) == 1   # A kept its look
     with pytest.raises(ValueError, match="needs the evidence decision's views"):
         choice.picker(conf, WIN, ThresholdDecision(cfg, 1.0))
 
