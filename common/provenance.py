@@ -70,3 +70,54 @@ def running_commit() -> str | None:
     carries it, so a results directory resumed across commits says which commit made which
     record."""
     return git_commit()
+
+
+# The packages a result can depend on below calnav's own code: scans, navmeshes and episodes
+# go through numpy / scipy / Open3D / scikit-image / trimesh / OpenCV, segmenters through torch.
+ENVIRONMENT_PACKAGES: tuple[str, ...] = ("numpy", "scipy", "open3d", "torch", "scikit-image", "trimesh",
+                                         "opencv-python-headless", "opencv-python")
+
+
+def cpu_model() -> str:
+    """The CPU's model name (``/proc/cpuinfo``), else ``platform.processor()``, else '?'."""
+    import platform
+
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.partition(":")[2].strip()
+    except OSError:
+        pass
+    return platform.processor() or "?"
+
+
+@lru_cache(maxsize=1)
+def environment() -> dict:
+    """Where a result was made beyond the commit: the CPU model and count, the system, Python
+    and the installed versions of ``ENVIRONMENT_PACKAGES`` (from their metadata, nothing
+    imported; a package not installed is left out). Scanned houses, and the episodes placed
+    on them, can differ between machines and library versions with the code unchanged, so a
+    results directory keeps this beside its records (``eval.results_dir``)."""
+    import os
+    import platform
+    from importlib import metadata
+
+    packages = {}
+    for name in ENVIRONMENT_PACKAGES:
+        try:
+            packages[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            continue
+    return {"cpu": cpu_model(), "cpus": os.cpu_count(), "system": platform.platform(),
+            "python": platform.python_version(), "packages": packages}
+
+
+def environment_differences(recorded: dict, here: dict) -> list[str]:
+    """'what: recorded there, here' for the CPU model, Python and each package whose version
+    differs between two ``environment()`` dicts (a package only one side has counts)."""
+    out = [f"{key} {recorded.get(key, '?')} there, {here.get(key, '?')} here"
+           for key in ("cpu", "python") if recorded.get(key) != here.get(key)]
+    a, b = recorded.get("packages") or {}, here.get("packages") or {}
+    out += [f"{name} {a.get(name, '(none)')} there, {b.get(name, '(none)')} here"
+            for name in sorted(a.keys() | b.keys()) if a.get(name) != b.get(name)]
+    return out

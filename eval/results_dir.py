@@ -19,7 +19,11 @@
    episodes under the same indices); a difference is refused unless ``force``, which deletes the
    directory's results (``discard``). A directory from before ``inputs.json`` existed is resumed
    with a warning;
-4. ``config.yaml`` and ``inputs.json`` are (re)written atomically.
+4. ``config.yaml`` and ``inputs.json`` are (re)written atomically, and a line is appended to
+   ``environment.jsonl``: the date, the commit and ``common.provenance.environment()`` (CPU,
+   Python, package versions) of this open. A refusal of other records names how the last
+   line's environment differs from this one's: scans, and the episodes on them, can differ
+   between machines or library versions with the code unchanged.
 
 ``eval.records`` owns the per-episode records file (``episodes.jsonl``, ``RecordsFile``,
 ``read_records``) and the errors and warnings of both.
@@ -55,6 +59,7 @@ SPLIT_SIZE_KEYS: tuple[str, ...] = tuple(f"env.dataset.{split}_scenes" for split
 EPISODE_NEUTRAL_KEYS: tuple[str, ...] = NEUTRAL_KEYS + SPLIT_SIZE_KEYS
 LOCK_NAME = ".lock"
 CONFIG_NAME = "config.yaml"
+ENVIRONMENT_NAME = "environment.jsonl"   # one line per open that wrote: where the results were made
 
 
 def check_output_dir(path: Path | str, option: str = "--output") -> Path:
@@ -292,8 +297,37 @@ class ResultsDir:
                     f"({self.path / INPUTS_NAME}); {self._remedy}")
         other = self.other_records(self.path / RECORDS_NAME) if self.other_records else None
         if other is not None:
-            return f"{self.path} holds other records: {other}; {self._remedy}"
+            return f"{self.path} holds other records: {other}{self._environment_note()}; {self._remedy}"
         return None
+
+    def recorded_environment(self) -> dict | None:
+        """The environment of the last open that wrote the directory (``ENVIRONMENT_NAME``'s
+        last readable line), None when it has none (a directory from before it existed)."""
+        path = self.path / ENVIRONMENT_NAME
+        if not path.is_file():
+            return None
+        last = None
+        for line in path.read_text(encoding="utf-8", errors="replace").splitlines():
+            try:
+                entry = json.loads(line)
+            except json.JSONDecodeError:
+                continue   # a torn line: the one before it says as much
+            last = entry if isinstance(entry, dict) else last
+        return last
+
+    def _environment_note(self) -> str:
+        """' (recorded ...: what differs)' between the directory's last environment and this
+        process's; '' when the directory recorded none."""
+        from calnav.common.provenance import environment, environment_differences
+
+        recorded = self.recorded_environment()
+        if recorded is None:
+            return ""
+        differs = environment_differences(recorded, environment())
+        when = f"recorded {recorded.get('date', '?')} ({ENVIRONMENT_NAME})"
+        if not differs:
+            return f" ({when} with the CPU model and package versions of this machine)"
+        return f" ({when}: {'; '.join(differs)})"
 
     def _check_config(self) -> None:
         from calnav.eval.config import dump_yaml
@@ -305,10 +339,22 @@ class ResultsDir:
             self._discard()
         self.write_text(CONFIG_NAME, dump_yaml(self.cfg))
         self.write_json(INPUTS_NAME, self._inputs())
+        self._append_environment()
+
+    def _append_environment(self) -> None:
+        from datetime import datetime, timezone
+
+        from calnav.common.provenance import environment, running_commit
+
+        entry = {"date": datetime.now(timezone.utc).isoformat(timespec="seconds"), "commit": running_commit(),
+                 **environment()}
+        with writing(self.path / ENVIRONMENT_NAME):
+            with open(self.path / ENVIRONMENT_NAME, "a", encoding="utf-8") as f:
+                f.write(json_text(entry, None, what=str(self.path / ENVIRONMENT_NAME)) + "\n")
 
     def _discard(self) -> None:
         with writing(f"results in {self.path}"):
-            for name in self.discard:
+            for name in (*self.discard, ENVIRONMENT_NAME):   # the environments of the results discarded
                 p = self.path / name
                 if p.is_dir():
                     shutil.rmtree(p)

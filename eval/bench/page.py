@@ -94,7 +94,7 @@ def manifest_path(output: str | Path) -> Path:
 def write_manifest(output: str | Path, argv: list[str]) -> Path:
     """``<output>.manifest.json``: how the figures in ``output`` were measured."""
     from calnav.common.atomic import write_json_atomic
-    from calnav.common.provenance import git_commit
+    from calnav.common.provenance import cpu_model, git_commit
 
     versions = {"python": platform.python_version()}
     for module in ("numpy", "torch", "open3d"):
@@ -104,16 +104,7 @@ def write_manifest(output: str | Path, argv: list[str]) -> Path:
     write_json_atomic(path, {
         "command": shlex.join(["calnav", *argv]), "output": Path(output).name, "commit": git_commit(),
         "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-        "machine": {"cpus": os.cpu_count(), "cpu": _cpu_model(), "system": platform.platform()},
+        "machine": {"cpus": os.cpu_count(), "cpu": cpu_model(), "system": platform.platform()},
         "versions": versions})
     return path
 
-
-def _cpu_model() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "?"

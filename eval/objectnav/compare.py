@@ -7,7 +7,8 @@ each run minus a baseline run on the episodes both hold (matched by index), mean
 SEM (``eval.stats.paired_difference``), the SEM clustered by house (``eval.stats.house_sem``), and
 ``|diff|`` over the larger of the two; and ``failures.md``: per run, how
 many episodes failed by a false STOP, by running out of steps, or by a crash
-(``eval.stats.failure_modes``, step limit from each run's ``env.max_episode_steps``). The pairs
+(``eval.stats.failure_modes``, step limit from each run's ``env.max_episode_steps``), and each
+run's false-STOP rate minus the baseline's, paired as Success is (``false_stop_rows``). The pairs
 are the episodes both runs hold, scored as summaries score them (``eval.stats.paired_difference``:
 an episode that crashed, or has a non-finite metric, is a failure with Success / SPL / SoftSPL 0;
 DTG pairs finished episodes only; ``failures.md`` counts the crashes); a run with no episode
@@ -26,8 +27,9 @@ from pathlib import Path
 
 from calnav.eval.config import ConfigError, migrate_tree
 from calnav.eval.results_dir import NEUTRAL_KEYS, flatten, read_records
-from calnav.eval.stats import (LINGER_STEPS, METRIC_LABELS, failure_modes, governing_sem, house_sem, is_finished,
-                               paired_difference, same_episode, summarize)
+from calnav.eval.stats import (COARSE_FAILURE, LINGER_STEPS, METRIC_LABELS, contrast_and_house_sem, failure_kind,
+                               failure_modes, governing_sem, house_sem, is_finished, paired_difference, same_episode,
+                               summarize)
 from dataclasses import dataclass
 from calnav.eval.arguments import REQUIRED, Command, arg
 
@@ -164,19 +166,54 @@ def paired_markdown(base_name: str, rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def failures_markdown(names: list[str], loaded: list[tuple[dict, list[dict]]]) -> str:
+FALSE_STOP = "false_stop"   # the per-episode indicator the paired false-STOP rate is the mean of
+
+
+def max_steps(cfg: dict[str, object]) -> int:
+    """A run's step limit: its ``env.max_episode_steps``, else the default."""
     from calnav.envs.config import EnvConfig
 
-    default_steps = EnvConfig().max_episode_steps  # for a config that does not name it
+    return int(cfg.get("env.max_episode_steps", EnvConfig().max_episode_steps))
+
+
+def with_false_stop(records: list[dict], limit: int) -> list[dict]:
+    """``records``, each with ``FALSE_STOP`` 1.0 where it failed by a STOP away from the goal
+    (``eval.stats.failure_modes``' ``false_stop``: stopped short included), else 0.0."""
+    return [{**r, FALSE_STOP: float(COARSE_FAILURE.get(failure_kind(r, limit, 1.0)) == "false_stop")}
+            for r in records]
+
+
+def false_stop_rows(names: list[str], loaded: list[tuple[dict, list[dict]]], base: int) -> list[str]:
+    """Markdown rows: per run but the baseline, its false-STOP rate minus the baseline's over the
+    episodes (matched by index) finished in both (a crash is no decision), mean, paired SEM, SEM
+    clustered by house and abs d over the larger; a run on other episodes is left out. A decision
+    that trades false STOPs for searches that run out of steps moves this and not Success."""
+    flagged = [with_false_stop(records, max_steps(cfg)) for cfg, records in loaded]
+    rows = []
+    for i, name in enumerate(names):
+        if i == base or other_episodes(loaded[base][1], loaded[i][1]):
+            continue
+        d, sem, n, by_house = contrast_and_house_sem([(flagged[base], -1.0), (flagged[i], 1.0)], FALSE_STOP)
+        rows.append(f"| {name} | {_diff_cell(d, sem, by_house)} | {_ratio_cell(_ratio(d, governing_sem(sem, by_house)))} "
+                    f"| {n} |")
+    return rows
+
+
+def failures_markdown(names: list[str], loaded: list[tuple[dict, list[dict]]], base: int) -> str:
     lines = [f"| Run | Failed | False STOP | Out of steps | Crashed | At the goal > {LINGER_STEPS} steps | "
              "Median collisions | N |", "|---|---|---|---|---|---|---|---|"]
     for name, (cfg, records) in zip(names, loaded):
-        f = failure_modes(records, int(cfg.get("env.max_episode_steps", default_steps)))
+        f = failure_modes(records, max_steps(cfg))
         failed = f["false_stop"] + f["timeout"] + f["crashed"]
         hits = [r["collisions"] for r in records if is_finished(r) and "collisions" in r]
         median = f"{statistics.median(hits):g}" if hits else "-"
         lines.append(f"| {name} | {failed} | {f['false_stop']} | {f['timeout']} | {f['crashed']} | {f['lingered']} "
                      f"| {median} | {len(records)} |")
+    paired = false_stop_rows(names, loaded, base)
+    if paired:
+        lines += ["", f"False-STOP rate, run minus {names[base]} (paired over the episodes finished in both):", "",
+                  "| Run | dFalse STOP rate (SEM, house SEM) | abs d / larger SEM | N paired |", "|---|---|---|---|",
+                  *paired]
     return "\n".join(lines)
 
 
@@ -212,7 +249,7 @@ def main_compare(args, configs=()) -> None:
         w = csv.DictWriter(f, fieldnames=list(prow[0]))
         w.writeheader()
         w.writerows(prow)
-    failures = failures_markdown(names, loaded)
+    failures = failures_markdown(names, loaded, base)
     (out / "failures.md").write_text(failures + "\n")
     print(table)
     print()

@@ -30,3 +30,18 @@ def test_packed_and_detached_refs_and_no_checkout(tmp_path) -> None:
     assert git_commit(tmp_path) == sha[::-1]
     (git / "HEAD").write_text(sha + "\n")                     # detached
     assert git_commit(tmp_path) == sha
+
+
+def test_environment_names_the_machine_and_differences_name_what_changed():
+    from importlib import metadata
+
+    from calnav.common.provenance import environment, environment_differences
+
+    here = environment()
+    assert here["packages"]["numpy"] == metadata.version("numpy") and here["cpus"] >= 1 and here["cpu"]
+    there = {**here, "cpu": "Other CPU", "packages": {**here["packages"], "numpy": "0.1", "gone": "1.0"}}
+    del there["packages"]["scipy"]
+    assert environment_differences(there, here) == [
+        f"cpu Other CPU there, {here['cpu']} here", "gone 1.0 there, (none) here",
+        f"numpy 0.1 there, {here['packages']['numpy']} here", f"scipy (none) there, {here['packages']['scipy']} here"]
+    assert environment_differences(here, here) == []

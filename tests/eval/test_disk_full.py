@@ -110,7 +110,8 @@ def test_objectnav_on_a_really_full_tmpfs(tmp_path):
     (sized from the same run's other files on a normal disk): exit 2, one line, whole records."""
     sized = tmp_path / "sized"
     assert main(["objectnav", "--episodes", "0:1", "--output", str(sized), *TINY]) == 0
-    pages = sum(math.ceil(max(1, (sized / n).stat().st_size) / PAGE) for n in (".lock", "config.yaml", "inputs.json"))
+    before_records = (".lock", "config.yaml", "inputs.json", "environment.jsonl")   # written at open
+    pages = sum(math.ceil(max(1, (sized / n).stat().st_size) / PAGE) for n in before_records)
     disk, err, kept = tmp_path / "tiny", tmp_path / "err.txt", tmp_path / "kept.jsonl"
     disk.mkdir()
     out = disk / "run"

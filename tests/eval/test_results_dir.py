@@ -462,7 +462,8 @@ def test_a_resume_refuses_records_of_other_episodes_under_the_same_indices(run_c
     err = _one_line_error(capsys, "objectnav")
     assert f"{run_copy} holds other records: 1 of its 3 recorded episodes up to 4 are not the episodes the val " \
            f"split holds now (episode 1: recorded {elsewhere['episode_id']}" in err
-    assert "resuming would mix two datasets; use another --output, or --force to discard them" in err
+    assert "resuming would mix two datasets (recorded " in err   # the environment the records were made in
+    assert err.endswith("; use another --output, or --force to discard them")
     assert records.read_text() == before
     assert main(_objectnav(run_copy, "2:4")) == 2                    # a later range checks the records before it too
     capsys.readouterr()
@@ -471,3 +472,38 @@ def test_a_resume_refuses_records_of_other_episodes_under_the_same_indices(run_c
     assert [r["index"] for r in got] == [0, 1, 2, 3]
     assert got[1]["geodesic_distance"] == pytest.approx(elsewhere["geodesic_distance"] - 1.25, abs=1e-12)
     assert main(_objectnav(run_copy)) == 0                            # its own records resume as ever
+
+
+def test_the_environment_of_each_open_is_kept_and_named_when_records_differ(run_copy, capsys):
+    """Each open that writes appends its environment (CPU, Python, package versions) to
+    environment.jsonl; records of other episodes are refused naming how the last recorded
+    environment differs from this one; --force discards that history with the results."""
+    from calnav.common.provenance import environment
+
+    env_file = run_copy / "environment.jsonl"
+    history = [json.loads(line) for line in env_file.read_text().splitlines()]
+    assert len(history) == 1 and history[0]["packages"] == environment()["packages"]
+    assert history[0]["cpu"] == environment()["cpu"] and "numpy" in history[0]["packages"]
+    assert main(_objectnav(run_copy)) == 0                                        # a resume: one line more
+    assert len(env_file.read_text().splitlines()) == 2
+    elsewhere = {**history[0], "date": "2026-01-02T03:04:05+00:00", "cpu": "Other CPU 9000",
+                 "packages": {**history[0]["packages"], "numpy": "0.1.0"}}
+    with open(env_file, "a") as f:
+        f.write(json.dumps(elsewhere) + "\n{torn")                                # a torn last line is skipped
+    records = run_copy / "episodes.jsonl"
+    lines = [json.loads(line) for line in records.read_text().splitlines()]
+    lines[0]["geodesic_distance"] += 1.25
+    records.write_text("".join(json.dumps(r) + "\n" for r in lines))
+    assert main(_objectnav(run_copy)) == 2
+    err = _one_line_error(capsys, "objectnav")
+    here = environment()
+    assert (f"(recorded 2026-01-02T03:04:05+00:00 (environment.jsonl): cpu Other CPU 9000 there, {here['cpu']} here; "
+            f"numpy 0.1.0 there, {here['packages']['numpy']} here); use another --output") in err
+    assert main(_objectnav(run_copy, "0:4", "--force")) == 0
+    assert len(env_file.read_text().splitlines()) == 1                            # the discarded results' history went too
+    lines = [json.loads(line) for line in records.read_text().splitlines()]
+    lines[0]["geodesic_distance"] += 1.25
+    records.write_text("".join(json.dumps(r) + "\n" for r in lines))
+    assert main(_objectnav(run_copy)) == 2
+    assert "(environment.jsonl) with the CPU model and package versions of this machine); use" in \
+        _one_line_error(capsys, "objectnav")

@@ -235,3 +235,22 @@ def test_runs_on_other_episodes_under_the_same_indices_are_not_paired(tmp_path, 
     assert row == f"| {r1} | - | - | - | - | 0 (other episodes) |"
     assert "no paired difference exists" in paired
     assert next(line for line in paired.splitlines() if line.startswith(f"| {r2} ")).endswith("| 2 |")
+
+
+def test_false_stop_rate_is_paired_against_the_baseline(tmp_path):
+    """False-STOP indicators (steps 100 < the 500-step limit, failed: a false STOP; 500 steps:
+    out of steps): baseline [1, 0, 1, 0] in houses A A B B, run [0, 0, 1, 0] with episode 3
+    out of steps. Differences [-1, 0, 0, 0]: mean -0.25, episode SEM sqrt(0.25) / 2 = 0.25; house
+    sums (S_g - n_g m) = (-1 + 0.5, 0 + 0.5): CR1 sqrt(2 * 0.5) / 4 = 0.25. A crashed episode is
+    no decision: it leaves the pairs."""
+    cfg = {"agent": {"segmenter": "gt"}, "mapping": {"fusion": "rbu"}, "env": {"max_episode_steps": 500}}
+    rec = lambda i, steps, success=0.0: {**_rec(i, success, success), "steps": steps, "scene": "AABBB"[i]}
+    crashed = {"index": 4, "status": "error", "error": "RuntimeError: boom", "scene": "B"}
+    r0 = _run_dir(tmp_path / "a", cfg, [rec(0, 100), rec(1, 80, 1.0), rec(2, 100), rec(3, 90, 1.0), rec(4, 100)])
+    r1 = _run_dir(tmp_path / "b", {**cfg, "mapping": {"fusion": "glfs"}},
+                  [rec(0, 500), rec(1, 80, 1.0), rec(2, 100), rec(3, 500), crashed])
+    out = tmp_path / "cmp"
+    main_compare(argparse.Namespace(runs=[r0, r1], keys="", baseline="0", output=str(out)))
+    failures = (out / "failures.md").read_text()
+    assert f"False-STOP rate, run minus {r0}" in failures
+    assert f"| {r1} | -0.250 (0.250, 0.250) | 1.0 | 4 |" in failures.splitlines()
