@@ -114,10 +114,11 @@ def environment() -> dict:
 
 def environment_differences(recorded: dict, here: dict) -> list[str]:
     """'what: recorded there, here' for the CPU model, Python and each package whose version
-    differs between two ``environment()`` dicts (a package only one side has counts)."""
+    differs between two ``environment()`` dicts (a package only one side has counts; a
+    ``packages`` that is no mapping, as a damaged file may hold, counts as none)."""
     out = [f"{key} {recorded.get(key, '?')} there, {here.get(key, '?')} here"
            for key in ("cpu", "python") if recorded.get(key) != here.get(key)]
-    a, b = recorded.get("packages") or {}, here.get("packages") or {}
+    a, b = (p if isinstance(p, dict) else {} for p in (recorded.get("packages"), here.get("packages")))
     out += [f"{name} {a.get(name, '(none)')} there, {b.get(name, '(none)')} here"
             for name in sorted(a.keys() | b.keys()) if a.get(name) != b.get(name)]
     return out

@@ -62,6 +62,12 @@ CONFIG_NAME = "config.yaml"
 ENVIRONMENT_NAME = "environment.jsonl"   # one line per open that wrote: where the results were made
 
 
+def _one_line(text: str) -> str:
+    """``text`` with control characters (a newline in a value read from a file) as spaces: an
+    error message stays one line."""
+    return "".join(" " if ord(c) < 32 or ord(c) == 127 else c for c in text)
+
+
 def check_output_dir(path: Path | str, option: str = "--output") -> Path:
     """An output *directory* a command without a results-directory owner writes into, checked
     before any work: not a file, and creatable (see ``check_output_file``)."""
@@ -306,8 +312,12 @@ class ResultsDir:
         path = self.path / ENVIRONMENT_NAME
         if not path.is_file():
             return None
+        try:
+            text = path.read_text(encoding="utf-8", errors="replace")
+        except OSError:
+            return None   # unreadable: the refusal is made without the note
         last = None
-        for line in path.read_text(encoding="utf-8", errors="replace").splitlines():
+        for line in text.splitlines():
             try:
                 entry = json.loads(line)
             except json.JSONDecodeError:
@@ -323,11 +333,12 @@ class ResultsDir:
         recorded = self.recorded_environment()
         if recorded is None:
             return ""
-        differs = environment_differences(recorded, environment())
-        when = f"recorded {recorded.get('date', '?')} ({ENVIRONMENT_NAME})"
+        differs = [_one_line(d) for d in environment_differences(recorded, environment())]
+        when = f"recorded {_one_line(str(recorded.get('date', '?')))} ({ENVIRONMENT_NAME})"
         if not differs:
             return f" ({when} with the CPU model and package versions of this machine)"
-        return f" ({when}: {'; '.join(differs)})"
+        more = f"; {len(differs) - MAX_NAMED_DIFFERENCES} more" if len(differs) > MAX_NAMED_DIFFERENCES else ""
+        return f" ({when}: {'; '.join(differs[:MAX_NAMED_DIFFERENCES])}{more})"
 
     def _check_config(self) -> None:
         from calnav.eval.config import dump_yaml
@@ -348,9 +359,11 @@ class ResultsDir:
 
         entry = {"date": datetime.now(timezone.utc).isoformat(timespec="seconds"), "commit": running_commit(),
                  **environment()}
-        with writing(self.path / ENVIRONMENT_NAME):
-            with open(self.path / ENVIRONMENT_NAME, "a", encoding="utf-8") as f:
-                f.write(json_text(entry, None, what=str(self.path / ENVIRONMENT_NAME)) + "\n")
+        path = self.path / ENVIRONMENT_NAME
+        with writing(path):
+            torn = path.is_file() and path.stat().st_size > 0 and path.read_bytes()[-1:] != b"\n"
+            with open(path, "a", encoding="utf-8") as f:   # after a torn last line, on a line of its own
+                f.write(("\n" if torn else "") + json_text(entry, None, what=str(path)) + "\n")
 
     def _discard(self) -> None:
         with writing(f"results in {self.path}"):

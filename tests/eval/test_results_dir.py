@@ -507,3 +507,22 @@ def test_the_environment_of_each_open_is_kept_and_named_when_records_differ(run_
     assert main(_objectnav(run_copy)) == 2
     assert "(environment.jsonl) with the CPU model and package versions of this machine); use" in \
         _one_line_error(capsys, "objectnav")
+
+
+def test_environment_history_survives_a_torn_line_and_damaged_values(tmp_path):
+    """An append after a torn last line starts a line of its own; a damaged entry (packages no
+    mapping, a newline in a value) gives a one-line note naming at most MAX_NAMED_DIFFERENCES."""
+    from calnav.common.provenance import environment
+    from calnav.eval.results_dir import MAX_NAMED_DIFFERENCES
+
+    rd = ResultsDir(tmp_path)
+    (tmp_path / "environment.jsonl").write_text('{"date": "torn')
+    rd._append_environment()
+    assert rd.recorded_environment()["packages"] == environment()["packages"]
+    assert rd._environment_note().endswith("with the CPU model and package versions of this machine)")
+    damaged = {"date": "d\nx", "cpu": "A\nB", "python": "0", "packages": ["numpy"]}
+    with open(tmp_path / "environment.jsonl", "a") as f:
+        f.write(json.dumps(damaged) + "\n")
+    note = rd._environment_note()
+    assert "\n" not in note and "cpu A B there" in note and "recorded d x" in note
+    assert note.count(" there, ") == MAX_NAMED_DIFFERENCES and note.endswith(" more)")
