@@ -361,9 +361,9 @@ class ResultsDir:
                  **environment()}
         path = self.path / ENVIRONMENT_NAME
         with writing(path):
-            torn = path.is_file() and path.stat().st_size > 0 and path.read_bytes()[-1:] != b"\n"
-            with open(path, "a", encoding="utf-8") as f:   # after a torn last line, on a line of its own
-                f.write(("\n" if torn else "") + json_text(entry, None, what=str(path)) + "\n")
+            with open(path, "a+b") as f:   # after a torn last line, on a line of its own
+                torn = f.tell() > 0 and (f.seek(-1, os.SEEK_END), f.read(1))[1] != b"\n"
+                f.write((("\n" if torn else "") + json_text(entry, None, what=str(path)) + "\n").encode())
 
     def _discard(self) -> None:
         with writing(f"results in {self.path}"):
